@@ -1,0 +1,399 @@
+"""The sensitivity buffer: construction checks, the .npz format, atomic writes, unreadable files."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sensaov_cli.buffer import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    BufferContentError,
+    BufferWriteError,
+    NonFiniteGradientError,
+    ObjectiveRecord,
+    ParamRecord,
+    SensitivityBuffer,
+    UnknownNameError,
+)
+from sensaov_cli.errors import BufferFormatError
+
+REPO = Path(__file__).resolve().parents[1]
+
+PARAMS = (
+    ParamRecord("white.bsdf.reflectance.value", "reflectance", ("white",), (3,), False,
+                "diffuse", (), True, ""),
+    ParamRecord("mat.reflectance.data", "reflectance", ("floor", "wall"), (4, 5, 3), True,
+                "diffuse", (), True, ""),
+    ParamRecord("floor.bsdf.alpha.value", "roughness", ("floor",), (1,), False,
+                "roughplastic", ("discontinuous",), False, "known biased"),
+)  # fmt: skip
+OBJECTIVES = (
+    ObjectiveRecord("brightness", {"kind": "mean_luminance", "region": [0, 0, 8, 8]}, 0.25, 7),
+    ObjectiveRecord("contrast", {"kind": "contrast"}, -1.5, 8),
+)
+
+
+def make_parts(seed: int = 0) -> dict:
+    rng = np.random.default_rng(seed)
+    return {
+        "provenance": {"tool": "sensaov 0.1.0", "spp": 16, "seeds": [1, 2], "scene": "cbox.xml"},
+        "objects": ("wall", "white", "floor", "light"),
+        "params": PARAMS,
+        "objectives": OBJECTIVES,
+        "values": {p.key: rng.random(p.shape, dtype=np.float32) for p in PARAMS},
+        "grads": {
+            o.name: {p.key: rng.standard_normal(p.shape, dtype=np.float32) for p in PARAMS}
+            for o in OBJECTIVES
+        },
+    }
+
+
+@pytest.fixture
+def buf() -> SensitivityBuffer:
+    return SensitivityBuffer(**make_parts())
+
+
+@pytest.fixture
+def saved(buf: SensitivityBuffer, tmp_path: Path) -> Path:
+    path = tmp_path / "buffer.npz"
+    buf.save(path)
+    return path
+
+
+def assert_same(a: SensitivityBuffer, b: SensitivityBuffer) -> None:
+    assert (a.provenance, a.objects, a.params, a.objectives) == (
+        b.provenance, b.objects, b.params, b.objectives
+    )  # fmt: skip
+    for p in a.params:
+        assert a.value(p.key).tobytes() == b.value(p.key).tobytes()
+        for o in a.objectives:
+            assert a.grad(o.name, p.key).tobytes() == b.grad(o.name, p.key).tobytes()
+
+
+def test_round_trip_is_exact(buf: SensitivityBuffer, saved: Path) -> None:
+    loaded = SensitivityBuffer.load(saved)
+    assert_same(buf, loaded)
+    arr = loaded.grad("contrast", "mat.reflectance.data")
+    assert arr.dtype == np.float32 and arr.flags.c_contiguous and not arr.flags.writeable
+
+
+def test_save_leaves_only_the_file(saved: Path) -> None:
+    assert os.listdir(saved.parent) == [saved.name]
+
+
+def test_objects_are_sorted_and_records_accessible(buf: SensitivityBuffer) -> None:
+    assert buf.objects == ("floor", "light", "wall", "white")
+    assert buf.types() == ("reflectance", "roughness")
+    assert buf.param("floor.bsdf.alpha.value").verified is False
+    assert buf.objective("contrast").value == -1.5
+
+
+def test_tree_follows_dotted_keys(buf: SensitivityBuffer) -> None:
+    tree = buf.tree()
+    assert tree["mat"]["reflectance"]["data"] is buf.param("mat.reflectance.data")
+    assert set(tree) == {"white", "mat", "floor"}
+
+
+def test_tree_keeps_a_parameter_that_is_also_a_prefix() -> None:
+    parts = make_parts()
+    extra = ParamRecord("floor.bsdf.alpha.value.x", "roughness", ("floor",), (1,), False,
+                        "roughplastic", (), True, "")  # fmt: skip
+    parts["params"] = (*PARAMS, extra)
+    parts["values"][extra.key] = [0.5]
+    for grads in parts["grads"].values():
+        grads[extra.key] = [1.0]
+    node = SensitivityBuffer(**parts).tree()["floor"]["bsdf"]["alpha"]["value"]
+    assert node[""].key == "floor.bsdf.alpha.value" and node["x"] is extra
+
+
+def test_arrays_are_float32_copies(buf: SensitivityBuffer) -> None:
+    parts = make_parts()
+    value = np.ones((3,), dtype=np.float64)
+    parts["values"]["white.bsdf.reflectance.value"] = value
+    built = SensitivityBuffer(**parts)
+    value[0] = 7.0
+    stored = built.value("white.bsdf.reflectance.value")
+    assert stored.dtype == np.float32 and stored[0] == 1.0
+
+
+def test_nan_gradient_is_refused() -> None:
+    parts = make_parts()
+    parts["grads"]["contrast"]["mat.reflectance.data"][1, 2, 0] = np.nan
+    with pytest.raises(NonFiniteGradientError) as info:
+        SensitivityBuffer(**parts)
+    assert "'contrast'" in str(info.value) and "'mat.reflectance.data'" in str(info.value)
+    assert (info.value.objective, info.value.key) == ("contrast", "mat.reflectance.data")
+
+
+def _missing_value(parts: dict) -> None:
+    del parts["values"]["white.bsdf.reflectance.value"]
+
+
+def _wrong_shape(parts: dict) -> None:
+    parts["grads"]["brightness"]["floor.bsdf.alpha.value"] = np.zeros((2,), np.float32)
+
+
+def _missing_gradient(parts: dict) -> None:
+    del parts["grads"]["contrast"]["floor.bsdf.alpha.value"]
+
+
+def _duplicate_key(parts: dict) -> None:
+    parts["params"] = (*PARAMS, PARAMS[0])
+
+
+def _unknown_owner(parts: dict) -> None:
+    parts["objects"] = ("wall", "white", "light")
+
+
+def _undeclared_objective(parts: dict) -> None:
+    parts["grads"]["extra"] = parts["grads"]["contrast"]
+
+
+def _infinite_value(parts: dict) -> None:
+    parts["values"]["floor.bsdf.alpha.value"] = np.array([np.inf], np.float32)
+
+
+@pytest.mark.parametrize(
+    "spoil",
+    [_missing_value, _wrong_shape, _missing_gradient, _duplicate_key, _unknown_owner,
+     _undeclared_objective, _infinite_value],
+)  # fmt: skip
+def test_inconsistent_buffer_is_refused(spoil) -> None:
+    parts = make_parts()
+    spoil(parts)
+    with pytest.raises(BufferContentError):
+        SensitivityBuffer(**parts)
+
+
+def test_unknown_objective_suggests_the_closest(buf: SensitivityBuffer) -> None:
+    with pytest.raises(UnknownNameError) as info:
+        buf.objective("brightnes")
+    assert "did you mean 'brightness'" in str(info.value)
+
+
+class _Failure(Exception):
+    pass
+
+
+@pytest.mark.parametrize("error", [OSError(28, "No space left on device"), KeyboardInterrupt()])
+def test_failed_write_keeps_the_existing_file(
+    buf: SensitivityBuffer, saved: Path, monkeypatch: pytest.MonkeyPatch, error: BaseException
+) -> None:
+    before = saved.read_bytes()
+
+    def half_write(out: io.BufferedWriter, arr: np.ndarray, **kwargs: object) -> None:
+        out.write(b"\x93NUMPY half an array")
+        raise error
+
+    monkeypatch.setattr(np.lib.format, "write_array", half_write)
+    expected = BufferWriteError if isinstance(error, OSError) else KeyboardInterrupt
+    with pytest.raises(expected):
+        buf.save(saved)
+    assert saved.read_bytes() == before
+    assert os.listdir(saved.parent) == [saved.name]
+
+
+def test_unwritable_location_is_a_write_error(buf: SensitivityBuffer, tmp_path: Path) -> None:
+    (tmp_path / "a-file").write_text("")
+    with pytest.raises(BufferWriteError) as info:
+        buf.save(tmp_path / "a-file" / "buffer.npz")
+    assert "a-file" in str(info.value)
+
+
+# --- unreadable files: every one is a one-line BufferFormatError naming the path -------------
+
+
+def _members(path: Path) -> dict[str, bytes]:
+    with zipfile.ZipFile(path) as zf:
+        return {name: zf.read(name) for name in zf.namelist()}
+
+
+def _write_members(path: Path, members: dict[str, bytes]) -> None:
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+
+
+def _npy(arr: np.ndarray) -> bytes:
+    out = io.BytesIO()
+    np.lib.format.write_array(out, arr, allow_pickle=False)
+    return out.getvalue()
+
+
+def _with_header(path: Path, edit) -> None:
+    members = _members(path)
+    header = json.loads(str(np.load(io.BytesIO(members["header.npy"]))[()]))
+    edit(header)
+    members["header.npy"] = _npy(np.array(json.dumps(header)))
+    _write_members(path, members)
+
+
+def _empty(p: Path) -> None:
+    p.write_bytes(b"")
+
+
+def _text(p: Path) -> None:
+    p.write_text("hello, not a buffer\n")
+
+
+def _truncated(p: Path) -> None:
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
+
+
+def _bit_flip(p: Path) -> None:
+    data = bytearray(p.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # inside a member: the zip CRC catches it
+    p.write_bytes(bytes(data))
+
+
+def _plain_npy(p: Path) -> None:
+    p.write_bytes(_npy(np.zeros(3, np.float32)))
+
+
+def _plain_npz(p: Path) -> None:
+    _write_members(p, {"a.npy": _npy(np.zeros(3, np.float32))})
+
+
+def _foreign_format(p: Path) -> None:
+    _with_header(p, lambda h: h.update(format="someone-elses-buffer"))
+
+
+def _unknown_version(p: Path) -> None:
+    _with_header(p, lambda h: h.update(format_version=FORMAT_VERSION + 1))
+
+
+def _missing_array(p: Path) -> None:
+    members = _members(p)
+    del members["grad_001_000002.npy"]
+    _write_members(p, members)
+
+
+def _shape_mismatch(p: Path) -> None:
+    _with_header(p, lambda h: h["params"][1].update(shape=[5, 4, 3]))
+
+
+def _float64_array(p: Path) -> None:
+    members = _members(p)
+    members["value_000000.npy"] = _npy(np.zeros(3, np.float64))
+    _write_members(p, members)
+
+
+def _nan_in_file(p: Path) -> None:
+    members = _members(p)
+    members["grad_000_000000.npy"] = _npy(np.full(3, np.nan, np.float32))
+    _write_members(p, members)
+
+
+def _bad_record(p: Path) -> None:
+    _with_header(p, lambda h: h["params"][0].pop("owners"))
+
+
+def _directory(p: Path) -> None:
+    p.unlink()
+    p.mkdir()
+
+
+def _nonexistent(p: Path) -> None:
+    p.unlink()
+
+
+@pytest.mark.parametrize(
+    "spoil",
+    [_empty, _text, _truncated, _bit_flip, _plain_npy, _plain_npz, _foreign_format,
+     _unknown_version, _missing_array, _shape_mismatch, _float64_array, _nan_in_file,
+     _bad_record, _directory, _nonexistent],
+)  # fmt: skip
+def test_unreadable_file_is_a_buffer_format_error(saved: Path, spoil) -> None:
+    spoil(saved)
+    with pytest.raises(BufferFormatError) as info:
+        SensitivityBuffer.load(saved)
+    message = str(info.value)
+    assert str(saved) in message and "\n" not in message
+
+
+def test_unknown_version_says_so(saved: Path) -> None:
+    _unknown_version(saved)
+    with pytest.raises(BufferFormatError, match="version 2 is not supported"):
+        SensitivityBuffer.load(saved)
+
+
+# --- the format itself: a change to it must show up here ------------------------------------
+
+
+def test_file_layout_is_version_1(saved: Path) -> None:
+    with np.load(saved, allow_pickle=False) as npz:
+        names = sorted(npz.files)
+        header = json.loads(str(npz["header"]))
+    assert names == sorted(
+        ["header", "value_000000", "value_000001", "value_000002"]
+        + [f"grad_{j:03d}_{i:06d}" for j in range(2) for i in range(3)]
+    )
+    assert header == {
+        "format": "sensaov-buffer",
+        "format_version": 1,
+        "provenance": {"tool": "sensaov 0.1.0", "spp": 16, "seeds": [1, 2], "scene": "cbox.xml"},
+        "objects": ["floor", "light", "wall", "white"],
+        "params": [
+            {"key": "white.bsdf.reflectance.value", "type": "reflectance", "owners": ["white"],
+             "shape": [3], "is_texture": False, "plugin": "diffuse", "flags": [],
+             "verified": True, "note": "", "array": 0},
+            {"key": "mat.reflectance.data", "type": "reflectance", "owners": ["floor", "wall"],
+             "shape": [4, 5, 3], "is_texture": True, "plugin": "diffuse", "flags": [],
+             "verified": True, "note": "", "array": 1},
+            {"key": "floor.bsdf.alpha.value", "type": "roughness", "owners": ["floor"],
+             "shape": [1], "is_texture": False, "plugin": "roughplastic",
+             "flags": ["discontinuous"], "verified": False, "note": "known biased", "array": 2},
+        ],
+        "objectives": [
+            {"name": "brightness", "definition": {"kind": "mean_luminance", "region": [0, 0, 8, 8]},
+             "value": 0.25, "grad_seed": 7, "array": 0},
+            {"name": "contrast", "definition": {"kind": "contrast"}, "value": -1.5,
+             "grad_seed": 8, "array": 1},
+        ],
+    }  # fmt: skip
+
+
+def test_reads_a_file_written_from_the_spec(tmp_path: Path) -> None:
+    """docs/buffer-format.md is enough to write a buffer without sensaov's writer."""
+    header = {
+        "format": FORMAT_NAME, "format_version": 1, "provenance": {}, "objects": ["lamp"],
+        "params": [{"key": "lamp.emitter.radiance.value", "type": "radiance", "owners": ["lamp"],
+                    "shape": [3], "is_texture": False, "plugin": "area", "flags": [],
+                    "verified": True, "note": "", "array": 0}],
+        "objectives": [{"name": "m", "definition": {}, "value": 1.0, "grad_seed": 0, "array": 0}],
+    }  # fmt: skip
+    path = tmp_path / "by-hand.npz"
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("header.npy", _npy(np.array(json.dumps(header))))
+        zf.writestr("value_000000.npy", _npy(np.array([1, 2, 3], ">f4")))
+        zf.writestr("grad_000_000000.npy", _npy(np.array([0.5, 0, -1], "<f4")))
+    loaded = SensitivityBuffer.load(path)
+    assert loaded.value("lamp.emitter.radiance.value").tolist() == [1, 2, 3]
+    assert loaded.grad("m", "lamp.emitter.radiance.value").tolist() == [0.5, 0, -1]
+
+
+def test_plain_numpy_example_in_the_docs_runs(saved: Path, capsys) -> None:
+    doc = (REPO / "docs" / "buffer-format.md").read_text()
+    example = doc.split("```python\n", 1)[1].split("```", 1)[0]
+    exec(example.replace("out/cbox/buffer.npz", str(saved)), {})
+    assert len(capsys.readouterr().out.splitlines()) == 2 * 3
+
+
+def test_numpy_only_modules_import_no_renderer() -> None:
+    code = (
+        "import sys, sensaov_cli.buffer, sensaov_cli.queries, sensaov_cli.report\n"
+        "heavy = {'mitsuba', 'drjit', 'rich', 'click'} & set(sys.modules)\n"
+        "assert not heavy, heavy"
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
