@@ -11,6 +11,7 @@ Writes
     scenes/cbox/textures/wall.png         32x32 RGB checker (left wall of cbox)
     scenes/interior/textures/picture.png  32x32 RGB "landscape" (picture on the wall)
 """
+
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +35,7 @@ def landscape(size=32):
     sky_top = np.array([40, 90, 200], np.float64)
     sky_bot = np.array([250, 170, 90], np.float64)
     img = sky_top * (1 - y[..., None]) + sky_bot * y[..., None]
-    sun = (x - 0.7) ** 2 + (y - 0.35) ** 2 < 0.12 ** 2
+    sun = (x - 0.7) ** 2 + (y - 0.35) ** 2 < 0.12**2
     img[sun] = (255, 230, 120)
     horizon = 0.62 + 0.08 * np.sin(2 * np.pi * x * 1.5)
     hills = y > horizon
@@ -47,6 +48,7 @@ def write_png(path: Path, img: np.ndarray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     try:
         import mitsuba as mi
+
         mi.set_variant("scalar_rgb")
         mi.Bitmap(np.ascontiguousarray(img)).write(str(path))
     except ImportError:  # plain-zlib fallback, no dependencies beyond numpy
@@ -60,10 +62,12 @@ def write_png(path: Path, img: np.ndarray) -> None:
             c = tag + data
             return struct.pack(">I", len(data)) + c + struct.pack(">I", zlib.crc32(c) & 0xFFFFFFFF)
 
-        png = (b"\x89PNG\r\n\x1a\n"
-               + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
-               + chunk(b"IDAT", zlib.compress(raw, 9))
-               + chunk(b"IEND", b""))
+        png = (
+            b"\x89PNG\r\n\x1a\n"
+            + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(raw, 9))
+            + chunk(b"IEND", b"")
+        )
         path.write_bytes(png)
     print(f"wrote {path.relative_to(HERE.parent)} {img.shape[1]}x{img.shape[0]} uint8")
 

@@ -54,6 +54,7 @@ class RenderSpec:
     max_depth: int  # -1 = unbounded
     seed: int
     resolution: tuple[int, int] | None  # None = the film's size
+    deterministic: bool = True  # one thread for backward passes on the CPU backend
 
 
 @dataclass(frozen=True)
@@ -177,7 +178,9 @@ def _to_spec(model: JobModel, job_path: Path) -> JobSpec:
         version=model.version,
         scene=_resolve(base, model.scene),
         variant=model.variant,
-        render=RenderSpec(render.spp, render.max_depth, render.seed, render.resolution),
+        render=RenderSpec(
+            render.spp, render.max_depth, render.seed, render.resolution, render.deterministic
+        ),
         parameters=ParameterSpec(
             tuple(parameters.include), tuple(parameters.exclude), parameters.shared
         ),

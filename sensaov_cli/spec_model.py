@@ -104,6 +104,14 @@ class RenderModel(_Model):
         Resolution | None,
         Field(description="[width, height] of the objective render; null = its film's size."),
     ] = None
+    deterministic: Annotated[
+        bool,
+        Field(
+            strict=True,
+            description="Byte-identical buffers for the same job and seed. On the CPU backend the "
+            "backward passes then run on one thread (parallel atomic adds sum in varying order).",
+        ),
+    ] = True
 
 
 class ParametersModel(_Model):

@@ -12,9 +12,10 @@ import sys
 from pathlib import Path
 
 import pytest
-from spec_cases import CASE_PARAMS, CASES, SpecCase, expected_where, write_fixture
 
 from sensaov_cli.errors import EXIT_BAD_INPUT
+
+from .spec_cases import CASE_PARAMS, CASES, SpecCase, expected_where, write_fixture
 
 REPO = Path(__file__).resolve().parents[1]
 VALIDATE_CASES = [

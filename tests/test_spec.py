@@ -13,7 +13,6 @@ from typing import Any
 
 import pytest
 import yaml
-from spec_cases import CASE_PARAMS, SpecCase, expected_where, write_fixture
 
 from sensaov_cli.errors import EXIT_BAD_INPUT, SpecError
 from sensaov_cli.spec import (
@@ -28,6 +27,8 @@ from sensaov_cli.spec import (
     job_schema,
     load_job,
 )
+
+from .spec_cases import CASE_PARAMS, SpecCase, expected_where, write_fixture
 
 FULL_JOB = """\
 version: 1
@@ -224,7 +225,7 @@ def test_schema_describes_every_top_level_key() -> None:
     assert set(schema["required"]) == {"version", "scene", "objectives"}
     assert schema["properties"]["render"]["default"] == {}
     assert schema["additionalProperties"] is False
-    jsonschema = pytest.importorskip("jsonschema")
+    import jsonschema
     validator = jsonschema.Draft202012Validator(schema)
     validator.validate(yaml.safe_load(FULL_JOB))
     validator.validate(yaml.safe_load(MINIMAL_JOB))

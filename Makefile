@@ -1,0 +1,39 @@
+# The two set-up commands of the README: `make demo` and `make test`. Both are idempotent and
+# work on a fresh machine: they create .venv, install the package with its test extras and make
+# sure a usable libLLVM is present.
+
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed-stamp
+
+.PHONY: setup demo test lint typecheck unit bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+	@bash scripts/ensure-libllvm.sh
+
+demo: setup
+	$(BIN)/sensaov validate configs/cbox.yaml
+	$(BIN)/sensaov params configs/cbox.yaml
+	$(BIN)/sensaov run configs/cbox.yaml
+	@echo "demo done: out/cbox/buffer.npz and out/cbox/primal.exr"
+
+lint: setup
+	$(BIN)/ruff check sensaov_cli tests scenes
+
+typecheck: setup
+	$(BIN)/mypy sensaov_cli
+
+unit: setup
+	$(BIN)/python -m pytest -q
+
+test: lint typecheck unit
+
+clean:
+	rm -rf out .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,300 @@
+"""The ``sensaov`` command line: click commands that wire the stages, with no logic of their own.
+
+Heavy imports (Mitsuba, Dr.Jit, pydantic) happen inside the commands, so ``sensaov --help`` and
+``sensaov rank`` start instantly. Library errors become one line on stderr and an exit code here,
+and only here.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import traceback
+from collections.abc import Callable
+from functools import wraps
+from pathlib import Path
+from typing import Any, cast
+
+import click
+
+from . import __version__
+from .errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_OK, SensaovError, SpecError
+
+EXIT_CODES = f"""\b
+Exit codes:
+  {EXIT_OK}  success
+  {EXIT_JOB_FAILED}  the job failed (rendering, objective, NaN gradients, internal error)
+  {EXIT_BAD_INPUT}  bad input (malformed job, unknown key, missing file, corrupt buffer)
+  3  the machine cannot render (no usable libLLVM, no CUDA for a cuda variant)
+"""
+
+job_argument = click.argument("job", type=click.Path(path_type=Path, dir_okay=False))
+allow_python_option = click.option(
+    "--allow-python",
+    is_flag=True,
+    help="Allow 'python' objectives (they run code named in the job).",
+)
+json_option = click.option(
+    "--json", "as_json", is_flag=True, help="Print JSON on stdout instead of a table."
+)
+
+
+def _fail(message: str, code: int) -> None:
+    click.echo(f"sensaov: error: {message}", err=True)
+    sys.exit(code)
+
+
+def _terminate_as_interrupt(signum: int, frame: Any) -> None:
+    """Farms stop jobs with SIGTERM: unwind like Ctrl-C so temporary files are removed."""
+    raise KeyboardInterrupt
+
+
+def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
+    """Turn any failure into one line on stderr and a documented exit code (traceback at -vv)."""
+
+    @wraps(command)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        verbose = click.get_current_context().find_root().params.get("verbose", 0)
+        signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+        try:
+            return command(*args, **kwargs)
+        except SensaovError as err:
+            if verbose >= 2:
+                traceback.print_exc()
+            _fail(str(err), err.exit_code)
+        except KeyboardInterrupt:
+            _fail("interrupted; no partial output was written", 130)
+        except Exception as err:  # noqa: BLE001 - the one place unexpected errors are reported
+            if verbose >= 2:
+                traceback.print_exc()
+            detail = str(err).strip().splitlines()
+            _fail(
+                f"internal error: {type(err).__name__}: {detail[-1] if detail else ''} "
+                "(run with -vv for the traceback)",
+                EXIT_JOB_FAILED,
+            )
+
+    return wrapper
+
+
+@click.group(epilog=EXIT_CODES, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="sensaov")
+@click.option("-v", "--verbose", count=True, help="-vv prints tracebacks with errors.")
+def main(verbose: int) -> None:
+    """Sensitivity AOVs: which parts of a Mitsuba 3 scene matter for a goal.
+
+    \b
+    One reverse-mode pass per objective fills a sensitivity buffer (.npz);
+    every view after that reads the buffer without differentiating again.
+
+    \b
+    Typical session:
+      sensaov validate configs/cbox.yaml
+      sensaov params configs/cbox.yaml
+      sensaov run configs/cbox.yaml        # -> out/cbox/buffer.npz, primal.exr
+      sensaov rank out/cbox/buffer.npz --top 5
+    """
+
+
+@main.command(epilog=EXIT_CODES)
+@job_argument
+@reports_errors
+def validate(job: Path) -> None:
+    """Check a job file without loading the scene.
+
+    \b
+    Example:
+      sensaov validate configs/cbox.yaml
+    """
+    from .spec import load_job
+
+    spec = load_job(job)
+    names = ", ".join(o.name for o in spec.objectives)
+    click.echo(f"{job}: ok (scene {spec.scene.name}, objectives: {names}, output {spec.output})")
+
+
+@main.command(epilog=EXIT_CODES)
+@reports_errors
+def schema() -> None:
+    """Print the JSON Schema of the job format (for editors and CI linting).
+
+    \b
+    Example:
+      sensaov schema > sensaov-job.schema.json
+    """
+    from .spec import job_schema
+
+    click.echo(json.dumps(job_schema(), indent=2, sort_keys=True))
+
+
+@main.command(epilog=EXIT_CODES)
+@job_argument
+@json_option
+@click.option(
+    "--all", "show_all", is_flag=True, help="List every excluded key, not only a count per reason."
+)
+@reports_errors
+def params(job: Path, as_json: bool, show_all: bool) -> None:
+    """Show which scene parameters enter the buffer, their owners and types.
+
+    Loads the scene (no rendering). Textures converted from 8-bit to float and
+    parameters left out are listed with the reason.
+
+    \b
+    Example:
+      sensaov params configs/cbox.yaml
+      sensaov params configs/cbox.yaml --json | jq '.selected[].key'
+    """
+    from .paramtable import params_dict, params_text
+    from .scene import load_scene
+    from .spec import load_job
+
+    loaded = load_scene(load_job(job))
+    if as_json:
+        click.echo(json.dumps(params_dict(loaded), indent=2))
+    else:
+        click.echo(params_text(loaded, show_all=show_all))
+
+
+@main.command(epilog=EXIT_CODES)
+@job_argument
+@json_option
+@click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
+@click.option("--top", default=8, show_default=True, help="Rows per table in the summary.")
+@allow_python_option
+@reports_errors
+def run(job: Path, as_json: bool, quiet: bool, top: int, allow_python: bool) -> None:
+    """Render the objective camera once and fill the sensitivity buffer.
+
+    One primal render, then one reverse-mode pass per objective. Writes
+    <output>/buffer.npz and <output>/primal.exr (atomically) and prints a
+    ranked summary per objective; progress goes to stderr.
+
+    \b
+    Example:
+      sensaov run configs/cbox.yaml
+      sensaov run configs/cbox.yaml --json -q > summary.json
+    """
+    from .pipeline import run_job
+    from .progress import Progress
+    from .report import summary_dict, summary_text
+    from .spec import load_job
+
+    spec = load_job(job)
+    outputs = run_job(spec, allow_python=allow_python, progress=Progress(quiet=quiet))
+    if as_json:
+        summary = summary_dict(outputs.buffer, top=top)
+        summary["files"] = {"buffer": str(outputs.buffer_path), "primal": str(outputs.primal_path)}
+        click.echo(json.dumps(summary, indent=2))
+    else:
+        click.echo(summary_text(outputs.buffer, top=top))
+        click.echo(f"wrote {outputs.buffer_path} and {outputs.primal_path}")
+
+
+@main.command(epilog=EXIT_CODES)
+@job_argument
+@json_option
+@click.option("--objective", help="Objective to check (default: the job's first).")
+@click.option("--spp", type=click.IntRange(min=1), help="Samples per pixel (default: the job's).")
+@click.option(
+    "--seeds",
+    type=click.IntRange(min=2),
+    default=6,
+    show_default=True,
+    help="Independent seeds averaged per parameter.",
+)
+@click.option(
+    "--key", "keys", multiple=True, help="Check these keys (default: one per plugin and type)."
+)
+@allow_python_option
+@reports_errors
+def check(
+    job: Path,
+    as_json: bool,
+    objective: str | None,
+    spp: int | None,
+    seeds: int,
+    keys: tuple[str, ...],
+    allow_python: bool,
+) -> None:
+    """Compare reverse-mode gradients with central finite differences.
+
+    For one parameter of each kind (plugin and type) in the job's selection,
+    the adjoint's directional derivative is compared with a central difference
+    rendered at the same seed, over several seeds. Verdicts: agrees,
+    disagrees, or inconclusive (too noisy at this spp: raise --spp). Exits 1
+    if a parameter the verification table trusts disagrees.
+
+    \b
+    Example:
+      sensaov check configs/cbox.yaml --spp 256
+      sensaov check configs/cbox.yaml --key glass.eta --spp 1024 --seeds 12
+    """
+    from dataclasses import asdict
+
+    from .fdcheck import check_gradients, checks_text
+    from .objectives import build_objectives
+    from .scene import load_scene
+    from .spec import load_job
+
+    spec = load_job(job)
+    loaded = load_scene(spec)
+    chosen = [o for o in spec.objectives if objective in (None, o.name)][:1]
+    if not chosen:
+        names = ", ".join(o.name for o in spec.objectives)
+        raise SpecError(
+            f"no objective named {objective!r}", where="--objective", hint=f"objectives: {names}"
+        )
+    width, height = loaded.resolution
+    (built,) = build_objectives(loaded.mi, tuple(chosen), (height, width), allow_python)
+    results = check_gradients(
+        loaded, built, spp=spp or spec.render.spp, seeds=list(range(seeds)), keys=list(keys) or None
+    )
+    if as_json:
+        click.echo(json.dumps([asdict(r) for r in results], indent=2))
+    else:
+        click.echo(checks_text(results))
+    if any(r.claimed_verified and r.verdict == "disagrees" for r in results):
+        sys.exit(EXIT_JOB_FAILED)
+
+
+@main.command(epilog=EXIT_CODES)
+@click.argument("buffer", type=click.Path(path_type=Path, dir_okay=False))
+@json_option
+@click.option("--top", default=8, show_default=True, help="Rows per table.")
+@click.option(
+    "--aggregate", type=click.Choice(["l2", "rms", "sum"]), default="l2", show_default=True
+)
+@click.option(
+    "--weight",
+    type=click.Choice(["value", "raw"]),
+    default="value",
+    show_default=True,
+    help="value: θ·∂M/∂θ (response to a proportional change); raw: ∂M/∂θ.",
+)
+@reports_errors
+def rank(buffer: Path, as_json: bool, top: int, aggregate: str, weight: str) -> None:
+    """Rank parameters, objects and types from a stored buffer (numpy only, no rendering).
+
+    \b
+    Example:
+      sensaov rank out/cbox/buffer.npz --top 5
+      sensaov rank out/cbox/buffer.npz --aggregate rms --json
+    """
+    from .buffer import SensitivityBuffer
+    from .queries import Method, Weight
+    from .report import summary_dict, summary_text
+
+    loaded = SensitivityBuffer.load(buffer)
+    method, weighting = cast(Method, aggregate), cast(Weight, weight)
+    if as_json:
+        click.echo(
+            json.dumps(summary_dict(loaded, top=top, method=method, weight=weighting), indent=2)
+        )
+    else:
+        click.echo(summary_text(loaded, top=top, method=method, weight=weighting))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

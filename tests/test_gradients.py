@@ -1,0 +1,108 @@
+"""Reverse-mode gradients against central finite differences (same seed), and split vs shared.
+
+Tolerance for the same-seed checks: with common random numbers the primal estimator is the same
+function of θ on both sides of the difference, and for reflectance, radiance and texels the
+sampling does not depend on θ, so the adjoint is the exact derivative of that function. What is
+left is float32 rounding in M(θ±ε) (M ~ 0.1 with ~1e-7 relative precision, divided by 2ε·g)
+and Russian-roulette decisions past depth 5 that flip with the throughput. Measured: at most
+8e-4 relative over both shipped scenes (docs/verification.md), so 2e-3 is a tight bound.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from sensaov_cli import adjoint
+from sensaov_cli.fdcheck import check_gradients, check_parameter
+from sensaov_cli.objectives import build_objectives, value_and_adjoint
+from sensaov_cli.scene import LoadedScene, load_scene
+from sensaov_cli.spec import load_job
+from sensaov_cli.verification import CHECKED_IN_TESTS, KNOWN_BIASED
+
+SAME_SEED_TOLERANCE = 2e-3
+
+
+def loaded_with_objective(job: Path, spp: int | None = None):  # noqa: ANN201
+    spec = load_job(job)
+    if spp is not None:
+        spec = dataclasses.replace(spec, render=dataclasses.replace(spec.render, spp=spp))
+    loaded = load_scene(spec)
+    (objective,) = build_objectives(loaded.mi, spec.objectives, loaded.resolution[::-1], False)
+    return spec, loaded, objective
+
+
+@pytest.fixture(scope="module")
+def tiny(mi: ModuleType, job_writer: Callable[..., Path]):  # noqa: ANN201
+    render = {"spp": 32, "max_depth": 6, "seed": 0, "resolution": [24, 24]}
+    return loaded_with_objective(job_writer("fd_tiny", render=render))
+
+
+@pytest.mark.parametrize(
+    "key", ["light.emitter.radiance.value", "green.reflectance.value", "checker.reflectance.data"]
+)
+@pytest.mark.parametrize("seed", [5, 6])
+def test_gradient_matches_central_difference_at_the_same_seed(tiny, key: str, seed: int) -> None:  # noqa: ANN001
+    _, loaded, objective = tiny
+    info = next(i for i in loaded.selected if i.key == key)
+    check = check_parameter(loaded, objective, info, spp=32, seeds=[seed])
+    assert check.finite_difference != 0
+    assert check.relative_error < SAME_SEED_TOLERANCE, check
+
+
+def test_split_gradients_sum_to_the_shared_one(
+    mi: ModuleType, job_writer: Callable[..., Path]
+) -> None:
+    render = {"spp": 32, "resolution": [24, 24]}
+    grads = {}
+    for mode in ("split", "keep"):
+        _, loaded, objective = loaded_with_objective(
+            job_writer(f"shared_{mode}", render=render, parameters={"shared": mode})
+        )
+        adjoint.enable_gradients(loaded)
+        _, adjoint_image = value_and_adjoint(mi, objective, adjoint.render_primal(loaded, 32, 0))
+        grads[mode] = adjoint.backward(loaded, adjoint_image, 32, 7)
+    split = sum(
+        grads["split"][f"{shape}.bsdf.reflectance.value"]
+        for shape in ("floor", "ceiling", "back_wall", "light")
+    )
+    np.testing.assert_allclose(split, grads["keep"]["white.reflectance.value"], rtol=1e-4)
+    assert np.all(grads["split"]["floor.bsdf.reflectance.value"] != split)  # really split
+
+
+def per_type_checks(loaded: LoadedScene, objective) -> dict:  # noqa: ANN001
+    checks = check_gradients(loaded, objective, spp=64, seeds=list(range(6)))
+    return {(c.plugin, c.type, c.key): c for c in checks}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", ["cbox", "interior"])
+def test_verification_table_holds_on_the_shipped_scenes(
+    mi: ModuleType, job_writer: Callable[..., Path], scene: str
+) -> None:
+    """Per parameter kind: what the table checks in tests agrees, nothing called verified
+    disagrees, and what it calls biased disagrees. At 64 spp roughdielectric roughness and eta
+    are inconclusive (see sensaov_cli/verification.py), so they may not be asserted to agree."""
+    render = {"spp": 64, "resolution": [32, 32]}
+    _, loaded, objective = loaded_with_objective(
+        job_writer(f"types_{scene}", scene=scene, render=render)
+    )
+    checks = per_type_checks(loaded, objective)
+    for (plugin, ptype, _key), check in checks.items():
+        if (plugin, ptype) in CHECKED_IN_TESTS:
+            assert check.verdict == "agrees", check
+        if check.claimed_verified:
+            assert check.verdict != "disagrees", check
+        if (plugin, ptype) in KNOWN_BIASED:
+            assert check.verdict == "disagrees", check
+    kinds = {(plugin, ptype) for plugin, ptype, _ in checks}
+    assert {
+        ("diffuse", "reflectance"),
+        ("area", "radiance"),
+        ("roughplastic", "roughness"),
+    } <= kinds
