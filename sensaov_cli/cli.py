@@ -194,6 +194,81 @@ def run(job: Path, as_json: bool, quiet: bool, top: int, allow_python: bool) -> 
 
 @main.command(epilog=EXIT_CODES)
 @job_argument
+@click.option(
+    "--camera", "cameras", multiple=True, help="Only this camera (repeatable); default: all."
+)
+@click.option(
+    "--buffer",
+    "buffer_path",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Buffer to project (default: <output>/buffer.npz of the job).",
+)
+@click.option("--png", is_flag=True, help="Also write PNG previews and a contact sheet per camera.")
+@click.option(
+    "--beauty-spp",
+    type=click.IntRange(min=0),
+    default=16,
+    show_default=True,
+    help="Samples per pixel of the beauty pass (0: no beauty).",
+)
+@click.option(
+    "--force", is_flag=True, help="Project even if the scene changed since the buffer was made."
+)
+@json_option
+@click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
+@reports_errors
+def project(
+    job: Path,
+    cameras: tuple[str, ...],
+    buffer_path: Path | None,
+    png: bool,
+    beauty_spp: int,
+    force: bool,
+    as_json: bool,
+    quiet: bool,
+) -> None:
+    """Paint a stored buffer into every inspection camera as layered EXRs.
+
+    Reads the buffer and traces primary visibility only: no derivative is
+    computed, so each view costs a fraction of the adjoint pass. Writes
+    <output>/<camera>.exr per camera (beauty, CryptoObject, one layer per
+    objective and channel; see docs/exr-layout.md) and, with --png, previews.
+
+    \b
+    Example:
+      sensaov project configs/cbox.yaml
+      sensaov project configs/cbox.yaml --camera overhead      # one farm task per camera
+      sensaov project configs/cbox.yaml --buffer other/buffer.npz --png
+    """
+    from dataclasses import asdict
+
+    from .progress import Progress
+    from .project import project_job
+    from .spec import load_job
+
+    spec = load_job(job)
+    views = project_job(
+        spec,
+        buffer_path=buffer_path or spec.output / "buffer.npz",
+        cameras=cameras,
+        force=force,
+        png=png,
+        beauty_spp=beauty_spp,
+        progress=Progress(quiet=quiet),
+    )
+    if as_json:
+        click.echo(json.dumps([asdict(v) for v in views], indent=2, default=str))
+        return
+    for view in views:
+        extra = f" (+{len(view.previews)} PNG)" if view.previews else ""
+        click.echo(
+            f"{view.camera}: {view.width}x{view.height}, {view.vis_spp} vis spp, "
+            f"{view.seconds:.2f} s -> {view.path}{extra}"
+        )
+
+
+@main.command(epilog=EXIT_CODES)
+@job_argument
 @json_option
 @click.option("--objective", help="Objective to check (default: the job's first).")
 @click.option("--spp", type=click.IntRange(min=1), help="Samples per pixel (default: the job's).")

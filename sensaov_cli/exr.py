@@ -1,12 +1,22 @@
-"""OpenEXR output: float32 channels plus string metadata, written atomically."""
+"""OpenEXR files: float32 channels plus string metadata, written atomically, and read back.
+
+The multilayer layout for compositors (beauty, Cryptomatte, sensitivity passes) is assembled in
+``exr_layout.py``; this module only moves named channels and header strings to and from disk.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from .atomic import atomic_write
+from .errors import SensaovError
+
+
+class ExrError(SensaovError, ValueError):
+    """An EXR cannot be written as asked (bad shapes, NaN, clashing names) or cannot be read."""
 
 
 def write_exr(path: Path, channels: dict[str, np.ndarray], attributes: dict[str, str]) -> None:
@@ -34,3 +44,27 @@ def image_channels(image: np.ndarray) -> dict[str, np.ndarray]:
     if image.shape[2] == 1:
         names = "Y"
     return {name: image[..., index] for index, name in enumerate(names)}
+
+
+def read_exr(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Every channel of a scanline EXR by its full name (``layer.pass.Y``) and the header.
+
+    Channels come back as H x W arrays in the stored type (float32, or float16 for half); the
+    header as the OpenEXR binding gives it (strings stay strings, windows are arrays).
+    """
+    import OpenEXR
+
+    try:
+        # ``separate_channels`` keeps full channel names: by default the binding groups
+        # ``X.R``, ``X.G``, ``X.B`` into one ``X`` entry. Read inside ``with``: the File's
+        # header and pixels are invalid once it is closed.
+        with OpenEXR.File(str(path), separate_channels=True) as exr:
+            header = dict(exr.header())
+            channels = {name: np.array(ch.pixels, copy=True) for name, ch in exr.channels().items()}
+    except (OSError, RuntimeError) as error:
+        raise ExrError(
+            f"cannot read OpenEXR file: {error}",
+            where=str(path),
+            hint="check that the path names a complete OpenEXR file",
+        ) from error
+    return channels, header

@@ -90,9 +90,11 @@ class LoadedScene:
     fingerprint: str
     resolution: tuple[int, int]
     split: dict[str, tuple[str, ...]]
+    inspection_sensors: dict[str, Any]  # inspection camera name -> its own sensor
 
 
-def load_scene(job: JobSpec) -> LoadedScene:
+def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> LoadedScene:
+    """Load the job's scene; with ``with_inspection_cameras`` every inspection camera too."""
     mi = import_mitsuba(job.variant)
     prepared = prepare_scene_xml(
         job.scene,
@@ -100,6 +102,7 @@ def load_scene(job: JobSpec) -> LoadedScene:
         camera=job.objective_camera,
         resolution=job.render.resolution,
         shared=job.parameters.shared,
+        inspection=job.inspection_cameras if with_inspection_cameras else (),
     )
     # Relative file names in the scene resolve against its own folder, as with load_file.
     mi.file_resolver().prepend(str(job.scene.parent))
@@ -107,7 +110,8 @@ def load_scene(job: JobSpec) -> LoadedScene:
         scene = mi.load_string(prepared.text, optimize=False)
     except Exception as exc:  # Mitsuba raises plain RuntimeError with a long message
         raise SceneError(_first_line(exc), where=str(job.scene)) from exc
-    sensor = next(s for s in scene.sensors() if s.id() == prepared.sensor_id)
+    sensors = {sensor.id(): sensor for sensor in scene.sensors()}
+    sensor = sensors[prepared.sensor_id]
     objects, owned = _object_nodes(mi, scene)
     params = mi.traverse(scene)
     sources = {Path(name).name: job.scene.parent / name for name in prepared.bitmap_files}
@@ -126,6 +130,7 @@ def load_scene(job: JobSpec) -> LoadedScene:
         fingerprint=scene_fingerprint(job.scene),
         resolution=(int(size[0]), int(size[1])),
         split=prepared.split,
+        inspection_sensors={name: sensors[sid] for name, sid in prepared.inspection_ids.items()},
     )
 
 

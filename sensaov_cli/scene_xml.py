@@ -28,10 +28,14 @@ OBJECTIVE_SENSOR_ID = "sensaov_objective"
 _NAMED_TAGS = ("shape", "emitter", "bsdf", "texture", "sensor", "medium")
 
 
+INSPECTION_PREFIX = "sensaov_inspect_"
+
+
 @dataclass(frozen=True)
 class PreparedXml:
     text: str
     sensor_id: str
+    inspection_ids: dict[str, str]  # inspection camera name -> sensor id in the prepared scene
     split: dict[str, tuple[str, ...]]  # shared BSDF id -> the shapes that received a copy
     bitmap_files: tuple[str, ...]  # filename values of bitmap textures, as written
 
@@ -73,6 +77,7 @@ def prepare_scene_xml(
     camera: CameraSpec,
     resolution: tuple[int, int] | None,
     shared: str,
+    inspection: tuple[CameraSpec, ...] = (),
 ) -> PreparedXml:
     root = parse_scene(path)
     _name_top_level(root)
@@ -82,8 +87,14 @@ def prepare_scene_xml(
     sensor = _choose_sensor(root, camera, path)
     if resolution is not None:
         _set_film_size(sensor, resolution)
+    inspection_ids = {
+        cam.name: _add_inspection_sensor(
+            root, cam, sensor, path, f"inspection_cameras[{index}].sensor"
+        )
+        for index, cam in enumerate(inspection)
+    }
     text = ET.tostring(root, encoding="unicode")
-    return PreparedXml(text, sensor.get("id", ""), split, bitmaps)
+    return PreparedXml(text, sensor.get("id", ""), inspection_ids, split, bitmaps)
 
 
 def _name_top_level(root: ET.Element) -> None:
@@ -149,7 +160,9 @@ def _split_shared_bsdfs(root: ET.Element) -> dict[str, tuple[str, ...]]:
     return split
 
 
-def _choose_sensor(root: ET.Element, camera: CameraSpec, path: Path) -> ET.Element:
+def _choose_sensor(
+    root: ET.Element, camera: CameraSpec, path: Path, where: str = "objective_camera"
+) -> ET.Element:
     sensors = root.findall("sensor")
     if camera.look_at is not None:
         return _add_look_at_sensor(root, camera, sensors[0] if sensors else None)
@@ -167,9 +180,26 @@ def _choose_sensor(root: ET.Element, camera: CameraSpec, path: Path) -> ET.Eleme
     ids = ", ".join(s.get("id", "?") for s in sensors)
     raise SceneError(
         f"no sensor with id {camera.sensor!r} in {path.name}",
-        where="objective_camera",
+        where=where,
         hint=f"sensors in the scene: {ids}",
     )
+
+
+def _add_inspection_sensor(
+    root: ET.Element, camera: CameraSpec, objective: ET.Element, path: Path, where: str
+) -> str:
+    """A sensor of its own for each inspection camera, so resolution overrides stay local."""
+    if camera.look_at is not None:
+        source = _add_look_at_sensor(root, camera, objective)
+    else:
+        source = objective if camera.objective else _choose_sensor(root, camera, path, where)
+        source = copy.deepcopy(source)
+        root.append(source)
+        if camera.resolution is not None:
+            _set_film_size(source, camera.resolution)
+    sensor_id = f"{INSPECTION_PREFIX}{camera.name}"
+    source.set("id", sensor_id)
+    return sensor_id
 
 
 def _vector(values: tuple[float, float, float]) -> str:

@@ -24,7 +24,9 @@ CHECKED_IN_TESTS = frozenset(
         ("roughconductor", "k"),
     }
 )
-CHECKED_AT_HIGH_SPP = frozenset({("roughdielectric", "roughness"), ("roughdielectric", "eta")})
+CHECKED_AT_HIGH_SPP = frozenset(
+    {("roughdielectric", "roughness"), ("roughdielectric", "eta"), ("roughconductor", "roughness")}
+)
 VERIFIED = CHECKED_IN_TESTS | CHECKED_AT_HIGH_SPP
 
 KNOWN_BIASED = {

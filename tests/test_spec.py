@@ -226,6 +226,7 @@ def test_schema_describes_every_top_level_key() -> None:
     assert schema["properties"]["render"]["default"] == {}
     assert schema["additionalProperties"] is False
     import jsonschema
+
     validator = jsonschema.Draft202012Validator(schema)
     validator.validate(yaml.safe_load(FULL_JOB))
     validator.validate(yaml.safe_load(MINIMAL_JOB))

@@ -1,0 +1,286 @@
+"""Open a sensaov EXR in Blender's compositor and check what an artist would get from it.
+
+Run headless, not under pytest (CI needs no Blender); ``scripts/blender-check.sh`` wraps it:
+
+    blender -b --factory-startup --python-exit-code 1 \\
+        --python scripts/blender_check.py -- out/cbox/camera.exr "bunny" [--out DIR]
+
+It lists the layers and passes Blender builds from the file, checks that every sensitivity
+channel ``layer.pass.C`` shows up as pass ``pass`` of layer ``layer``, keys OBJECT_NAME with a
+Cryptomatte node (source Image), renders that matte to ``DIR/matte.png`` and compares it with
+the object's coverage decoded here from the file itself (a small pure-Python EXR reader, since
+Blender's Python has no numpy or OpenEXR). Prints PASS/FAIL lines and a summary; exits 1 on any
+failure, 2 on bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import operator
+import struct
+import sys
+import tempfile
+import zlib
+from array import array
+from pathlib import Path
+
+import bpy  # type: ignore[import-not-found]
+
+MATTE_TOLERANCE = 2.0 / 65535.0  # one 16-bit PNG step, plus rounding
+_MAGIC = b"\x76\x2f\x31\x01"
+_LINES_PER_BLOCK = {0: 1, 2: 1, 3: 16}  # NONE, ZIPS, ZIP: all sensaov writes
+_PIXEL_BYTES = {1: 2, 2: 4}  # HALF, FLOAT
+
+
+# --- a minimal scanline EXR reader (NONE / ZIPS / ZIP, HALF / FLOAT) ------------------------
+
+
+def read_exr(path: Path) -> tuple[dict[str, list[float]], dict[str, object], int, int]:
+    """Channels (name -> row-major floats, top row first), header, width and height."""
+    data = path.read_bytes()
+    if data[:4] != _MAGIC or data[5] & 0x1E:  # tiled, long names... need more than this reader
+        raise ValueError(f"{path}: not a single-part scanline EXR")
+    header, position = _read_header(data, 8)
+    (x0, y0), (x1, y1) = header["dataWindow"]  # type: ignore[misc]
+    width, height = x1 - x0 + 1, y1 - y0 + 1
+    compression = header["compression"]
+    if compression not in _LINES_PER_BLOCK:
+        raise ValueError(f"{path}: compression {compression} is not NONE, ZIPS or ZIP")
+    lines = _LINES_PER_BLOCK[compression]  # type: ignore[index]
+    channels: list[tuple[str, int]] = header["channels"]  # type: ignore[assignment]
+    chunks = (height + lines - 1) // lines
+    offsets = struct.unpack_from(f"<{chunks}Q", data, position)
+    raw = bytearray()
+    for offset in offsets:
+        _, size = struct.unpack_from("<ii", data, offset)
+        block = data[offset + 8 : offset + 8 + size]
+        raw += block if compression == 0 else _unzip(block, lines, width, channels, height)
+    return _split_channels(bytes(raw), channels, width, height), header, width, height
+
+
+def _read_header(data: bytes, position: int) -> tuple[dict[str, object], int]:
+    header: dict[str, object] = {}
+    while data[position] != 0:
+        name, position = _cstring(data, position)
+        kind, position = _cstring(data, position)
+        (size,) = struct.unpack_from("<i", data, position)
+        value = data[position + 4 : position + 4 + size]
+        position += 4 + size
+        if kind == "string":
+            header[name] = value.decode("utf-8")
+        elif kind == "chlist":
+            header[name] = _channel_list(value)
+        elif kind == "box2i":
+            x0, y0, x1, y1 = struct.unpack("<4i", value)
+            header[name] = ((x0, y0), (x1, y1))
+        elif kind == "compression":
+            header[name] = value[0]
+    return header, position + 1
+
+
+def _cstring(data: bytes, position: int) -> tuple[str, int]:
+    end = data.index(b"\0", position)
+    return data[position:end].decode("utf-8"), end + 1
+
+
+def _channel_list(value: bytes) -> list[tuple[str, int]]:
+    channels, position = [], 0
+    while value[position] != 0:
+        name, position = _cstring(value, position)
+        (pixel_type,) = struct.unpack_from("<i", value, position)
+        channels.append((name, pixel_type))
+        position += 16  # type, pLinear + 3 reserved, xSampling, ySampling
+    return channels
+
+
+def _unzip(block: bytes, lines: int, width: int, channels: list, height: int) -> bytes:
+    line_bytes = width * sum(_PIXEL_BYTES[kind] for _, kind in channels)
+    if len(block) >= lines * line_bytes:  # stored uncompressed (possibly a short last block)
+        return block
+    packed = zlib.decompress(block)
+    # Undo the predictor (each byte stored as a difference + 128) with C-level iterators.
+    deltas = map(operator.sub, packed, itertools.repeat(128))
+    running = itertools.islice(itertools.accumulate(deltas, initial=128), 1, None)
+    predicted = bytes(map(operator.and_, running, itertools.repeat(0xFF)))
+    # Undo the split of even and odd bytes into two halves.
+    out = bytearray(len(predicted))
+    half = (len(predicted) + 1) // 2
+    out[0::2], out[1::2] = predicted[:half], predicted[half:]
+    return bytes(out)
+
+
+def _split_channels(
+    raw: bytes, channels: list[tuple[str, int]], width: int, height: int
+) -> dict[str, list[float]]:
+    result: dict[str, list[float]] = {name: [] for name, _ in channels}
+    position = 0
+    for _ in range(height):
+        for name, kind in channels:
+            size = width * _PIXEL_BYTES[kind]
+            chunk = raw[position : position + size]
+            values = array("f", chunk) if kind == 2 else struct.unpack(f"<{width}e", chunk)
+            result[name].extend(values)
+            position += size
+    return result
+
+
+# --- what the file promises ------------------------------------------------------------------
+
+
+def object_coverage(
+    channels: dict[str, list[float]], header: dict[str, object], object_name: str
+) -> tuple[str, list[float]]:
+    """The Cryptomatte type holding ``object_name`` and its per-pixel coverage (all ranks)."""
+    for key, value in header.items():
+        if not (key.startswith("cryptomatte/") and key.endswith("/name")):
+            continue
+        manifest = json.loads(str(header.get(key[: -len("name")] + "manifest", "{}")))
+        if object_name not in manifest:
+            continue
+        wanted = int(manifest[object_name], 16)
+        total = [0.0] * len(next(iter(channels.values())))
+        layer = 0
+        while f"{value}{layer:02d}.R" in channels:
+            for id_name, cov_name in (("R", "G"), ("B", "A")):
+                ids = channels[f"{value}{layer:02d}.{id_name}"]
+                covs = channels[f"{value}{layer:02d}.{cov_name}"]
+                for pixel, (id_value, cov) in enumerate(zip(ids, covs, strict=True)):
+                    if struct.unpack("<I", struct.pack("<f", id_value))[0] == wanted:
+                        total[pixel] += cov
+            layer += 1
+        return str(value), total
+    raise SystemExit(f"FAIL: {object_name!r} is in no Cryptomatte manifest of the file")
+
+
+def expected_passes(channel_names: list[str]) -> dict[tuple[str, str], list[str]]:
+    """(layer, pass) -> channels, split the way Blender splits: last token channel, then pass."""
+    passes: dict[tuple[str, str], list[str]] = {}
+    for name in channel_names:
+        tokens = name.split(".")
+        if len(tokens) >= 3:
+            passes.setdefault((".".join(tokens[:-2]), tokens[-2]), []).append(tokens[-1])
+    return passes
+
+
+# --- what Blender sees -----------------------------------------------------------------------
+
+
+def blender_passes(tree: bpy.types.NodeTree, image: bpy.types.Image) -> dict[str, list[str]]:
+    """Layer -> 'pass (socket type)' for every layer the Image node offers."""
+    node = tree.nodes.new("CompositorNodeImage")
+    node.image = image
+    seen = {node.layer: _outputs(node)}  # the unnamed layer is current first, not in the enum
+    for layer in _enum_choices(node, "layer"):
+        node.layer = layer
+        seen[layer] = _outputs(node)
+    tree.nodes.remove(node)
+    return seen
+
+
+def _outputs(node: bpy.types.Node) -> list[str]:
+    return [f"{socket.name} ({socket.type})" for socket in node.outputs if socket.enabled]
+
+
+def _enum_choices(node: bpy.types.Node, prop: str) -> list[str]:
+    """Items of a dynamic enum: RNA lists them only in the error for an invalid value."""
+    try:
+        setattr(node, prop, "\x01 not a choice")
+    except TypeError as error:
+        text = str(error)
+        return list(eval(text[text.index(" not found in ") + 14 :], {}))  # a tuple of str
+    return []
+
+
+def render_matte(image: bpy.types.Image, object_name: str, out: Path) -> list[float]:
+    """Key ``object_name`` with a Cryptomatte node, render the composite, return it top row first."""
+    scene = bpy.context.scene
+    tree = scene.node_tree
+    crypto = tree.nodes.new("CompositorNodeCryptomatteV2")
+    crypto.source = "IMAGE"
+    crypto.image = image
+    crypto.layer_name = _enum_choices(crypto, "layer_name")[0]
+    crypto.matte_id = object_name
+    composite = tree.nodes.new("CompositorNodeComposite")
+    tree.links.new(crypto.outputs["Matte"], composite.inputs["Image"])
+    width, height = image.size
+    render = scene.render
+    render.resolution_x, render.resolution_y, render.resolution_percentage = width, height, 100
+    render.image_settings.file_format = "PNG"
+    render.image_settings.color_mode = "BW"
+    render.image_settings.color_depth = "16"
+    render.dither_intensity = 0.0
+    scene.view_settings.view_transform = "Raw"
+    scene.view_settings.look = "None"
+    render.filepath = str(out)
+    bpy.ops.render.render(write_still=True)
+    png = bpy.data.images.load(str(out))
+    png.colorspace_settings.name = "Non-Color"
+    rgba = list(png.pixels)
+    rows = [rgba[4 * width * y : 4 * width * (y + 1) : 4] for y in range(height)]
+    return [value for row in reversed(rows) for value in row]  # Blender stores bottom row first
+
+
+# --- the check -------------------------------------------------------------------------------
+
+
+def check(exr: Path, object_name: str, out: Path) -> list[tuple[bool, str]]:
+    channels, header, width, height = read_exr(exr)
+    results: list[tuple[bool, str]] = []
+    image = bpy.data.images.load(str(exr))
+    scene = bpy.context.scene
+    scene.use_nodes = True
+    for node in list(scene.node_tree.nodes):
+        scene.node_tree.nodes.remove(node)
+    seen = blender_passes(scene.node_tree, image)
+    print("Blender sees (layer: passes):")
+    for layer, passes in seen.items():
+        print(f"  {layer or '(unnamed)'!s}: {', '.join(passes)}")
+    results.append((image.type == "MULTILAYER", f"image type {image.type} (want MULTILAYER)"))
+    for (layer, pass_name), chans in sorted(expected_passes(list(channels)).items()):
+        names = [entry.split(" (")[0] for entry in seen.get(layer, [])]
+        results.append((pass_name in names, f"pass {layer}.{pass_name} ({','.join(chans)})"))
+    preview = [name for name in channels if name.count(".") == 1 and name.split(".")[0].isalpha()]
+    results.append((not preview, f"no Cryptomatte preview channels {preview}"))
+    type_name, coverage = object_coverage(channels, header, object_name)
+    matte = render_matte(image, object_name, out / "matte.png")
+    results += compare_matte(matte, coverage, width, height, f"{type_name} {object_name!r}")
+    return results
+
+
+def compare_matte(
+    matte: list[float], coverage: list[float], width: int, height: int, what: str
+) -> list[tuple[bool, str]]:
+    inside = [k for k, c in enumerate(coverage) if c > 0]
+    outside = [k for k, c in enumerate(coverage) if c <= 0]
+    missing = [k for k in inside if matte[k] <= 0]
+    stray = [k for k in outside if matte[k] != 0]
+    error = max((abs(m - c) for m, c in zip(matte, coverage, strict=True)), default=0.0)
+    return [
+        (bool(inside), f"{what} covers {len(inside)} of {width * height} pixels in the EXR"),
+        (not missing, f"matte > 0 wherever coverage > 0 ({len(missing)} pixels missing)"),
+        (not stray, f"matte = 0 wherever coverage = 0 ({len(stray)} stray pixels)"),
+        (error <= MATTE_TOLERANCE, f"matte equals coverage (max |diff| {error:.2e})"),
+    ]
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="blender_check.py", description=__doc__.split("\n")[0])
+    parser.add_argument("exr", type=Path)
+    parser.add_argument("object_name")
+    parser.add_argument("--out", type=Path, help="folder for matte.png (default: a temp folder)")
+    args = parser.parse_args(argv[argv.index("--") + 1 :] if "--" in argv else [])
+    out = args.out or Path(tempfile.mkdtemp(prefix="sensaov-blender-"))
+    out.mkdir(parents=True, exist_ok=True)
+    results = check(args.exr, args.object_name, out)
+    for ok, text in results:
+        print(f"{'PASS' if ok else 'FAIL'}: {text}")
+    failed = sum(not ok for ok, _ in results)
+    print(f"matte written to {out / 'matte.png'}")
+    print(f"SUMMARY: {'FAIL' if failed else 'PASS'} ({len(results) - failed}/{len(results)} ok)")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))

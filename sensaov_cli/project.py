@@ -1,0 +1,230 @@
+"""``sensaov project``: bind a stored buffer to inspection cameras and write layered EXRs.
+
+Reads the buffer, traces primary visibility per camera and paints per-object values: no
+derivative is computed here (§3 "Binding"; the deferred-shading half of the paper). Shared
+colour scales come from the object values, so cameras rendered in separate farm tasks agree.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .buffer import SensitivityBuffer
+from .encoding import Encoding, choose_scale, encode_image, signed_object_values
+from .errors import SpecError
+from .exr_layout import CryptoLayer, SensitivityLayer, write_layered_exr
+from .progress import Progress
+from .scene import LoadedScene, load_scene
+from .scene_xml import scene_fingerprint
+from .spec import CameraSpec, JobSpec
+from .views import ChannelValues, channel_values
+from .visibility import VisibilityPass, trace
+
+OBJECTIVE_CAMERA = CameraSpec("objective", None, None, 40.0, None, True, 16)
+
+
+class FingerprintMismatch(SpecError):
+    """The buffer was computed on another version of the scene."""
+
+
+@dataclass(frozen=True)
+class ProjectedView:
+    camera: str
+    path: Path
+    width: int
+    height: int
+    vis_spp: int
+    seconds: float
+    previews: tuple[Path, ...]
+
+
+def project_job(
+    job: JobSpec,
+    *,
+    buffer_path: Path,
+    cameras: tuple[str, ...] = (),
+    force: bool = False,
+    png: bool = False,
+    beauty_spp: int = 16,
+    progress: Progress,
+) -> list[ProjectedView]:
+    buffer = SensitivityBuffer.load(buffer_path)
+    _check_fingerprint(job, buffer, buffer_path, force)
+    chosen = _cameras(job, cameras)
+    passes = channel_values(buffer, job.channels)  # camera-independent: computed once
+    with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
+        loaded = load_scene(_with_cameras(job, chosen), with_inspection_cameras=True)
+    _check_objects(buffer, loaded, buffer_path)
+    views = []
+    for camera in chosen:
+        start = time.perf_counter()
+        with progress.stage(f"view_{camera.name}_s", f"view '{camera.name}'"):
+            view = _project_camera(
+                job, buffer, buffer_path, loaded, camera, passes, png, beauty_spp
+            )
+        views.append(_with_time(view, time.perf_counter() - start))
+    return views
+
+
+def _with_time(view: ProjectedView, seconds: float) -> ProjectedView:
+    return ProjectedView(
+        view.camera,
+        view.path,
+        view.width,
+        view.height,
+        view.vis_spp,
+        round(seconds, 4),
+        view.previews,
+    )
+
+
+def _check_fingerprint(job: JobSpec, buffer: SensitivityBuffer, path: Path, force: bool) -> None:
+    recorded = buffer.provenance.get("scene_fingerprint")
+    if recorded != scene_fingerprint(job.scene) and not force:
+        raise FingerprintMismatch(
+            f"the buffer was made from another version of {job.scene.name} (fingerprint differs)",
+            where=str(path),
+            hint="re-run 'sensaov run', or pass --force to project it anyway",
+        )
+
+
+def _check_objects(buffer: SensitivityBuffer, loaded: LoadedScene, path: Path) -> None:
+    missing = sorted(set(buffer.objects) - set(loaded.objects))
+    if missing:
+        raise FingerprintMismatch(
+            f"objects in the buffer are not in the scene: {', '.join(missing[:5])}",
+            where=str(path),
+            hint="the buffer belongs to another scene",
+        )
+
+
+def _cameras(job: JobSpec, names: tuple[str, ...]) -> list[CameraSpec]:
+    """The job's inspection cameras plus the objective camera (once), or the named ones."""
+    cameras = list(job.inspection_cameras)
+    if not any(camera.objective for camera in cameras):
+        cameras.insert(0, OBJECTIVE_CAMERA)
+    if not names:
+        return cameras
+    known = {camera.name: camera for camera in cameras}
+    unknown = [name for name in names if name not in known]
+    if unknown:
+        raise SpecError(
+            f"no inspection camera named {unknown[0]!r}",
+            where="--camera",
+            hint=f"cameras of this job: {', '.join(known)}",
+        )
+    return [known[name] for name in names]
+
+
+def _with_cameras(job: JobSpec, cameras: list[CameraSpec]) -> JobSpec:
+    return replace(job, inspection_cameras=tuple(cameras))
+
+
+def _project_camera(
+    job: JobSpec,
+    buffer: SensitivityBuffer,
+    buffer_path: Path,
+    loaded: LoadedScene,
+    camera: CameraSpec,
+    passes: list[ChannelValues],
+    png: bool,
+    beauty_spp: int,
+) -> ProjectedView:
+    sensor = loaded.inspection_sensors[camera.name]
+    visibility = trace(
+        loaded.mi, loaded.scene, sensor, buffer.objects, camera.vis_spp, seed=job.render.seed
+    )
+    beauty = _beauty(loaded, sensor, visibility, beauty_spp, job.render.seed)
+    layers = [_layer(p, visibility, buffer_path, camera) for p in passes]
+    crypto = CryptoLayer(
+        "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage
+    )
+    path = job.output / f"{camera.name}.exr"
+    attributes = _attributes(buffer, buffer_path, camera, beauty_spp)
+    write_layered_exr(
+        path,
+        width=visibility.width,
+        height=visibility.height,
+        beauty=beauty,
+        cryptomattes=[crypto],
+        layers=[layer for layer, _ in layers],
+        attributes=attributes,
+    )
+    previews: tuple[Path, ...] = ()
+    if png:
+        from .preview_sheets import write_previews
+
+        previews = write_previews(job.output / "previews", camera.name, layers, beauty, visibility)
+    return ProjectedView(
+        camera.name, path, visibility.width, visibility.height, visibility.spp, 0.0, previews
+    )
+
+
+def _beauty(
+    loaded: LoadedScene, sensor: Any, visibility: VisibilityPass, spp: int, seed: int
+) -> np.ndarray | None:
+    """A quick RGBA render at the inspection camera (alpha = visibility coverage)."""
+    if spp <= 0:
+        return None
+    import drjit as dr
+
+    with dr.suspend_grad():
+        image = loaded.integrator.render(loaded.scene, sensor, seed=seed, spp=spp)
+    rgb = np.array(image, dtype=np.float32)[..., :3]
+    return np.concatenate([rgb, visibility.coverage_hit[..., None]], axis=2)
+
+
+def _layer(
+    values: ChannelValues, visibility: VisibilityPass, buffer_path: Path, camera: CameraSpec
+) -> tuple[SensitivityLayer, float]:
+    """The encoded pass and the value at which its preview saturates (same for every camera)."""
+    encoding = Encoding.from_channel(values.spec)
+    names = visibility.objects
+    per_object = signed_object_values(
+        dict(zip(names, values.magnitudes, strict=True)),
+        dict(zip(names, values.signed_sums, strict=True)),
+        encoding.sign,
+    )
+    painted = visibility.paint(np.array([per_object[name] for name in names]))
+    scale = choose_scale(encoding, per_object, painted if encoding.normalize == "channel" else None)
+    data = encode_image(painted, encoding, scale.threshold, scale.scale)
+    peak = choose_scale(replace(encoding, normalize="shared"), per_object).scale
+    preview_scale = 1.0 if encoding.normalize == "channel" else peak / scale.scale
+    metadata = {
+        "selection": values.selection,
+        "aggregate": encoding.aggregate,
+        "weight": encoding.weight,
+        "encoding": encoding.describe(),
+        "scale": scale.describe(),
+        "spp": str(visibility.spp),
+        "buffer": str(buffer_path),
+        "camera": camera.name,
+        "keys": json.dumps(list(values.keys)),
+        "unverified": json.dumps(list(values.unverified)),
+        "original_name": f"{values.objective}.{values.pass_name}",
+    }
+    return SensitivityLayer(values.objective, values.pass_name, data, metadata), preview_scale
+
+
+def _attributes(
+    buffer: SensitivityBuffer, buffer_path: Path, camera: CameraSpec, beauty_spp: int
+) -> dict[str, str]:
+    from . import __version__
+
+    made = {
+        "tool": "sensaov",
+        "tool_version": __version__,
+        "command": "project",
+        "camera": camera.name,
+        "vis_spp": camera.vis_spp,
+        "beauty_spp": beauty_spp,
+        "buffer": str(buffer_path),
+        "buffer_provenance": buffer.provenance,
+    }
+    return {"sensaov/provenance": json.dumps(made, sort_keys=True)}

@@ -1,0 +1,188 @@
+"""PNG previews: the colour map's ends and order, the underlay, the contact sheet, the writer."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sensaov_cli.encoding import NonFiniteError
+from sensaov_cli.previews import (
+    BACKGROUND,
+    BAR_HEIGHT,
+    LABEL_HEIGHT,
+    LEGEND_HEIGHT,
+    MIN_WIDTH,
+    PAD,
+    RDBU,
+    contact_sheet,
+    diverging_rgb,
+    underlay,
+    write_png,
+)
+
+BLUE, WHITE, RED = RDBU[0], RDBU[5], RDBU[-1]
+
+
+def luminance(rgb: np.ndarray) -> np.ndarray:
+    return rgb.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
+
+
+def test_ends_and_centre_are_the_table_stops() -> None:
+    got = diverging_rgb(np.array([-2e-3, 0.0, 2e-3]), 2e-3)
+    np.testing.assert_array_equal(got, [BLUE, WHITE, RED])
+    np.testing.assert_array_equal(WHITE, [0xF7, 0xF7, 0xF7])
+    assert BLUE[2] > BLUE[0] and RED[0] > RED[2]
+
+
+def test_saturates_beyond_the_scale() -> None:
+    got = diverging_rgb(np.array([-1e9, 1e9]), 1.0)
+    np.testing.assert_array_equal(got, [BLUE, RED])
+
+
+def test_every_stop_is_hit_exactly() -> None:
+    np.testing.assert_array_equal(diverging_rgb(np.linspace(-1.0, 1.0, 11), 1.0), RDBU)
+
+
+def test_lightness_grows_towards_zero_and_sign_picks_the_hue() -> None:
+    stops = luminance(RDBU)
+    assert np.all(np.diff(stops[:6]) > 0) and np.all(np.diff(stops[5:]) < 0)
+    ramp = diverging_rgb(np.linspace(-1.0, 1.0, 1001), 1.0).astype(np.int64)
+    light = luminance(ramp)
+    # Between stops, channels round to 8 bits at different places: allow one red step.
+    step = 0.2126
+    assert np.all(np.diff(light[:501]) >= -step) and np.all(np.diff(light[500:]) <= step)
+    # Within 1% of zero both are near-white and may round to equal channels.
+    assert np.all(ramp[:495, 2] > ramp[:495, 0]) and np.all(ramp[:500, 2] >= ramp[:500, 0])
+    assert np.all(ramp[506:, 0] > ramp[506:, 2]) and np.all(ramp[501:, 0] >= ramp[501:, 2])
+
+
+def test_keeps_the_shape_and_gives_uint8() -> None:
+    got = diverging_rgb(np.zeros((5, 7)), 1.0)
+    assert got.shape == (5, 7, 3) and got.dtype == np.uint8
+
+
+def test_scale_zero_draws_zero_white_and_anything_else_at_the_ends() -> None:
+    got = diverging_rgb(np.array([-1e-30, 0.0, 1e-30]), 0.0)
+    np.testing.assert_array_equal(got, [BLUE, WHITE, RED])
+
+
+def test_nan_is_refused() -> None:
+    with pytest.raises(NonFiniteError):
+        diverging_rgb(np.array([0.0, np.nan]), 1.0)
+    with pytest.raises(ValueError, match="scale"):
+        diverging_rgb(np.zeros(2), np.nan)
+
+
+def test_underlay_shows_dim_beauty_where_nothing_is_hit() -> None:
+    colour = np.full((1, 3, 3), 200, dtype=np.uint8)
+    beauty = np.array([[[1.0, 1.0, 1.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]])
+    miss = underlay(colour, beauty, np.zeros((1, 3)), strength=0.25)
+    np.testing.assert_array_equal(miss[0], [[64, 64, 64], [0, 0, 0], [64, 0, 0]])
+
+
+def test_underlay_shades_hit_colours_without_changing_their_hue() -> None:
+    colour = np.array([[RED, BLUE]], dtype=np.uint8)
+    white = underlay(colour, np.ones((1, 2, 3)), np.ones((1, 2)), strength=0.25)
+    np.testing.assert_array_equal(white, colour)
+    black = underlay(colour, np.zeros((1, 2, 3)), np.ones((1, 2)), strength=0.25)
+    np.testing.assert_array_equal(black, np.rint(colour * 0.75).astype(np.uint8))
+
+
+def test_underlay_shows_non_finite_beauty_black() -> None:
+    beauty = np.array([[[np.nan, np.nan, np.nan]]])
+    got = underlay(np.zeros((1, 1, 3), dtype=np.uint8), beauty, np.zeros((1, 1)))
+    np.testing.assert_array_equal(got, np.zeros((1, 1, 3)))
+
+
+def tile(height: int, width: int, value: int) -> np.ndarray:
+    return np.full((height, width, 3), value, dtype=np.uint8)
+
+
+def test_sheet_size() -> None:
+    tiles = [(f"t{i}", tile(48, 128, 10 * i)) for i in range(3)]
+    sheet = contact_sheet(tiles, 2, scale=1.0)
+    assert sheet.dtype == np.uint8
+    assert sheet.shape == (PAD + 2 * (LABEL_HEIGHT + 48 + PAD) + LEGEND_HEIGHT, 280, 3)
+    assert contact_sheet(tiles[:1], 5, scale=1.0).shape[1] == MIN_WIDTH
+
+
+def test_tiles_sit_under_their_labels() -> None:
+    tiles = [("reflectance", tile(48, 128, 90)), ("", tile(48, 128, 140))]
+    sheet = contact_sheet(tiles, 2, scale=1.0)
+    top = PAD + LABEL_HEIGHT
+    for column, (label, rgb) in enumerate(tiles):
+        left = PAD + column * (128 + PAD)
+        np.testing.assert_array_equal(sheet[top : top + 48, left : left + 128], rgb)
+        strip = sheet[PAD:top, left : left + 128]
+        has_text = np.any(strip != BACKGROUND)
+        assert has_text == bool(label), label
+
+
+def test_long_labels_stay_in_their_cell() -> None:
+    sheet = contact_sheet([("a_very_long_channel_name_" * 4, tile(32, 40, 0))], 1, scale=1.0)
+    cell_left = (MIN_WIDTH - (40 + 2 * PAD)) // 2 + PAD
+    strip = sheet[PAD : PAD + LABEL_HEIGHT]
+    assert np.any(strip[:, cell_left : cell_left + 40] != BACKGROUND)
+    assert np.all(strip[:, : cell_left - 1] == BACKGROUND)
+    assert np.all(strip[:, cell_left + 41 :] == BACKGROUND)
+
+
+def test_smaller_tiles_are_centred_in_their_cell() -> None:
+    sheet = contact_sheet([("big", tile(40, 120, 0)), ("small", tile(20, 60, 255))], 2, scale=1.0)
+    top, left = PAD + LABEL_HEIGHT + 10, PAD + 120 + PAD + 30
+    np.testing.assert_array_equal(sheet[top : top + 20, left : left + 60], tile(20, 60, 255))
+    assert np.all(sheet[top - 1, left : left + 60] == BACKGROUND)
+
+
+def test_legend_is_the_colour_map_with_its_numbers() -> None:
+    sheet = contact_sheet([("x", tile(16, 16, 0))], 1, scale=2.5e-3, title="symlog")
+    bar_top = sheet.shape[0] - LEGEND_HEIGHT + LABEL_HEIGHT
+    bar = sheet[bar_top : bar_top + BAR_HEIGHT, PAD : MIN_WIDTH - PAD]
+    assert np.all(bar == bar[:1])
+    np.testing.assert_array_equal(bar[0, 0], BLUE)
+    np.testing.assert_array_equal(bar[0, -1], RED)
+    title = sheet[bar_top - LABEL_HEIGHT : bar_top]
+    numbers = sheet[bar_top + BAR_HEIGHT : bar_top + BAR_HEIGHT + LABEL_HEIGHT]
+    assert np.any(title != BACKGROUND)
+    for left, right in ((0, 40), (MIN_WIDTH // 2 - 8, MIN_WIDTH // 2 + 8), (-40, None)):
+        assert np.any(numbers[:, left:right] != BACKGROUND)
+
+
+@pytest.mark.parametrize("columns", [0, -1, 1.5, True])
+def test_sheet_refuses_bad_columns(columns: object) -> None:
+    with pytest.raises(ValueError, match="columns"):
+        contact_sheet([("x", tile(4, 4, 0))], columns, scale=1.0)  # type: ignore[arg-type]
+
+
+def test_sheet_refuses_no_tiles_and_bad_images() -> None:
+    with pytest.raises(ValueError, match="at least one"):
+        contact_sheet([], 1, scale=1.0)
+    with pytest.raises(ValueError, match="uint8"):
+        contact_sheet([("x", np.zeros((4, 4, 3)))], 1, scale=1.0)
+
+
+def test_png_is_written_readable_and_alone(tmp_path: Path) -> None:
+    import OpenImageIO as oiio
+
+    image = diverging_rgb(np.linspace(-1.0, 1.0, 6 * 8).reshape(6, 8), 1.0)
+    path = tmp_path / "previews" / "cam.reflectance.png"
+    write_png(path, image, {"sensaov:encoding": "weight=value;sign=signed"})
+    assert os.listdir(path.parent) == [path.name]
+    source = oiio.ImageInput.open(str(path))
+    assert source is not None and source.format_name() == "png"
+    assert source.spec().getattribute("sensaov:encoding") == "weight=value;sign=signed"
+    np.testing.assert_array_equal(source.read_image("uint8"), image)
+    source.close()
+
+
+def test_failed_png_write_leaves_the_old_file_and_no_temporary(tmp_path: Path) -> None:
+    path = tmp_path / "cam.png"
+    path.write_bytes(b"old")
+    with pytest.raises(ValueError, match="uint8"):
+        write_png(path, np.zeros((4, 4, 3)))
+    with pytest.raises(ValueError, match=r"\(H, W, 3\)"):
+        write_png(path, np.zeros((4, 4, 4), dtype=np.uint8))
+    assert os.listdir(tmp_path) == ["cam.png"] and path.read_bytes() == b"old"
