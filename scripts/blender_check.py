@@ -16,6 +16,7 @@ failure, 2 on bad arguments.
 from __future__ import annotations
 
 import argparse
+import ast
 import itertools
 import json
 import operator
@@ -40,7 +41,7 @@ _PIXEL_BYTES = {1: 2, 2: 4}  # HALF, FLOAT
 def read_exr(path: Path) -> tuple[dict[str, list[float]], dict[str, object], int, int]:
     """Channels (name -> row-major floats, top row first), header, width and height."""
     data = path.read_bytes()
-    if data[:4] != _MAGIC or data[5] & 0x1E:  # tiled, long names... need more than this reader
+    if data[:4] != _MAGIC or data[5] & 0x1A:  # tiled, deep or multipart: not for this reader
         raise ValueError(f"{path}: not a single-part scanline EXR")
     header, position = _read_header(data, 8)
     (x0, y0), (x1, y1) = header["dataWindow"]  # type: ignore[misc]
@@ -52,11 +53,13 @@ def read_exr(path: Path) -> tuple[dict[str, list[float]], dict[str, object], int
     channels: list[tuple[str, int]] = header["channels"]  # type: ignore[assignment]
     chunks = (height + lines - 1) // lines
     offsets = struct.unpack_from(f"<{chunks}Q", data, position)
+    line_bytes = width * sum(_PIXEL_BYTES[kind] for _, kind in channels)
     raw = bytearray()
     for offset in offsets:
-        _, size = struct.unpack_from("<ii", data, offset)
+        y, size = struct.unpack_from("<ii", data, offset)
         block = data[offset + 8 : offset + 8 + size]
-        raw += block if compression == 0 else _unzip(block, lines, width, channels, height)
+        stored = min(lines, y0 + height - y) * line_bytes
+        raw += block if size == stored else _unzip(block)  # ZIP stores a block raw if no gain
     return _split_channels(bytes(raw), channels, width, height), header, width, height
 
 
@@ -95,10 +98,7 @@ def _channel_list(value: bytes) -> list[tuple[str, int]]:
     return channels
 
 
-def _unzip(block: bytes, lines: int, width: int, channels: list, height: int) -> bytes:
-    line_bytes = width * sum(_PIXEL_BYTES[kind] for _, kind in channels)
-    if len(block) >= lines * line_bytes:  # stored uncompressed (possibly a short last block)
-        return block
+def _unzip(block: bytes) -> bytes:
     packed = zlib.decompress(block)
     # Undo the predictor (each byte stored as a difference + 128) with C-level iterators.
     deltas = map(operator.sub, packed, itertools.repeat(128))
@@ -171,7 +171,7 @@ def blender_passes(tree: bpy.types.NodeTree, image: bpy.types.Image) -> dict[str
     """Layer -> 'pass (socket type)' for every layer the Image node offers."""
     node = tree.nodes.new("CompositorNodeImage")
     node.image = image
-    seen = {node.layer: _outputs(node)}  # the unnamed layer is current first, not in the enum
+    seen = {"": _outputs(node)}  # the unnamed layer is current first and not in the enum
     for layer in _enum_choices(node, "layer"):
         node.layer = layer
         seen[layer] = _outputs(node)
@@ -189,22 +189,28 @@ def _enum_choices(node: bpy.types.Node, prop: str) -> list[str]:
         setattr(node, prop, "\x01 not a choice")
     except TypeError as error:
         text = str(error)
-        return list(eval(text[text.index(" not found in ") + 14 :], {}))  # a tuple of str
+        choices = ast.literal_eval(text[text.index(" not found in ") + 14 :])
+        return [choices] if isinstance(choices, str) else list(choices)  # ('one') is a str
     return []
 
 
-def render_matte(image: bpy.types.Image, object_name: str, out: Path) -> list[float]:
+def render_matte(
+    image: bpy.types.Image, type_name: str, object_name: str, size: tuple[int, int], out: Path
+) -> list[float]:
     """Key ``object_name`` with a Cryptomatte node, render the composite, return it top row first."""
     scene = bpy.context.scene
     tree = scene.node_tree
     crypto = tree.nodes.new("CompositorNodeCryptomatteV2")
     crypto.source = "IMAGE"
     crypto.image = image
-    crypto.layer_name = _enum_choices(crypto, "layer_name")[0]
+    choices = _enum_choices(crypto, "layer_name")
+    if type_name not in choices:
+        raise SystemExit(f"FAIL: Blender offers Cryptomatte layers {choices}, not {type_name!r}")
+    crypto.layer_name = type_name
     crypto.matte_id = object_name
     composite = tree.nodes.new("CompositorNodeComposite")
     tree.links.new(crypto.outputs["Matte"], composite.inputs["Image"])
-    width, height = image.size
+    width, height = size  # a multilayer Image reports size (0, 0)
     render = scene.render
     render.resolution_x, render.resolution_y, render.resolution_percentage = width, height, 100
     render.image_settings.file_format = "PNG"
@@ -241,10 +247,11 @@ def check(exr: Path, object_name: str, out: Path) -> list[tuple[bool, str]]:
     for (layer, pass_name), chans in sorted(expected_passes(list(channels)).items()):
         names = [entry.split(" (")[0] for entry in seen.get(layer, [])]
         results.append((pass_name in names, f"pass {layer}.{pass_name} ({','.join(chans)})"))
-    preview = [name for name in channels if name.count(".") == 1 and name.split(".")[0].isalpha()]
-    results.append((not preview, f"no Cryptomatte preview channels {preview}"))
+    types = [str(v) for k, v in header.items() if k.startswith("cryptomatte/") and k.endswith("/name")]
+    preview = [f"{t}.{c}" for t in types for c in "RGB" if f"{t}.{c}" in channels]
+    results.append((not preview, f"no deprecated Cryptomatte preview channels {preview or ''}"))
     type_name, coverage = object_coverage(channels, header, object_name)
-    matte = render_matte(image, object_name, out / "matte.png")
+    matte = render_matte(image, type_name, object_name, (width, height), out / "matte.png")
     results += compare_matte(matte, coverage, width, height, f"{type_name} {object_name!r}")
     return results
 

@@ -19,25 +19,42 @@ RANKS = 6  # Cryptomatte's customary three layers of two ranks
 
 
 @dataclass(frozen=True)
+class Coverage:
+    """Per-pixel object histogram as triplets: pixel ``pixel`` saw object ``obj`` ``count`` times.
+
+    Sorted by pixel, then by decreasing count, then object index. Background is not listed.
+    """
+
+    pixel: np.ndarray  # (T,) int64 flat pixel index (row-major)
+    obj: np.ndarray  # (T,) int32 object index
+    count: np.ndarray  # (T,) int32 samples
+
+
+@dataclass(frozen=True)
 class VisibilityPass:
     width: int
     height: int
     spp: int
     objects: tuple[str, ...]  # index -> object name (the buffer's object list)
-    sample_object: np.ndarray  # (H, W, S) int32 object index, BACKGROUND where nothing is hit
     sample_uv: np.ndarray  # (H, W, S, 2) float32 surface UV of each hit (0 on background)
+    coverage: Coverage
     rank_index: np.ndarray  # (H, W, RANKS) int32, objects by decreasing coverage, -1 = empty
     rank_coverage: np.ndarray  # (H, W, RANKS) float32
 
     @property
     def coverage_hit(self) -> np.ndarray:
         """(H, W) fraction of samples that hit any object (an alpha for the beauty)."""
-        return (self.sample_object != BACKGROUND).mean(axis=2, dtype=np.float32)
+        hits = np.bincount(
+            self.coverage.pixel, weights=self.coverage.count, minlength=self.width * self.height
+        )
+        return (hits / self.spp).astype(np.float32).reshape(self.height, self.width)
 
     def paint(self, values: np.ndarray) -> np.ndarray:
         """(H, W) coverage-weighted mean of per-object ``values`` (background contributes 0)."""
-        padded = np.append(np.asarray(values, np.float32), np.float32(0.0))
-        return padded[self.sample_object].mean(axis=2, dtype=np.float64).astype(np.float32)
+        cov = self.coverage
+        weights = cov.count * np.asarray(values, np.float64)[cov.obj]
+        total = np.bincount(cov.pixel, weights=weights, minlength=self.width * self.height)
+        return (total / self.spp).astype(np.float32).reshape(self.height, self.width)
 
 
 def sample_positions(width: int, height: int, spp: int, seed: int) -> np.ndarray:
@@ -71,15 +88,15 @@ def trace(
         uv = np.stack([np.array(si.uv.x), np.array(si.uv.y)], axis=-1).astype(np.float32)
     index = np.where(valid, lookup.get_many(shape_ids), BACKGROUND).astype(np.int32)
     uv[~valid] = 0.0
-    sample_object = index.reshape(height, width, spp)
-    rank_index, rank_coverage = rank_coverages(sample_object)
+    coverage = histogram(index.reshape(height * width, spp))
+    rank_index, rank_coverage = ranked(coverage, (height, width), spp)
     return VisibilityPass(
         width,
         height,
         spp,
         objects,
-        sample_object,
         uv.reshape(height, width, spp, 2),
+        coverage,
         rank_index,
         rank_coverage,
     )
@@ -112,21 +129,31 @@ def _shape_lookup(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> _Shap
     return _ShapeLookup(ids, np.array([p[1] for p in pairs], np.int32))
 
 
-def rank_coverages(sample_object: np.ndarray, ranks: int = RANKS) -> tuple[np.ndarray, np.ndarray]:
-    """Per pixel, the objects hit ranked by coverage (ties: lower index first), padded with -1."""
-    height, width, spp = sample_object.shape
-    flat = np.sort(sample_object.reshape(-1, spp), axis=1)
-    counts = (flat[:, :, None] == flat[:, None, :]).sum(axis=2)
+def histogram(sample_object: np.ndarray) -> Coverage:
+    """Run-length count of each pixel's sorted sample ids: O(N S log S), no N x objects table."""
+    pixels, spp = sample_object.shape
+    flat = np.sort(sample_object, axis=1)
     first = np.ones_like(flat, dtype=bool)
-    first[:, 1:] = flat[:, 1:] != flat[:, :-1]
-    score = np.where(first & (flat != BACKGROUND), counts, 0)
-    order = np.argsort(-score, axis=1, kind="stable")[:, :ranks]
-    top_score = np.take_along_axis(score, order, axis=1)
-    top_index = np.where(top_score > 0, np.take_along_axis(flat, order, axis=1), BACKGROUND)
-    coverage = (top_score / np.float32(spp)).astype(np.float32)
-    if top_index.shape[1] < ranks:  # fewer samples than ranks: pad
-        pad = ranks - top_index.shape[1]
-        top_index = np.pad(top_index, ((0, 0), (0, pad)), constant_values=BACKGROUND)
-        coverage = np.pad(coverage, ((0, 0), (0, pad)))
-    shape = (height, width, ranks)
-    return top_index.astype(np.int32).reshape(shape), coverage.reshape(shape)
+    first[:, 1:] = flat[:, 1:] != flat[:, :-1]  # a run starts at every row's first sample too
+    starts = np.flatnonzero(first)
+    counts = np.diff(np.append(starts, flat.size))
+    pixel, obj = starts // spp, flat.reshape(-1)[starts]
+    keep = obj != BACKGROUND
+    pixel, obj, counts = pixel[keep], obj[keep].astype(np.int32), counts[keep].astype(np.int32)
+    order = np.lexsort((obj, -counts, pixel))  # by pixel, then most covered, then lowest index
+    return Coverage(pixel[order], obj[order], counts[order])
+
+
+def ranked(
+    coverage: Coverage, size: tuple[int, int], spp: int, ranks: int = RANKS
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``ranks`` most covering objects per pixel (index, coverage), padded with (-1, 0)."""
+    height, width = size
+    index = np.full((height * width, ranks), BACKGROUND, np.int32)
+    amount = np.zeros((height * width, ranks), np.float32)
+    first_of_pixel = np.searchsorted(coverage.pixel, coverage.pixel, side="left")
+    rank = np.arange(len(coverage.pixel)) - first_of_pixel
+    keep = rank < ranks
+    index[coverage.pixel[keep], rank[keep]] = coverage.obj[keep]
+    amount[coverage.pixel[keep], rank[keep]] = coverage.count[keep] / np.float32(spp)
+    return index.reshape(height, width, ranks), amount.reshape(height, width, ranks)

@@ -1,0 +1,54 @@
+"""Coverage histograms and ranking on hand-made sample ids (no rendering)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sensaov_cli.visibility import BACKGROUND, VisibilityPass, histogram, ranked, sample_positions
+
+B = BACKGROUND
+
+
+def make_pass(samples: np.ndarray) -> VisibilityPass:
+    height, width, spp = samples.shape
+    coverage = histogram(samples.reshape(-1, spp))
+    index, amount = ranked(coverage, (height, width), spp, ranks=2)
+    uv = np.zeros((height, width, spp, 2), np.float32)
+    return VisibilityPass(width, height, spp, ("a", "b", "c"), uv, coverage, index, amount)
+
+
+SAMPLES = np.array(
+    [
+        [[0, 0, 0, 0], [1, 0, 1, B]],
+        [[B, B, B, B], [2, 1, 0, 2]],
+    ],
+    np.int32,
+)
+
+
+def test_ranks_by_coverage_then_lowest_index() -> None:
+    vis = make_pass(SAMPLES)
+    assert vis.rank_index[0, 0].tolist() == [0, B]
+    assert vis.rank_index[0, 1].tolist() == [1, 0]
+    assert vis.rank_coverage[0, 1].tolist() == [0.5, 0.25]
+    assert vis.rank_index[1, 0].tolist() == [B, B] and vis.rank_coverage[1, 0].sum() == 0
+    assert vis.rank_index[1, 1].tolist() == [2, 0]  # 2 covers half; 0 and 1 tie, 0 first
+    assert vis.coverage_hit.tolist() == [[1.0, 0.75], [0.0, 1.0]]
+
+
+def test_paint_is_the_coverage_weighted_mean() -> None:
+    vis = make_pass(SAMPLES)
+    painted = vis.paint(np.array([1.0, 10.0, 100.0]))
+    assert painted.tolist() == [[1.0, (10 + 1 + 10) / 4], [0.0, (100 + 10 + 1 + 100) / 4]]
+
+
+def test_sample_positions_are_stratified_inside_their_pixel() -> None:
+    positions = sample_positions(3, 2, 16, seed=1)
+    assert positions.shape == (2, 3, 16, 2)
+    pixel = np.floor(positions * np.array([3, 2])).astype(int)
+    assert (pixel[..., 0] == np.arange(3)[None, :, None]).all()
+    assert (pixel[..., 1] == np.arange(2)[:, None, None]).all()
+    cell = np.floor((positions * np.array([3, 2]) % 1) * 4).astype(int)
+    for y in range(2):
+        for x in range(3):
+            assert len({tuple(c) for c in cell[y, x]}) == 16  # one sample per 4x4 stratum
