@@ -22,7 +22,8 @@ demo: setup
 	$(BIN)/sensaov validate configs/cbox.yaml
 	$(BIN)/sensaov params configs/cbox.yaml
 	$(BIN)/sensaov run configs/cbox.yaml
-	@echo "demo done: out/cbox/buffer.npz and out/cbox/primal.exr"
+	$(BIN)/sensaov project configs/cbox.yaml --png
+	@echo "demo done: out/cbox/buffer.npz, primal.exr, one EXR per camera, previews/ (PNG)"
 
 lint: setup
 	$(BIN)/ruff check sensaov_cli tests scenes

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import struct
 from pathlib import Path
+from typing import Any
 
 import mmh3
 import numpy as np
@@ -34,12 +35,12 @@ def synthetic_coverage(
     y = (np.arange(height)[:, None] + offsets[None, :]).reshape(-1) / height
     x = (np.arange(width)[:, None] + offsets[None, :]).reshape(-1) / width
     yy, xx = np.meshgrid(y, x, indexing="ij")
-    hit = np.full(yy.shape, -1)
-    hit[yy > 0.6] = 0
-    hit[(xx > 0.48) & (xx < 0.85) & (yy > 0.2) & (yy < 0.7)] = 2
-    hit[(xx - 0.35) ** 2 + (yy - 0.45) ** 2 < 0.2**2] = 1
-    hit = hit.reshape(height, SAMPLES, width, SAMPLES).transpose(0, 2, 1, 3)
-    hit = hit.reshape(height, width, SAMPLES * SAMPLES)
+    samples = np.full(yy.shape, -1)
+    samples[yy > 0.6] = 0
+    samples[(xx > 0.48) & (xx < 0.85) & (yy > 0.2) & (yy < 0.7)] = 2
+    samples[(xx - 0.35) ** 2 + (yy - 0.45) ** 2 < 0.2**2] = 1
+    per_pixel = samples.reshape(height, SAMPLES, width, SAMPLES).transpose(0, 2, 1, 3)
+    hit = per_pixel.reshape(height, width, SAMPLES * SAMPLES)
     counts = np.stack([(hit == k).sum(axis=-1) for k in range(len(NAMES))], axis=-1)
     order = np.argsort(-counts, axis=-1, kind="stable")[..., :ranks]
     coverage = np.take_along_axis(counts, order, axis=-1).astype(np.float32) / SAMPLES**2
@@ -51,7 +52,9 @@ def synthetic_coverage(
 # --- an independent decoder, from the specification ----------------------------------------
 
 
-def decode_file(path: Path, type_name: str) -> tuple[list[np.ndarray], list[np.ndarray], dict]:
+def decode_file(
+    path: Path, type_name: str
+) -> tuple[list[np.ndarray], list[np.ndarray], dict[str, str]]:
     """Per rank: the pixels' names (object array, None = empty) and coverages; plus the manifest."""
     import OpenImageIO as oiio
 
@@ -60,7 +63,8 @@ def decode_file(path: Path, type_name: str) -> tuple[list[np.ndarray], list[np.n
     try:
         spec = source.spec()
         pixels = source.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        attributes = {attr.name: attr.value for attr in spec.extra_attribs}
+        assert pixels is not None, oiio.geterror()
+        attributes: dict[str, Any] = {attr.name: attr.value for attr in spec.extra_attribs}
         names = list(spec.channelnames)
     finally:
         source.close()
@@ -152,7 +156,7 @@ def test_exponent_clamp_on_crafted_hashes(
 
 
 def test_exponent_clamp_on_real_names() -> None:
-    clamped = {}
+    clamped: dict[int, str] = {}
     for number in range(5000):
         name = f"object_{number}"
         exponent = (mmh3.hash(name.encode(), 0, signed=False) >> 23) & 0xFF
@@ -232,13 +236,12 @@ def test_decoder_finds_every_pixel_name(written: tuple[Path, np.ndarray, np.ndar
     assert len(rank_names) == 6  # three layers, always
     assert manifest == {name: spec_id_hex(name) for name in NAMES}
     for rank in range(6):
-        expected = np.empty(index.shape[:2], dtype=object)
-        if rank < index.shape[2]:
-            for position, k in np.ndenumerate(index[..., rank]):
-                expected[position] = None if k < 0 else NAMES[k]
-            np.testing.assert_allclose(rank_coverages[rank], coverage[..., rank], atol=0)
+        ranked = index[..., rank] if rank < index.shape[2] else np.full(index.shape[:2], -1)
+        expected = np.array([[None if k < 0 else NAMES[k] for k in row] for row in ranked], object)
         assert (rank_names[rank] == expected).all()
-        assert (rank_coverages[rank][np.equal(expected, None)] == 0).all()
+        assert (rank_coverages[rank][ranked < 0] == 0).all()
+        if rank < index.shape[2]:
+            np.testing.assert_allclose(rank_coverages[rank], coverage[..., rank], atol=0)
     for name in NAMES[:3]:
         assert any((names == name).any() for names in rank_names), name
 

@@ -69,6 +69,7 @@ def oiio_read(path: Path) -> tuple[Any, dict[str, np.ndarray], dict[str, Any]]:
     try:
         spec = source.spec()
         pixels = source.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
+        assert pixels is not None, oiio.geterror()
     finally:
         source.close()
     channels = {name: pixels[..., k] for k, name in enumerate(spec.channelnames)}
