@@ -24,7 +24,7 @@ from .scene import LoadedScene, load_scene
 from .scene_xml import scene_fingerprint
 from .spec import CameraSpec, JobSpec
 from .views import ChannelValues, channel_values
-from .visibility import VisibilityPass, trace
+from .visibility import VisibilityPass, ranked, trace
 
 OBJECTIVE_CAMERA = CameraSpec("objective", None, None, 40.0, None, True, 16)
 
@@ -145,6 +145,7 @@ def _project_camera(
     crypto = CryptoLayer(
         "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage
     )
+    material = _material_cryptomatte(visibility, loaded.materials)
     path = job.output / f"{camera.name}.exr"
     attributes = _attributes(buffer, buffer_path, camera, beauty_spp)
     write_layered_exr(
@@ -152,7 +153,7 @@ def _project_camera(
         width=visibility.width,
         height=visibility.height,
         beauty=beauty,
-        cryptomattes=[crypto],
+        cryptomattes=[crypto, material],
         layers=[layer for layer, _ in layers],
         attributes=attributes,
     )
@@ -164,6 +165,17 @@ def _project_camera(
     return ProjectedView(
         camera.name, path, visibility.width, visibility.height, visibility.spp, 0.0, previews
     )
+
+
+def _material_cryptomatte(visibility: VisibilityPass, materials: dict[str, str]) -> CryptoLayer:
+    """CryptoMaterial: the object coverage regrouped by the BSDF each object uses."""
+    names = sorted({materials.get(obj, obj) for obj in visibility.objects})
+    group_of = np.array(
+        [names.index(materials.get(obj, obj)) for obj in visibility.objects], np.int32
+    )
+    coverage = visibility.coverage.regroup(group_of)
+    index, amount = ranked(coverage, (visibility.height, visibility.width), visibility.spp)
+    return CryptoLayer("CryptoMaterial", tuple(names), index, amount)
 
 
 def _beauty(

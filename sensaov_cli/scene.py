@@ -91,6 +91,7 @@ class LoadedScene:
     resolution: tuple[int, int]
     split: dict[str, tuple[str, ...]]
     inspection_sensors: dict[str, Any]  # inspection camera name -> its own sensor
+    materials: dict[str, str]  # object -> material (BSDF id) name, for the material Cryptomatte
 
 
 def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> LoadedScene:
@@ -131,6 +132,7 @@ def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> Loaded
         resolution=(int(size[0]), int(size[1])),
         split=prepared.split,
         inspection_sensors={name: sensors[sid] for name, sid in prepared.inspection_ids.items()},
+        materials=prepared.materials,
     )
 
 

@@ -38,6 +38,7 @@ class PreparedXml:
     inspection_ids: dict[str, str]  # inspection camera name -> sensor id in the prepared scene
     split: dict[str, tuple[str, ...]]  # shared BSDF id -> the shapes that received a copy
     bitmap_files: tuple[str, ...]  # filename values of bitmap textures, as written
+    materials: dict[str, str]  # shape id -> the BSDF id it uses, as the user named it
 
 
 def parse_scene(path: Path) -> ET.Element:
@@ -83,6 +84,7 @@ def prepare_scene_xml(
     _name_top_level(root)
     _replace_integrator(root, max_depth)
     bitmaps = _bitmaps_as_float(root)
+    materials = _materials(root)  # before splitting: copies keep the name the user gave
     split = _split_shared_bsdfs(root) if shared == "split" else {}
     sensor = _choose_sensor(root, camera, path)
     if resolution is not None:
@@ -94,7 +96,7 @@ def prepare_scene_xml(
         for index, cam in enumerate(inspection)
     }
     text = ET.tostring(root, encoding="unicode")
-    return PreparedXml(text, sensor.get("id", ""), inspection_ids, split, bitmaps)
+    return PreparedXml(text, sensor.get("id", ""), inspection_ids, split, bitmaps, materials)
 
 
 def _name_top_level(root: ET.Element) -> None:
@@ -125,6 +127,22 @@ def _bitmaps_as_float(root: ET.Element) -> tuple[str, ...]:
         if "format" not in children:
             ET.SubElement(texture, "string", {"name": "format", "value": "variant"})
     return tuple(files)
+
+
+def _materials(root: ET.Element) -> dict[str, str]:
+    """Shape id -> material name for a material Cryptomatte (Mitsuba's default BSDF: "default")."""
+    materials = {}
+    for shape in root.iter("shape"):
+        ref = next((r for r in shape.findall("ref") if r.get("name") in (None, "bsdf")), None)
+        inline = shape.find("bsdf")
+        if ref is not None:
+            name = ref.get("id", "")
+        elif inline is not None:
+            name = inline.get("id") or f"{shape.get('id', 'shape')}_bsdf"
+        else:
+            name = "default"
+        materials[shape.get("id", "")] = name
+    return materials
 
 
 def _shape_bsdf_refs(

@@ -29,6 +29,16 @@ class Coverage:
     obj: np.ndarray  # (T,) int32 object index
     count: np.ndarray  # (T,) int32 samples
 
+    def regroup(self, group_of: np.ndarray) -> Coverage:
+        """The same coverage over groups of objects (e.g. materials): ``group_of[obj]``."""
+        groups = int(group_of.max()) + 1 if len(group_of) else 1
+        combined = self.pixel * groups + group_of[self.obj]
+        keys, inverse = np.unique(combined, return_inverse=True)
+        counts = np.bincount(inverse, weights=self.count).astype(np.int32)
+        pixel, group = keys // groups, (keys % groups).astype(np.int32)
+        order = np.lexsort((group, -counts, pixel))
+        return Coverage(pixel[order], group[order], counts[order])
+
 
 @dataclass(frozen=True)
 class VisibilityPass:

@@ -215,3 +215,14 @@ def test_unknown_camera_and_corrupt_buffer_are_one_line_errors(
         and "broken.npz" in corrupt.stderr
         and "Traceback" not in corrupt.stderr
     )
+
+
+def test_material_cryptomatte_merges_objects_sharing_a_bsdf(projected: Path) -> None:
+    names, coverages, manifest = decode_file(projected / "objective.exr", "CryptoMaterial")
+    assert {"white", "checker", "green", "glass"} <= set(manifest)
+    assert "floor" not in manifest  # objects are in CryptoObject, not here
+    object_names, object_coverages, _ = decode_file(projected / "objective.exr", "CryptoObject")
+    on_floor = (object_names[0] == "floor") & (object_coverages[0] == 1.0)
+    assert on_floor.any() and set(names[0][on_floor].ravel()) == {"white"}
+    total = np.sum(coverages, axis=0)
+    assert np.all(total <= 1.0 + 1e-6)

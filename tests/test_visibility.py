@@ -52,3 +52,11 @@ def test_sample_positions_are_stratified_inside_their_pixel() -> None:
     for y in range(2):
         for x in range(3):
             assert len({tuple(c) for c in cell[y, x]}) == 16  # one sample per 4x4 stratum
+
+
+def test_regroup_merges_objects_into_their_groups() -> None:
+    vis = make_pass(SAMPLES)
+    grouped = vis.coverage.regroup(np.array([0, 0, 1], np.int32))  # a and b share group 0
+    index, amount = ranked(grouped, (2, 2), 4, ranks=2)
+    assert index[0, 1].tolist() == [0, B] and amount[0, 1].tolist() == [0.75, 0.0]
+    assert index[1, 1].tolist() == [0, 1] and amount[1, 1].tolist() == [0.5, 0.5]
