@@ -25,9 +25,10 @@ import sys
 import tempfile
 import zlib
 from array import array
+from dataclasses import dataclass, field
 from pathlib import Path
 
-import bpy  # type: ignore[import-not-found]
+import bpy
 
 MATTE_TOLERANCE = 2.0 / 65535.0  # one 16-bit PNG step, plus rounding
 _MAGIC = b"\x76\x2f\x31\x01"
@@ -38,33 +39,39 @@ _PIXEL_BYTES = {1: 2, 2: 4}  # HALF, FLOAT
 # --- a minimal scanline EXR reader (NONE / ZIPS / ZIP, HALF / FLOAT) ------------------------
 
 
-def read_exr(path: Path) -> tuple[dict[str, list[float]], dict[str, object], int, int]:
+@dataclass
+class Header:
+    strings: dict[str, str] = field(default_factory=dict)
+    channels: list[tuple[str, int]] = field(default_factory=list)  # (name, pixel type)
+    data_window: tuple[int, int, int, int] = (0, 0, -1, -1)  # x0, y0, x1, y1 (inclusive)
+    compression: int = -1
+
+
+def read_exr(path: Path) -> tuple[dict[str, list[float]], Header, int, int]:
     """Channels (name -> row-major floats, top row first), header, width and height."""
     data = path.read_bytes()
     if data[:4] != _MAGIC or data[5] & 0x1A:  # tiled, deep or multipart: not for this reader
         raise ValueError(f"{path}: not a single-part scanline EXR")
     header, position = _read_header(data, 8)
-    (x0, y0), (x1, y1) = header["dataWindow"]  # type: ignore[misc]
+    x0, y0, x1, y1 = header.data_window
     width, height = x1 - x0 + 1, y1 - y0 + 1
-    compression = header["compression"]
-    if compression not in _LINES_PER_BLOCK:
-        raise ValueError(f"{path}: compression {compression} is not NONE, ZIPS or ZIP")
-    lines = _LINES_PER_BLOCK[compression]  # type: ignore[index]
-    channels: list[tuple[str, int]] = header["channels"]  # type: ignore[assignment]
+    if header.compression not in _LINES_PER_BLOCK:
+        raise ValueError(f"{path}: compression {header.compression} is not NONE, ZIPS or ZIP")
+    lines = _LINES_PER_BLOCK[header.compression]
     chunks = (height + lines - 1) // lines
     offsets = struct.unpack_from(f"<{chunks}Q", data, position)
-    line_bytes = width * sum(_PIXEL_BYTES[kind] for _, kind in channels)
+    line_bytes = width * sum(_PIXEL_BYTES[kind] for _, kind in header.channels)
     raw = bytearray()
     for offset in offsets:
         y, size = struct.unpack_from("<ii", data, offset)
         block = data[offset + 8 : offset + 8 + size]
         stored = min(lines, y0 + height - y) * line_bytes
         raw += block if size == stored else _unzip(block)  # ZIP stores a block raw if no gain
-    return _split_channels(bytes(raw), channels, width, height), header, width, height
+    return _split_channels(bytes(raw), header.channels, width, height), header, width, height
 
 
-def _read_header(data: bytes, position: int) -> tuple[dict[str, object], int]:
-    header: dict[str, object] = {}
+def _read_header(data: bytes, position: int) -> tuple[Header, int]:
+    header = Header()
     while data[position] != 0:
         name, position = _cstring(data, position)
         kind, position = _cstring(data, position)
@@ -72,14 +79,13 @@ def _read_header(data: bytes, position: int) -> tuple[dict[str, object], int]:
         value = data[position + 4 : position + 4 + size]
         position += 4 + size
         if kind == "string":
-            header[name] = value.decode("utf-8")
+            header.strings[name] = value.decode("utf-8")
         elif kind == "chlist":
-            header[name] = _channel_list(value)
-        elif kind == "box2i":
-            x0, y0, x1, y1 = struct.unpack("<4i", value)
-            header[name] = ((x0, y0), (x1, y1))
+            header.channels = _channel_list(value)
+        elif name == "dataWindow":
+            header.data_window = struct.unpack("<4i", value)
         elif kind == "compression":
-            header[name] = value[0]
+            header.compression = value[0]
     return header, position + 1
 
 
@@ -89,7 +95,8 @@ def _cstring(data: bytes, position: int) -> tuple[str, int]:
 
 
 def _channel_list(value: bytes) -> list[tuple[str, int]]:
-    channels, position = [], 0
+    channels: list[tuple[str, int]] = []
+    position = 0
     while value[position] != 0:
         name, position = _cstring(value, position)
         (pixel_type,) = struct.unpack_from("<i", value, position)
@@ -130,13 +137,11 @@ def _split_channels(
 
 
 def object_coverage(
-    channels: dict[str, list[float]], header: dict[str, object], object_name: str
+    channels: dict[str, list[float]], header: Header, object_name: str
 ) -> tuple[str, list[float]]:
     """The Cryptomatte type holding ``object_name`` and its per-pixel coverage (all ranks)."""
-    for key, value in header.items():
-        if not (key.startswith("cryptomatte/") and key.endswith("/name")):
-            continue
-        manifest = json.loads(str(header.get(key[: -len("name")] + "manifest", "{}")))
+    for key, value in crypto_types(header).items():
+        manifest = json.loads(header.strings.get(f"{key}/manifest", "{}"))
         if object_name not in manifest:
             continue
         wanted = int(manifest[object_name], 16)
@@ -150,8 +155,17 @@ def object_coverage(
                     if struct.unpack("<I", struct.pack("<f", id_value))[0] == wanted:
                         total[pixel] += cov
             layer += 1
-        return str(value), total
+        return value, total
     raise SystemExit(f"FAIL: {object_name!r} is in no Cryptomatte manifest of the file")
+
+
+def crypto_types(header: Header) -> dict[str, str]:
+    """``cryptomatte/<key>`` -> type name, from the header."""
+    return {
+        key[: -len("/name")]: value
+        for key, value in header.strings.items()
+        if key.startswith("cryptomatte/") and key.endswith("/name")
+    }
 
 
 def expected_passes(channel_names: list[str]) -> dict[tuple[str, str], list[str]]:
@@ -161,7 +175,7 @@ def expected_passes(channel_names: list[str]) -> dict[tuple[str, str], list[str]
         tokens = name.split(".")
         if len(tokens) >= 3:
             passes.setdefault((".".join(tokens[:-2]), tokens[-2]), []).append(tokens[-1])
-    return passes
+    return {key: sorted(chans, key="RGBAXYZ".find) for key, chans in passes.items()}
 
 
 # --- what Blender sees -----------------------------------------------------------------------
@@ -197,7 +211,7 @@ def _enum_choices(node: bpy.types.Node, prop: str) -> list[str]:
 def render_matte(
     image: bpy.types.Image, type_name: str, object_name: str, size: tuple[int, int], out: Path
 ) -> list[float]:
-    """Key ``object_name`` with a Cryptomatte node, render the composite, return it top row first."""
+    """Key ``object_name`` with a Cryptomatte node; render the composite; top row first."""
     scene = bpy.context.scene
     tree = scene.node_tree
     crypto = tree.nodes.new("CompositorNodeCryptomatteV2")
@@ -247,7 +261,7 @@ def check(exr: Path, object_name: str, out: Path) -> list[tuple[bool, str]]:
     for (layer, pass_name), chans in sorted(expected_passes(list(channels)).items()):
         names = [entry.split(" (")[0] for entry in seen.get(layer, [])]
         results.append((pass_name in names, f"pass {layer}.{pass_name} ({','.join(chans)})"))
-    types = [str(v) for k, v in header.items() if k.startswith("cryptomatte/") and k.endswith("/name")]
+    types = crypto_types(header).values()
     preview = [f"{t}.{c}" for t in types for c in "RGB" if f"{t}.{c}" in channels]
     results.append((not preview, f"no deprecated Cryptomatte preview channels {preview or ''}"))
     type_name, coverage = object_coverage(channels, header, object_name)

@@ -123,9 +123,9 @@ def assemble_layers(
     attributes: dict[str, str],
 ) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """The channels and header strings :func:`write_layered_exr` writes, without writing."""
-    if not (isinstance(width, int) and isinstance(height, int) and width > 0 and height > 0):
+    if not all(isinstance(n, int | np.integer) and n > 0 for n in (width, height)):
         raise ExrError(f"image size must be positive integers, got {width} x {height}")
-    shape = (height, width)
+    shape = (int(height), int(width))
     parts: list[dict[str, np.ndarray]] = []
     header = {
         "sensaov/format": FORMAT_NAME,
