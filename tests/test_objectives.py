@@ -134,3 +134,19 @@ def test_bad_user_objectives_fail_with_one_line(
     with pytest.raises(ObjectiveError, match=message) as info:
         evaluate(mi, user, tensor, allow_python=True)
     assert "objectives[0]" in str(info.value)
+
+
+def test_region_from_a_mask_image_weights_pixels_by_the_mask(mi, image, tmp_path: Path) -> None:  # noqa: ANN001
+    import OpenEXR
+
+    pixels, tensor = image
+    mask = np.zeros((H, W), np.float32)
+    mask[1:3, 2:6] = 1.0
+    mask[4, 0] = 0.5  # soft masks weight their pixels
+    path = tmp_path / "mask.exr"
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION}, {"Y": mask}) as exr:
+        exr.write(str(path))
+    value, adjoint = evaluate(mi, spec("m", "region_luminance", mask=path), tensor)
+    luma = pixels @ np.array(REC709_LUMA, np.float32)
+    assert value == pytest.approx(float((luma * mask).sum() / mask.sum()), rel=1e-5)
+    assert np.all(adjoint[mask == 0] == 0)

@@ -132,3 +132,18 @@ def _job_for(folder: Path, scene: Path) -> Path:
     job = folder / "job.yaml"
     job.write_text(f"version: 1\nscene: {scene}\nobjectives: [{{name: m, type: mean_luminance}}]\n")
     return job
+
+
+def test_inspection_cameras_get_sensors_of_their_own(
+    mi: ModuleType, job_writer: Callable[..., Path]
+) -> None:
+    cameras = [
+        {"name": "corner", "sensor": "corner", "resolution": [30, 20]},
+        {"name": "objective", "objective": True},
+    ]
+    job = load_job(job_writer("inspect", scene="interior", inspection_cameras=cameras))
+    loaded = load_scene(job, with_inspection_cameras=True)
+    corner = loaded.inspection_sensors["corner"]
+    assert tuple(corner.film().crop_size()) == (30, 20)  # resized copy; the scene's is untouched
+    assert tuple(loaded.inspection_sensors["objective"].film().crop_size()) == (24, 24)
+    assert loaded.materials["front_wall"] == "front_paint"
