@@ -207,9 +207,10 @@ def run(job: Path, as_json: bool, quiet: bool, top: int, allow_python: bool) -> 
 @click.option(
     "--beauty-spp",
     type=click.IntRange(min=0),
-    default=16,
+    default=4,
     show_default=True,
-    help="Samples per pixel of the beauty pass (0: no beauty).",
+    help="Samples per pixel of the quick beauty pass, a reference for the compositor "
+    "(0: none). It is a full path trace: at 16 spp it costs more than the whole view.",
 )
 @click.option(
     "--force", is_flag=True, help="Project even if the scene changed since the buffer was made."

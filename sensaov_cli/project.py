@@ -51,7 +51,7 @@ def project_job(
     cameras: tuple[str, ...] = (),
     force: bool = False,
     png: bool = False,
-    beauty_spp: int = 16,
+    beauty_spp: int = 4,
     progress: Progress,
 ) -> list[ProjectedView]:
     buffer = SensitivityBuffer.load(buffer_path)

@@ -46,7 +46,7 @@ class VisibilityPass:
     height: int
     spp: int
     objects: tuple[str, ...]  # index -> object name (the buffer's object list)
-    sample_uv: np.ndarray  # (H, W, S, 2) float32 surface UV of each hit (0 on background)
+    sample_uv: np.ndarray | None  # (H, W, S, 2) float32 UV of each hit (0 on background), if asked
     coverage: Coverage
     rank_index: np.ndarray  # (H, W, RANKS) int32, objects by decreasing coverage, -1 = empty
     rank_coverage: np.ndarray  # (H, W, RANKS) float32
@@ -67,76 +67,74 @@ class VisibilityPass:
         return (total / self.spp).astype(np.float32).reshape(self.height, self.width)
 
 
-def sample_positions(width: int, height: int, spp: int, seed: int) -> np.ndarray:
-    """(H, W, S, 2) film positions in [0, 1)^2: stratified jitter within each pixel."""
-    rng = np.random.default_rng(seed)
+def film_positions(mi: ModuleType, width: int, height: int, spp: int, seed: int) -> Any:
+    """Film positions in [0, 1)^2 for every (pixel, sample), row-major, samples innermost:
+    stratified on a ceil(sqrt(spp))^2 grid inside each pixel, jittered by PCG32 (in Dr.Jit, so
+    millions of samples never round-trip through numpy)."""
+    import drjit as dr
+
     side = int(np.ceil(np.sqrt(spp)))
-    strata = np.stack(np.divmod(np.arange(spp), side), axis=-1)[:, ::-1].astype(np.float32)
-    jitter = rng.random((height, width, spp, 2), dtype=np.float32)
-    within = (strata[None, None] + jitter) / side  # stratified on a side x side grid
-    ys, xs = np.mgrid[0:height, 0:width].astype(np.float32)
-    pixel = np.stack([xs, ys], axis=-1)[:, :, None, :]
-    return (pixel + within) / np.array([width, height], np.float32)
+    index = dr.arange(mi.UInt32, width * height * spp)
+    pixel, sample = index // spp, index % spp
+    rng = mi.PCG32(size=width * height * spp, initstate=seed, initseq=index)
+    jitter_x, jitter_y = rng.next_float32(), rng.next_float32()
+    x = mi.Float(pixel % width) + (mi.Float(sample % side) + jitter_x) / side
+    y = mi.Float(pixel // width) + (mi.Float(sample // side) + jitter_y) / side
+    return mi.Point2f(x / width, y / height)
 
 
 def trace(
-    mi: ModuleType, scene: Any, sensor: Any, objects: tuple[str, ...], spp: int, seed: int = 0
+    mi: ModuleType,
+    scene: Any,
+    sensor: Any,
+    objects: tuple[str, ...],
+    spp: int,
+    seed: int = 0,
+    *,
+    with_uv: bool = False,
 ) -> VisibilityPass:
-    """Trace ``spp`` primary rays per pixel of ``sensor``'s film (no gradients)."""
+    """Trace ``spp`` primary rays per pixel of ``sensor``'s film (no gradients).
+
+    Only the object index of each sample leaves Dr.Jit (and the UVs when ``with_uv``).
+    """
     import drjit as dr
 
     size = sensor.film().crop_size()
     width, height = int(size[0]), int(size[1])
-    positions = sample_positions(width, height, spp, seed).reshape(-1, 2)
-    lookup = _shape_lookup(mi, scene, objects)
     with dr.suspend_grad():
-        position = mi.Point2f(positions[:, 0], positions[:, 1])
+        position = film_positions(mi, width, height, spp, seed)
         ray, _ = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5, 0.5))
         si = scene.ray_intersect(ray)
-        valid = np.array(si.is_valid(), dtype=bool)
-        shape_ids = np.array(dr.reinterpret_array(mi.UInt32, si.shape), dtype=np.int64)
-        uv = np.stack([np.array(si.uv.x), np.array(si.uv.y)], axis=-1).astype(np.float32)
-    index = np.where(valid, lookup.get_many(shape_ids), BACKGROUND).astype(np.int32)
-    uv[~valid] = 0.0
-    coverage = histogram(index.reshape(height * width, spp))
+        registry = dr.reinterpret_array(mi.UInt32, si.shape)
+        table = mi.Int32(_object_of_registry_id(mi, scene, objects))
+        hit = si.is_valid() & (registry < dr.width(table))
+        index = dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)
+        samples = np.array(index, dtype=np.int32)
+        uv = np.stack([np.array(si.uv.x), np.array(si.uv.y)], axis=-1) if with_uv else None
+    coverage = histogram(samples.reshape(height * width, spp))
     rank_index, rank_coverage = ranked(coverage, (height, width), spp)
+    sample_uv = None
+    if uv is not None:
+        uv[samples == BACKGROUND] = 0.0
+        sample_uv = uv.astype(np.float32).reshape(height, width, spp, 2)
     return VisibilityPass(
-        width,
-        height,
-        spp,
-        objects,
-        uv.reshape(height, width, spp, 2),
-        coverage,
-        rank_index,
-        rank_coverage,
+        width, height, spp, objects, sample_uv, coverage, rank_index, rank_coverage
     )
 
 
-@dataclass(frozen=True)
-class _ShapeLookup:
-    registry_ids: np.ndarray
-    object_index: np.ndarray
-
-    def get_many(self, ids: np.ndarray) -> np.ndarray:
-        position = np.searchsorted(self.registry_ids, ids)
-        position = np.clip(position, 0, len(self.registry_ids) - 1)
-        found = self.registry_ids[position] == ids
-        return np.where(found, self.object_index[position], BACKGROUND)
-
-
-def _shape_lookup(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> _ShapeLookup:
-    """Registry id of each shape (what a hit reports) -> index of its object in ``objects``."""
+def _object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> np.ndarray:
+    """A table from shape registry id (what a hit reports) to object index in ``objects``."""
     import drjit as dr
 
     names = {name: i for i, name in enumerate(objects)}
-    pairs = []
+    pairs = {}
     for number, shape in enumerate(scene.shapes()):
-        name = shape.id() or f"shape_{number}"
         registry = int(np.array(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape)))[0])
-        pairs.append((registry, names.get(name, BACKGROUND)))
-    pairs.sort()
-    ids = np.array([p[0] for p in pairs], np.int64)
-    return _ShapeLookup(ids, np.array([p[1] for p in pairs], np.int32))
+        pairs[registry] = names.get(shape.id() or f"shape_{number}", BACKGROUND)
+    table = np.full(max(pairs, default=0) + 1, BACKGROUND, np.int32)
+    for registry, index in pairs.items():
+        table[registry] = index
+    return table
 
 
 def histogram(sample_object: np.ndarray) -> Coverage:

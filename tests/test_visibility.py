@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from types import ModuleType
+
 import numpy as np
 
-from sensaov_cli.visibility import BACKGROUND, VisibilityPass, histogram, ranked, sample_positions
+from sensaov_cli.visibility import BACKGROUND, VisibilityPass, film_positions, histogram, ranked
 
 B = BACKGROUND
 
@@ -42,9 +44,9 @@ def test_paint_is_the_coverage_weighted_mean() -> None:
     assert painted.tolist() == [[1.0, (10 + 1 + 10) / 4], [0.0, (100 + 10 + 1 + 100) / 4]]
 
 
-def test_sample_positions_are_stratified_inside_their_pixel() -> None:
-    positions = sample_positions(3, 2, 16, seed=1)
-    assert positions.shape == (2, 3, 16, 2)
+def test_film_positions_are_stratified_inside_their_pixel(mi: ModuleType) -> None:
+    points = film_positions(mi, 3, 2, 16, seed=1)
+    positions = np.stack([np.array(points.x), np.array(points.y)], axis=-1).reshape(2, 3, 16, 2)
     pixel = np.floor(positions * np.array([3, 2])).astype(int)
     assert (pixel[..., 0] == np.arange(3)[None, :, None]).all()
     assert (pixel[..., 1] == np.arange(2)[:, None, None]).all()
