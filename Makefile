@@ -36,5 +36,10 @@ unit: setup
 
 test: lint typecheck unit
 
+# The benchmark suite (bench/README.md): prints a table and writes bench/results.md, about 8
+# minutes on 2 cores. Slow numbers never fail it; only a figure that cannot run does.
+bench: setup
+	$(BIN)/python -m bench $(BENCH_ARGS)
+
 clean:
 	rm -rf out .pytest_cache .mypy_cache .ruff_cache

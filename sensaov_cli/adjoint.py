@@ -55,6 +55,7 @@ def render_primal(loaded: LoadedScene, spp: int, seed: int) -> Any:
     with dr.suspend_grad():
         image = loaded.integrator.render(loaded.scene, loaded.sensor, seed=seed, spp=spp)
     dr.eval(image)
+    dr.sync_thread()  # kernels run asynchronously: without this the primal's timing is fiction
     return image
 
 

@@ -26,6 +26,7 @@ from .spec import CameraSpec, JobSpec
 from .views import ChannelValues, channel_values
 from .visibility import VisibilityPass, ranked, trace
 
+DEFAULT_BEAUTY_SPP = 4  # a quick reference for the compositor; it is a full path trace
 OBJECTIVE_CAMERA = CameraSpec("objective", None, None, 40.0, None, True, 16)
 
 
@@ -51,7 +52,7 @@ def project_job(
     cameras: tuple[str, ...] = (),
     force: bool = False,
     png: bool = False,
-    beauty_spp: int = 4,
+    beauty_spp: int = DEFAULT_BEAUTY_SPP,
     progress: Progress,
 ) -> list[ProjectedView]:
     buffer = SensitivityBuffer.load(buffer_path)

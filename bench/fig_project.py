@@ -1,0 +1,147 @@
+"""Figure 4: one inspection view painted from a stored buffer vs one adjoint pass."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from bench import notes
+from bench.fig_passes import Passes
+from bench.jobs import EXTRA_OBJECTIVES, MEAN_LUMA, OVERHEAD, SCENES, Workspace
+from bench.results import Figure, Goal, Row, fmt
+from bench.settings import Settings
+from bench.timing import Stats, interleave, synced
+from sensaov_cli.project import DEFAULT_BEAUTY_SPP
+
+BUFFER_SPP = 8  # the buffer's own quality does not change what projecting it costs
+CAMERA = "inspect"
+
+
+def reprojection(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figure:
+    figure = Figure(
+        4,
+        "Re-projection vs re-differentiation: one `project` view / one adjoint pass",
+        "≤ 1/20",
+        f"In-process `project_job` on one inspection camera at {s.view}², {s.vis_spp} "
+        "visibility spp, the three channel kinds (object, type, select) for two objectives, "
+        "layered EXR written; its time is `ProjectedView.seconds` (visibility, beauty, "
+        "encoding, EXR; scene loading excluded). Measured with the CLI default beauty pass "
+        f"(`--beauty-spp {DEFAULT_BEAUTY_SPP}`) and without it (`--beauty-spp 0`), and "
+        f"`visibility.trace` alone. The adjoint pass is one backward pass at {s.view}², all "
+        f"threads, at {s.view_spp} spp (as many samples as the view traces) and at {s.job_spp} "
+        "spp (what the example jobs in configs/ use); all five are interleaved.",
+    )
+    figure.why_missed = notes.PROJECTION
+    for scene in SCENES:
+        job = _projection_job(ws, s, scene)
+        buffer_path = _make_buffer(job)
+        adjoint = Passes.load(
+            ws.job(f"proj_adj_{scene}", SCENES[scene], resolution=s.view, spp=s.view_spp)
+        )
+        adjoint_job = Passes.load(
+            ws.job(f"proj_adj_job_{scene}", SCENES[scene], resolution=s.view, spp=s.job_spp)
+        )
+        t = interleave(
+            {
+                "beauty": _view(job, buffer_path, DEFAULT_BEAUTY_SPP),
+                "no_beauty": _view(job, buffer_path, 0),
+                "trace": _trace(job, s.vis_spp),
+                "adjoint": adjoint.backward,
+                "adjoint_job": adjoint_job.backward,
+            },
+            s.rounds,
+        )
+        figure.rows += _rows(f"{scene} {s.view}²", t, s)
+        log(f"figure 4: {scene} done")
+    return figure
+
+
+def _projection_job(ws: Workspace, s: Settings, scene: str) -> Path:
+    """A job with one 512² inspection camera; its own render settings only make the buffer."""
+    return ws.job(
+        f"proj_{scene}",
+        SCENES[scene],
+        resolution=s.resolutions[0],
+        spp=BUFFER_SPP,
+        objectives=[MEAN_LUMA, EXTRA_OBJECTIVES[0]],
+        inspection=(_camera(scene, s),),
+    )
+
+
+def _camera(scene: str, s: Settings) -> dict[str, Any]:
+    where: dict[str, Any] = (
+        {"look_at": OVERHEAD, "fov": 50} if scene == "cbox" else {"sensor": "corner"}
+    )
+    return {"name": CAMERA, **where, "resolution": [s.view, s.view], "vis_spp": s.vis_spp}
+
+
+def _rows(case: str, t: dict[str, Stats], s: Settings) -> list[Row]:
+    adjoint = fmt(t["adjoint"].median, "s")
+    rows = []
+    for side, label in (
+        ("beauty", f"default (beauty {DEFAULT_BEAUTY_SPP} spp)"),
+        ("no_beauty", "visibility only (beauty 0)"),
+    ):
+        for reference, spp in (("adjoint", s.view_spp), ("adjoint_job", s.job_spp)):
+            rows.append(
+                Row(
+                    f"{case}, {label}, vs backward at {spp} spp",
+                    t[side].ratio_to(t[reference]),
+                    "x",
+                    Goal("<=", 1 / 20, "1/20"),
+                    f"view {fmt(t[side].median, 's')} vs backward {fmt(t[reference].median, 's')}",
+                    why_missed=notes.projection_case(t[side].median, t["trace"].median),
+                )
+            )
+    rows.append(
+        Row(
+            f"{case}, visibility trace alone, vs backward at {s.view_spp} spp",
+            t["trace"].ratio_to(t["adjoint"]),
+            "x",
+            None,
+            f"trace {fmt(t['trace'].median, 's')} vs backward {adjoint}",
+        )
+    )
+    return rows
+
+
+def _make_buffer(job: Path) -> Path:
+    from sensaov_cli.pipeline import run_job
+    from sensaov_cli.progress import Progress
+    from sensaov_cli.spec import load_job
+
+    return run_job(load_job(job), allow_python=False, progress=Progress(quiet=True)).buffer_path
+
+
+def _view(job: Path, buffer_path: Path, beauty_spp: int) -> Callable[[], float]:
+    from sensaov_cli.progress import Progress
+    from sensaov_cli.project import project_job
+    from sensaov_cli.spec import load_job
+
+    spec = load_job(job)
+
+    def measure() -> float:
+        (view,) = project_job(
+            spec,
+            buffer_path=buffer_path,
+            cameras=(CAMERA,),
+            beauty_spp=beauty_spp,
+            progress=Progress(quiet=True),
+        )
+        return float(view.seconds)
+
+    return measure
+
+
+def _trace(job: Path, vis_spp: int) -> Callable[[], float]:
+    """``visibility.trace`` alone on the inspection camera, the pass a view is built on."""
+    from sensaov_cli.scene import load_scene
+    from sensaov_cli.spec import load_job
+    from sensaov_cli.visibility import trace
+
+    loaded = load_scene(load_job(job), with_inspection_cameras=True)
+    sensor = loaded.inspection_sensors[CAMERA]
+    return lambda: synced(
+        lambda: trace(loaded.mi, loaded.scene, sensor, loaded.objects, vis_spp, seed=0)
+    )[0]

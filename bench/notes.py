@@ -1,0 +1,122 @@
+"""Why a goal can be missed and what would fix it: the notes of ``bench/results.md``.
+
+A figure's note is shown once when any of its cases misses its goal; each missed case adds its
+own numbers. Numbers come from the run unless a text says it comes from a one-off profile taken
+when the bench was written (named as such, with what was profiled).
+"""
+
+from __future__ import annotations
+
+OVERHEAD = (
+    "sensaov's extra time is a fixed cost per process (the Δ in each case), so it weighs most "
+    "on small jobs. A one-off profile of `sensaov run` (cbox 256², 32 spp) when this bench was "
+    "written (re-checked at commit 2c743b7) put it at: importing the job-spec models "
+    "(`sensaov_cli.spec`, pydantic) ≈ 0.11 s; "
+    "click, PyYAML, OpenEXR and sensaov's own modules ≈ 0.05–0.08 s; loading the job, "
+    "preparing the scene, writing buffer.npz, primal.exr and the summary ≈ 0.05 s; interpreter "
+    "exit ≈ 0.06 s longer than the script's. The passes themselves cost the same on both sides "
+    "(figure 2, 'Mitsuba alone' rows). A fixed ≈ 0.3 s stays under 10 % only once the script "
+    "itself takes ≳ 3 s. Fix: keep pydantic off the `run` path (validate with plain-Python "
+    "checks and import pydantic only to word an error), which removes the largest item; or "
+    "state the goal for jobs whose passes take ≥ 3 s."
+)
+
+
+def overhead_case(delta: float, script: float) -> str:
+    return f"Δ {delta:+.2f} s on {script:.2f} s for the script"
+
+
+DETERMINISTIC = (
+    "'deterministic: true (default)' rows: the default runs the backward pass on one thread "
+    "so that buffers are byte-identical (docs/job-spec.md); each row's detail gives what that "
+    "costs against `deterministic: false` in the same rounds. It has no goal of its own: it "
+    "is the price of reproducibility, not pipeline overhead. Set `deterministic: false` where "
+    "the last bit does not matter."
+)
+
+
+def adjoint(reference: float) -> str:
+    return (
+        "The 'Mitsuba alone' rows call `prb.render_backward` directly and read the gradients "
+        "back, with no sensaov code; they cost the same multiple of the primal, so the excess "
+        "is inside prb, not sensaov. prb's backward runs a primal-mode pass to re-estimate the "
+        "radiance, then an adjoint pass over the same paths that also differentiates the BSDFs "
+        "and emitters and scatter-adds every parameter's gradient with atomics; on these scenes "
+        "(rough plastic, rough dielectric, a texture) that adjoint pass costs more than a "
+        "primal pass. On Mitsuba's diffuse-only `cornell_box()` the same measurement gives "
+        f"{reference:.2f}× (reference row; MITSUBA-NOTES measured ≈ 1.9× on a Cornell box). "
+        "Fix: nothing inside "
+        "sensaov; re-base the goal at ≈ 2.4× for glossy and refractive scenes under prb on the "
+        "LLVM backend (and measure it on a GPU)."
+    )
+
+
+def adjoint_case(ratio: float, alone: float) -> str:
+    return f"sensaov {ratio:.2f}×, Mitsuba alone {alone:.2f}×"
+
+
+TEXTURE = (
+    "The texture's cost is per backward pass: its gradient components are scatter-added with "
+    "atomics, cleared and copied to numpy. It does not grow with resolution or spp, so it "
+    "weighs less on bigger renders. Fix: pool texel gradients on the device before copying "
+    "them, or keep very large textures out of the selection (`parameters.exclude`) when only "
+    "their total matters."
+)
+
+
+def texture_case(delta: float) -> str:
+    return f"{delta:+.3f} s per pass"
+
+
+OBJECTIVES = (
+    "Each extra objective is one backward pass plus dM/dI (a small kernel over the image); a "
+    "median a few per cent above 1 with min/max around 1 is timing noise on a shared machine "
+    "(the costs are differences: T(K) − T(1)). A clear excess would point at per-objective "
+    "work outside the pass (e.g. recompiling the objective's kernel for each objective)."
+)
+
+PROJECTION = (
+    "The 'visibility trace alone' rows show what tracing the rays costs; the rest of a view "
+    "does not shrink with the adjoint. A one-off profile of one view without beauty (cbox, "
+    "512², 16 visibility spp, two objectives × three channel kinds), when this bench was "
+    "written: about 0.24 s, of which the layered EXR ≈ 0.12 s (the ZIP-compressed write "
+    "≈ 0.07 s, building the Cryptomatte rank channels ≈ 0.05 s), `visibility.trace` ≈ 0.09 s, "
+    "per-pixel histogram and ranks ≈ 0.03 s, the sensitivity layers ≈ 0.01 s; all but the "
+    "trace is single-threaded numpy or OpenEXR. The beauty pass is a path-traced render (4 spp "
+    "by default), which costs a quarter of a primal at 16 spp. A view's cost does not depend "
+    "on the job's spp while the adjoint's grows linearly with it, hence the second comparison "
+    "against the example jobs' spp. Fix where still missed: reuse primal.exr as the objective "
+    "camera's beauty, write the EXR with a cheaper lossless codec or in parallel with the "
+    "trace, and build the Cryptomatte ranks in the trace kernel."
+)
+
+
+def projection_case(view: float, trace: float) -> str:
+    return f"view {view:.2f} s, of which `trace` {trace:.2f} s"
+
+
+def memory_spp(hi: float, lo: float) -> str:
+    return (
+        f"{hi:.0f} MB vs {lo:.0f} MB: prb is meant to be constant-memory in spp; growth means "
+        "something proportional to spp × pixels is kept alive (Dr.Jit launches all samples of "
+        "a pass as one wavefront). Fix: render in passes of fewer samples (the integrator's "
+        "`samples_per_pass`)"
+    )
+
+
+def memory_primal(extra_mb: float, backward_mb: float) -> str:
+    return (
+        f"`sensaov run` holds {extra_mb:.0f} MB more than the primal alone, while the script's "
+        f"own backward pass adds {backward_mb:.0f} MB (reference row): the rest is what sensaov "
+        "imports and the script does not (pydantic, OpenEXR, click) and the copies it keeps "
+        "for the buffer. Fix: keep pydantic off the run path; release Dr.Jit arrays before "
+        "writing the outputs"
+    )
+
+
+STARTUP = (
+    "Start-up is imports plus, for `rank`, reading and validating every array of the buffer "
+    "(`np.isfinite` over all components). `python -X importtime -m sensaov_cli …` lists the "
+    "slowest imports; an import of mitsuba or drjit on these paths is a bug (they take "
+    "≈ 0.2 s by themselves)."
+)
