@@ -50,7 +50,7 @@ def reprojection(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figu
                 "adjoint": adjoint.backward,
                 "adjoint_job": adjoint_job.backward,
             },
-            s.rounds,
+            s.view_rounds,
         )
         figure.rows += _rows(f"{scene} {s.view}²", t, s)
         log(f"figure 4: {scene} done")

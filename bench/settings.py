@@ -11,6 +11,7 @@ class Settings:
     variant: str  # as written in the generated jobs ("auto", "llvm_ad_rgb", "cuda_ad_rgb")
     rounds: int  # timed rounds of an in-process comparison (after one warm-up round)
     process_rounds: int  # timed rounds of a whole-process comparison
+    view_rounds: int  # timed rounds of figure 4 (its 64-spp adjoint at 512² dominates the bench)
     startup_rounds: int  # timed rounds of the start-up figure (cheap processes)
     resolutions: tuple[int, int]  # square objective images, the "two resolutions"
     spp: int  # samples per pixel of the objective renders
@@ -28,8 +29,9 @@ class Settings:
         lo, hi = self.resolutions
         return (
             f"Settings ({kind}): variant `{self.variant}`, objective images {lo}² and {hi}² at "
-            f"{self.spp} spp, max_depth 6; {self.rounds} timed rounds in-process, "
-            f"{self.process_rounds} for whole-process comparisons, {self.startup_rounds} for "
+            f"{self.spp} spp, max_depth 6; {self.rounds} timed rounds in-process "
+            f"({self.view_rounds} for figure 4), {self.process_rounds} for whole-process "
+            f"comparisons, {self.startup_rounds} for "
             "start-up, each after one untimed warm-up round; sides interleaved within a round."
         )
 
@@ -40,6 +42,7 @@ def full(variant: str) -> Settings:
         variant=variant,
         rounds=5,
         process_rounds=4,
+        view_rounds=3,
         startup_rounds=10,
         resolutions=(128, 256),
         spp=32,
@@ -60,6 +63,7 @@ def quick(variant: str) -> Settings:
         variant=variant,
         rounds=2,
         process_rounds=2,
+        view_rounds=2,
         startup_rounds=2,
         resolutions=(32, 48),
         spp=4,
