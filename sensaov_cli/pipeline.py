@@ -18,6 +18,7 @@ from .exr import image_channels, write_exr
 from .objectives import build_objectives
 from .progress import Progress
 from .scene import LoadedScene, load_scene
+from .errors import SpecError
 from .spec import JobSpec
 
 BUFFER_NAME = "buffer.npz"
@@ -35,6 +36,12 @@ def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutpu
     started = time.perf_counter()
     with progress.stage("load_s", f"loading {job.scene.name}"):
         loaded = load_scene(job)
+    if not loaded.selected:
+        raise SpecError(
+            "no scene parameter is selected: there is nothing to differentiate",
+            where=f"{job.path}: parameters",
+            hint="'sensaov params JOB' lists every key and why it was left out",
+        )
     width, height = loaded.resolution
     progress.note(
         f"{len(loaded.selected)} parameters over {len(loaded.objects)} objects, "

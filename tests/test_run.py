@@ -185,3 +185,11 @@ def test_params_json_reports_converted_textures(job_writer: Callable[..., Path])
     texture = next(p for p in report["selected"] if p["key"] == "checker.reflectance.data")
     assert texture["converted"] is True
     assert any(e["reason"].startswith("geometry") for e in report["excluded"])
+
+
+def test_a_selection_that_matches_nothing_is_bad_input(job_writer: Callable[..., Path]) -> None:
+    job = job_writer("nothing", parameters={"include": ["no_such_object.*"]})
+    done = sensaov("run", str(job))
+    assert done.returncode == 2
+    assert "no scene parameter is selected" in done.stderr and "sensaov params" in done.stderr
+    assert not (job.parent / "out").exists()
