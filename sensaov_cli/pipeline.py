@@ -14,11 +14,11 @@ from typing import Any
 from . import __version__
 from .adjoint import AdjointResult, run_adjoint
 from .buffer import ObjectiveRecord, ParamRecord, SensitivityBuffer
+from .errors import SpecError
 from .exr import image_channels, write_exr
 from .objectives import build_objectives
 from .progress import Progress
 from .scene import LoadedScene, load_scene
-from .errors import SpecError
 from .spec import JobSpec
 
 BUFFER_NAME = "buffer.npz"
