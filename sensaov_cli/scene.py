@@ -7,6 +7,8 @@ records (plain data) next to the live scene objects the adjoint needs.
 from __future__ import annotations
 
 import fnmatch
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -105,10 +107,9 @@ def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> Loaded
         shared=job.parameters.shared,
         inspection=job.inspection_cameras if with_inspection_cameras else (),
     )
-    # Relative file names in the scene resolve against its own folder, as with load_file.
-    mi.file_resolver().prepend(str(job.scene.parent))
     try:
-        scene = mi.load_string(prepared.text, optimize=False)
+        with _resolving_from(mi, job.scene.parent):
+            scene = mi.load_string(prepared.text, optimize=False)
     except Exception as exc:  # Mitsuba raises plain RuntimeError with a long message
         raise SceneError(_first_line(exc), where=str(job.scene)) from exc
     sensors = {sensor.id(): sensor for sensor in scene.sensors()}
@@ -134,6 +135,21 @@ def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> Loaded
         inspection_sensors={name: sensors[sid] for name, sid in prepared.inspection_ids.items()},
         materials=prepared.materials,
     )
+
+
+@contextmanager
+def _resolving_from(mi: ModuleType, folder: Path) -> Iterator[None]:
+    """Resolve relative file names against ``folder`` first, as load_file would, then restore
+    the process-wide resolver (tests and the bench load many scenes in one process)."""
+    resolver = mi.file_resolver()
+    saved = [str(resolver[i]) for i in range(len(resolver))]
+    resolver.prepend(str(folder))
+    try:
+        yield
+    finally:
+        resolver.clear()
+        for entry in saved:
+            resolver.append(entry)
 
 
 def _first_line(exc: Exception) -> str:
