@@ -6,6 +6,7 @@ so the same channel reads on the same colour scale in every camera (Fig. 6).
 
 from __future__ import annotations
 
+import json
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,6 +18,7 @@ from .previews import contact_sheet, diverging_rgb, underlay, write_png
 from .visibility import VisibilityPass
 
 SHEET_COLUMNS = 4
+MIN_TILE_WIDTH = 192  # small views are enlarged (nearest neighbour) so labels stay readable
 
 
 def write_previews(
@@ -40,17 +42,22 @@ def write_previews(
             {"sensaov/scale": repr(scale), "sensaov/encoding": layer.metadata.get("encoding", "")},
         )
         written.append(path)
-        sheets[layer.objective].append(
-            (f"{layer.pass_name} +-{scale:.2e}", diverging_rgb(layer.data / (scale or 1.0), 1.0))
-        )
+        tile = _enlarged(diverging_rgb(layer.data / (scale or 1.0), 1.0))
+        mark = " !" if json.loads(layer.metadata.get("unverified", "[]")) else ""
+        sheets[layer.objective].append((f"{layer.pass_name} +-{scale:.2e}{mark}", tile))
     for objective, tiles in sheets.items():
         sheet = contact_sheet(
             tiles,
             SHEET_COLUMNS,
             scale=1.0,
-            title=f"{camera} / {objective} (each tile at its own +-scale)",
+            title=f"{camera} / {objective}: each tile at its own +-scale; ! = unverified gradients",
         )
         path = folder / f"{camera}_{objective}.png"
         write_png(path, sheet)
         written.append(path)
     return tuple(written)
+
+
+def _enlarged(tile: np.ndarray) -> np.ndarray:
+    factor = -(-MIN_TILE_WIDTH // tile.shape[1])  # ceil
+    return np.repeat(np.repeat(tile, factor, axis=0), factor, axis=1) if factor > 1 else tile
