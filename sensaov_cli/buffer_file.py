@@ -10,6 +10,7 @@ import json
 import struct
 import zipfile
 import zlib
+from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -34,7 +35,26 @@ _FOREIGN = "expected a buffer.npz written by sensaov"
 
 
 def write_buffer(path: Path, buffer: SensitivityBuffer) -> None:
-    _write(path, _members(buffer))
+    try:
+        atomic_write(path, buffer_writer(buffer))
+    except OSError as exc:
+        raise BufferWriteError(
+            f"cannot write buffer: {exc.strerror or exc}", where=str(path)
+        ) from exc
+
+
+def buffer_writer(buffer: SensitivityBuffer) -> Callable[[Path], None]:
+    """A function writing ``buffer`` to a given (temporary) path, for paired atomic writes."""
+    members = _members(buffer)
+
+    def write(tmp: Path) -> None:
+        # What np.savez does, spelled out: stored (uncompressed) members, no pickles, zip64.
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+            for name, arr in members.items():
+                with zf.open(f"{name}.npy", "w", force_zip64=True) as out:
+                    np.lib.format.write_array(out, arr, allow_pickle=False)
+
+    return write
 
 
 def read_buffer(path: Path) -> SensitivityBuffer:
@@ -82,22 +102,6 @@ def _objective_json(o: ObjectiveRecord, index: int) -> dict[str, Any]:
     entry: dict[str, Any] = {name: getattr(o, name) for name in _OBJECTIVE_FIELDS}
     entry["array"] = index
     return entry
-
-
-def _write(path: Path, members: dict[str, np.ndarray]) -> None:
-    def write(tmp: Path) -> None:
-        # What np.savez does, spelled out: stored (uncompressed) members, no pickles, zip64.
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
-            for name, arr in members.items():
-                with zf.open(f"{name}.npy", "w", force_zip64=True) as out:
-                    np.lib.format.write_array(out, arr, allow_pickle=False)
-
-    try:
-        atomic_write(path, write)
-    except OSError as exc:
-        raise BufferWriteError(
-            f"cannot write buffer: {exc.strerror or exc}", where=str(path)
-        ) from exc
 
 
 class _Malformed(ValueError):

@@ -7,8 +7,8 @@ and only here.
 
 from __future__ import annotations
 
+import difflib
 import json
-import signal
 import sys
 import traceback
 from collections.abc import Callable
@@ -18,7 +18,7 @@ from typing import Any, cast
 
 import click
 
-from . import __version__
+from . import __version__, interrupts
 from .errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_OK, SensaovError, SpecError
 
 EXIT_CODES = f"""\b
@@ -45,18 +45,13 @@ def _fail(message: str, code: int) -> None:
     sys.exit(code)
 
 
-def _terminate_as_interrupt(signum: int, frame: Any) -> None:
-    """Farms stop jobs with SIGTERM: unwind like Ctrl-C so temporary files are removed."""
-    raise KeyboardInterrupt
-
-
 def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     """Turn any failure into one line on stderr and a documented exit code (traceback at -vv)."""
 
     @wraps(command)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         verbose = click.get_current_context().find_root().params.get("verbose", 0)
-        signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+        interrupts.install()
         try:
             return command(*args, **kwargs)
         except SensaovError as err:
@@ -322,6 +317,15 @@ def check(
         raise SpecError(
             f"no objective named {objective!r}", where="--objective", hint=f"objectives: {names}"
         )
+    selected = {info.key for info in loaded.selected}
+    for key in keys:
+        if key not in selected:
+            close = difflib.get_close_matches(key, sorted(selected), n=1)
+            raise SpecError(
+                f"{key!r} is not a selected parameter",
+                where="--key",
+                hint=f"did you mean {close[0]!r}?" if close else "'sensaov params JOB' lists them",
+            )
     width, height = loaded.resolution
     (built,) = build_objectives(loaded.mi, tuple(chosen), (height, width), allow_python)
     results = check_gradients(

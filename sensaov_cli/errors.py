@@ -57,3 +57,9 @@ class EnvironmentProblem(SensaovError):
     """The machine cannot run the renderer (no usable libLLVM, no CUDA for a cuda variant)."""
 
     exit_code = EXIT_ENVIRONMENT
+
+
+class OutputError(SensaovError):
+    """The output location cannot take the files (not writable, a name taken by a folder)."""
+
+    exit_code = EXIT_BAD_INPUT

@@ -6,6 +6,7 @@ The multilayer layout for compositors (beauty, Cryptomatte, sensitivity passes) 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,13 @@ def write_exr(path: Path, channels: dict[str, np.ndarray], attributes: dict[str,
     Arrays are made contiguous first: OpenEXR's Python binding silently writes non-contiguous
     arrays wrong (MITSUBA-NOTES). ZIP compression is lossless, which Cryptomatte IDs require.
     """
+    atomic_write(path, exr_writer(channels, attributes))
+
+
+def exr_writer(
+    channels: dict[str, np.ndarray], attributes: dict[str, str]
+) -> Callable[[Path], None]:
+    """A function writing the EXR to a given (temporary) path, for paired atomic writes."""
     import OpenEXR
 
     pixels = {name: np.ascontiguousarray(data, dtype=np.float32) for name, data in channels.items()}
@@ -35,14 +43,12 @@ def write_exr(path: Path, channels: dict[str, np.ndarray], attributes: dict[str,
         with OpenEXR.File(header, pixels) as exr:
             exr.write(str(tmp))
 
-    atomic_write(path, write)
+    return write
 
 
 def image_channels(image: np.ndarray) -> dict[str, np.ndarray]:
-    """An (H, W, C) render as named EXR channels (R, G, B and A when present)."""
-    names = "RGBA" if image.shape[2] >= 4 else "RGB"
-    if image.shape[2] == 1:
-        names = "Y"
+    """An (H, W, C) render as named EXR channels: Y, YA, RGB or RGBA."""
+    names = {1: "Y", 2: "YA", 3: "RGB"}.get(image.shape[2], "RGBA")
     return {name: image[..., index] for index, name in enumerate(names)}
 
 

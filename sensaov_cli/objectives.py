@@ -57,7 +57,7 @@ def value_and_adjoint(mi: ModuleType, objective: Objective, image: Any) -> tuple
     dr.enable_grad(leaf)
     try:
         value = objective.function(leaf)
-    except Exception as exc:  # user code: report it on one line, where it came from
+    except (Exception, SystemExit) as exc:  # user code: one line, where it came from
         raise ObjectiveError(
             f"objective function raised {type(exc).__name__}: {exc}", where=objective.where
         ) from exc
@@ -92,6 +92,11 @@ def _function(
     raise ObjectiveError(f"unknown objective type {spec.type!r}", where=where)
 
 
+def colour_channels(channels: int) -> int:
+    """Colour channels of an image with ``channels`` in all: Y[A] renders have 1, RGB[A] 3."""
+    return 1 if channels <= 2 else 3
+
+
 def _channel_weights(mask: np.ndarray, channels: int, per_channel: tuple[float, ...]) -> np.ndarray:
     """(H, W, C) weights: ``mask`` times a weight per colour channel; alpha gets none."""
     weights = np.zeros((*mask.shape, channels), np.float32)
@@ -105,7 +110,9 @@ def _mean_luminance(mi: ModuleType, mask: np.ndarray) -> Callable[[Any], Any]:
     import drjit as dr
 
     def objective(image: Any) -> Any:
-        weights = _channel_weights(mask / np.float32(mask.sum()), image.shape[2], REC709_LUMA)
+        channels = image.shape[2]
+        luma = REC709_LUMA if colour_channels(channels) == 3 else (1.0,)  # mono: Y already
+        weights = _channel_weights(mask / np.float32(mask.sum()), channels, luma)
         return dr.sum(image * mi.TensorXf(weights), axis=None)
 
     return objective
@@ -120,11 +127,12 @@ def _region_mask(spec: ObjectiveSpec, size: tuple[int, int], where: str) -> np.n
         mask = np.outer((ys >= y0) & (ys < y1), (xs >= x0) & (xs < x1)).astype(np.float32)
     else:
         mask = _read_mask(spec.mask, size, f"{where}.mask")
-    if mask.sum() <= 0:
-        raise ObjectiveError(
-            "the region covers no pixel centre at this resolution",
-            where=f"{where}.region",
-            hint="enlarge the region or raise the resolution",
+    if not mask.sum() > 0:  # also catches NaN in a mask image
+        key = "region" if spec.region is not None else "mask"
+        raise SpecError(
+            f"the {key} selects no pixel at this resolution (or the mask holds NaN)",
+            where=f"{where}.{key}",
+            hint="enlarge the region, raise the resolution, or check the mask image",
         )
     return mask
 
@@ -174,9 +182,15 @@ def _l2_to_target(mi: ModuleType, target: np.ndarray) -> Callable[[Any], Any]:
 
     def objective(image: Any) -> Any:
         channels = image.shape[2]
+        colours = colour_channels(channels)
         reference = np.zeros((*target.shape[:2], channels), np.float32)
-        reference[..., : min(3, channels)] = target[..., : min(3, channels)]
-        weights = _channel_weights(np.ones(target.shape[:2], np.float32), channels, (1.0, 1.0, 1.0))
+        if colours == 3:
+            reference[..., :3] = target
+        else:  # a mono render is compared with the target's luminance
+            reference[..., 0] = target @ np.array(REC709_LUMA, np.float32)
+        weights = _channel_weights(
+            np.ones(target.shape[:2], np.float32), channels, (1.0,) * colours
+        )
         weights /= np.float32(weights.sum())
         return dr.sum(dr.square(image - mi.TensorXf(reference)) * mi.TensorXf(weights), axis=None)
 
@@ -198,7 +212,7 @@ def _user_function(spec: ObjectiveSpec, where: str, allow_python: bool) -> Calla
     try:
         module = importlib.import_module(module_name)
         function = getattr(module, attribute)
-    except Exception as exc:
+    except (Exception, SystemExit) as exc:
         raise SpecError(
             f"cannot load {spec.function}: {type(exc).__name__}: {exc}", where=f"{where}.function"
         ) from exc

@@ -11,11 +11,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from . import __version__
+from . import __version__, interrupts
 from .adjoint import AdjointResult, run_adjoint
+from .atomic import atomic_write_all, check_writable
 from .buffer import ObjectiveRecord, ParamRecord, SensitivityBuffer
-from .errors import SpecError
-from .exr import image_channels, write_exr
+from .buffer_file import buffer_writer
+from .errors import SensaovError, SpecError
+from .exr import exr_writer, image_channels
 from .objectives import build_objectives
 from .progress import Progress
 from .scene import LoadedScene, load_scene
@@ -34,6 +36,7 @@ class RunOutputs:
 
 def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutputs:
     started = time.perf_counter()
+    check_writable(job.output, [BUFFER_NAME, PRIMAL_NAME])
     with progress.stage("load_s", f"loading {job.scene.name}"):
         loaded = load_scene(job)
     if not loaded.selected:
@@ -60,10 +63,16 @@ def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutpu
     buffer = _make_buffer(job, loaded, result, provenance)
     buffer_path = job.output / BUFFER_NAME
     primal_path = job.output / PRIMAL_NAME
-    with progress.stage("write_s", f"writing {buffer_path}"):
-        buffer.save(buffer_path)
+    interrupts.check()  # a stop asked for during a kernel must not end in written files
+    with progress.stage("write_s", f"writing {buffer_path.name} and {primal_path.name}"):
         attributes = {"sensaov/provenance": json.dumps(provenance, sort_keys=True)}
-        write_exr(primal_path, image_channels(result.image), attributes)
+        primal = exr_writer(image_channels(result.image), attributes)
+        try:
+            atomic_write_all([(buffer_path, buffer_writer(buffer)), (primal_path, primal)])
+        except OSError as exc:
+            raise SensaovError(
+                f"cannot write outputs: {exc.strerror or exc}", where=str(job.output)
+            ) from exc
     return RunOutputs(buffer, buffer_path, primal_path)
 
 

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from . import interrupts
+from .atomic import check_writable
 from .buffer import SensitivityBuffer
 from .encoding import Encoding, choose_scale, encode_image, signed_object_values
 from .errors import SpecError
@@ -57,7 +59,8 @@ def project_job(
 ) -> list[ProjectedView]:
     buffer = SensitivityBuffer.load(buffer_path)
     _check_fingerprint(job, buffer, buffer_path, force)
-    chosen = _cameras(job, cameras)
+    chosen = _cameras(job, tuple(dict.fromkeys(cameras)))  # a camera named twice renders once
+    check_writable(job.output, [f"{camera.name}.exr" for camera in chosen])
     passes = channel_values(buffer, job.channels)  # camera-independent: computed once
     with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
         loaded = load_scene(_with_cameras(job, chosen), with_inspection_cameras=True)
@@ -149,6 +152,7 @@ def _project_camera(
     material = _material_cryptomatte(visibility, loaded.materials)
     path = job.output / f"{camera.name}.exr"
     attributes = _attributes(buffer, buffer_path, camera, beauty_spp)
+    interrupts.check()
     write_layered_exr(
         path,
         width=visibility.width,
@@ -190,6 +194,8 @@ def _beauty(
     with dr.suspend_grad():
         image = loaded.integrator.render(loaded.scene, sensor, seed=seed, spp=spp)
     rgb = np.array(image, dtype=np.float32)[..., :3]
+    if rgb.shape[2] < 3:  # a mono variant renders Y (and A): show it grey
+        rgb = np.repeat(rgb[..., :1], 3, axis=2)
     return np.concatenate([rgb, visibility.coverage_hit[..., None]], axis=2)
 
 

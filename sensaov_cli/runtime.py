@@ -13,6 +13,7 @@ import os
 import re
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 from .errors import EnvironmentProblem
 
@@ -113,4 +114,21 @@ def import_mitsuba(variant: str) -> ModuleType:
             hint=f"available: {', '.join(mi.variants())}",
         )
     mi.set_variant(variant)
+    _log_to_stderr(mi)
     return mi
+
+
+def _log_to_stderr(mi: ModuleType) -> None:
+    """Mitsuba logs to stdout, where `--json` output goes: send its messages to stderr."""
+    import sys
+
+    class StderrAppender(mi.Appender):  # type: ignore[name-defined]
+        def append(self, level: Any, text: str) -> None:
+            print(text, file=sys.stderr, flush=True)
+
+        def log_progress(self, *args: Any) -> None:
+            pass  # sensaov reports its own progress
+
+    logger = mi.logger()
+    logger.clear_appenders()
+    logger.add_appender(StderrAppender())

@@ -91,9 +91,9 @@ def prepare_scene_xml(
         _set_film_size(sensor, resolution)
     inspection_ids = {
         cam.name: _add_inspection_sensor(
-            root, cam, sensor, path, f"inspection_cameras[{index}].sensor"
+            root, cam, sensor, path, f"inspection camera {cam.name!r}: sensor"
         )
-        for index, cam in enumerate(inspection)
+        for cam in inspection
     }
     text = ET.tostring(root, encoding="unicode")
     return PreparedXml(text, sensor.get("id", ""), inspection_ids, split, bitmaps, materials)
@@ -195,7 +195,8 @@ def _choose_sensor(
     for sensor in sensors:
         if sensor.get("id") == camera.sensor:
             return sensor
-    ids = ", ".join(s.get("id", "?") for s in sensors)
+    # Sensors this pass added for the objective and inspection cameras are not the user's.
+    ids = ", ".join(s.get("id", "?") for s in sensors if not s.get("id", "").startswith("sensaov_"))
     raise SceneError(
         f"no sensor with id {camera.sensor!r} in {path.name}",
         where=where,

@@ -97,7 +97,9 @@ def _sensor_or_look_at(value: Any) -> str | None:
 class RenderModel(_Model):
     """How the objective camera's image is rendered and differentiated."""
 
-    spp: Annotated[int, Field(strict=True, ge=1, description="Samples per pixel.")] = 64
+    spp: Annotated[
+        int, Field(strict=True, ge=1, lt=2**32, description="Samples per pixel (32-bit).")
+    ] = 64
     max_depth: Annotated[MaxDepth, Field(description="Longest path; -1 = unbounded.")] = 6
     seed: Annotated[int, Field(strict=True, ge=0, lt=2**31, description="Sampler seed.")] = 0
     resolution: Annotated[
@@ -180,6 +182,12 @@ class _Inspection(_Model):
 
     @model_validator(mode="after")
     def _reserved_name(self) -> _Inspection:
+        if self.name in ("primal", "buffer"):  # <output>/<camera>.exr must not clobber run's files
+            raise problem(
+                f"the name {self.name!r} is reserved: 'sensaov run' writes {self.name} files",
+                at=("name",),
+                hint="choose another name",
+            )
         if self.name == "objective" and not isinstance(self, ObjectiveInspection):
             raise problem(
                 "the name 'objective' is reserved for the objective camera",

@@ -118,6 +118,7 @@ def test_python_objective_is_differentiated_like_a_builtin(mi, image, tmp_path: 
     [
         ("def f(image):\n    return image * 2\n", "scalar"),
         ("def f(image):\n    raise ValueError('bad')\n", "ValueError: bad"),
+        ("import sys\ndef f(image):\n    sys.exit(0)\n", "SystemExit"),
         (
             "import drjit as dr\n"
             "def f(image):\n    return dr.sum(image, axis=None) * float('nan')\n",

@@ -226,3 +226,21 @@ def test_material_cryptomatte_merges_objects_sharing_a_bsdf(projected: Path) -> 
     assert on_floor.any() and set(names[0][on_floor].ravel()) == {"white"}
     total = np.sum(coverages, axis=0)
     assert np.all(total <= 1.0 + 1e-6)
+
+
+def test_camera_names_of_run_outputs_are_reserved(job_writer: Callable[..., Path]) -> None:
+    cameras = [{"name": "primal", "look_at": CAMERAS[1]["look_at"]}]
+    done = sensaov("validate", str(job_writer("reserved", inspection_cameras=cameras)))
+    assert (
+        done.returncode == 2
+        and "reserved" in done.stderr
+        and "inspection_cameras[0].name" in done.stderr
+    )
+
+
+def test_a_camera_named_twice_is_rendered_once(projected: Path) -> None:
+    done = sensaov(
+        "project", str(projected.parent / "job.yaml"), "--camera", "high", "--camera", "high"
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.count("high:") == 1

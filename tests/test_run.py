@@ -193,3 +193,61 @@ def test_a_selection_that_matches_nothing_is_bad_input(job_writer: Callable[...,
     assert done.returncode == 2
     assert "no scene parameter is selected" in done.stderr and "sensaov params" in done.stderr
     assert not (job.parent / "out").exists()
+
+
+def test_a_stop_requested_during_a_kernel_writes_nothing(
+    job_writer: Callable[..., Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A KeyboardInterrupt can be swallowed inside Dr.Jit callbacks; the recorded request is not."""
+    from sensaov_cli import interrupts
+    from sensaov_cli.pipeline import run_job
+    from sensaov_cli.progress import Progress
+    from sensaov_cli.spec import load_job
+
+    job = job_writer("stopped")
+    monkeypatch.setattr(interrupts, "_requested", __import__("threading").Event())
+    interrupts._requested.set()
+    with pytest.raises(KeyboardInterrupt):
+        run_job(load_job(job), allow_python=False, progress=Progress(quiet=True))
+    assert not (job.parent / "out").exists()
+
+
+def test_outputs_are_replaced_together_or_not_at_all(tmp_path: Path) -> None:
+    from sensaov_cli.atomic import atomic_write_all
+
+    first, second = tmp_path / "buffer.npz", tmp_path / "primal.exr"
+    first.write_text("old buffer")
+    second.write_text("old primal")
+
+    def broken(tmp: Path) -> None:
+        raise OSError("disk full")
+
+    with pytest.raises(OSError):
+        atomic_write_all([(first, lambda tmp: tmp.write_text("new")), (second, broken)])
+    assert first.read_text() == "old buffer" and second.read_text() == "old primal"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["buffer.npz", "primal.exr"]
+
+
+def test_an_output_name_taken_by_a_folder_fails_before_rendering(
+    job_writer: Callable[..., Path],
+) -> None:
+    job = job_writer("taken")
+    (job.parent / "out" / "primal.exr").mkdir(parents=True)
+    done = sensaov("run", str(job))
+    assert done.returncode == 2 and "primal.exr is a directory" in done.stderr
+    assert "primal render" not in done.stderr  # refused before any work
+    assert sorted(p.name for p in (job.parent / "out").iterdir()) == ["primal.exr"]
+
+
+def test_json_stays_json_when_mitsuba_logs(job_writer: Callable[..., Path]) -> None:
+    job = job_writer("mono", variant="llvm_ad_mono")  # Mitsuba warns about monochrome films
+    done = sensaov("run", str(job), "--json", "-q")
+    assert done.returncode == 0, done.stderr
+    assert "Monochrome" in done.stderr
+    assert json.loads(done.stdout)["objectives"][0]["value"] > 0
+
+
+def test_check_refuses_an_unknown_key(job_writer: Callable[..., Path]) -> None:
+    done = sensaov("check", str(job_writer("check_key")), "--key", "green.reflectance")
+    assert done.returncode == 2
+    assert "did you mean 'green.reflectance.value'" in done.stderr
