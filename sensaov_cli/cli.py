@@ -27,6 +27,7 @@ Exit codes:
   {EXIT_JOB_FAILED}  the job failed (rendering, objective, NaN gradients, internal error)
   {EXIT_BAD_INPUT}  bad input (malformed job, unknown key, missing file, corrupt buffer)
   3  the machine cannot render (no usable libLLVM, no CUDA for a cuda variant)
+  130  interrupted (Ctrl-C, SIGTERM); earlier outputs are left untouched
 """
 
 job_argument = click.argument("job", type=click.Path(path_type=Path, dir_okay=False))
