@@ -208,6 +208,9 @@ def _read_header(member: np.ndarray) -> dict[str, Any]:
     for name, kind in kinds.items():
         if not isinstance(header.get(name), kind):
             raise _Malformed(f"malformed header: {name!r} must be a JSON {kind.__name__}")
+    extra = sorted(set(header) - set(kinds) - {"format", "format_version"})
+    if extra:  # version 1 allows no others (docs/buffer-format.md)
+        raise _Malformed(f"malformed header: unknown field(s) {', '.join(map(repr, extra))}")
     return header
 
 

@@ -157,7 +157,13 @@ def params(job: Path, as_json: bool, show_all: bool) -> None:
 @job_argument
 @json_option
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
-@click.option("--top", default=8, show_default=True, help="Rows per table in the summary.")
+@click.option(
+    "--top",
+    default=8,
+    show_default=True,
+    type=click.IntRange(min=1),
+    help="Rows per table in the summary.",
+)
 @allow_python_option
 @reports_errors
 def run(job: Path, as_json: bool, quiet: bool, top: int, allow_python: bool) -> None:
@@ -343,7 +349,9 @@ def check(
 @main.command(epilog=EXIT_CODES)
 @click.argument("buffer", type=click.Path(path_type=Path, dir_okay=False))
 @json_option
-@click.option("--top", default=8, show_default=True, help="Rows per table.")
+@click.option(
+    "--top", default=8, show_default=True, type=click.IntRange(min=1), help="Rows per table."
+)
 @click.option(
     "--aggregate", type=click.Choice(["l2", "rms", "sum"]), default="l2", show_default=True
 )

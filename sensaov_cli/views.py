@@ -52,7 +52,14 @@ def _selections(
         return [(channel.name, "all", tuple(buf.keys))]
     if channel.kind == "select":
         assert channel.select is not None
-        return [(channel.name, f"glob={channel.select}", select(buf, glob=channel.select))]
+        keys = select(buf, glob=channel.select)
+        if not keys:  # as with an absent type: an empty layer would look like "no sensitivity"
+            raise SpecError(
+                f"select glob {channel.select!r} matches no parameter in the buffer",
+                where=f"channels[{index}].select",
+                hint="'sensaov rank BUFFER --json' lists the keys",
+            )
+        return [(channel.name, f"glob={channel.select}", keys)]
     present = buf.types()
     for wanted in channel.types or ():
         if wanted not in present:

@@ -271,6 +271,10 @@ def _unknown_version(p: Path) -> None:
     _with_header(p, lambda h: h.update(format_version=FORMAT_VERSION + 1))
 
 
+def _extra_header_field(p: Path) -> None:
+    _with_header(p, lambda h: h.update(extra=1))
+
+
 def _missing_array(p: Path) -> None:
     members = _members(p)
     del members["grad_001_000002.npy"]
@@ -310,7 +314,7 @@ def _nonexistent(p: Path) -> None:
     "spoil",
     [_empty, _text, _truncated, _bit_flip, _plain_npy, _plain_npz, _foreign_format,
      _unknown_version, _missing_array, _shape_mismatch, _float64_array, _nan_in_file,
-     _bad_record, _directory, _nonexistent],
+     _bad_record, _directory, _nonexistent, _extra_header_field],
 )  # fmt: skip
 def test_unreadable_file_is_a_buffer_format_error(saved: Path, spoil) -> None:
     spoil(saved)

@@ -244,3 +244,10 @@ def test_a_camera_named_twice_is_rendered_once(projected: Path) -> None:
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.count("high:") == 1
+
+
+def test_a_select_channel_matching_nothing_is_bad_input(projected: Path, tmp_path: Path) -> None:
+    job = write_job(tmp_path, channels=[{"name": "none", "kind": "select", "select": "nomatch*"}])
+    job.write_text(job.read_text().replace(str(tmp_path / "out"), str(projected)))
+    done = sensaov("project", str(job), "-q")
+    assert done.returncode == 2 and "channels[0].select" in done.stderr
