@@ -114,10 +114,10 @@ def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> Loaded
         raise SceneError(_first_line(exc), where=str(job.scene)) from exc
     sensors = {sensor.id(): sensor for sensor in scene.sensors()}
     sensor = sensors[prepared.sensor_id]
-    objects, owned = _object_nodes(mi, scene)
+    ownership = _ownership(mi, scene)
     params = mi.traverse(scene)
     sources = {Path(name).name: job.scene.parent / name for name in prepared.bitmap_files}
-    selected, excluded = _select(mi, job, params, owned, sources)
+    selected, excluded = _select(mi, job, params, ownership, sources)
     size = sensor.film().crop_size()
     return LoadedScene(
         mi=mi,
@@ -128,7 +128,7 @@ def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> Loaded
         variant=mi.variant(),
         selected=selected,
         excluded=excluded,
-        objects=objects,
+        objects=ownership.objects,
         fingerprint=scene_fingerprint(job.scene),
         resolution=(int(size[0]), int(size[1])),
         split=prepared.split,
@@ -157,36 +157,49 @@ def _first_line(exc: Exception) -> str:
     return lines[-1] if lines else type(exc).__name__
 
 
-def _object_nodes(mi: ModuleType, scene: Any) -> tuple[tuple[str, ...], dict[str, list[Any]]]:
-    """Every object (shape, or emitter not attached to a shape) and the nodes it owns.
+@dataclass(frozen=True)
+class _Ownership:
+    """Which objects own each scene node, by node identity (never by key strings: key names
+    depend on declaration order). ``nodes`` keeps the nodes alive, so their ids stay valid."""
 
-    Ownership is by node identity, never by key strings: key names depend on declaration order.
-    """
+    objects: tuple[str, ...]
+    owners: dict[int, tuple[str, ...]]  # id(node) -> owning objects, sorted
+    nodes: tuple[Any, ...]
+
+    def of(self, node: Any) -> tuple[str, ...]:
+        return self.owners.get(id(node), ())
+
+
+def _ownership(mi: ModuleType, scene: Any) -> _Ownership:
+    """Every object (shape, or emitter not attached to a shape) and the nodes it owns."""
     owned: dict[str, list[Any]] = {}
     for index, shape in enumerate(scene.shapes()):
         owned[shape.id() or f"shape_{index}"] = list(mi.traverse(shape).hierarchy)
     for index, emitter in enumerate(scene.emitters()):
         if emitter.get_shape() is None:
             owned[emitter.id() or f"emitter_{index}"] = list(mi.traverse(emitter).hierarchy)
-    return tuple(sorted(owned)), owned
-
-
-def _owners_of(node: Any, owned: dict[str, list[Any]]) -> tuple[str, ...]:
-    return tuple(sorted(name for name, nodes in owned.items() if any(n is node for n in nodes)))
+    owners: dict[int, set[str]] = {}
+    for name, nodes in owned.items():
+        for node in nodes:
+            owners.setdefault(id(node), set()).add(name)
+    alive = tuple(node for nodes in owned.values() for node in nodes)
+    return _Ownership(
+        tuple(sorted(owned)), {key: tuple(sorted(v)) for key, v in owners.items()}, alive
+    )
 
 
 def _select(
     mi: ModuleType,
     job: JobSpec,
     params: Any,
-    owned: dict[str, list[Any]],
+    ownership: _Ownership,
     sources: dict[str, Path],
 ) -> tuple[tuple[ParamInfo, ...], tuple[Excluded, ...]]:
     selected, excluded = [], []
     for key in params.keys():
         _, _, node, flags = params.properties[key]
         reason = _exclusion_reason(mi, job, key, params[key], node, flags)
-        owners = _owners_of(node, owned) if reason is None else ()
+        owners = ownership.of(node) if reason is None else ()
         if reason is None and not owners:
             reason = "owned by no object in the scene"
         if reason is None:
