@@ -8,7 +8,6 @@ colour scales come from the object values, so cameras rendered in separate farm 
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -43,7 +42,7 @@ class ProjectedView:
     width: int
     height: int
     vis_spp: int
-    seconds: float
+    seconds: float  # wall time of the view: visibility, beauty, painting, files
     previews: tuple[Path, ...]
 
 
@@ -67,25 +66,13 @@ def project_job(
     _check_objects(buffer, loaded, buffer_path)
     views = []
     for camera in chosen:
-        start = time.perf_counter()
-        with progress.stage(f"view_{camera.name}_s", f"view '{camera.name}'"):
+        stage = f"view_{camera.name}_s"
+        with progress.stage(stage, f"view '{camera.name}'"):
             view = _project_camera(
                 job, buffer, buffer_path, loaded, camera, passes, png, beauty_spp
             )
-        views.append(_with_time(view, time.perf_counter() - start))
+        views.append(replace(view, seconds=progress.timings[stage]))
     return views
-
-
-def _with_time(view: ProjectedView, seconds: float) -> ProjectedView:
-    return ProjectedView(
-        view.camera,
-        view.path,
-        view.width,
-        view.height,
-        view.vis_spp,
-        round(seconds, 4),
-        view.previews,
-    )
 
 
 def _check_fingerprint(job: JobSpec, buffer: SensitivityBuffer, path: Path, force: bool) -> None:

@@ -62,3 +62,17 @@ def test_regroup_merges_objects_into_their_groups() -> None:
     index, amount = ranked(grouped, (2, 2), 4, ranks=2)
     assert index[0, 1].tolist() == [0, B] and amount[0, 1].tolist() == [0.75, 0.0]
     assert index[1, 1].tolist() == [0, 1] and amount[1, 1].tolist() == [0.5, 0.5]
+
+
+def test_traced_uvs_lie_on_hit_surfaces(mi: ModuleType, job_writer) -> None:  # noqa: ANN001
+    from sensaov_cli.scene import load_scene
+    from sensaov_cli.spec import load_job
+    from sensaov_cli.visibility import trace
+
+    loaded = load_scene(load_job(job_writer("uv")))
+    vis = trace(mi, loaded.scene, loaded.sensor, loaded.objects, 4, with_uv=True)
+    assert vis.sample_uv is not None and vis.sample_uv.shape == (24, 24, 4, 2)
+    covered = vis.coverage_hit == 1.0
+    uv = vis.sample_uv[covered]
+    assert np.all((uv >= 0) & (uv <= 1)) and uv.std() > 0.1  # real surface coordinates
+    assert trace(mi, loaded.scene, loaded.sensor, loaded.objects, 4).sample_uv is None
