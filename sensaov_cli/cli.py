@@ -7,7 +7,6 @@ and only here.
 
 from __future__ import annotations
 
-import difflib
 import json
 import sys
 import traceback
@@ -324,15 +323,6 @@ def check(
         raise SpecError(
             f"no objective named {objective!r}", where="--objective", hint=f"objectives: {names}"
         )
-    selected = {info.key for info in loaded.selected}
-    for key in keys:
-        if key not in selected:
-            close = difflib.get_close_matches(key, sorted(selected), n=1)
-            raise SpecError(
-                f"{key!r} is not a selected parameter",
-                where="--key",
-                hint=f"did you mean {close[0]!r}?" if close else "'sensaov params JOB' lists them",
-            )
     width, height = loaded.resolution
     (built,) = build_objectives(loaded.mi, tuple(chosen), (height, width), allow_python)
     results = check_gradients(

@@ -11,12 +11,14 @@ checkable this way on average, hence several seeds.
 
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .adjoint import assign, backward, enable_gradients, objective_at_seed, render_primal
+from .errors import SpecError
 from .objectives import Objective, value_and_adjoint
 from .scene import LoadedScene, ParamInfo
 
@@ -108,10 +110,22 @@ def check_gradients(
     seeds: list[int],
     keys: list[str] | None = None,
 ) -> list[GradientCheck]:
-    chosen = (
-        representatives(loaded) if keys is None else [i for i in loaded.selected if i.key in keys]
-    )
+    """One check per parameter kind, or of the named ``keys`` (each must be a selected key)."""
+    chosen = representatives(loaded) if keys is None else _named(loaded, keys)
     return [check_parameter(loaded, objective, info, spp=spp, seeds=seeds) for info in chosen]
+
+
+def _named(loaded: LoadedScene, keys: list[str]) -> list[ParamInfo]:
+    by_key = {info.key: info for info in loaded.selected}
+    for key in keys:
+        if key not in by_key:
+            close = difflib.get_close_matches(key, sorted(by_key), n=1)
+            raise SpecError(
+                f"{key!r} is not a selected parameter",
+                where="--key",
+                hint=f"did you mean {close[0]!r}?" if close else "'sensaov params JOB' lists them",
+            )
+    return [by_key[key] for key in dict.fromkeys(keys)]
 
 
 def checks_text(checks: list[GradientCheck]) -> str:
