@@ -15,13 +15,13 @@ from bench.settings import Settings
 from bench.timing import Stats, interleave
 
 if TYPE_CHECKING:
-    from sensaov_cli.buffer import SensitivityBuffer
+    from sensaov_cli.buffer.model import SensitivityBuffer
 
 MB = 1e6
 
 
 def make_buffer(side: int) -> SensitivityBuffer:
-    from sensaov_cli.buffer import ObjectiveRecord, ParamRecord, SensitivityBuffer
+    from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
 
     rng = np.random.default_rng(0)
     shape = (side, side, 3)
@@ -80,7 +80,7 @@ def _save(buffer: SensitivityBuffer, path: Path) -> Callable[[], float]:
 
 
 def _load(path: Path) -> Callable[[], float]:
-    from sensaov_cli.buffer import SensitivityBuffer
+    from sensaov_cli.buffer.model import SensitivityBuffer
 
     def measure() -> float:
         start = time.perf_counter()

@@ -61,8 +61,8 @@ def _extra_row(case: str, k: int, t: dict[str, Stats], one: Stats) -> Row:
 
 
 def _adjoint_stage(passes: Passes, k: int, first_backward: list[float]) -> Callable[[], float]:
-    from sensaov_cli.adjoint import run_adjoint
     from sensaov_cli.progress import Progress
+    from sensaov_cli.render.adjoint import run_adjoint
 
     def measure() -> float:
         progress = Progress(quiet=True)

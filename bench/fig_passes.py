@@ -37,10 +37,10 @@ class Passes:
 
     @staticmethod
     def load(job: Path) -> Passes:
-        from sensaov_cli.adjoint import enable_gradients, render_primal
-        from sensaov_cli.objectives import build_objectives, value_and_adjoint
-        from sensaov_cli.scene import load_scene
-        from sensaov_cli.spec import load_job
+        from sensaov_cli.render.adjoint import enable_gradients, render_primal
+        from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
+        from sensaov_cli.render.scene import load_scene
+        from sensaov_cli.spec.job import load_job
 
         spec = load_job(job)
         loaded = load_scene(spec)
@@ -52,12 +52,12 @@ class Passes:
         return Passes(loaded, objectives, adjoint, spec.render.spp)
 
     def primal(self) -> float:
-        from sensaov_cli.adjoint import render_primal
+        from sensaov_cli.render.adjoint import render_primal
 
         return synced(lambda: render_primal(self.loaded, self.spp, PRIMAL_SEED))[0]
 
     def backward(self) -> float:
-        from sensaov_cli.adjoint import backward
+        from sensaov_cli.render.adjoint import backward
 
         return synced(lambda: backward(self.loaded, self.adjoint, self.spp, GRAD_SEED))[0]
 

@@ -100,7 +100,7 @@ class Workspace:
 
     def target_image(self, resolution: int) -> Path:
         """A grey EXR target for an ``l2_to_target`` objective (a non-linear objective)."""
-        from sensaov_cli.exr import write_exr
+        from sensaov_cli.outputs.exr import write_exr
 
         path = self.root / f"target_{resolution}.exr"
         if not path.exists():
@@ -114,9 +114,9 @@ class Workspace:
         Both sides of figure 1 then do the same work on the same scene; preparing the XML is
         text processing (milliseconds) and is left out of the hand-written side.
         """
-        from sensaov_cli.scene import load_scene
-        from sensaov_cli.scene_xml import prepare_scene_xml
-        from sensaov_cli.spec import load_job
+        from sensaov_cli.render.scene import load_scene
+        from sensaov_cli.render.scene_xml import prepare_scene_xml
+        from sensaov_cli.spec.job import load_job
 
         spec = load_job(job_path)
         prepared = prepare_scene_xml(

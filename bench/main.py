@@ -61,7 +61,7 @@ def resolve_variant(variant: str) -> tuple[str, str]:
 
     Importing through sensaov also sets ``DRJIT_LIBLLVM_PATH`` for the child processes.
     """
-    from sensaov_cli.runtime import import_mitsuba
+    from sensaov_cli.render.runtime import import_mitsuba
 
     mi = import_mitsuba(variant)
     import drjit as dr

@@ -1,3 +1,3 @@
-from .cli import main
+from sensaov_cli.cli import main
 
 main(prog_name="sensaov")

@@ -14,18 +14,23 @@ from typing import Any
 
 import numpy as np
 
-from . import interrupts
-from .atomic import check_writable
-from .buffer import SensitivityBuffer
-from .encoding import Encoding, choose_scale, encode_image, signed_object_values
-from .errors import SpecError
-from .exr_layout import CryptoLayer, SensitivityLayer, write_layered_exr
-from .progress import Progress
-from .scene import LoadedScene, load_scene
-from .scene_xml import scene_fingerprint
-from .spec import CameraSpec, JobSpec
-from .views import ChannelValues, channel_values
-from .visibility import VisibilityPass, ranked, trace
+from sensaov_cli import interrupts
+from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.errors import SpecError
+from sensaov_cli.outputs.atomic import check_writable
+from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write_layered_exr
+from sensaov_cli.progress import Progress
+from sensaov_cli.render.scene import LoadedScene, load_scene
+from sensaov_cli.render.scene_xml import scene_fingerprint
+from sensaov_cli.render.visibility import VisibilityPass, ranked, trace
+from sensaov_cli.spec.job import CameraSpec, JobSpec
+from sensaov_cli.views.channels import ChannelValues, channel_values
+from sensaov_cli.views.encoding import (
+    Encoding,
+    choose_scale,
+    encode_image,
+    signed_object_values,
+)
 
 DEFAULT_BEAUTY_SPP = 4  # a quick reference for the compositor; it is a full path trace
 OBJECTIVE_CAMERA = CameraSpec("objective", None, None, 40.0, None, True, 16)
@@ -151,7 +156,7 @@ def _project_camera(
     )
     previews: tuple[Path, ...] = ()
     if png:
-        from .preview_sheets import write_previews
+        from sensaov_cli.outputs.contact_sheets import write_previews
 
         previews = write_previews(job.output / "previews", camera.name, layers, beauty, visibility)
     return ProjectedView(
@@ -221,7 +226,7 @@ def _layer(
 def _attributes(
     buffer: SensitivityBuffer, buffer_path: Path, camera: CameraSpec, beauty_spp: int
 ) -> dict[str, str]:
-    from . import __version__
+    from sensaov_cli import __version__
 
     made = {
         "tool": "sensaov",

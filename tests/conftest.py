@@ -17,7 +17,7 @@ SCENES = ROOT / "scenes"
 
 @pytest.fixture(scope="session")
 def mi() -> ModuleType:
-    from sensaov_cli.runtime import import_mitsuba
+    from sensaov_cli.render.runtime import import_mitsuba
 
     return import_mitsuba("llvm_ad_rgb")
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer import (
+from sensaov_cli.buffer.model import (
     FORMAT_NAME,
     FORMAT_VERSION,
     BufferContentError,
@@ -394,7 +394,8 @@ def test_plain_numpy_example_in_the_docs_runs(saved: Path, capsys) -> None:
 
 def test_numpy_only_modules_import_no_renderer() -> None:
     code = (
-        "import sys, sensaov_cli.buffer, sensaov_cli.queries, sensaov_cli.report\n"
+        "import sys, sensaov_cli.buffer.model, sensaov_cli.buffer.queries\n"
+        "import sensaov_cli.views.summary\n"
         "heavy = {'mitsuba', 'drjit', 'rich', 'click'} & set(sys.modules)\n"
         "assert not heavy, heavy"
     )

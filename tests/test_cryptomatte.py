@@ -16,8 +16,8 @@ import mmh3
 import numpy as np
 import pytest
 
-from sensaov_cli import cryptomatte
-from sensaov_cli.exr_layout import CryptoLayer, write_layered_exr
+from sensaov_cli.outputs import cryptomatte
+from sensaov_cli.outputs.layered_exr import CryptoLayer, write_layered_exr
 
 SAMPLES = 4  # per axis: 16 stratified samples a pixel, so coverages are multiples of 1/16
 NAMES = ("floor/plane", "bunny", "Teapot é", "never-hit")

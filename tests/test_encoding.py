@@ -7,7 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from sensaov_cli.encoding import (
+from sensaov_cli.buffer.queries import KeyStats, Method, combine
+from sensaov_cli.spec.job import ChannelSpec
+from sensaov_cli.views.encoding import (
     Encoding,
     EncodingError,
     NonFiniteError,
@@ -17,8 +19,6 @@ from sensaov_cli.encoding import (
     signed_object_values,
     tonemap_values,
 )
-from sensaov_cli.queries import KeyStats, Method, combine
-from sensaov_cli.spec import ChannelSpec
 
 # Per object, its contributions c = θ·∂M/∂θ: wall pulls M down, lamp up, cup cancels out.
 CONTRIBUTIONS = {"wall": [-3.0, 1.0], "lamp": [2.0], "floor": [0.25, 0.0], "cup": [1.0, -1.0]}

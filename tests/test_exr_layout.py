@@ -9,10 +9,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sensaov_cli import exr_layout
-from sensaov_cli.cryptomatte import layer_key
-from sensaov_cli.exr import read_exr
-from sensaov_cli.exr_layout import CryptoLayer, SensitivityLayer, layer_names, write_layered_exr
+from sensaov_cli.outputs import layered_exr as exr_layout
+from sensaov_cli.outputs.cryptomatte import layer_key
+from sensaov_cli.outputs.exr import read_exr
+from sensaov_cli.outputs.layered_exr import (
+    CryptoLayer,
+    SensitivityLayer,
+    layer_names,
+    write_layered_exr,
+)
 from tests.test_cryptomatte import NAMES, synthetic_coverage
 
 HEIGHT, WIDTH = 24, 32

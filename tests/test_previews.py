@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensaov_cli.encoding import NonFiniteError
-from sensaov_cli.previews import (
+from sensaov_cli.outputs.previews import (
     BACKGROUND,
     BAR_HEIGHT,
     LABEL_HEIGHT,
@@ -22,6 +21,7 @@ from sensaov_cli.previews import (
     underlay,
     write_png,
 )
+from sensaov_cli.views.encoding import NonFiniteError
 
 BLUE, WHITE, RED = RDBU[0], RDBU[5], RDBU[-1]
 

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer import SensitivityBuffer
-from sensaov_cli.exr import read_exr
-from sensaov_cli.queries import per_object
+from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.queries import per_object
+from sensaov_cli.outputs.exr import read_exr
 
 from .conftest import SCENES, sensaov, write_job
 from .test_cryptomatte import decode_file
@@ -158,7 +158,7 @@ def test_project_computes_no_derivatives(
 
     from sensaov_cli.progress import Progress
     from sensaov_cli.project import project_job
-    from sensaov_cli.spec import load_job
+    from sensaov_cli.spec.job import load_job
 
     job = job_writer("no_ad", inspection_cameras=CAMERAS[1:])
     assert sensaov("run", "-q", str(job)).returncode == 0

@@ -7,8 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer import ObjectiveRecord, ParamRecord, SensitivityBuffer, UnknownNameError
-from sensaov_cli.queries import (
+from sensaov_cli.buffer.model import (
+    ObjectiveRecord,
+    ParamRecord,
+    SensitivityBuffer,
+    UnknownNameError,
+)
+from sensaov_cli.buffer.queries import (
     QueryError,
     aggregate,
     per_object,

@@ -8,8 +8,8 @@ import re
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer import ObjectiveRecord, ParamRecord, SensitivityBuffer
-from sensaov_cli.report import UNVERIFIED_MARK, summary_dict, summary_text
+from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
+from sensaov_cli.views.summary import UNVERIFIED_MARK, summary_dict, summary_text
 
 BIASED = "known biased: roughplastic alpha gradient ~5x too small"
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer import SensitivityBuffer
+from sensaov_cli.buffer.model import SensitivityBuffer
 
 from .conftest import sensaov
 
@@ -145,7 +145,7 @@ def test_indirect_only_wall_and_hidden_light_matter(job_writer: Callable[..., Pa
     job = job_writer("interior", scene="interior")
     assert sensaov("run", "-q", str(job)).returncode == 0
     buffer = SensitivityBuffer.load(job.parent / "out" / "buffer.npz")
-    from sensaov_cli.queries import per_object
+    from sensaov_cli.buffer.queries import per_object
 
     scores = per_object(buffer, "mean_luma", method="sum", weight="value")
     assert scores["front_wall"] > 0 and scores["ceiling_light"] > 0
@@ -200,9 +200,9 @@ def test_a_stop_requested_during_a_kernel_writes_nothing(
 ) -> None:
     """A KeyboardInterrupt can be swallowed inside Dr.Jit callbacks; the recorded request is not."""
     from sensaov_cli import interrupts
-    from sensaov_cli.pipeline import run_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.spec import load_job
+    from sensaov_cli.run import run_job
+    from sensaov_cli.spec.job import load_job
 
     job = job_writer("stopped")
     monkeypatch.setattr(interrupts, "_requested", __import__("threading").Event())
@@ -213,7 +213,7 @@ def test_a_stop_requested_during_a_kernel_writes_nothing(
 
 
 def test_outputs_are_replaced_together_or_not_at_all(tmp_path: Path) -> None:
-    from sensaov_cli.atomic import atomic_write_all
+    from sensaov_cli.outputs.atomic import atomic_write_all
 
     first, second = tmp_path / "buffer.npz", tmp_path / "primal.exr"
     first.write_text("old buffer")

@@ -7,8 +7,8 @@ import sys
 
 import pytest
 
-from sensaov_cli import runtime
 from sensaov_cli.errors import EnvironmentProblem
+from sensaov_cli.render import runtime
 
 
 @pytest.mark.parametrize(
@@ -54,7 +54,7 @@ def test_llvm_15_is_refused_before_any_kernel_runs(tmp_path) -> None:  # noqa: A
     llvm15 = "/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1"
     if not runtime.os.path.isfile(llvm15):
         pytest.skip("this machine has no LLVM 15 to try")
-    code = "from sensaov_cli.runtime import import_mitsuba; import_mitsuba('llvm_ad_rgb')"
+    code = "from sensaov_cli.render.runtime import import_mitsuba; import_mitsuba('llvm_ad_rgb')"
     env = dict(runtime.os.environ, DRJIT_LIBLLVM_PATH=llvm15)
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert done.returncode == 1  # a Python exception, not SIGABRT (-6)

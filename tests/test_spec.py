@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from sensaov_cli.errors import EXIT_BAD_INPUT, SpecError
-from sensaov_cli.spec import (
+from sensaov_cli.spec.job import (
     SUPPORTED_VERSIONS,
     CameraSpec,
     ChannelSpec,
@@ -300,7 +300,8 @@ def test_the_documented_example_is_valid(tmp_path: Path) -> None:
 
 
 def test_spec_module_does_not_import_the_renderer() -> None:
-    code = "import sys, sensaov_cli.spec; print(sorted({'mitsuba', 'drjit'} & set(sys.modules)))"
+    code = "import sys, sensaov_cli.spec.job\n"
+    code += "print(sorted({'mitsuba', 'drjit'} & set(sys.modules)))"
     repo = Path(__file__).resolve().parents[1]
     result = subprocess.run(
         [sys.executable, "-c", code], cwd=repo, capture_output=True, text=True, check=True

@@ -1,0 +1,324 @@
+"""The sensitivity buffer: dM/dθ for every selected scene parameter, per objective (§2).
+
+One reverse-mode pass per objective fills it; every view afterwards is a re-projection of the
+stored buffer, never a second differentiation. The file is a plain ``.npz`` readable with
+``np.load(path, allow_pickle=False)``; its layout (format version 1) is specified in
+``docs/buffer-format.md``. This module needs numpy only: loading a buffer never imports Mitsuba.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import math
+import operator
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import InitVar, dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from sensaov_cli.errors import EXIT_BAD_INPUT, SensaovError
+
+FORMAT_NAME = "sensaov-buffer"
+FORMAT_VERSION = 1
+HEADER_MEMBER = "header"
+
+
+class BufferContentError(SensaovError):
+    """A buffer being built is inconsistent: a missing or misshapen array, a duplicate name."""
+
+
+class NonFiniteGradientError(BufferContentError):
+    """A gradient holds NaN or infinity; a buffer never stores one."""
+
+    def __init__(self, objective: str, key: str, bad: int, total: int):
+        super().__init__(
+            f"gradient of objective {objective!r} w.r.t. parameter {key!r} has {bad} of "
+            f"{total} components NaN or infinite",
+            hint="more spp or a different seed may help; check the objective for a division "
+            "by zero, or leave the parameter out of the selection",
+        )
+        self.objective = objective
+        self.key = key
+
+
+class BufferWriteError(SensaovError):
+    """The buffer file could not be written (no such directory, no permission, disk full)."""
+
+
+class UnknownNameError(SensaovError):
+    """A name (objective, parameter key, object, type) the buffer does not hold."""
+
+    exit_code = EXIT_BAD_INPUT
+
+    def __init__(self, kind: str, name: str, valid: Iterable[str]):
+        valid = list(valid)
+        close = difflib.get_close_matches(name, valid, n=3)
+        shown = ", ".join(valid[:12]) + (f", … ({len(valid) - 12} more)" if len(valid) > 12 else "")
+        hint = f"did you mean {' or '.join(map(repr, close))}? " if close else ""
+        super().__init__(
+            f"no {kind} {name!r} in the buffer", hint=f"{hint}known: {shown or 'none'}"
+        )
+        self.kind = kind
+        self.name = name
+
+
+def _require(ok: bool, message: str) -> None:
+    if not ok:
+        raise BufferContentError(message)
+
+
+def _str_tuple(items: Any, what: str) -> tuple[str, ...]:
+    ok = isinstance(items, Iterable) and not isinstance(items, str)
+    _require(ok, f"{what} must be a sequence of strings, got {items!r}")
+    items = tuple(items)
+    _require(all(isinstance(s, str) for s in items), f"{what} must hold strings only")
+    return items
+
+
+def _shape(items: Any, what: str) -> tuple[int, ...]:
+    dims: tuple[int, ...] = ()
+    try:
+        dims = tuple(operator.index(d) for d in items if not isinstance(d, bool))
+        ok = len(dims) == len(items) and all(d >= 0 for d in dims)
+    except TypeError:
+        ok = False
+    _require(ok, f"{what} must be a sequence of non-negative integers, got {items!r}")
+    return dims
+
+
+def _json_copy(data: Any, what: str) -> Any:
+    """A deep copy through JSON, so the record saves and loads back equal (tuples become lists)."""
+    try:
+        return json.loads(json.dumps(data, allow_nan=False))
+    except (TypeError, ValueError) as exc:
+        raise BufferContentError(f"{what} is not JSON-able: {exc}") from exc
+
+
+@dataclass(frozen=True)
+class ParamRecord:
+    """What the buffer knows about one scene parameter besides its arrays."""
+
+    key: str
+    type: str
+    owners: tuple[str, ...]
+    shape: tuple[int, ...]
+    is_texture: bool
+    plugin: str
+    flags: tuple[str, ...]
+    verified: bool
+    note: str
+
+    def __post_init__(self) -> None:
+        for name in ("key", "type"):
+            value = getattr(self, name)
+            _require(isinstance(value, str) and value != "", f"parameter {name} must be a string")
+        what = f"parameter {self.key!r}"
+        _require(isinstance(self.plugin, str), f"{what}: plugin must be a string")
+        _require(isinstance(self.note, str), f"{what}: note must be a string")
+        _require(isinstance(self.is_texture, bool), f"{what}: is_texture must be a bool")
+        _require(isinstance(self.verified, bool), f"{what}: verified must be a bool")
+        object.__setattr__(self, "owners", _str_tuple(self.owners, f"{what}: owners"))
+        object.__setattr__(self, "flags", _str_tuple(self.flags, f"{what}: flags"))
+        object.__setattr__(self, "shape", _shape(self.shape, f"{what}: shape"))
+
+
+@dataclass(frozen=True)
+class ObjectiveRecord:
+    """One scalar objective M: how it was defined, its value at the primal, the backward seed."""
+
+    name: str
+    definition: dict[str, Any]
+    value: float
+    grad_seed: int
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.name, str) and self.name != "", "objective name must be a string")
+        what = f"objective {self.name!r}"
+        _require(isinstance(self.definition, dict), f"{what}: definition must be a dict")
+        object.__setattr__(self, "definition", _json_copy(self.definition, f"{what}: definition"))
+        _require(
+            isinstance(self.value, int | float | np.floating) and not isinstance(self.value, bool),
+            f"{what}: value must be a number",
+        )
+        _require(math.isfinite(self.value), f"{what}: value M is {self.value}, not finite")
+        object.__setattr__(self, "value", float(self.value))
+        _require(
+            isinstance(self.grad_seed, int | np.integer) and not isinstance(self.grad_seed, bool),
+            f"{what}: grad_seed must be an integer",
+        )
+        object.__setattr__(self, "grad_seed", int(self.grad_seed))
+
+
+def _frozen_array(
+    data: Any, shape: tuple[int, ...], what: str, copy: bool
+) -> tuple[np.ndarray, int]:
+    """A read-only, C-contiguous float32 copy of ``data`` and its count of NaN/inf components.
+
+    With ``copy=False`` an array that is already native float32 and C-contiguous is frozen in
+    place; only :meth:`SensitivityBuffer.load` asks for that, for arrays nothing else holds.
+    """
+    try:
+        arr = np.asarray(data)
+    except (TypeError, ValueError) as exc:
+        raise BufferContentError(f"{what} is not an array: {exc}") from exc
+    _require(arr.dtype.kind in "fiu", f"{what} has dtype {arr.dtype}; expected real numbers")
+    _require(arr.shape == shape, f"{what} has shape {arr.shape}; the record says {shape}")
+    arr = np.array(arr, dtype=np.float32, order="C", copy=True if copy else None)
+    arr.flags.writeable = False
+    return arr, int(arr.size - np.count_nonzero(np.isfinite(arr)))
+
+
+def _check_unique(kind: str, names: Sequence[str]) -> None:
+    seen: set[str] = set()
+    for name in names:
+        _require(name not in seen, f"{kind} {name!r} appears twice")
+        seen.add(name)
+
+
+def _check_no_extra(kind: str, given: Iterable[str], known: Iterable[str]) -> None:
+    extra = sorted(set(given) - set(known))
+    _require(not extra, f"{kind} for undeclared names: {', '.join(map(repr, extra))}")
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class SensitivityBuffer:
+    """Per objective, dM/dθ for every selected parameter, with values, owners and provenance.
+
+    Construction copies every array to a read-only C-contiguous float32 array and refuses an
+    inconsistent buffer (:class:`BufferContentError`) or a NaN/inf gradient
+    (:class:`NonFiniteGradientError`), so a stored buffer is always complete and finite.
+    """
+
+    provenance: dict[str, Any]
+    objects: tuple[str, ...]
+    params: tuple[ParamRecord, ...]
+    objectives: tuple[ObjectiveRecord, ...]
+    values: Mapping[str, np.ndarray]
+    grads: Mapping[str, Mapping[str, np.ndarray]]
+    _by_key: Mapping[str, ParamRecord] = field(init=False)
+    _by_name: Mapping[str, ObjectiveRecord] = field(init=False)
+    _copy_arrays: InitVar[bool] = True
+
+    def __post_init__(self, _copy_arrays: bool) -> None:
+        set_ = object.__setattr__
+        _require(isinstance(self.provenance, dict), "provenance must be a dict")
+        set_(self, "provenance", _json_copy(self.provenance, "provenance"))
+        objects = _str_tuple(self.objects, "objects")
+        _check_unique("object", objects)
+        set_(self, "objects", tuple(sorted(objects)))
+        set_(self, "params", tuple(self.params))
+        set_(self, "objectives", tuple(self.objectives))
+        _require(
+            all(isinstance(p, ParamRecord) for p in self.params), "params must be ParamRecords"
+        )
+        _require(
+            all(isinstance(o, ObjectiveRecord) for o in self.objectives),
+            "objectives must be ObjectiveRecords",
+        )
+        _check_unique("parameter key", [p.key for p in self.params])
+        _check_unique("objective", [o.name for o in self.objectives])
+        known_objects = set(objects)
+        for p in self.params:
+            unknown = [o for o in p.owners if o not in known_objects]
+            _require(not unknown, f"parameter {p.key!r} is owned by unknown objects {unknown}")
+        set_(self, "_by_key", MappingProxyType({p.key: p for p in self.params}))
+        set_(self, "_by_name", MappingProxyType({o.name: o for o in self.objectives}))
+        set_(self, "values", MappingProxyType(self._checked_values(self.values, _copy_arrays)))
+        set_(self, "grads", MappingProxyType(self._checked_grads(self.grads, _copy_arrays)))
+
+    def _checked_values(self, values: Mapping[str, Any], copy: bool) -> dict[str, np.ndarray]:
+        _check_no_extra("values", values, self._by_key)
+        checked = {}
+        for p in self.params:
+            _require(p.key in values, f"parameter {p.key!r} has no value")
+            arr, bad = _frozen_array(values[p.key], p.shape, f"value of {p.key!r}", copy)
+            _require(bad == 0, f"value of {p.key!r} has {bad} components NaN or infinite")
+            checked[p.key] = arr
+        return checked
+
+    def _checked_grads(self, grads: Mapping[str, Mapping[str, Any]], copy: bool) -> dict[str, Any]:
+        _check_no_extra("gradients", grads, self._by_name)
+        checked: dict[str, Any] = {}
+        for o in self.objectives:
+            _require(o.name in grads, f"objective {o.name!r} has no gradients")
+            given = grads[o.name]
+            _check_no_extra(f"gradients of {o.name!r}", given, self._by_key)
+            per_key = {}
+            for p in self.params:
+                _require(p.key in given, f"objective {o.name!r} has no gradient for {p.key!r}")
+                what = f"gradient of {o.name!r} for {p.key!r}"
+                arr, bad = _frozen_array(given[p.key], p.shape, what, copy)
+                if bad:
+                    raise NonFiniteGradientError(o.name, p.key, bad, arr.size)
+                per_key[p.key] = arr
+            checked[o.name] = MappingProxyType(per_key)
+        return checked
+
+    def __repr__(self) -> str:
+        return (
+            f"SensitivityBuffer({len(self.objects)} objects, {len(self.params)} parameters, "
+            f"objectives {[o.name for o in self.objectives]})"
+        )
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """Every parameter key, in buffer order."""
+        return tuple(self._by_key)
+
+    def param(self, key: str) -> ParamRecord:
+        if key not in self._by_key:
+            raise UnknownNameError("parameter", key, self._by_key)
+        return self._by_key[key]
+
+    def objective(self, name: str) -> ObjectiveRecord:
+        if name not in self._by_name:
+            raise UnknownNameError("objective", name, self._by_name)
+        return self._by_name[name]
+
+    def value(self, key: str) -> np.ndarray:
+        return self.values[self.param(key).key]
+
+    def grad(self, objective: str, key: str) -> np.ndarray:
+        return self.grads[self.objective(objective).name][self.param(key).key]
+
+    def types(self) -> tuple[str, ...]:
+        """The distinct parameter types, sorted."""
+        return tuple(sorted({p.type for p in self.params}))
+
+    def tree(self) -> dict[str, Any]:
+        """The parameters as a tree over their dotted keys (§2); leaves are ParamRecords.
+
+        Where a key is both a parameter and the prefix of another ("a.b" and "a.b.c"), the
+        parameter sits under the empty name in its node: ``tree["a"]["b"][""]``.
+        """
+        root: dict[str, Any] = {}
+        for record in self.params:
+            *parents, leaf = record.key.split(".")
+            node = root
+            for part in parents:
+                child = node.setdefault(part, {})
+                if isinstance(child, ParamRecord):
+                    child = node[part] = {"": child}
+                node = child
+            if isinstance(node.get(leaf), dict):
+                node[leaf][""] = record
+            else:
+                node[leaf] = record
+        return root
+
+    def save(self, path: Path | str) -> None:
+        """Write the buffer to ``path`` atomically: the file is complete or untouched."""
+        from sensaov_cli.buffer.npz import write_buffer
+
+        write_buffer(Path(path), self)
+
+    @classmethod
+    def load(cls, path: Path | str) -> SensitivityBuffer:
+        """Read a buffer; any unreadable or inconsistent file raises BufferFormatError."""
+        from sensaov_cli.buffer.npz import read_buffer
+
+        return read_buffer(Path(path))

@@ -1,0 +1,247 @@
+"""The buffer's file format (version 1): a plain ``.npz`` of one JSON header and numbered arrays.
+
+Specified in ``docs/buffer-format.md``. Kept apart from the container so that the format, its
+validation and its error messages can be read in one place.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import zipfile
+import zlib
+from collections.abc import Callable
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sensaov_cli.buffer.model import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    HEADER_MEMBER,
+    BufferWriteError,
+    ObjectiveRecord,
+    ParamRecord,
+    SensitivityBuffer,
+)
+from sensaov_cli.errors import BufferFormatError, SensaovError
+from sensaov_cli.outputs.atomic import atomic_write
+
+_ZIP_MAGICS = (b"PK\x03\x04", b"PK\x05\x06")  # a zip with members, an empty zip
+_REGENERATE = "re-run the job to write it again"
+_FOREIGN = "expected a buffer.npz written by sensaov"
+
+
+def write_buffer(path: Path, buffer: SensitivityBuffer) -> None:
+    try:
+        atomic_write(path, buffer_writer(buffer))
+    except OSError as exc:
+        raise BufferWriteError(
+            f"cannot write buffer: {exc.strerror or exc}", where=str(path)
+        ) from exc
+
+
+def buffer_writer(buffer: SensitivityBuffer) -> Callable[[Path], None]:
+    """A function writing ``buffer`` to a given (temporary) path, for paired atomic writes."""
+    members = _members(buffer)
+
+    def write(tmp: Path) -> None:
+        # What np.savez does, spelled out: stored (uncompressed) members, no pickles, zip64.
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+            for name, arr in members.items():
+                with zf.open(f"{name}.npy", "w", force_zip64=True) as out:
+                    np.lib.format.write_array(out, arr, allow_pickle=False)
+
+    return write
+
+
+def read_buffer(path: Path) -> SensitivityBuffer:
+    return _load(path)
+
+
+def _members(buffer: SensitivityBuffer) -> dict[str, np.ndarray]:
+    header = {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "provenance": buffer.provenance,
+        "objects": list(buffer.objects),
+        "params": [_param_json(p, i) for i, p in enumerate(buffer.params)],
+        "objectives": [_objective_json(o, j) for j, o in enumerate(buffer.objectives)],
+    }
+    members = {HEADER_MEMBER: np.array(json.dumps(header, allow_nan=False))}
+    for i, p in enumerate(buffer.params):
+        members[value_member(i)] = buffer.values[p.key]
+        for j, o in enumerate(buffer.objectives):
+            members[grad_member(j, i)] = buffer.grads[o.name][p.key]
+    return members
+
+
+def value_member(param_index: int) -> str:
+    """The npz member holding the value of parameter number ``param_index``."""
+    return f"value_{param_index:06d}"
+
+
+def grad_member(objective_index: int, param_index: int) -> str:
+    """The npz member holding d(objective)/d(parameter) for the given header indices."""
+    return f"grad_{objective_index:03d}_{param_index:06d}"
+
+
+_PARAM_FIELDS = tuple(f.name for f in fields(ParamRecord))
+_OBJECTIVE_FIELDS = tuple(f.name for f in fields(ObjectiveRecord))
+
+
+def _param_json(p: ParamRecord, index: int) -> dict[str, Any]:
+    entry: dict[str, Any] = {name: getattr(p, name) for name in _PARAM_FIELDS}
+    entry.update(owners=list(p.owners), shape=list(p.shape), flags=list(p.flags), array=index)
+    return entry
+
+
+def _objective_json(o: ObjectiveRecord, index: int) -> dict[str, Any]:
+    entry: dict[str, Any] = {name: getattr(o, name) for name in _OBJECTIVE_FIELDS}
+    entry["array"] = index
+    return entry
+
+
+class _Malformed(ValueError):
+    """The file is not a consistent sensaov buffer; the message says what is wrong."""
+
+    def __init__(self, message: str, hint: str = _REGENERATE):
+        super().__init__(message)
+        self.hint = hint
+
+
+_READ_ERRORS = (
+    EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile, zlib.error, struct.error,
+    NotImplementedError, RuntimeError,  # zipfile: unknown compression method, encrypted member
+)  # fmt: skip
+
+
+def _load(path: Path) -> SensitivityBuffer:
+    try:
+        _require_zip(path)
+        with np.load(path, allow_pickle=False) as npz:
+            return _read_npz(npz)
+    except _Malformed as exc:
+        raise BufferFormatError(str(exc), where=str(path), hint=exc.hint) from exc
+    except SensaovError as exc:  # the arrays read, but construction found them inconsistent
+        raise BufferFormatError(
+            f"inconsistent buffer: {exc.message}", where=str(path), hint=_REGENERATE
+        ) from exc
+    except OSError as exc:
+        raise BufferFormatError(
+            f"cannot read buffer: {exc.strerror or exc}", where=str(path)
+        ) from exc
+    except _READ_ERRORS as exc:
+        raise BufferFormatError(
+            f"corrupt or truncated buffer: {exc or type(exc).__name__}",
+            where=str(path),
+            hint=_REGENERATE,
+        ) from exc
+
+
+def _require_zip(path: Path) -> None:
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if not magic:
+        raise _Malformed("not a sensaov buffer: the file is empty", _FOREIGN)
+    if magic not in _ZIP_MAGICS:
+        raise _Malformed("not a sensaov buffer: not an .npz (zip) archive", _FOREIGN)
+
+
+def _read_npz(npz: Any) -> SensitivityBuffer:
+    members = set(npz.files)
+    if HEADER_MEMBER not in members:
+        raise _Malformed(f"not a sensaov buffer: the archive has no {HEADER_MEMBER!r}", _FOREIGN)
+    header = _read_header(npz[HEADER_MEMBER])
+    params = [_param_from_json(entry, i) for i, entry in enumerate(header["params"])]
+    objectives = [_objective_from_json(e, j) for j, e in enumerate(header["objectives"])]
+    expected = {HEADER_MEMBER} | {value_member(i) for i in range(len(params))}
+    expected |= {grad_member(j, i) for j in range(len(objectives)) for i in range(len(params))}
+    if members != expected:
+        raise _Malformed(f"inconsistent buffer: {_differences('arrays', expected, members)}")
+    values = {p.key: _read_array(npz, value_member(i), p) for i, p in enumerate(params)}
+    grads = {
+        o.name: {p.key: _read_array(npz, grad_member(j, i), p) for i, p in enumerate(params)}
+        for j, o in enumerate(objectives)
+    }
+    return SensitivityBuffer(
+        provenance=header["provenance"],
+        objects=tuple(header["objects"]),
+        params=tuple(params),
+        objectives=tuple(objectives),
+        values=values,
+        grads=grads,
+        _copy_arrays=False,  # fresh arrays from read_array: freezing them in place halves the peak
+    )
+
+
+def _differences(kind: str, expected: set[str], found: set[str]) -> str:
+    missing, extra = sorted(expected - found), sorted(found - expected)
+    parts = []
+    if missing:
+        parts.append(f"missing {kind} {missing}")
+    if extra:
+        parts.append(f"unknown {kind} {extra}")
+    return ", ".join(parts)
+
+
+def _read_header(member: np.ndarray) -> dict[str, Any]:
+    if member.dtype.kind != "U" or member.shape != ():
+        raise _Malformed("not a sensaov buffer: 'header' is not a 0-d unicode array", _FOREIGN)
+    header = json.loads(str(member[()]))
+    if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
+        found = header.get("format") if isinstance(header, dict) else None
+        raise _Malformed(
+            f"not a sensaov buffer: header format is {found!r}, not {FORMAT_NAME!r}", _FOREIGN
+        )
+    version = header.get("format_version")
+    if version != FORMAT_VERSION or isinstance(version, bool):
+        newer = isinstance(version, int) and version > FORMAT_VERSION
+        raise _Malformed(
+            f"buffer format version {version!r} is not supported; this sensaov reads version "
+            f"{FORMAT_VERSION}",
+            "upgrade sensaov to read it" if newer else _REGENERATE,
+        )
+    kinds = {"provenance": dict, "objects": list, "params": list, "objectives": list}
+    for name, kind in kinds.items():
+        if not isinstance(header.get(name), kind):
+            raise _Malformed(f"malformed header: {name!r} must be a JSON {kind.__name__}")
+    extra = sorted(set(header) - set(kinds) - {"format", "format_version"})
+    if extra:  # version 1 allows no others (docs/buffer-format.md)
+        raise _Malformed(f"malformed header: unknown field(s) {', '.join(map(repr, extra))}")
+    return header
+
+
+def _entry(entry: Any, names: tuple[str, ...], index: int, where: str) -> dict[str, Any]:
+    expected = set(names) | {"array"}
+    if not isinstance(entry, dict):
+        raise _Malformed(f"malformed header: {where}[{index}] is not a JSON object")
+    if set(entry) != expected:
+        problem = _differences("fields", expected, set(entry))
+        raise _Malformed(f"malformed header: {where}[{index}] has {problem}")
+    if entry["array"] != index or isinstance(entry["array"], bool):
+        raise _Malformed(f"malformed header: {where}[{index}].array is {entry['array']!r}")
+    return {name: entry[name] for name in names}
+
+
+def _param_from_json(entry: Any, index: int) -> ParamRecord:
+    return ParamRecord(**_entry(entry, _PARAM_FIELDS, index, "params"))
+
+
+def _objective_from_json(entry: Any, index: int) -> ObjectiveRecord:
+    return ObjectiveRecord(**_entry(entry, _OBJECTIVE_FIELDS, index, "objectives"))
+
+
+def _read_array(npz: Any, name: str, record: ParamRecord) -> np.ndarray:
+    arr = npz[name]
+    if not isinstance(arr, np.ndarray) or arr.dtype.kind != "f" or arr.dtype.itemsize != 4:
+        found = getattr(arr, "dtype", type(arr).__name__)
+        raise _Malformed(f"inconsistent buffer: array {name!r} is {found}, not float32")
+    if arr.shape != record.shape:
+        raise _Malformed(
+            f"inconsistent buffer: array {name!r} has shape {arr.shape}, {record.key!r} "
+            f"declares {record.shape}"
+        )
+    return arr

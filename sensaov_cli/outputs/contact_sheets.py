@@ -1,0 +1,63 @@
+"""PNG previews of a projected view: one image per pass and a labelled contact sheet.
+
+Each pass is coloured with its channel's camera-independent scale (the largest object value),
+so the same channel reads on the same colour scale in every camera (Fig. 6).
+"""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from sensaov_cli.outputs.layered_exr import SensitivityLayer
+from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, underlay, write_png
+from sensaov_cli.render.visibility import VisibilityPass
+
+SHEET_COLUMNS = 4
+MIN_TILE_WIDTH = 192  # small views are enlarged (nearest neighbour) so labels stay readable
+
+
+def write_previews(
+    folder: Path,
+    camera: str,
+    layers: Sequence[tuple[SensitivityLayer, float]],
+    beauty: np.ndarray | None,
+    visibility: VisibilityPass,
+) -> tuple[Path, ...]:
+    """Write ``folder/<camera>/<objective>.<pass>.png`` and ``folder/<camera>_<objective>.png``."""
+    written = []
+    sheets: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
+    for layer, scale in layers:
+        rgb = diverging_rgb(layer.data, scale)
+        if beauty is not None:
+            rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
+        path = folder / camera / f"{layer.objective}.{layer.pass_name}.png"
+        write_png(
+            path,
+            rgb,
+            {"sensaov/scale": repr(scale), "sensaov/encoding": layer.metadata.get("encoding", "")},
+        )
+        written.append(path)
+        tile = _enlarged(diverging_rgb(layer.data / (scale or 1.0), 1.0))
+        mark = " !" if json.loads(layer.metadata.get("unverified", "[]")) else ""
+        sheets[layer.objective].append((f"{layer.pass_name} +-{scale:.2e}{mark}", tile))
+    for objective, tiles in sheets.items():
+        sheet = contact_sheet(
+            tiles,
+            SHEET_COLUMNS,
+            scale=1.0,
+            title=f"{camera} / {objective}: each tile at its own +-scale; ! = unverified gradients",
+        )
+        path = folder / f"{camera}_{objective}.png"
+        write_png(path, sheet)
+        written.append(path)
+    return tuple(written)
+
+
+def _enlarged(tile: np.ndarray) -> np.ndarray:
+    factor = -(-MIN_TILE_WIDTH // tile.shape[1])  # ceil
+    return np.repeat(np.repeat(tile, factor, axis=0), factor, axis=1) if factor > 1 else tile

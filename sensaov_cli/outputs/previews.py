@@ -1,0 +1,267 @@
+"""PNG previews of sensitivity channels, for people who would rather look than read.
+
+Values are drawn with a diverging colour map (ColorBrewer RdBu): blue where increasing the
+parameters lowers the objective, red where it raises it, near-white at zero, saturating at
+±scale. The scale is always an argument, so one channel seen from several cameras is drawn
+on one scale by passing the same number (Fig. 6); choosing it is :mod:`.encoding`'s job.
+
+Text (labels, legend numbers) is drawn with OpenImageIO's ``render_text`` in the DroidSans
+font that the OpenImageIO wheel ships, so previews need nothing beyond the pip dependencies.
+Previews are for eyes only: the data live in the EXRs, linear and unencoded by default.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sensaov_cli.errors import EXIT_ENVIRONMENT, SensaovError
+from sensaov_cli.outputs.atomic import atomic_write
+from sensaov_cli.views.encoding import NonFiniteError
+
+# ColorBrewer RdBu, 11 classes (Brewer 2002), ordered from -scale (blue) to +scale (red).
+# It is diverging and symmetric in lightness, so |value| reads as darkness whatever the sign.
+RDBU = np.array(
+    [
+        (0x05, 0x30, 0x61),
+        (0x21, 0x66, 0xAC),
+        (0x43, 0x93, 0xC3),
+        (0x92, 0xC5, 0xDE),
+        (0xD1, 0xE5, 0xF0),
+        (0xF7, 0xF7, 0xF7),
+        (0xFD, 0xDB, 0xC7),
+        (0xF4, 0xA5, 0x82),
+        (0xD6, 0x60, 0x4D),
+        (0xB2, 0x18, 0x2B),
+        (0x67, 0x00, 0x1F),
+    ],
+    dtype=np.uint8,
+)
+
+FONT = "DroidSans"
+FONT_SIZE = 14
+BACKGROUND = (38, 38, 38)  # dark grey: near-white zero sensitivity stays visible against it
+TEXT_COLOUR = (230, 230, 230)
+PAD = 8  # between and around tiles
+LABEL_HEIGHT = 20  # one line of text at FONT_SIZE
+BASELINE = 15  # from the top of a text line to its baseline
+BAR_HEIGHT = 12
+MIN_WIDTH = 256  # room for the legend's numbers under even a single small tile
+LEGEND_HEIGHT = LABEL_HEIGHT + BAR_HEIGHT + LABEL_HEIGHT + PAD  # title, bar, numbers, margin
+
+
+class PreviewError(SensaovError):
+    """The preview cannot be drawn on this machine (OpenImageIO without its fonts)."""
+
+    exit_code = EXIT_ENVIRONMENT
+
+
+def diverging_rgb(values: np.ndarray, scale: float) -> np.ndarray:
+    """``values`` (any shape) as uint8 RGB (shape + (3,)) on RdBu, saturating at ±``scale``.
+
+    The table is interpolated linearly between its stops in sRGB, as ColorBrewer's maps are
+    meant to be. A scale of 0 draws zero at the centre and anything else at the ends.
+    """
+    if not (math.isfinite(scale) and scale >= 0):
+        raise ValueError(f"scale must be finite and non-negative, got {scale}")
+    x = np.asarray(values, dtype=np.float64)
+    if not np.all(np.isfinite(x)):
+        raise NonFiniteError("values to draw are NaN or infinite", hint="encode finite values")
+    t = np.clip(x / scale, -1.0, 1.0) if scale > 0 else np.sign(x)
+    position = (t + 1.0) * 0.5 * (len(RDBU) - 1)
+    low = np.minimum(np.floor(position).astype(np.intp), len(RDBU) - 2)
+    frac = (position - low)[..., None]
+    table = RDBU.astype(np.float64)
+    rgb = table[low] * (1.0 - frac) + table[low + 1] * frac
+    return np.rint(rgb).astype(np.uint8)
+
+
+def underlay(
+    rgb_uint8: np.ndarray,
+    beauty_linear: np.ndarray,
+    coverage_or_alpha: np.ndarray,
+    strength: float = 0.25,
+) -> np.ndarray:
+    """A preview with the beauty pass beneath it, so a viewer can tell what is where.
+
+    Where nothing is hit the beauty shows, clipped to [0, 1], sRGB-encoded and dimmed to
+    ``strength``. Where objects are hit their colour is darkened by up to ``strength`` with the
+    beauty's luminance: shading, never hue, since hue carries the sign. Partial coverage mixes
+    the two. Non-finite beauty pixels show black: the underlay is context, not data.
+    """
+    if not 0.0 <= strength <= 1.0:
+        raise ValueError(f"strength must lie in [0, 1], got {strength}")
+    _check_rgb(rgb_uint8)
+    height, width = rgb_uint8.shape[:2]
+    beauty = np.asarray(beauty_linear, dtype=np.float64)
+    coverage = np.asarray(coverage_or_alpha, dtype=np.float64)
+    if beauty.shape[:2] != (height, width) or beauty.ndim != 3 or beauty.shape[2] < 3:
+        raise ValueError(f"beauty must be ({height}, {width}, 3), got {beauty.shape}")
+    if coverage.shape != (height, width):
+        raise ValueError(f"coverage must be ({height}, {width}), got {coverage.shape}")
+    linear = np.clip(np.nan_to_num(beauty[..., :3], nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+    luminance = _srgb(linear @ np.array([0.2126, 0.7152, 0.0722]))[..., None]
+    hit = rgb_uint8 / 255.0 * (1.0 - strength + strength * luminance)
+    miss = strength * _srgb(linear)
+    c = np.clip(np.nan_to_num(coverage), 0.0, 1.0)[..., None]
+    return np.rint((c * hit + (1.0 - c) * miss) * 255.0).astype(np.uint8)
+
+
+def write_png(
+    path: Path, rgb_uint8: np.ndarray, attributes: Mapping[str, str] | None = None
+) -> None:
+    """Write an (H, W, 3) uint8 image as a PNG, atomically; ``attributes`` become text chunks
+    (the channel's encoding and scale, so a preview can be traced back to its data).
+    """
+    import OpenImageIO as oiio
+
+    _check_rgb(rgb_uint8)
+    height, width = rgb_uint8.shape[:2]
+    spec = oiio.ImageSpec(width, height, 3, "uint8")
+    for name, value in (attributes or {}).items():
+        spec.attribute(name, value)
+
+    def write(tmp: Path) -> None:
+        # The format is named, not guessed: the temporary file's name ends in ".partial".
+        out = oiio.ImageOutput.create("png")
+        if out is None or not out.open(str(tmp), spec):
+            raise PreviewError(f"cannot write PNG {path}: {oiio.geterror()}")
+        try:
+            if not out.write_image(np.ascontiguousarray(rgb_uint8)):
+                raise PreviewError(f"cannot write PNG {path}: {out.geterror()}")
+        finally:
+            out.close()
+
+    atomic_write(Path(path), write)
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where everything of a contact sheet goes, in pixels."""
+
+    width: int
+    height: int
+    columns: int
+    cell: tuple[int, int]  # (height, width) of the largest tile
+    legend_top: int
+
+    def cell_origin(self, index: int) -> tuple[int, int]:
+        """(top, left) of tile ``index``'s label line; the tile itself starts below it."""
+        row, column = divmod(index, self.columns)
+        cell_height, cell_width = self.cell
+        top = PAD + row * (LABEL_HEIGHT + cell_height + PAD)
+        grid_width = self.columns * (cell_width + PAD) + PAD
+        left = (self.width - grid_width) // 2 + PAD + column * (cell_width + PAD)
+        return top, left
+
+
+def _layout(shapes: Sequence[tuple[int, ...]], columns: int) -> _Layout:
+    columns = min(columns, len(shapes))
+    rows = math.ceil(len(shapes) / columns)
+    cell = (max(s[0] for s in shapes), max(s[1] for s in shapes))
+    grid_height = PAD + rows * (LABEL_HEIGHT + cell[0] + PAD)
+    width = max(PAD + columns * (cell[1] + PAD), MIN_WIDTH)
+    return _Layout(width, grid_height + LEGEND_HEIGHT, columns, cell, grid_height)
+
+
+def contact_sheet(
+    tiles: Sequence[tuple[str, np.ndarray]], columns: int, *, scale: float, title: str = ""
+) -> np.ndarray:
+    """The ``tiles`` (label, uint8 RGB) on a grid ``columns`` wide, each under its label, above
+    a blue-white-red colour bar marked -``scale``, 0 and +``scale``, with ``title`` over it.
+
+    ``scale`` is the value at which the tiles' colours saturate, in the units the caller wants
+    read (the sheet states it, it cannot check it). Tiles of different sizes are centred in
+    cells of the largest; labels too long for a cell are cut short with "...".
+    """
+    if not tiles:
+        raise ValueError("a contact sheet needs at least one tile")
+    if isinstance(columns, bool) or not isinstance(columns, int) or columns < 1:
+        raise ValueError(f"columns must be a positive integer, got {columns!r}")
+    for _, rgb in tiles:
+        _check_rgb(rgb)
+    layout = _layout([rgb.shape for _, rgb in tiles], columns)
+    sheet = np.empty((layout.height, layout.width, 3), dtype=np.uint8)
+    sheet[...] = BACKGROUND
+    texts: list[tuple[int, int, str, str]] = []
+    cell_height, cell_width = layout.cell
+    for index, (label, rgb) in enumerate(tiles):
+        top, left = layout.cell_origin(index)
+        y = top + LABEL_HEIGHT + (cell_height - rgb.shape[0]) // 2
+        x = left + (cell_width - rgb.shape[1]) // 2
+        sheet[y : y + rgb.shape[0], x : x + rgb.shape[1]] = rgb
+        texts.append((left + cell_width // 2, top, _fit(label, cell_width), "center"))
+    texts += _legend(sheet, layout, scale, title)
+    _draw_text(sheet, texts)
+    return sheet
+
+
+def _legend(
+    sheet: np.ndarray, layout: _Layout, scale: float, title: str
+) -> list[tuple[int, int, str, str]]:
+    """Paint the colour bar into ``sheet``; return the legend's text lines to draw."""
+    left, right = PAD, layout.width - PAD
+    bar_top = layout.legend_top + LABEL_HEIGHT
+    ramp = diverging_rgb(np.linspace(-1.0, 1.0, right - left), 1.0)
+    sheet[bar_top : bar_top + BAR_HEIGHT, left:right] = ramp[None, :, :]
+    numbers_top = bar_top + BAR_HEIGHT
+    middle = layout.width // 2
+    return [
+        (middle, layout.legend_top, _fit(title, right - left), "center"),
+        (left, numbers_top, f"{-scale:.3g}", "left"),
+        (middle, numbers_top, "0", "center"),
+        (right, numbers_top, f"+{scale:.3g}", "right"),
+    ]
+
+
+def _fit(text: str, width: int) -> str:
+    """``text``, cut short with "..." if wider than ``width`` pixels at FONT_SIZE."""
+    from OpenImageIO import ImageBufAlgo
+
+    def fits(candidate: str) -> bool:
+        return ImageBufAlgo.text_size(candidate, FONT_SIZE, FONT).width <= width
+
+    if fits(text):
+        return text
+    keep = len(text)
+    while keep > 0 and not fits(text[:keep] + "..."):
+        keep -= 1
+    return text[:keep] + "..." if keep else ""
+
+
+def _draw_text(canvas: np.ndarray, texts: Sequence[tuple[int, int, str, str]]) -> None:
+    """Draw (x, top, text, alignment) lines onto ``canvas`` in TEXT_COLOUR, antialiased."""
+    from OpenImageIO import ImageBuf, ImageBufAlgo, ImageSpec
+
+    height, width = canvas.shape[:2]
+    mask = ImageBuf(ImageSpec(width, height, 1, "float"))
+    for x, top, text, align in texts:
+        if text and not ImageBufAlgo.render_text(
+            mask, x, top + BASELINE, text, FONT_SIZE, FONT, (1.0,), alignx=align
+        ):
+            hint = f"the {FONT} font ships with the PyPI wheel: pip install OpenImageIO"
+            raise PreviewError(f"cannot draw text: {mask.geterror()}", hint=hint)
+    pixels = mask.get_pixels()
+    if pixels is None:
+        raise PreviewError(f"cannot read back drawn text: {mask.geterror()}")
+    alpha = np.clip(pixels.reshape(height, width, 1), 0.0, 1.0)
+    blended = canvas * (1.0 - alpha) + np.array(TEXT_COLOUR) * alpha
+    canvas[...] = np.rint(blended).astype(np.uint8)
+
+
+def _srgb(linear: np.ndarray) -> np.ndarray:
+    """The sRGB transfer curve (IEC 61966-2-1) of values in [0, 1]."""
+    return np.where(
+        linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1.0 / 2.4) - 0.055
+    )
+
+
+def _check_rgb(rgb: np.ndarray) -> None:
+    if not isinstance(rgb, np.ndarray) or rgb.dtype != np.uint8:
+        raise ValueError(f"expected a uint8 image, got {getattr(rgb, 'dtype', type(rgb))}")
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"expected an (H, W, 3) image, got shape {rgb.shape}")

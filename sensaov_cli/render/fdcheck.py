@@ -1,0 +1,161 @@
+"""Check reverse-mode gradients against central finite differences, one parameter per kind.
+
+For each (plugin, type) pair in the buffer's selection, one representative parameter is pushed
+along a direction v (all components; a central block of texels for textures). Per seed s, the
+adjoint's directional derivative <dM/dθ, v> at seed s is compared with
+(M(θ + εv) − M(θ − εv)) / 2ε rendered at the same seed s (common random numbers). Over several
+seeds the mean difference and its standard error decide: agrees, disagrees, or inconclusive
+(noise too large to tell). Parameters whose sampling depends on them (roughness, eta) are only
+checkable this way on average, hence several seeds.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sensaov_cli.errors import SpecError
+from sensaov_cli.render.adjoint import (
+    assign,
+    backward,
+    enable_gradients,
+    objective_at_seed,
+    render_primal,
+)
+from sensaov_cli.render.objectives import Objective, value_and_adjoint
+from sensaov_cli.render.scene import LoadedScene, ParamInfo
+
+RELATIVE_TOLERANCE = 0.05  # agreement of the means, relative to the finite difference
+NOISE_SIGMAS = 3.0  # a difference within 3 standard errors is consistent with noise
+MAX_RELATIVE_NOISE = 0.25  # above this standard error (relative) a check is inconclusive
+
+
+@dataclass(frozen=True)
+class GradientCheck:
+    key: str
+    plugin: str
+    type: str
+    claimed_verified: bool  # what the verification table says for this kind of parameter
+    adjoint: float  # mean over seeds of <dM/dθ, v>
+    finite_difference: float  # mean over seeds of the central difference
+    standard_error: float  # of the mean difference
+    verdict: str  # "agrees" | "disagrees" | "inconclusive"
+
+    @property
+    def relative_error(self) -> float:
+        return abs(self.adjoint - self.finite_difference) / max(abs(self.finite_difference), 1e-30)
+
+
+def representatives(loaded: LoadedScene) -> list[ParamInfo]:
+    """The first selected parameter of each (plugin, type, texture?) kind."""
+    seen: dict[tuple[str, str, bool], ParamInfo] = {}
+    for info in loaded.selected:
+        seen.setdefault((info.plugin, info.type, info.is_texture), info)
+    return list(seen.values())
+
+
+def direction(info: ParamInfo) -> np.ndarray:
+    v = np.ones(info.shape, np.float32)
+    if info.is_texture and len(info.shape) >= 2:
+        v[:] = 0  # a block of texels, so the check exercises the UV lookup, not just the mean
+        h, w = info.shape[:2]
+        v[h // 4 : max(h // 4 + 1, 3 * h // 4), w // 4 : max(w // 4 + 1, 3 * w // 4)] = 1
+    return v
+
+
+def check_parameter(
+    loaded: LoadedScene, objective: Objective, info: ParamInfo, *, spp: int, seeds: list[int]
+) -> GradientCheck:
+    enable_gradients(loaded)
+    theta = np.array(loaded.params[info.key], dtype=np.float32).reshape(info.shape)
+    v = direction(info)
+    eps = 1e-2 * max(1.0, float(np.abs(theta).max()))
+    adjoints, differences = [], []
+    try:
+        for seed in seeds:
+            _, adjoint_image = value_and_adjoint(
+                loaded.mi, objective, render_primal(loaded, spp, seed)
+            )
+            adjoints.append(float((backward(loaded, adjoint_image, spp, seed)[info.key] * v).sum()))
+            assign(loaded, info.key, theta + eps * v)
+            above = objective_at_seed(loaded, objective, spp, seed)
+            assign(loaded, info.key, theta - eps * v)
+            below = objective_at_seed(loaded, objective, spp, seed)
+            assign(loaded, info.key, theta)
+            differences.append((above - below) / (2 * eps))
+    finally:
+        assign(loaded, info.key, theta)
+    return _judge(info, np.array(adjoints), np.array(differences))
+
+
+def _judge(info: ParamInfo, adjoints: np.ndarray, differences: np.ndarray) -> GradientCheck:
+    gap = adjoints - differences
+    error = float(gap.std(ddof=1) / math.sqrt(len(gap))) if len(gap) > 1 else 0.0
+    ad, fd = float(adjoints.mean()), float(differences.mean())
+    scale = max(abs(fd), 1e-30)
+    if (
+        abs(ad - fd) <= max(RELATIVE_TOLERANCE * scale, NOISE_SIGMAS * error)
+        and error <= MAX_RELATIVE_NOISE * scale
+    ):
+        verdict = "agrees"
+    elif abs(ad - fd) > NOISE_SIGMAS * error and abs(ad - fd) > RELATIVE_TOLERANCE * scale:
+        verdict = "disagrees"
+    else:
+        verdict = "inconclusive"
+    return GradientCheck(info.key, info.plugin, info.type, info.verified, ad, fd, error, verdict)
+
+
+def check_gradients(
+    loaded: LoadedScene,
+    objective: Objective,
+    *,
+    spp: int,
+    seeds: list[int],
+    keys: list[str] | None = None,
+) -> list[GradientCheck]:
+    """One check per parameter kind, or of the named ``keys`` (each must be a selected key)."""
+    chosen = representatives(loaded) if keys is None else _named(loaded, keys)
+    return [check_parameter(loaded, objective, info, spp=spp, seeds=seeds) for info in chosen]
+
+
+def _named(loaded: LoadedScene, keys: list[str]) -> list[ParamInfo]:
+    by_key = {info.key: info for info in loaded.selected}
+    for key in keys:
+        if key not in by_key:
+            close = difflib.get_close_matches(key, sorted(by_key), n=1)
+            raise SpecError(
+                f"{key!r} is not a selected parameter",
+                where="--key",
+                hint=f"did you mean {close[0]!r}?" if close else "'sensaov params JOB' lists them",
+            )
+    return [by_key[key] for key in dict.fromkeys(keys)]
+
+
+def checks_text(checks: list[GradientCheck]) -> str:
+    rows = [("key", "plugin", "type", "table", "adjoint", "finite diff", "std err", "verdict")]
+    for c in checks:
+        rows.append(
+            (
+                c.key,
+                c.plugin,
+                c.type,
+                "verified" if c.claimed_verified else "unverified",
+                f"{c.adjoint:+.3e}",
+                f"{c.finite_difference:+.3e}",
+                f"{c.standard_error:.1e}",
+                c.verdict
+                + (
+                    "  <-- CONTRADICTS THE TABLE"
+                    if c.claimed_verified and c.verdict == "disagrees"
+                    else ""
+                ),
+            )
+        )
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    return "\n".join(
+        "  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip()
+        for row in rows
+    )

@@ -1,0 +1,298 @@
+"""Load a job's scene and decide which parameters enter the sensitivity buffer.
+
+Mitsuba types stay inside this stage and the adjoint stage; what leaves is :class:`ParamInfo`
+records (plain data) next to the live scene objects the adjoint needs.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from sensaov_cli.errors import SceneError
+from sensaov_cli.render.runtime import import_mitsuba
+from sensaov_cli.render.scene_xml import prepare_scene_xml, scene_fingerprint
+from sensaov_cli.render.trust import verification_status
+from sensaov_cli.spec.job import JobSpec
+
+# The slot a parameter fills, whatever its storage ("white.reflectance.value" and
+# "wall.bsdf.reflectance.data" are both reflectance): the paper's horizontal cut.
+TYPE_ALIASES = {
+    "alpha": "roughness",
+    "alpha_u": "roughness",
+    "alpha_v": "roughness",
+    "diffuse_reflectance": "reflectance",
+    "base_color": "reflectance",
+    "specular_reflectance": "specular",
+    "specular_transmittance": "transmittance",
+    "intensity": "radiance",
+    "irradiance": "radiance",
+    "int_ior": "eta",
+    "ext_ior": "eta",
+}
+# Mitsuba class names of the common plugins -> the plugin names users write in XML.
+PLUGIN_NAMES = {
+    "SmoothDiffuse": "diffuse",
+    "SmoothPlastic": "plastic",
+    "SmoothDielectric": "dielectric",
+    "SmoothConductor": "conductor",
+    "ThinDielectric": "thindielectric",
+    "BlendBSDF": "blendbsdf",
+    "MaskBSDF": "mask",
+    "Principled": "principled",
+    "AreaLight": "area",
+    "PointLight": "point",
+    "SpotLight": "spot",
+    "ConstantBackgroundEmitter": "constant",
+    "EnvironmentMapEmitter": "envmap",
+    "DirectionalEmitter": "directional",
+}
+GEOMETRY_FIELDS = ("to_world", "position", "direction", "faces")
+
+
+@dataclass(frozen=True)
+class ParamInfo:
+    key: str
+    type: str
+    owners: tuple[str, ...]
+    plugin: str
+    shape: tuple[int, ...]
+    is_texture: bool
+    flags: tuple[str, ...]
+    verified: bool
+    note: str
+    texture_file: str | None  # the bitmap file behind a texture parameter
+    converted: bool  # an 8-bit texture loaded as float so its texels get gradients
+
+
+@dataclass(frozen=True)
+class Excluded:
+    key: str
+    reason: str
+
+
+@dataclass
+class LoadedScene:
+    """The live scene plus the plain-data description of its selected parameters."""
+
+    mi: ModuleType
+    scene: Any
+    params: Any  # mi.SceneParameters of the whole scene; only `selected` get gradients
+    sensor: Any
+    integrator: Any
+    variant: str
+    selected: tuple[ParamInfo, ...]
+    excluded: tuple[Excluded, ...]
+    objects: tuple[str, ...]
+    fingerprint: str
+    resolution: tuple[int, int]
+    split: dict[str, tuple[str, ...]]
+    inspection_sensors: dict[str, Any]  # inspection camera name -> its own sensor
+    materials: dict[str, str]  # object -> material (BSDF id) name, for the material Cryptomatte
+
+
+def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> LoadedScene:
+    """Load the job's scene; with ``with_inspection_cameras`` every inspection camera too."""
+    mi = import_mitsuba(job.variant)
+    prepared = prepare_scene_xml(
+        job.scene,
+        max_depth=job.render.max_depth,
+        camera=job.objective_camera,
+        resolution=job.render.resolution,
+        shared=job.parameters.shared,
+        inspection=job.inspection_cameras if with_inspection_cameras else (),
+    )
+    try:
+        with _resolving_from(mi, job.scene.parent):
+            scene = mi.load_string(prepared.text, optimize=False)
+    except Exception as exc:  # Mitsuba raises plain RuntimeError with a long message
+        raise SceneError(_first_line(exc), where=str(job.scene)) from exc
+    sensors = {sensor.id(): sensor for sensor in scene.sensors()}
+    sensor = sensors[prepared.sensor_id]
+    ownership = _ownership(mi, scene)
+    params = mi.traverse(scene)
+    sources = {Path(name).name: job.scene.parent / name for name in prepared.bitmap_files}
+    selected, excluded = _select(mi, job, params, ownership, sources)
+    size = sensor.film().crop_size()
+    return LoadedScene(
+        mi=mi,
+        scene=scene,
+        params=params,
+        sensor=sensor,
+        integrator=scene.integrator(),
+        variant=mi.variant(),
+        selected=selected,
+        excluded=excluded,
+        objects=ownership.objects,
+        fingerprint=scene_fingerprint(job.scene),
+        resolution=(int(size[0]), int(size[1])),
+        split=prepared.split,
+        inspection_sensors={name: sensors[sid] for name, sid in prepared.inspection_ids.items()},
+        materials=prepared.materials,
+    )
+
+
+@contextmanager
+def _resolving_from(mi: ModuleType, folder: Path) -> Iterator[None]:
+    """Resolve relative file names against ``folder`` first, as load_file would, then restore
+    the process-wide resolver (tests and the bench load many scenes in one process)."""
+    resolver = mi.file_resolver()
+    saved = [str(resolver[i]) for i in range(len(resolver))]
+    resolver.prepend(str(folder))
+    try:
+        yield
+    finally:
+        resolver.clear()
+        for entry in saved:
+            resolver.append(entry)
+
+
+def _first_line(exc: Exception) -> str:
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    return lines[-1] if lines else type(exc).__name__
+
+
+@dataclass(frozen=True)
+class _Ownership:
+    """Which objects own each scene node, by node identity (never by key strings: key names
+    depend on declaration order). ``nodes`` keeps the nodes alive, so their ids stay valid."""
+
+    objects: tuple[str, ...]
+    owners: dict[int, tuple[str, ...]]  # id(node) -> owning objects, sorted
+    nodes: tuple[Any, ...]
+
+    def of(self, node: Any) -> tuple[str, ...]:
+        return self.owners.get(id(node), ())
+
+
+def _ownership(mi: ModuleType, scene: Any) -> _Ownership:
+    """Every object (shape, or emitter not attached to a shape) and the nodes it owns."""
+    owned: dict[str, list[Any]] = {}
+    for index, shape in enumerate(scene.shapes()):
+        owned[shape.id() or f"shape_{index}"] = list(mi.traverse(shape).hierarchy)
+    for index, emitter in enumerate(scene.emitters()):
+        if emitter.get_shape() is None:
+            owned[emitter.id() or f"emitter_{index}"] = list(mi.traverse(emitter).hierarchy)
+    owners: dict[int, set[str]] = {}
+    for name, nodes in owned.items():
+        for node in nodes:
+            owners.setdefault(id(node), set()).add(name)
+    alive = tuple(node for nodes in owned.values() for node in nodes)
+    return _Ownership(
+        tuple(sorted(owned)), {key: tuple(sorted(v)) for key, v in owners.items()}, alive
+    )
+
+
+def _select(
+    mi: ModuleType,
+    job: JobSpec,
+    params: Any,
+    ownership: _Ownership,
+    sources: dict[str, Path],
+) -> tuple[tuple[ParamInfo, ...], tuple[Excluded, ...]]:
+    selected, excluded = [], []
+    for key in params.keys():
+        _, _, node, flags = params.properties[key]
+        reason = _exclusion_reason(mi, job, key, params[key], node, flags)
+        owners = ownership.of(node) if reason is None else ()
+        if reason is None and not owners:
+            reason = "owned by no object in the scene"
+        if reason is None:
+            selected.append(_describe(mi, key, params, owners, sources))
+        else:
+            excluded.append(Excluded(key, reason))
+    return tuple(selected), tuple(excluded)
+
+
+def _explicitly_included(key: str, include: tuple[str, ...]) -> bool:
+    """Geometry needs a glob that names the field itself (``*.to_world``), not just ``*``."""
+    return any(
+        fnmatch.fnmatchcase(key, glob) and not any(c in glob.rsplit(".", 1)[-1] for c in "*?[")
+        for glob in include
+    )
+
+
+def _exclusion_reason(
+    mi: ModuleType, job: JobSpec, key: str, value: Any, node: Any, flags: int
+) -> str | None:
+    import drjit as dr
+
+    if flags & int(mi.ParamFlags.NonDifferentiable):
+        return "not differentiable (Mitsuba flags it NonDifferentiable)"
+    if not (dr.is_array_v(value) and dr.is_diff_v(value) and dr.is_float_v(value)):
+        return "not a differentiable floating-point value"
+    if isinstance(node, mi.Sensor | mi.Film | mi.Sampler):
+        return "camera parameter (prb gives cameras no gradient)"
+    field = key.rsplit(".", 1)[-1]
+    is_geometry = (
+        isinstance(node, mi.Shape) or field in GEOMETRY_FIELDS or field.startswith("vertex_")
+    )
+    if is_geometry and not _explicitly_included(key, job.parameters.include):
+        return "geometry (excluded by default; include it by naming the field, e.g. '*.to_world')"
+    if not any(fnmatch.fnmatchcase(key, glob) for glob in job.parameters.include):
+        return "not matched by parameters.include"
+    for glob in job.parameters.exclude:
+        if fnmatch.fnmatchcase(key, glob):
+            return f"excluded by parameters.exclude {glob!r}"
+    return None
+
+
+def _describe(
+    mi: ModuleType, key: str, params: Any, owners: tuple[str, ...], sources: dict[str, Path]
+) -> ParamInfo:
+    import numpy as np
+
+    _, _, node, flags = params.properties[key]
+    parts = key.split(".")
+    is_texture_node = isinstance(node, mi.Texture)
+    slot = parts[-2] if is_texture_node and len(parts) > 1 else parts[-1]
+    holder = params.hierarchy[node][0] if is_texture_node else node
+    plugin = _plugin_name(holder)
+    ptype = TYPE_ALIASES.get(slot, slot)
+    is_texture = is_texture_node and parts[-1] == "data"
+    texture_file, converted = _texture_source(mi, node, sources) if is_texture else (None, False)
+    verified, note = verification_status(plugin, ptype)
+    flag_names = ("discontinuous",) if flags & int(mi.ParamFlags.Discontinuous) else ()
+    shape = value_shape(np.asarray(params[key]))
+    return ParamInfo(
+        key,
+        ptype,
+        owners,
+        plugin,
+        shape,
+        is_texture,
+        flag_names,
+        verified,
+        note,
+        texture_file,
+        converted,
+    )
+
+
+def value_shape(array: Any) -> tuple[int, ...]:
+    """The shape a value is stored with: colours (3, 1) in Dr.Jit become (3,)."""
+    shape = tuple(int(n) for n in array.shape)
+    return shape[:1] if len(shape) == 2 and shape[1] == 1 else shape
+
+
+def _plugin_name(node: Any) -> str:
+    name = node.class_name() if node is not None else "unknown"
+    return PLUGIN_NAMES.get(name, name.lower())
+
+
+def _texture_source(mi: ModuleType, node: Any, sources: dict[str, Path]) -> tuple[str | None, bool]:
+    """The file behind a bitmap texture, and whether it was stored as 8-bit integers."""
+    import re
+
+    # A bitmap texture prints the base name of its file; the XML pass knows the full paths.
+    match = re.search(r'name = "([^"]*)"', str(node))
+    path = sources.get(match.group(1)) if match else None
+    if path is None or not path.is_file():
+        return (match.group(1) if match else None), False
+    converted = mi.Bitmap(str(path)).component_format() == mi.Struct.Type.UInt8
+    return str(path), converted
