@@ -7,10 +7,23 @@ stderr and an exit code; nothing else prints or exits.
 
 from __future__ import annotations
 
+import difflib
+from collections.abc import Iterable
+
 EXIT_OK = 0
 EXIT_JOB_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_ENVIRONMENT = 3
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for Ctrl-C
+
+# What each exit code means, in the words every --help epilog and the README use.
+EXIT_MEANINGS: dict[int, str] = {
+    EXIT_OK: "success",
+    EXIT_JOB_FAILED: "the job failed (rendering, objective, NaN gradients, internal error)",
+    EXIT_BAD_INPUT: "bad input (malformed job, unknown key, missing file, corrupt buffer)",
+    EXIT_ENVIRONMENT: "the machine cannot render (no usable libLLVM, no CUDA for a cuda variant)",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C, SIGTERM); earlier outputs are left untouched",
+}
 
 
 class SensaovError(Exception):
@@ -63,3 +76,76 @@ class OutputError(SensaovError):
     """The output location cannot take the files (not writable, a name taken by a folder)."""
 
     exit_code = EXIT_BAD_INPUT
+
+
+class BufferContentError(SensaovError):
+    """A buffer being built is inconsistent: a missing or misshapen array, a duplicate name."""
+
+
+class NonFiniteGradientError(BufferContentError):
+    """A gradient holds NaN or infinity; a buffer never stores one."""
+
+    def __init__(self, objective: str, key: str, bad: int, total: int):
+        super().__init__(
+            f"gradient of objective {objective!r} w.r.t. parameter {key!r} has {bad} of "
+            f"{total} components NaN or infinite",
+            hint="more spp or a different seed may help; check the objective for a division "
+            "by zero, or leave the parameter out of the selection",
+        )
+        self.objective = objective
+        self.key = key
+
+
+class BufferWriteError(SensaovError):
+    """The buffer file could not be written (no such directory, no permission, disk full)."""
+
+
+class UnknownNameError(SensaovError):
+    """A name (objective, parameter key, object, type) the buffer does not hold."""
+
+    exit_code = EXIT_BAD_INPUT
+
+    def __init__(self, kind: str, name: str, valid: Iterable[str]):
+        valid = list(valid)
+        close = difflib.get_close_matches(name, valid, n=3)
+        shown = ", ".join(valid[:12]) + (f", … ({len(valid) - 12} more)" if len(valid) > 12 else "")
+        hint = f"did you mean {' or '.join(map(repr, close))}? " if close else ""
+        super().__init__(
+            f"no {kind} {name!r} in the buffer", hint=f"{hint}known: {shown or 'none'}"
+        )
+        self.kind = kind
+        self.name = name
+
+
+class QueryError(SensaovError):
+    """A query option out of range: an unknown aggregation method, weight or grouping."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
+class EncodingError(SensaovError, ValueError):
+    """An encoding option out of range, or an encoding description that cannot be read."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
+class NonFiniteError(SensaovError, ValueError):
+    """Sensitivities or pixels that are NaN or infinite: the gradient pass went wrong."""
+
+
+class CryptomatteError(SensaovError, ValueError):
+    """Ranked coverage that cannot become Cryptomatte layers (shape, index, type name)."""
+
+
+class ExrError(SensaovError, ValueError):
+    """An EXR cannot be written as asked (bad shapes, NaN, clashing names) or cannot be read."""
+
+
+class PreviewError(SensaovError):
+    """The preview cannot be drawn on this machine (OpenImageIO without its fonts)."""
+
+    exit_code = EXIT_ENVIRONMENT
+
+
+class FingerprintMismatch(SpecError):
+    """The buffer was computed on another version of the scene."""

@@ -16,7 +16,7 @@ import numpy as np
 
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import SensitivityBuffer
-from sensaov_cli.errors import SpecError
+from sensaov_cli.errors import FingerprintMismatch, SpecError
 from sensaov_cli.outputs.atomic import check_writable
 from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write_layered_exr
 from sensaov_cli.progress import Progress
@@ -34,10 +34,6 @@ from sensaov_cli.views.encoding import (
 
 DEFAULT_BEAUTY_SPP = 4  # a quick reference for the compositor; it is a full path trace
 OBJECTIVE_CAMERA = CameraSpec("objective", None, None, 40.0, None, True, 16)
-
-
-class FingerprintMismatch(SpecError):
-    """The buffer was computed on another version of the scene."""
 
 
 @dataclass(frozen=True)

@@ -16,15 +16,17 @@ import pytest
 from sensaov_cli.buffer.model import (
     FORMAT_NAME,
     FORMAT_VERSION,
-    BufferContentError,
-    BufferWriteError,
-    NonFiniteGradientError,
     ObjectiveRecord,
     ParamRecord,
     SensitivityBuffer,
+)
+from sensaov_cli.errors import (
+    BufferContentError,
+    BufferFormatError,
+    BufferWriteError,
+    NonFiniteGradientError,
     UnknownNameError,
 )
-from sensaov_cli.errors import BufferFormatError
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -7,18 +7,18 @@ import math
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer.queries import KeyStats, Method, combine
+from sensaov_cli.buffer.queries import KeyStats, combine
+from sensaov_cli.errors import EncodingError, NonFiniteError
 from sensaov_cli.spec.job import ChannelSpec
 from sensaov_cli.views.encoding import (
     Encoding,
-    EncodingError,
-    NonFiniteError,
     Scale,
     choose_scale,
     encode_image,
     signed_object_values,
     tonemap_values,
 )
+from sensaov_cli.vocabulary import Aggregate
 
 # Per object, its contributions c = θ·∂M/∂θ: wall pulls M down, lamp up, cup cancels out.
 CONTRIBUTIONS = {"wall": [-3.0, 1.0], "lamp": [2.0], "floor": [0.25, 0.0], "cup": [1.0, -1.0]}
@@ -26,7 +26,7 @@ OBJECTS = {"wall": -3.0, "lamp": 2.0, "floor": 0.5}
 LOG10_1001 = math.log10(1001.0)
 
 
-def scores(method: Method) -> dict[str, float]:
+def scores(method: Aggregate) -> dict[str, float]:
     """The query's score of each object of CONTRIBUTIONS under ``method``."""
     return {
         name: combine([KeyStats(sum(x * x for x in c), sum(c), len(c))], method)
@@ -35,7 +35,7 @@ def scores(method: Method) -> dict[str, float]:
 
 
 @pytest.mark.parametrize("aggregate", ["l2", "rms"])
-def test_signed_norm_takes_the_sign_of_the_sum(aggregate: Method) -> None:
+def test_signed_norm_takes_the_sign_of_the_sum(aggregate: Aggregate) -> None:
     norms = scores(aggregate)
     got = signed_object_values(norms, scores("sum"), "signed")
     assert got == {
@@ -48,7 +48,7 @@ def test_signed_norm_takes_the_sign_of_the_sum(aggregate: Method) -> None:
 
 
 @pytest.mark.parametrize("aggregate", ["l2", "rms"])
-def test_magnitude_of_a_norm_is_the_norm(aggregate: Method) -> None:
+def test_magnitude_of_a_norm_is_the_norm(aggregate: Aggregate) -> None:
     norms = scores(aggregate)
     assert signed_object_values(norms, scores("sum"), "magnitude") == norms
 

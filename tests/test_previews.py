@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sensaov_cli.errors import NonFiniteError
 from sensaov_cli.outputs.previews import (
     BACKGROUND,
     BAR_HEIGHT,
@@ -21,7 +22,6 @@ from sensaov_cli.outputs.previews import (
     underlay,
     write_png,
 )
-from sensaov_cli.views.encoding import NonFiniteError
 
 BLUE, WHITE, RED = RDBU[0], RDBU[5], RDBU[-1]
 

@@ -7,20 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer.model import (
-    ObjectiveRecord,
-    ParamRecord,
-    SensitivityBuffer,
-    UnknownNameError,
-)
-from sensaov_cli.buffer.queries import (
-    QueryError,
-    aggregate,
-    per_object,
-    per_type,
-    ranking,
-    select,
-)
+from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.queries import aggregate, per_object, per_type, ranking, select
+from sensaov_cli.errors import QueryError, UnknownNameError
 
 A = "a.bsdf.reflectance.value"  # owned by a; value [1, 2], dM/dθ [3, -4] -> θ·dM/dθ [3, -8]
 SHARED = "shared.reflectance.value"  # owned by a and b; value [0.5], dM/dθ [2] -> [1]

@@ -8,7 +8,6 @@ stored buffer, never a second differentiation. The file is a plain ``.npz`` read
 
 from __future__ import annotations
 
-import difflib
 import json
 import math
 import operator
@@ -20,50 +19,15 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli.errors import EXIT_BAD_INPUT, SensaovError
+from sensaov_cli.errors import (
+    BufferContentError,
+    NonFiniteGradientError,
+    UnknownNameError,
+)
 
 FORMAT_NAME = "sensaov-buffer"
 FORMAT_VERSION = 1
 HEADER_MEMBER = "header"
-
-
-class BufferContentError(SensaovError):
-    """A buffer being built is inconsistent: a missing or misshapen array, a duplicate name."""
-
-
-class NonFiniteGradientError(BufferContentError):
-    """A gradient holds NaN or infinity; a buffer never stores one."""
-
-    def __init__(self, objective: str, key: str, bad: int, total: int):
-        super().__init__(
-            f"gradient of objective {objective!r} w.r.t. parameter {key!r} has {bad} of "
-            f"{total} components NaN or infinite",
-            hint="more spp or a different seed may help; check the objective for a division "
-            "by zero, or leave the parameter out of the selection",
-        )
-        self.objective = objective
-        self.key = key
-
-
-class BufferWriteError(SensaovError):
-    """The buffer file could not be written (no such directory, no permission, disk full)."""
-
-
-class UnknownNameError(SensaovError):
-    """A name (objective, parameter key, object, type) the buffer does not hold."""
-
-    exit_code = EXIT_BAD_INPUT
-
-    def __init__(self, kind: str, name: str, valid: Iterable[str]):
-        valid = list(valid)
-        close = difflib.get_close_matches(name, valid, n=3)
-        shown = ", ".join(valid[:12]) + (f", … ({len(valid) - 12} more)" if len(valid) > 12 else "")
-        hint = f"did you mean {' or '.join(map(repr, close))}? " if close else ""
-        super().__init__(
-            f"no {kind} {name!r} in the buffer", hint=f"{hint}known: {shown or 'none'}"
-        )
-        self.kind = kind
-        self.name = name
 
 
 def _require(ok: bool, message: str) -> None:

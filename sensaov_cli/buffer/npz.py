@@ -21,12 +21,11 @@ from sensaov_cli.buffer.model import (
     FORMAT_NAME,
     FORMAT_VERSION,
     HEADER_MEMBER,
-    BufferWriteError,
     ObjectiveRecord,
     ParamRecord,
     SensitivityBuffer,
 )
-from sensaov_cli.errors import BufferFormatError, SensaovError
+from sensaov_cli.errors import BufferFormatError, BufferWriteError, SensaovError
 from sensaov_cli.outputs.atomic import atomic_write
 
 _ZIP_MAGICS = (b"PK\x03\x04", b"PK\x05\x06")  # a zip with members, an empty zip

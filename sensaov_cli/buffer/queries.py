@@ -19,26 +19,12 @@ import fnmatch
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
-from sensaov_cli.buffer.model import SensitivityBuffer, UnknownNameError
-from sensaov_cli.errors import EXIT_BAD_INPUT, SensaovError
-
-Method = Literal["l2", "rms", "sum"]
-Weight = Literal["value", "raw"]
-Grouping = Literal["param", "object", "type"]
-
-METHODS: tuple[str, ...] = ("l2", "rms", "sum")
-WEIGHTS: tuple[str, ...] = ("value", "raw")
-GROUPINGS: tuple[str, ...] = ("param", "object", "type")
-
-
-class QueryError(SensaovError):
-    """A query option out of range: an unknown aggregation method, weight or grouping."""
-
-    exit_code = EXIT_BAD_INPUT
+from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.errors import QueryError, UnknownNameError
+from sensaov_cli.vocabulary import AGGREGATES, GROUPINGS, WEIGHTS, Aggregate, Grouping, Weight
 
 
 @dataclass(frozen=True)
@@ -119,9 +105,9 @@ def key_stats(
     return stats
 
 
-def combine(stats: Iterable[KeyStats], method: Method = "l2") -> float:
+def combine(stats: Iterable[KeyStats], method: Aggregate = "l2") -> float:
     """One score from the statistics of a group of keys; 0.0 for an empty group."""
-    _choice("aggregation method", method, METHODS)
+    _choice("aggregation method", method, AGGREGATES)
     group = list(stats)
     if method == "sum":
         return math.fsum(s.total for s in group)
@@ -137,11 +123,11 @@ def aggregate(
     objective: str,
     keys: Iterable[str],
     *,
-    method: Method = "l2",
+    method: Aggregate = "l2",
     weight: Weight = "value",
 ) -> float:
     """The score of the group ``keys`` for ``objective`` (see the module docstring)."""
-    _choice("aggregation method", method, METHODS)
+    _choice("aggregation method", method, AGGREGATES)
     return combine(key_stats(buf, objective, keys, weight=weight).values(), method)
 
 
@@ -164,7 +150,7 @@ def groups(
 
 
 def scores(
-    stats: Mapping[str, KeyStats], grouped: Mapping[str, Sequence[str]], method: Method = "l2"
+    stats: Mapping[str, KeyStats], grouped: Mapping[str, Sequence[str]], method: Aggregate = "l2"
 ) -> dict[str, float]:
     """Per group, the score of its keys from precomputed :func:`key_stats`."""
     return {name: combine((stats[k] for k in members), method) for name, members in grouped.items()}
@@ -182,11 +168,11 @@ def _grouped_scores(
     buf: SensitivityBuffer,
     objective: str,
     by: Grouping,
-    method: Method,
+    method: Aggregate,
     weight: Weight,
     keys: Iterable[str] | None,
 ) -> dict[str, float]:
-    _choice("aggregation method", method, METHODS)
+    _choice("aggregation method", method, AGGREGATES)
     grouped = groups(buf, keys, by)
     selected = dict.fromkeys(k for members in grouped.values() for k in members)
     return scores(key_stats(buf, objective, selected, weight=weight), grouped, method)
@@ -196,7 +182,7 @@ def per_object(
     buf: SensitivityBuffer,
     objective: str,
     *,
-    method: Method = "l2",
+    method: Aggregate = "l2",
     weight: Weight = "value",
     keys: Iterable[str] | None = None,
 ) -> dict[str, float]:
@@ -208,7 +194,7 @@ def per_type(
     buf: SensitivityBuffer,
     objective: str,
     *,
-    method: Method = "l2",
+    method: Aggregate = "l2",
     weight: Weight = "value",
     keys: Iterable[str] | None = None,
 ) -> dict[str, float]:
@@ -221,7 +207,7 @@ def ranking(
     objective: str,
     *,
     by: Grouping = "param",
-    method: Method = "l2",
+    method: Aggregate = "l2",
     weight: Weight = "value",
     top: int | None = None,
     keys: Iterable[str] | None = None,

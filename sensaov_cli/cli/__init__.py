@@ -19,6 +19,7 @@ import click
 
 from sensaov_cli import __version__, interrupts
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_OK, SensaovError, SpecError
+from sensaov_cli.vocabulary import AGGREGATES, WEIGHTS
 
 EXIT_CODES = f"""\b
 Exit codes:
@@ -343,11 +344,11 @@ def check(
     "--top", default=8, show_default=True, type=click.IntRange(min=1), help="Rows per table."
 )
 @click.option(
-    "--aggregate", type=click.Choice(["l2", "rms", "sum"]), default="l2", show_default=True
+    "--aggregate", type=click.Choice(AGGREGATES), default="l2", show_default=True
 )
 @click.option(
     "--weight",
-    type=click.Choice(["value", "raw"]),
+    type=click.Choice(WEIGHTS),
     default="value",
     show_default=True,
     help="value: θ·∂M/∂θ (response to a proportional change); raw: ∂M/∂θ.",
@@ -362,11 +363,11 @@ def rank(buffer: Path, as_json: bool, top: int, aggregate: str, weight: str) -> 
       sensaov rank out/cbox/buffer.npz --aggregate rms --json
     """
     from sensaov_cli.buffer.model import SensitivityBuffer
-    from sensaov_cli.buffer.queries import Method, Weight
     from sensaov_cli.views.summary import summary_dict, summary_text
+    from sensaov_cli.vocabulary import Aggregate, Weight
 
     loaded = SensitivityBuffer.load(buffer)
-    method, weighting = cast(Method, aggregate), cast(Weight, weight)
+    method, weighting = cast(Aggregate, aggregate), cast(Weight, weight)
     if as_json:
         click.echo(
             json.dumps(summary_dict(loaded, top=top, method=method, weight=weighting), indent=2)

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import mmh3
 import numpy as np
 
-from sensaov_cli.errors import SensaovError
+from sensaov_cli.errors import CryptomatteError
 
 HASH_NAME = "MurmurHash3_32"
 CONVERSION = "uint32_to_float32"
@@ -26,10 +26,6 @@ DEFAULT_RANKS = 6
 TYPE_NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,60}")
 _EXPONENT_SHIFT = 23
 _EXPONENT_MASK = 0xFF
-
-
-class CryptomatteError(SensaovError, ValueError):
-    """Ranked coverage that cannot become Cryptomatte layers (shape, index, type name)."""
 
 
 def name_hash(name: str) -> int:

@@ -12,12 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli.errors import SensaovError
+from sensaov_cli.errors import ExrError
 from sensaov_cli.outputs.atomic import atomic_write
-
-
-class ExrError(SensaovError, ValueError):
-    """An EXR cannot be written as asked (bad shapes, NaN, clashing names) or cannot be read."""
 
 
 def write_exr(path: Path, channels: dict[str, np.ndarray], attributes: dict[str, str]) -> None:

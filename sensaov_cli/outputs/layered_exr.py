@@ -19,8 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from sensaov_cli.errors import ExrError
 from sensaov_cli.outputs import cryptomatte
-from sensaov_cli.outputs.exr import ExrError, write_exr
+from sensaov_cli.outputs.exr import write_exr
 
 FORMAT_NAME = "sensaov-aov-exr"
 FORMAT_VERSION = 1

@@ -19,9 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sensaov_cli.errors import EXIT_ENVIRONMENT, SensaovError
+from sensaov_cli.errors import NonFiniteError, PreviewError
 from sensaov_cli.outputs.atomic import atomic_write
-from sensaov_cli.views.encoding import NonFiniteError
 
 # ColorBrewer RdBu, 11 classes (Brewer 2002), ordered from -scale (blue) to +scale (red).
 # It is diverging and symmetric in lightness, so |value| reads as darkness whatever the sign.
@@ -52,12 +51,6 @@ BASELINE = 15  # from the top of a text line to its baseline
 BAR_HEIGHT = 12
 MIN_WIDTH = 256  # room for the legend's numbers under even a single small tile
 LEGEND_HEIGHT = LABEL_HEIGHT + BAR_HEIGHT + LABEL_HEIGHT + PAD  # title, bar, numbers, margin
-
-
-class PreviewError(SensaovError):
-    """The preview cannot be drawn on this machine (OpenImageIO without its fonts)."""
-
-    exit_code = EXIT_ENVIRONMENT
 
 
 def diverging_rgb(values: np.ndarray, scale: float) -> np.ndarray:

@@ -40,6 +40,7 @@ from sensaov_cli.spec.fields import (
     tagged_union,
     unique_names,
 )
+from sensaov_cli.vocabulary import Aggregate, Normalize, Sign, Tonemap, Weight
 
 Variant = Literal[
     "auto",
@@ -269,11 +270,11 @@ class _Channel(_Model):
     """A sensitivity image layer: a selection of parameters, aggregated and encoded."""
 
     name: Annotated[Name, Field(description="Unique among channels; the EXR layer name.")]
-    weight: Literal["value", "raw"] = "value"
-    sign: Literal["signed", "magnitude"] = "signed"
-    aggregate: Literal["l2", "rms", "sum"] = "l2"
-    tonemap: Literal["none", "log", "symlog"] = "none"
-    normalize: Literal["none", "channel", "shared"] = "none"
+    weight: Weight = "value"
+    sign: Sign = "signed"
+    aggregate: Aggregate = "l2"
+    tonemap: Tonemap = "none"
+    normalize: Normalize = "none"
 
 
 class ObjectChannel(_Channel):

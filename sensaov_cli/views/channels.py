@@ -14,9 +14,10 @@ from typing import cast
 import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
-from sensaov_cli.buffer.queries import Method, Weight, per_object, select
+from sensaov_cli.buffer.queries import per_object, select
 from sensaov_cli.errors import SpecError
 from sensaov_cli.spec.job import ChannelSpec
+from sensaov_cli.vocabulary import Aggregate, Weight
 
 
 @dataclass(frozen=True)
@@ -84,7 +85,7 @@ def _values(
     selection: str,
     keys: tuple[str, ...],
 ) -> ChannelValues:
-    method, weight = cast(Method, channel.aggregate), cast(Weight, channel.weight)
+    method, weight = cast(Aggregate, channel.aggregate), cast(Weight, channel.weight)
     magnitude = per_object(buf, objective, method=method, weight=weight, keys=keys)
     signed = per_object(buf, objective, method="sum", weight=weight, keys=keys)
     unverified = tuple(key for key in keys if not buf.param(key).verified)

@@ -25,30 +25,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sensaov_cli.errors import EXIT_BAD_INPUT, SensaovError
+from sensaov_cli.errors import EncodingError, NonFiniteError
+from sensaov_cli.vocabulary import AGGREGATES, NORMALIZES, SIGNS, TONEMAPS, WEIGHTS
 
 if TYPE_CHECKING:
     from sensaov_cli.spec.job import ChannelSpec
 
-WEIGHTS: tuple[str, ...] = ("value", "raw")
-SIGNS: tuple[str, ...] = ("signed", "magnitude")
-AGGREGATES: tuple[str, ...] = ("l2", "rms", "sum")
-TONEMAPS: tuple[str, ...] = ("none", "log", "symlog")
-NORMALIZES: tuple[str, ...] = ("none", "channel", "shared")
 
 # The log tone maps are near-linear below the threshold and logarithmic above it; at 1e-3 of
 # the peak they resolve three decades below it. The threshold is recorded with the channel.
 THRESHOLD_FRACTION = 1e-3
-
-
-class EncodingError(SensaovError, ValueError):
-    """An encoding option out of range, or an encoding description that cannot be read."""
-
-    exit_code = EXIT_BAD_INPUT
-
-
-class NonFiniteError(SensaovError, ValueError):
-    """Sensitivities or pixels that are NaN or infinite: the gradient pass went wrong."""
 
 
 @dataclass(frozen=True)

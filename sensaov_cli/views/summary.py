@@ -13,7 +13,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
-from sensaov_cli.buffer.queries import Method, Weight, groups, key_stats, rank, scores
+from sensaov_cli.buffer.queries import groups, key_stats, rank, scores
+from sensaov_cli.vocabulary import Aggregate, Weight
 
 SUMMARY_FORMAT = "sensaov-summary"
 SUMMARY_VERSION = 1
@@ -25,7 +26,7 @@ _OWNERS_SHOWN = 3
 
 
 def summary_dict(
-    buf: SensitivityBuffer, *, top: int = 8, method: Method = "l2", weight: Weight = "value"
+    buf: SensitivityBuffer, *, top: int = 8, method: Aggregate = "l2", weight: Weight = "value"
 ) -> dict[str, Any]:
     """Per objective: M, its definition, the top parameters and objects, and every type's score."""
     return {
@@ -47,7 +48,7 @@ def summary_dict(
 
 
 def _objective_summary(
-    buf: SensitivityBuffer, objective: ObjectiveRecord, top: int, method: Method, weight: Weight
+    buf: SensitivityBuffer, objective: ObjectiveRecord, top: int, method: Aggregate, weight: Weight
 ) -> dict[str, Any]:
     stats = key_stats(buf, objective.name, weight=weight)  # one pass, three groupings
     by_param = groups(buf, None, "param")
@@ -93,7 +94,7 @@ def _objective_summary(
 
 
 def summary_text(
-    buf: SensitivityBuffer, *, top: int = 8, method: Method = "l2", weight: Weight = "value"
+    buf: SensitivityBuffer, *, top: int = 8, method: Aggregate = "l2", weight: Weight = "value"
 ) -> str:
     """The summary as short aligned tables, one block per objective, for a terminal."""
     return render_text(summary_dict(buf, top=top, method=method, weight=weight))

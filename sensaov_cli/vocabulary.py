@@ -1,0 +1,24 @@
+"""The words a job, a query and an encoding share, each list defined once.
+
+The spec validates against these ``Literal`` types (and the JSON Schema lists them), the
+queries and the encoding check their arguments against the tuples, and the CLI offers the
+tuples as choices: adding a word here adds it everywhere. Standard library only.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, get_args
+
+Weight = Literal["value", "raw"]  # θ·∂M/∂θ (a proportional change) | ∂M/∂θ
+Sign = Literal["signed", "magnitude"]
+Aggregate = Literal["l2", "rms", "sum"]
+Tonemap = Literal["none", "log", "symlog"]
+Normalize = Literal["none", "channel", "shared"]
+Grouping = Literal["param", "object", "type"]
+
+WEIGHTS: tuple[str, ...] = get_args(Weight)
+SIGNS: tuple[str, ...] = get_args(Sign)
+AGGREGATES: tuple[str, ...] = get_args(Aggregate)
+TONEMAPS: tuple[str, ...] = get_args(Tonemap)
+NORMALIZES: tuple[str, ...] = get_args(Normalize)
+GROUPINGS: tuple[str, ...] = get_args(Grouping)
