@@ -19,12 +19,14 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.errors import FingerprintMismatch, SpecError
 from sensaov_cli.outputs.atomic import check_writable
 from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write_layered_exr
+from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.scene import LoadedScene, load_scene
 from sensaov_cli.render.scene_xml import scene_fingerprint
-from sensaov_cli.render.visibility import VisibilityPass, ranked, trace
+from sensaov_cli.render.visibility import trace
 from sensaov_cli.spec.job import CameraSpec, JobSpec
 from sensaov_cli.views.channels import ChannelValues, channel_values
+from sensaov_cli.views.coverage import VisibilityPass, ranked
 from sensaov_cli.views.encoding import (
     Encoding,
     choose_scale,
@@ -222,16 +224,12 @@ def _layer(
 def _attributes(
     buffer: SensitivityBuffer, buffer_path: Path, camera: CameraSpec, beauty_spp: int
 ) -> dict[str, str]:
-    from sensaov_cli import __version__
-
     made = {
-        "tool": "sensaov",
-        "tool_version": __version__,
-        "command": "project",
+        **made_by("project"),
         "camera": camera.name,
         "vis_spp": camera.vis_spp,
         "beauty_spp": beauty_spp,
         "buffer": str(buffer_path),
         "buffer_provenance": buffer.provenance,
     }
-    return {"sensaov/provenance": json.dumps(made, sort_keys=True)}
+    return provenance_attributes(made)

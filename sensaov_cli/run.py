@@ -3,20 +3,22 @@
 from __future__ import annotations
 
 import datetime
-import json
+import os
 import platform
 import sys
 import time
 from dataclasses import dataclass
+from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
-from sensaov_cli import __version__, interrupts
-from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
+from sensaov_cli import interrupts
+from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
 from sensaov_cli.buffer.npz import buffer_writer
 from sensaov_cli.errors import SensaovError, SpecError
 from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
 from sensaov_cli.outputs.exr import exr_writer, image_channels
+from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, run_adjoint
 from sensaov_cli.render.objectives import build_objectives
@@ -65,8 +67,7 @@ def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutpu
     primal_path = job.output / PRIMAL_NAME
     interrupts.check()  # a stop asked for during a kernel must not end in written files
     with progress.stage("write_s", f"writing {buffer_path.name} and {primal_path.name}"):
-        attributes = {"sensaov/provenance": json.dumps(provenance, sort_keys=True)}
-        primal = exr_writer(image_channels(result.image), attributes)
+        primal = exr_writer(image_channels(result.image), provenance_attributes(provenance))
         try:
             atomic_write_all([(buffer_path, buffer_writer(buffer)), (primal_path, primal)])
         except OSError as exc:
@@ -79,20 +80,6 @@ def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutpu
 def _make_buffer(
     job: JobSpec, loaded: LoadedScene, result: AdjointResult, provenance: dict[str, Any]
 ) -> SensitivityBuffer:
-    params = tuple(
-        ParamRecord(
-            key=info.key,
-            type=info.type,
-            owners=info.owners,
-            shape=info.shape,
-            is_texture=info.is_texture,
-            plugin=info.plugin,
-            flags=info.flags,
-            verified=info.verified,
-            note=info.note,
-        )
-        for info in loaded.selected
-    )
     objectives = tuple(
         ObjectiveRecord(
             name=spec.name,
@@ -105,7 +92,7 @@ def _make_buffer(
     return SensitivityBuffer(
         provenance=provenance,
         objects=loaded.objects,
-        params=params,
+        params=loaded.selected,
         objectives=objectives,
         values=result.values,
         grads=result.grads,
@@ -115,20 +102,15 @@ def _make_buffer(
 def _provenance(
     job: JobSpec, loaded: LoadedScene, result: AdjointResult, timings: dict[str, float], wall: float
 ) -> dict[str, Any]:
-    import os
-    from importlib.metadata import version
-
     width, height = loaded.resolution
     return {
-        "tool": "sensaov",
-        "tool_version": __version__,
+        **made_by(" ".join(sys.argv)),
         "mitsuba_version": version("mitsuba"),
         "drjit_version": version("drjit"),
         "variant": loaded.variant,
         "libllvm": os.environ.get("DRJIT_LIBLLVM_PATH", ""),
         "python": platform.python_version(),
         "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "command": " ".join(sys.argv),
         "job_path": str(job.path),
         "job_hash": job.job_hash(),
         "job": job.to_dict(),
@@ -145,9 +127,8 @@ def _provenance(
         "shared_bsdfs": job.parameters.shared,
         "split_bsdfs": {name: list(shapes) for name, shapes in loaded.split.items()},
         "textures": [
-            {"key": info.key, "file": info.texture_file, "converted_from_8bit": info.converted}
-            for info in loaded.selected
-            if info.is_texture
+            {"key": key, "file": source.file, "converted_from_8bit": source.converted}
+            for key, source in loaded.textures.items()
         ],
         "excluded_parameters": len(loaded.excluded),
         "timings_s": dict(timings),

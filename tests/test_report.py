@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
-from sensaov_cli.views.summary import UNVERIFIED_MARK, summary_dict, summary_text
+from sensaov_cli.outputs.tables import UNVERIFIED_MARK, summary_text
+from sensaov_cli.views.summary import summary_dict
 
 BIASED = "known biased: roughplastic alpha gradient ~5x too small"
 

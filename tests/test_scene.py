@@ -46,9 +46,10 @@ def test_type_is_the_slot_not_the_storage(cbox: LoadedScene) -> None:
 
 def test_8bit_texture_is_loaded_as_float_and_reported(cbox: LoadedScene) -> None:
     texture = by_key(cbox)["checker.reflectance.data"]
-    assert texture.is_texture and texture.converted  # type: ignore[attr-defined]
-    assert texture.shape == (32, 32, 3)  # type: ignore[attr-defined]
-    assert texture.texture_file.endswith("wall.png")  # type: ignore[attr-defined]
+    source = cbox.textures[texture.key]
+    assert texture.is_texture and source.converted
+    assert texture.shape == (32, 32, 3)
+    assert source.file is not None and source.file.endswith("wall.png")
 
 
 def test_discontinuous_parameters_are_kept_and_flagged(cbox: LoadedScene) -> None:

@@ -6,13 +6,8 @@ from types import ModuleType
 
 import numpy as np
 
-from sensaov_cli.render.visibility import (
-    BACKGROUND,
-    VisibilityPass,
-    film_positions,
-    histogram,
-    ranked,
-)
+from sensaov_cli.render.visibility import film_positions
+from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass, histogram, ranked
 
 B = BACKGROUND
 

@@ -91,6 +91,22 @@ class ParamRecord:
 
 
 @dataclass(frozen=True)
+class ExcludedParam:
+    """A scene parameter left out of the buffer, and why (``sensaov params`` lists them)."""
+
+    key: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class TextureSource:
+    """The bitmap file behind a texture parameter; recorded in provenance, not per record."""
+
+    file: str | None
+    converted: bool  # an 8-bit texture loaded as float so its texels get gradients
+
+
+@dataclass(frozen=True)
 class ObjectiveRecord:
     """One scalar objective M: how it was defined, its value at the primal, the backward seed."""
 

@@ -142,7 +142,7 @@ def params(job: Path, as_json: bool, show_all: bool) -> None:
       sensaov params configs/cbox.yaml
       sensaov params configs/cbox.yaml --json | jq '.selected[].key'
     """
-    from sensaov_cli.outputs.params_table import params_dict, params_text
+    from sensaov_cli.outputs.tables import params_dict, params_text
     from sensaov_cli.render.scene import load_scene
     from sensaov_cli.spec.job import load_job
 
@@ -181,7 +181,8 @@ def run(job: Path, as_json: bool, quiet: bool, top: int, allow_python: bool) -> 
     from sensaov_cli.progress import Progress
     from sensaov_cli.run import run_job
     from sensaov_cli.spec.job import load_job
-    from sensaov_cli.views.summary import summary_dict, summary_text
+    from sensaov_cli.outputs.tables import summary_text
+    from sensaov_cli.views.summary import summary_dict
 
     spec = load_job(job)
     outputs = run_job(spec, allow_python=allow_python, progress=Progress(quiet=quiet))
@@ -311,7 +312,8 @@ def check(
     """
     from dataclasses import asdict
 
-    from sensaov_cli.render.fdcheck import check_gradients, checks_text
+    from sensaov_cli.outputs.tables import checks_text
+    from sensaov_cli.render.fdcheck import check_gradients
     from sensaov_cli.render.objectives import build_objectives
     from sensaov_cli.render.scene import load_scene
     from sensaov_cli.spec.job import load_job
@@ -363,7 +365,8 @@ def rank(buffer: Path, as_json: bool, top: int, aggregate: str, weight: str) -> 
       sensaov rank out/cbox/buffer.npz --aggregate rms --json
     """
     from sensaov_cli.buffer.model import SensitivityBuffer
-    from sensaov_cli.views.summary import summary_dict, summary_text
+    from sensaov_cli.outputs.tables import summary_text
+    from sensaov_cli.views.summary import summary_dict
     from sensaov_cli.vocabulary import Aggregate, Weight
 
     loaded = SensitivityBuffer.load(buffer)

@@ -15,7 +15,7 @@ import numpy as np
 
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, underlay, write_png
-from sensaov_cli.render.visibility import VisibilityPass
+from sensaov_cli.views.coverage import VisibilityPass
 
 SHEET_COLUMNS = 4
 MIN_TILE_WIDTH = 192  # small views are enlarged (nearest neighbour) so labels stay readable

@@ -1,14 +1,264 @@
-"""Plain aligned text tables for terminals and log files (no colour, no box drawing)."""
+"""The text tables a terminal shows: ``params``, ``rank``/``run``'s summary, ``check``.
+
+One aligned-table function serves all three; JSON output comes from the same data (the dicts
+of :mod:`sensaov_cli.views.summary` and ``params_dict``), so text and JSON always agree.
+Plain text only: no colour, no box drawing, so logs and farm consoles read it as it is.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections import defaultdict
+from collections.abc import Collection, Sequence
+from dataclasses import asdict
+from typing import TYPE_CHECKING, Any, Protocol
+
+from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, SensitivityBuffer, TextureSource
+from sensaov_cli.views.summary import summary_dict
+from sensaov_cli.vocabulary import Aggregate, Weight
+
+if TYPE_CHECKING:
+    from sensaov_cli.render.fdcheck import GradientCheck
+
+UNVERIFIED_MARK = "!"
+_PROVENANCE_SHOWN = {"scene_path": "scene", "variant": "variant", "spp": "spp"}  # key: label
+_OWNERS_SHOWN = 3
 
 
-def format_table(rows: Sequence[Sequence[str]]) -> list[str]:
-    """Left-aligned columns separated by two spaces; the first row is the header."""
+def format_table(
+    rows: Sequence[Sequence[str]], *, numeric: Collection[int] = (), indent: str = ""
+) -> list[str]:
+    """Columns separated by two spaces, the first row the header; ``numeric`` right-aligned."""
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     return [
-        "  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip()
+        (
+            indent
+            + "  ".join(
+                cell.rjust(w) if c in numeric else cell.ljust(w)
+                for c, (cell, w) in enumerate(zip(row, widths, strict=True))
+            )
+        ).rstrip()
         for row in rows
     ]
+
+
+class ParameterInventory(Protocol):
+    """What ``sensaov params`` reports of a loaded scene (the render stage's LoadedScene)."""
+
+    variant: str
+    objects: tuple[str, ...]
+    selected: tuple[ParamRecord, ...]
+    excluded: tuple[ExcludedParam, ...]
+    split: dict[str, tuple[str, ...]]
+    textures: dict[str, TextureSource]
+
+
+def params_dict(loaded: ParameterInventory) -> dict[str, Any]:
+    """What ``sensaov params --json`` prints (docs/job-spec.md)."""
+    return {
+        "variant": loaded.variant,
+        "objects": list(loaded.objects),
+        "selected": [
+            _selected_entry(info, loaded.textures.get(info.key)) for info in loaded.selected
+        ],
+        "excluded": [asdict(item) for item in loaded.excluded],
+        "split_bsdfs": {name: list(shapes) for name, shapes in loaded.split.items()},
+    }
+
+
+def _selected_entry(record: ParamRecord, texture: TextureSource | None) -> dict[str, Any]:
+    entry = asdict(record)
+    plugin = entry.pop("plugin")  # the order these keys always had in params --json
+    return {
+        **{key: entry[key] for key in ("key", "type", "owners")},
+        "plugin": plugin,
+        **{key: entry[key] for key in ("shape", "is_texture", "flags", "verified", "note")},
+        "texture_file": texture.file if texture else None,
+        "converted": texture.converted if texture else False,
+    }
+
+
+def params_text(loaded: ParameterInventory, *, show_all: bool = False) -> str:
+    rows = [("key", "type", "owners", "plugin", "shape", "notes")]
+    for info in loaded.selected:
+        notes = list(info.flags)
+        if info.is_texture:
+            converted = loaded.textures[info.key].converted
+            notes.append("texture, 8-bit -> float" if converted else "texture")
+        if not info.verified:
+            notes.append("UNVERIFIED")
+        shape = "x".join(str(n) for n in info.shape)
+        rows.append(
+            (info.key, info.type, ",".join(info.owners), info.plugin, shape, ", ".join(notes))
+        )
+    lines = [f"{len(loaded.selected)} parameters selected over {len(loaded.objects)} objects"]
+    lines += format_table(rows)
+    lines += _unverified_legend(loaded)
+    lines += _textures(loaded)
+    lines += _split(loaded)
+    lines += _excluded(loaded, show_all)
+    return "\n".join(lines)
+
+
+def _unverified_legend(loaded: ParameterInventory) -> list[str]:
+    notes = sorted({info.note for info in loaded.selected if not info.verified})
+    return (
+        ["", "UNVERIFIED gradients (do not trust their ranking blindly):"]
+        + [f"  - {n}" for n in notes]
+        if notes
+        else []
+    )
+
+
+def _textures(loaded: ParameterInventory) -> list[str]:
+    if not loaded.textures:
+        return []
+    lines = ["", "textures in the buffer:"]
+    for key, source in loaded.textures.items():
+        how = (
+            "converted from 8-bit to float so its texels get gradients"
+            if source.converted
+            else "float"
+        )
+        lines.append(f"  {key}: {source.file} ({how})")
+    return lines
+
+
+def _split(loaded: ParameterInventory) -> list[str]:
+    if not loaded.split:
+        return []
+    lines = ["", "shared BSDFs split into one copy per object (parameters.shared: split):"]
+    lines += [f"  {name} -> {', '.join(shapes)}" for name, shapes in loaded.split.items()]
+    return lines
+
+
+def _excluded(loaded: ParameterInventory, show_all: bool) -> list[str]:
+    by_reason: dict[str, list[str]] = defaultdict(list)
+    for item in loaded.excluded:
+        by_reason[item.reason].append(item.key)
+    lines = ["", f"{len(loaded.excluded)} parameters left out:"]
+    for reason, keys in sorted(by_reason.items(), key=lambda kv: -len(kv[1])):
+        if show_all or len(keys) <= 3:
+            lines.append(f"  {reason}: {', '.join(keys)}")
+        else:
+            lines.append(f"  {reason}: {len(keys)} keys (e.g. {keys[0]}; --all lists them)")
+    return lines
+
+
+def summary_text(
+    buf: SensitivityBuffer, *, top: int = 8, method: Aggregate = "l2", weight: Weight = "value"
+) -> str:
+    """The summary as short aligned tables, one block per objective, for a terminal."""
+    return render_text(summary_dict(buf, top=top, method=method, weight=weight))
+
+
+def render_text(summary: dict[str, Any]) -> str:
+    """Text for a dict made by :func:`summary_dict`."""
+    counts, agg = summary["counts"], summary["aggregation"]
+    head = "sensitivity buffer: " + ", ".join(
+        _count(counts[name], name[:-1]) for name in ("parameters", "objects", "objectives")
+    )
+    prov = summary["provenance"]
+    shown = [
+        f"{label} {prov[key]}"
+        for key, label in _PROVENANCE_SHOWN.items()
+        if isinstance(prov.get(key), str | int | float)
+    ]
+    lines = [" · ".join([head, *shown])]
+    lines.append(f"scores: {agg['method']} of {agg['contribution']} over each group's components")
+    if agg["method"] != "sum":
+        lines.append("signed: their plain sum; > 0 means increasing the parameter raises M")
+    for objective in summary["objectives"]:
+        lines.append("")
+        lines.extend(_objective_lines(objective, agg["method"], counts))
+    return "\n".join(lines) + "\n"
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def _fmt(score: float, signed: bool) -> str:
+    return f"{score:+.2e}" if signed else f"{score:.2e}"
+
+
+def _mark(verified: bool) -> str:
+    return "" if verified else UNVERIFIED_MARK
+
+
+def _owners(owners: Sequence[str]) -> str:
+    if len(owners) <= _OWNERS_SHOWN:
+        return ", ".join(owners) or "-"
+    return ", ".join(owners[:_OWNERS_SHOWN]) + f" +{len(owners) - _OWNERS_SHOWN} more"
+
+
+def _objective_lines(objective: dict[str, Any], method: str, counts: dict[str, int]) -> list[str]:
+    signed = method == "sum"
+    params, objects, types = objective["parameters"], objective["objects"], objective["types"]
+    lines = [f"objective {objective['name']!r}   M = {objective['value']:.4g}"]
+
+    lines.append(f"  parameters (top {len(params)} of {counts['parameters']})")
+    headers = ["#", "", "score", *([] if signed else ["signed"]), "type", "key", "owners"]
+    rows = [
+        [str(i), _mark(p["verified"]), _fmt(p["score"], signed),
+         *([] if signed else [_fmt(p["signed"], True)]), p["type"], p["key"], _owners(p["owners"])]
+        for i, p in enumerate(params, 1)
+    ]  # fmt: skip
+    lines.extend(_indented(headers, rows, numeric={0, 2} if signed else {0, 2, 3}))
+
+    lines.append(f"  objects (top {len(objects)} of {counts['objects']})")
+    lines.extend(_group_table("object", "name", objects, signed))
+    lines.append("  types")
+    lines.extend(_group_table("type", "type", types, signed))
+    lines.extend(_legend(objective))
+    return lines
+
+
+def _group_table(title: str, field: str, entries: list[dict[str, Any]], signed: bool) -> list[str]:
+    rows = [
+        [str(i), _mark(e["verified"]), _fmt(e["score"], signed), e[field]]
+        for i, e in enumerate(entries, 1)
+    ]
+    return _indented(["#", "", "score", title], rows, numeric={0, 2})
+
+
+def _legend(objective: dict[str, Any]) -> list[str]:
+    unverified = [p for p in objective["parameters"] if not p["verified"]]
+    groups_marked = any(not g["verified"] for g in objective["objects"] + objective["types"])
+    mark = UNVERIFIED_MARK
+    if not unverified:
+        return [f"  {mark} = includes a parameter whose gradient is unverified"] * groups_marked
+    lines = [f"  {mark} = unverified gradient, do not trust the number:"]
+    lines += [f"      {p['key']}: {p['note'] or 'not verified'}" for p in unverified]
+    if groups_marked:
+        lines.append(f"    objects and types marked {mark} include such a parameter")
+    return lines
+
+
+def _indented(headers: list[str], rows: list[list[str]], numeric: set[int]) -> list[str]:
+    """Aligned rows indented under a section title."""
+    if not rows:
+        return ["    (none)"]
+    return format_table([headers, *rows], numeric=numeric, indent="    ")
+
+
+def checks_text(checks: list[GradientCheck]) -> str:
+    rows = [("key", "plugin", "type", "table", "adjoint", "finite diff", "std err", "verdict")]
+    for c in checks:
+        rows.append(
+            (
+                c.key,
+                c.plugin,
+                c.type,
+                "verified" if c.claimed_verified else "unverified",
+                f"{c.adjoint:+.3e}",
+                f"{c.finite_difference:+.3e}",
+                f"{c.standard_error:.1e}",
+                c.verdict
+                + (
+                    "  <-- CONTRADICTS THE TABLE"
+                    if c.claimed_verified and c.verdict == "disagrees"
+                    else ""
+                ),
+            )
+        )
+    return "\n".join(format_table(rows))

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sensaov_cli.buffer.model import ParamRecord
 from sensaov_cli.errors import SpecError
 from sensaov_cli.render.adjoint import (
     assign,
@@ -26,7 +27,7 @@ from sensaov_cli.render.adjoint import (
     render_primal,
 )
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-from sensaov_cli.render.scene import LoadedScene, ParamInfo
+from sensaov_cli.render.scene import LoadedScene
 
 RELATIVE_TOLERANCE = 0.05  # agreement of the means, relative to the finite difference
 NOISE_SIGMAS = 3.0  # a difference within 3 standard errors is consistent with noise
@@ -49,15 +50,15 @@ class GradientCheck:
         return abs(self.adjoint - self.finite_difference) / max(abs(self.finite_difference), 1e-30)
 
 
-def representatives(loaded: LoadedScene) -> list[ParamInfo]:
+def representatives(loaded: LoadedScene) -> list[ParamRecord]:
     """The first selected parameter of each (plugin, type, texture?) kind."""
-    seen: dict[tuple[str, str, bool], ParamInfo] = {}
+    seen: dict[tuple[str, str, bool], ParamRecord] = {}
     for info in loaded.selected:
         seen.setdefault((info.plugin, info.type, info.is_texture), info)
     return list(seen.values())
 
 
-def direction(info: ParamInfo) -> np.ndarray:
+def direction(info: ParamRecord) -> np.ndarray:
     v = np.ones(info.shape, np.float32)
     if info.is_texture and len(info.shape) >= 2:
         v[:] = 0  # a block of texels, so the check exercises the UV lookup, not just the mean
@@ -67,7 +68,7 @@ def direction(info: ParamInfo) -> np.ndarray:
 
 
 def check_parameter(
-    loaded: LoadedScene, objective: Objective, info: ParamInfo, *, spp: int, seeds: list[int]
+    loaded: LoadedScene, objective: Objective, info: ParamRecord, *, spp: int, seeds: list[int]
 ) -> GradientCheck:
     enable_gradients(loaded)
     theta = np.array(loaded.params[info.key], dtype=np.float32).reshape(info.shape)
@@ -91,7 +92,7 @@ def check_parameter(
     return _judge(info, np.array(adjoints), np.array(differences))
 
 
-def _judge(info: ParamInfo, adjoints: np.ndarray, differences: np.ndarray) -> GradientCheck:
+def _judge(info: ParamRecord, adjoints: np.ndarray, differences: np.ndarray) -> GradientCheck:
     gap = adjoints - differences
     error = float(gap.std(ddof=1) / math.sqrt(len(gap))) if len(gap) > 1 else 0.0
     ad, fd = float(adjoints.mean()), float(differences.mean())
@@ -121,7 +122,7 @@ def check_gradients(
     return [check_parameter(loaded, objective, info, spp=spp, seeds=seeds) for info in chosen]
 
 
-def _named(loaded: LoadedScene, keys: list[str]) -> list[ParamInfo]:
+def _named(loaded: LoadedScene, keys: list[str]) -> list[ParamRecord]:
     by_key = {info.key: info for info in loaded.selected}
     for key in keys:
         if key not in by_key:
@@ -132,30 +133,3 @@ def _named(loaded: LoadedScene, keys: list[str]) -> list[ParamInfo]:
                 hint=f"did you mean {close[0]!r}?" if close else "'sensaov params JOB' lists them",
             )
     return [by_key[key] for key in dict.fromkeys(keys)]
-
-
-def checks_text(checks: list[GradientCheck]) -> str:
-    rows = [("key", "plugin", "type", "table", "adjoint", "finite diff", "std err", "verdict")]
-    for c in checks:
-        rows.append(
-            (
-                c.key,
-                c.plugin,
-                c.type,
-                "verified" if c.claimed_verified else "unverified",
-                f"{c.adjoint:+.3e}",
-                f"{c.finite_difference:+.3e}",
-                f"{c.standard_error:.1e}",
-                c.verdict
-                + (
-                    "  <-- CONTRADICTS THE TABLE"
-                    if c.claimed_verified and c.verdict == "disagrees"
-                    else ""
-                ),
-            )
-        )
-    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    return "\n".join(
-        "  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip()
-        for row in rows
-    )

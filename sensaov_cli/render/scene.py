@@ -1,7 +1,8 @@
 """Load a job's scene and decide which parameters enter the sensitivity buffer.
 
-Mitsuba types stay inside this stage and the adjoint stage; what leaves is :class:`ParamInfo`
-records (plain data) next to the live scene objects the adjoint needs.
+Mitsuba types stay inside this stage and the adjoint stage; what leaves is the buffer's own
+:class:`~sensaov_cli.buffer.model.ParamRecord` for each selected parameter (plain data) next to
+the live scene objects the adjoint needs.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
 from sensaov_cli.errors import SceneError
 from sensaov_cli.render.runtime import import_mitsuba
 from sensaov_cli.render.scene_xml import prepare_scene_xml, scene_fingerprint
@@ -55,27 +57,6 @@ PLUGIN_NAMES = {
 GEOMETRY_FIELDS = ("to_world", "position", "direction", "faces")
 
 
-@dataclass(frozen=True)
-class ParamInfo:
-    key: str
-    type: str
-    owners: tuple[str, ...]
-    plugin: str
-    shape: tuple[int, ...]
-    is_texture: bool
-    flags: tuple[str, ...]
-    verified: bool
-    note: str
-    texture_file: str | None  # the bitmap file behind a texture parameter
-    converted: bool  # an 8-bit texture loaded as float so its texels get gradients
-
-
-@dataclass(frozen=True)
-class Excluded:
-    key: str
-    reason: str
-
-
 @dataclass
 class LoadedScene:
     """The live scene plus the plain-data description of its selected parameters."""
@@ -86,8 +67,9 @@ class LoadedScene:
     sensor: Any
     integrator: Any
     variant: str
-    selected: tuple[ParamInfo, ...]
-    excluded: tuple[Excluded, ...]
+    selected: tuple[ParamRecord, ...]  # exactly the records the buffer stores
+    excluded: tuple[ExcludedParam, ...]
+    textures: dict[str, TextureSource]  # texture parameter key -> its bitmap file
     objects: tuple[str, ...]
     fingerprint: str
     resolution: tuple[int, int]
@@ -117,7 +99,7 @@ def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> Loaded
     ownership = _ownership(mi, scene)
     params = mi.traverse(scene)
     sources = {Path(name).name: job.scene.parent / name for name in prepared.bitmap_files}
-    selected, excluded = _select(mi, job, params, ownership, sources)
+    selected, excluded, textures = _select(mi, job, params, ownership, sources)
     size = sensor.film().crop_size()
     return LoadedScene(
         mi=mi,
@@ -128,6 +110,7 @@ def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> Loaded
         variant=mi.variant(),
         selected=selected,
         excluded=excluded,
+        textures=textures,
         objects=ownership.objects,
         fingerprint=scene_fingerprint(job.scene),
         resolution=(int(size[0]), int(size[1])),
@@ -194,8 +177,8 @@ def _select(
     params: Any,
     ownership: _Ownership,
     sources: dict[str, Path],
-) -> tuple[tuple[ParamInfo, ...], tuple[Excluded, ...]]:
-    selected, excluded = [], []
+) -> tuple[tuple[ParamRecord, ...], tuple[ExcludedParam, ...], dict[str, TextureSource]]:
+    selected, excluded, textures = [], [], {}
     for key in params.keys():
         _, _, node, flags = params.properties[key]
         reason = _exclusion_reason(mi, job, key, params[key], node, flags)
@@ -203,10 +186,13 @@ def _select(
         if reason is None and not owners:
             reason = "owned by no object in the scene"
         if reason is None:
-            selected.append(_describe(mi, key, params, owners, sources))
+            record = _describe(mi, key, params, owners)
+            selected.append(record)
+            if record.is_texture:
+                textures[key] = _texture_source(mi, params.properties[key][2], sources)
         else:
-            excluded.append(Excluded(key, reason))
-    return tuple(selected), tuple(excluded)
+            excluded.append(ExcludedParam(key, reason))
+    return tuple(selected), tuple(excluded), textures
 
 
 def _explicitly_included(key: str, include: tuple[str, ...]) -> bool:
@@ -242,9 +228,7 @@ def _exclusion_reason(
     return None
 
 
-def _describe(
-    mi: ModuleType, key: str, params: Any, owners: tuple[str, ...], sources: dict[str, Path]
-) -> ParamInfo:
+def _describe(mi: ModuleType, key: str, params: Any, owners: tuple[str, ...]) -> ParamRecord:
     import numpy as np
 
     _, _, node, flags = params.properties[key]
@@ -255,22 +239,19 @@ def _describe(
     plugin = _plugin_name(holder)
     ptype = TYPE_ALIASES.get(slot, slot)
     is_texture = is_texture_node and parts[-1] == "data"
-    texture_file, converted = _texture_source(mi, node, sources) if is_texture else (None, False)
     verified, note = verification_status(plugin, ptype)
     flag_names = ("discontinuous",) if flags & int(mi.ParamFlags.Discontinuous) else ()
     shape = value_shape(np.asarray(params[key]))
-    return ParamInfo(
-        key,
-        ptype,
-        owners,
-        plugin,
-        shape,
-        is_texture,
-        flag_names,
-        verified,
-        note,
-        texture_file,
-        converted,
+    return ParamRecord(
+        key=key,
+        type=ptype,
+        owners=owners,
+        shape=shape,
+        is_texture=is_texture,
+        plugin=plugin,
+        flags=flag_names,
+        verified=verified,
+        note=note,
     )
 
 
@@ -285,7 +266,7 @@ def _plugin_name(node: Any) -> str:
     return PLUGIN_NAMES.get(name, name.lower())
 
 
-def _texture_source(mi: ModuleType, node: Any, sources: dict[str, Path]) -> tuple[str | None, bool]:
+def _texture_source(mi: ModuleType, node: Any, sources: dict[str, Path]) -> TextureSource:
     """The file behind a bitmap texture, and whether it was stored as 8-bit integers."""
     import re
 
@@ -293,6 +274,6 @@ def _texture_source(mi: ModuleType, node: Any, sources: dict[str, Path]) -> tupl
     match = re.search(r'name = "([^"]*)"', str(node))
     path = sources.get(match.group(1)) if match else None
     if path is None or not path.is_file():
-        return (match.group(1) if match else None), False
+        return TextureSource(match.group(1) if match else None, converted=False)
     converted = mi.Bitmap(str(path)).component_format() == mi.Struct.Type.UInt8
-    return str(path), converted
+    return TextureSource(str(path), converted)

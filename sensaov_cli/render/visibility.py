@@ -8,63 +8,12 @@ the fraction of a pixel's samples that hit each object). The ``aov`` integrator'
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
 
 import numpy as np
 
-BACKGROUND = -1
-RANKS = 6  # Cryptomatte's customary three layers of two ranks
-
-
-@dataclass(frozen=True)
-class Coverage:
-    """Per-pixel object histogram as triplets: pixel ``pixel`` saw object ``obj`` ``count`` times.
-
-    Sorted by pixel, then by decreasing count, then object index. Background is not listed.
-    """
-
-    pixel: np.ndarray  # (T,) int64 flat pixel index (row-major)
-    obj: np.ndarray  # (T,) int32 object index
-    count: np.ndarray  # (T,) int32 samples
-
-    def regroup(self, group_of: np.ndarray) -> Coverage:
-        """The same coverage over groups of objects (e.g. materials): ``group_of[obj]``."""
-        groups = int(group_of.max()) + 1 if len(group_of) else 1
-        combined = self.pixel * groups + group_of[self.obj]
-        keys, inverse = np.unique(combined, return_inverse=True)
-        counts = np.bincount(inverse, weights=self.count).astype(np.int32)
-        pixel, group = keys // groups, (keys % groups).astype(np.int32)
-        order = np.lexsort((group, -counts, pixel))
-        return Coverage(pixel[order], group[order], counts[order])
-
-
-@dataclass(frozen=True)
-class VisibilityPass:
-    width: int
-    height: int
-    spp: int
-    objects: tuple[str, ...]  # index -> object name (the buffer's object list)
-    sample_uv: np.ndarray | None  # (H, W, S, 2) float32 UV of each hit (0 on background), if asked
-    coverage: Coverage
-    rank_index: np.ndarray  # (H, W, RANKS) int32, objects by decreasing coverage, -1 = empty
-    rank_coverage: np.ndarray  # (H, W, RANKS) float32
-
-    @property
-    def coverage_hit(self) -> np.ndarray:
-        """(H, W) fraction of samples that hit any object (an alpha for the beauty)."""
-        hits = np.bincount(
-            self.coverage.pixel, weights=self.coverage.count, minlength=self.width * self.height
-        )
-        return (hits / self.spp).astype(np.float32).reshape(self.height, self.width)
-
-    def paint(self, values: np.ndarray) -> np.ndarray:
-        """(H, W) coverage-weighted mean of per-object ``values`` (background contributes 0)."""
-        cov = self.coverage
-        weights = cov.count * np.asarray(values, np.float64)[cov.obj]
-        total = np.bincount(cov.pixel, weights=weights, minlength=self.width * self.height)
-        return (total / self.spp).astype(np.float32).reshape(self.height, self.width)
+from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass, histogram, ranked
 
 
 def film_positions(mi: ModuleType, width: int, height: int, spp: int, seed: int) -> Any:
@@ -135,33 +84,3 @@ def _object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...])
     for registry, index in pairs.items():
         table[registry] = index
     return table
-
-
-def histogram(sample_object: np.ndarray) -> Coverage:
-    """Run-length count of each pixel's sorted sample ids: O(N S log S), no N x objects table."""
-    pixels, spp = sample_object.shape
-    flat = np.sort(sample_object, axis=1)
-    first = np.ones_like(flat, dtype=bool)
-    first[:, 1:] = flat[:, 1:] != flat[:, :-1]  # a run starts at every row's first sample too
-    starts = np.flatnonzero(first)
-    counts = np.diff(np.append(starts, flat.size))
-    pixel, obj = starts // spp, flat.reshape(-1)[starts]
-    keep = obj != BACKGROUND
-    pixel, obj, counts = pixel[keep], obj[keep].astype(np.int32), counts[keep].astype(np.int32)
-    order = np.lexsort((obj, -counts, pixel))  # by pixel, then most covered, then lowest index
-    return Coverage(pixel[order], obj[order], counts[order])
-
-
-def ranked(
-    coverage: Coverage, size: tuple[int, int], spp: int, ranks: int = RANKS
-) -> tuple[np.ndarray, np.ndarray]:
-    """The ``ranks`` most covering objects per pixel (index, coverage), padded with (-1, 0)."""
-    height, width = size
-    index = np.full((height * width, ranks), BACKGROUND, np.int32)
-    amount = np.zeros((height * width, ranks), np.float32)
-    first_of_pixel = np.searchsorted(coverage.pixel, coverage.pixel, side="left")
-    rank = np.arange(len(coverage.pixel)) - first_of_pixel
-    keep = rank < ranks
-    index[coverage.pixel[keep], rank[keep]] = coverage.obj[keep]
-    amount[coverage.pixel[keep], rank[keep]] = coverage.count[keep] / np.float32(spp)
-    return index.reshape(height, width, ranks), amount.reshape(height, width, ranks)
