@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -21,6 +20,7 @@ from sensaov_cli.outputs.atomic import check_writable
 from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write_layered_exr
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
+from sensaov_cli.render.beauty import render_beauty
 from sensaov_cli.render.scene import LoadedScene, load_scene
 from sensaov_cli.render.scene_xml import scene_fingerprint
 from sensaov_cli.render.visibility import trace
@@ -134,7 +134,7 @@ def _project_camera(
     visibility = trace(
         loaded.mi, loaded.scene, sensor, buffer.objects, camera.vis_spp, seed=job.render.seed
     )
-    beauty = _beauty(loaded, sensor, visibility, beauty_spp, job.render.seed)
+    beauty = render_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed)
     layers = [_layer(p, visibility, buffer_path, camera) for p in passes]
     crypto = CryptoLayer(
         "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage
@@ -171,22 +171,6 @@ def _material_cryptomatte(visibility: VisibilityPass, materials: dict[str, str])
     coverage = visibility.coverage.regroup(group_of)
     index, amount = ranked(coverage, (visibility.height, visibility.width), visibility.spp)
     return CryptoLayer("CryptoMaterial", tuple(names), index, amount)
-
-
-def _beauty(
-    loaded: LoadedScene, sensor: Any, visibility: VisibilityPass, spp: int, seed: int
-) -> np.ndarray | None:
-    """A quick RGBA render at the inspection camera (alpha = visibility coverage)."""
-    if spp <= 0:
-        return None
-    import drjit as dr
-
-    with dr.suspend_grad():
-        image = loaded.integrator.render(loaded.scene, sensor, seed=seed, spp=spp)
-    rgb = np.array(image, dtype=np.float32)[..., :3]
-    if rgb.shape[2] < 3:  # a mono variant renders Y (and A): show it grey
-        rgb = np.repeat(rgb[..., :1], 3, axis=2)
-    return np.concatenate([rgb, visibility.coverage_hit[..., None]], axis=2)
 
 
 def _layer(

@@ -5,8 +5,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
@@ -392,15 +390,3 @@ def test_plain_numpy_example_in_the_docs_runs(saved: Path, capsys) -> None:
     example = doc.split("```python\n", 1)[1].split("```", 1)[0]
     exec(example.replace("out/cbox/buffer.npz", str(saved)), {})
     assert len(capsys.readouterr().out.splitlines()) == 2 * 3
-
-
-def test_numpy_only_modules_import_no_renderer() -> None:
-    code = (
-        "import sys, sensaov_cli.buffer.model, sensaov_cli.buffer.queries\n"
-        "import sensaov_cli.views.summary\n"
-        "heavy = {'mitsuba', 'drjit', 'rich', 'click'} & set(sys.modules)\n"
-        "assert not heavy, heavy"
-    )
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
-    assert result.returncode == 0, result.stderr
