@@ -1,0 +1,61 @@
+"""Wire the stages of ``sensaov check``: spec -> scene -> one objective -> finite differences.
+
+The job's objective (the first, or the one named) is built for the objective camera and
+:func:`~sensaov_cli.render.fdcheck.check_gradients` compares its reverse-mode gradients with
+central finite differences; :func:`exit_code` says whether the result is a failure.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, SpecError
+from sensaov_cli.render.fdcheck import GradientCheck, check_gradients
+from sensaov_cli.render.objectives import build_objectives
+from sensaov_cli.render.scene import load_scene
+from sensaov_cli.spec.job import JobSpec, ObjectiveSpec
+
+DEFAULT_SEEDS = 6
+
+
+def check_job(
+    job: JobSpec,
+    *,
+    objective: str | None = None,
+    spp: int | None = None,
+    seeds: int = DEFAULT_SEEDS,
+    keys: Sequence[str] = (),
+    allow_python: bool,
+) -> list[GradientCheck]:
+    """Check one objective's gradients over seeds ``0 .. seeds-1`` at ``spp`` (default: the job's).
+
+    ``keys`` names the parameters to check; without them, one of each kind in the selection.
+    """
+    loaded = load_scene(job)
+    chosen = _objective(job, objective)
+    width, height = loaded.resolution
+    (built,) = build_objectives(loaded.mi, (chosen,), (height, width), allow_python)
+    return check_gradients(
+        loaded,
+        built,
+        spp=spp or job.render.spp,
+        seeds=list(range(seeds)),
+        keys=list(keys) or None,
+    )
+
+
+def exit_code(checks: Sequence[GradientCheck]) -> int:
+    """A failure when a parameter the verification table trusts disagrees, else success."""
+    contradicted = any(c.claimed_verified and c.verdict == "disagrees" for c in checks)
+    return EXIT_JOB_FAILED if contradicted else EXIT_OK
+
+
+def _objective(job: JobSpec, name: str | None) -> ObjectiveSpec:
+    """The job's first objective, or the one called ``name``."""
+    for spec in job.objectives:
+        if name in (None, spec.name):
+            return spec
+    names = ", ".join(o.name for o in job.objectives)
+    raise SpecError(
+        f"no objective named {name!r}", where="--objective", hint=f"objectives: {names}"
+    )

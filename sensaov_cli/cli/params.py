@@ -1,0 +1,44 @@
+"""``sensaov params``: which scene parameters enter the buffer, and why others do not."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from sensaov_cli.cli.options import (
+    EXIT_CODES_EPILOG,
+    echo_json,
+    job_argument,
+    json_option,
+    reports_errors,
+)
+
+
+@click.command(epilog=EXIT_CODES_EPILOG)
+@job_argument
+@json_option
+@click.option(
+    "--all", "show_all", is_flag=True, help="List every excluded key, not only a count per reason."
+)
+@reports_errors
+def params(job: Path, as_json: bool, show_all: bool) -> None:
+    """Show which scene parameters enter the buffer, their owners and types.
+
+    Loads the scene (no rendering). Textures converted from 8-bit to float and
+    parameters left out are listed with the reason.
+
+    \b
+    Example:
+      sensaov params configs/cbox.yaml
+      sensaov params configs/cbox.yaml --json | jq '.selected[].key'
+    """
+    from sensaov_cli.outputs.tables import params_dict, params_text
+    from sensaov_cli.render.scene import load_scene
+    from sensaov_cli.spec.job import load_job
+
+    loaded = load_scene(load_job(job))
+    if as_json:
+        echo_json(params_dict(loaded))
+    else:
+        click.echo(params_text(loaded, show_all=show_all))

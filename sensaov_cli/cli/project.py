@@ -1,0 +1,92 @@
+"""``sensaov project``: paint a stored buffer into the inspection cameras as layered EXRs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from sensaov_cli.cli.options import (
+    EXIT_CODES_EPILOG,
+    echo_json,
+    job_argument,
+    json_option,
+    quiet_option,
+    reports_errors,
+)
+
+
+@click.command(epilog=EXIT_CODES_EPILOG)
+@job_argument
+@click.option(
+    "--camera", "cameras", multiple=True, help="Only this camera (repeatable); default: all."
+)
+@click.option(
+    "--buffer",
+    "buffer_path",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Buffer to project (default: <output>/buffer.npz of the job).",
+)
+@click.option("--png", is_flag=True, help="Also write PNG previews and a contact sheet per camera.")
+@click.option(
+    "--beauty-spp",
+    type=click.IntRange(min=0),
+    default=4,
+    show_default=True,
+    help="Samples per pixel of the quick beauty pass, a reference for the compositor "
+    "(0: none). It is a full path trace: at 16 spp it costs more than the whole view.",
+)
+@click.option(
+    "--force", is_flag=True, help="Project even if the scene changed since the buffer was made."
+)
+@json_option
+@quiet_option
+@reports_errors
+def project(
+    job: Path,
+    cameras: tuple[str, ...],
+    buffer_path: Path | None,
+    png: bool,
+    beauty_spp: int,
+    force: bool,
+    as_json: bool,
+    quiet: bool,
+) -> None:
+    """Paint a stored buffer into every inspection camera as layered EXRs.
+
+    Reads the buffer and traces primary visibility only: no derivative is
+    computed, so each view costs a fraction of the adjoint pass. Writes
+    <output>/<camera>.exr per camera (beauty, CryptoObject, one layer per
+    objective and channel; see docs/exr-layout.md) and, with --png, previews.
+
+    \b
+    Example:
+      sensaov project configs/cbox.yaml
+      sensaov project configs/cbox.yaml --camera overhead      # one farm task per camera
+      sensaov project configs/cbox.yaml --buffer other/buffer.npz --png
+    """
+    from dataclasses import asdict
+
+    from sensaov_cli.progress import Progress
+    from sensaov_cli.project import project_job
+    from sensaov_cli.spec.job import load_job
+
+    spec = load_job(job)
+    views = project_job(
+        spec,
+        buffer_path=buffer_path or spec.output / "buffer.npz",
+        cameras=cameras,
+        force=force,
+        png=png,
+        beauty_spp=beauty_spp,
+        progress=Progress(quiet=quiet),
+    )
+    if as_json:
+        echo_json([asdict(v) for v in views], default=str)
+        return
+    for view in views:
+        extra = f" (+{len(view.previews)} PNG)" if view.previews else ""
+        click.echo(
+            f"{view.camera}: {view.width}x{view.height}, {view.vis_spp} vis spp, "
+            f"{view.seconds:.2f} s -> {view.path}{extra}"
+        )
