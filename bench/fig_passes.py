@@ -40,7 +40,7 @@ class Passes:
         from sensaov_cli.render.adjoint import enable_gradients, render_primal
         from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
         from sensaov_cli.render.scene import load_scene
-        from sensaov_cli.spec.job import load_job
+        from sensaov_cli.spec.load import load_job
 
         spec = load_job(job)
         loaded = load_scene(spec)

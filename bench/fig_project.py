@@ -109,7 +109,7 @@ def _rows(case: str, t: dict[str, Stats], s: Settings) -> list[Row]:
 def _make_buffer(job: Path) -> Path:
     from sensaov_cli.progress import Progress
     from sensaov_cli.run import run_job
-    from sensaov_cli.spec.job import load_job
+    from sensaov_cli.spec.load import load_job
 
     return run_job(load_job(job), allow_python=False, progress=Progress(quiet=True)).buffer_path
 
@@ -117,7 +117,7 @@ def _make_buffer(job: Path) -> Path:
 def _view(job: Path, buffer_path: Path, beauty_spp: int) -> Callable[[], float]:
     from sensaov_cli.progress import Progress
     from sensaov_cli.project import project_job
-    from sensaov_cli.spec.job import load_job
+    from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
 
@@ -138,7 +138,7 @@ def _trace(job: Path, vis_spp: int) -> Callable[[], float]:
     """``visibility.trace`` alone on the inspection camera, the pass a view is built on."""
     from sensaov_cli.render.scene import load_scene
     from sensaov_cli.render.visibility import trace
-    from sensaov_cli.spec.job import load_job
+    from sensaov_cli.spec.load import load_job
 
     loaded = load_scene(load_job(job), with_inspection_cameras=True)
     sensor = loaded.inspection_sensors[CAMERA]

@@ -116,7 +116,7 @@ class Workspace:
         """
         from sensaov_cli.render.scene import load_scene
         from sensaov_cli.render.scene_xml import prepare_scene_xml
-        from sensaov_cli.spec.job import load_job
+        from sensaov_cli.spec.load import load_job
 
         spec = load_job(job_path)
         prepared = prepare_scene_xml(

@@ -13,7 +13,7 @@ from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, SpecError
 from sensaov_cli.render.fdcheck import GradientCheck, check_gradients
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.scene import load_scene
-from sensaov_cli.spec.job import JobSpec, ObjectiveSpec
+from sensaov_cli.spec.model import JobSpec, ObjectiveSpec
 
 DEFAULT_SEEDS = 6
 

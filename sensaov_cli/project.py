@@ -24,7 +24,7 @@ from sensaov_cli.render.beauty import render_beauty
 from sensaov_cli.render.scene import LoadedScene, load_scene
 from sensaov_cli.render.scene_xml import scene_fingerprint
 from sensaov_cli.render.visibility import trace
-from sensaov_cli.spec.job import CameraSpec, JobSpec
+from sensaov_cli.spec.model import CameraSpec, JobSpec
 from sensaov_cli.views.channels import ChannelValues, channel_values
 from sensaov_cli.views.coverage import VisibilityPass, ranked
 from sensaov_cli.views.encoding import (
@@ -35,7 +35,7 @@ from sensaov_cli.views.encoding import (
 )
 
 DEFAULT_BEAUTY_SPP = 4  # a quick reference for the compositor; it is a full path trace
-OBJECTIVE_CAMERA = CameraSpec("objective", None, None, 40.0, None, True, 16)
+OBJECTIVE_CAMERA = CameraSpec("objective", objective=True)
 
 
 @dataclass(frozen=True)

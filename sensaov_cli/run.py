@@ -23,7 +23,7 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, run_adjoint
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.scene import LoadedScene, load_scene
-from sensaov_cli.spec.job import JobSpec
+from sensaov_cli.spec.model import JobSpec
 
 BUFFER_NAME = "buffer.npz"
 PRIMAL_NAME = "primal.exr"

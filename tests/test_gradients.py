@@ -23,7 +23,7 @@ from sensaov_cli.render.fdcheck import check_gradients, check_parameter
 from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
 from sensaov_cli.render.scene import LoadedScene, load_scene
 from sensaov_cli.render.trust import CHECKED_IN_TESTS, KNOWN_BIASED
-from sensaov_cli.spec.job import load_job
+from sensaov_cli.spec.load import load_job
 
 SAME_SEED_TOLERANCE = 2e-3
 

@@ -202,7 +202,7 @@ def test_a_stop_requested_during_a_kernel_writes_nothing(
     from sensaov_cli import interrupts
     from sensaov_cli.progress import Progress
     from sensaov_cli.run import run_job
-    from sensaov_cli.spec.job import load_job
+    from sensaov_cli.spec.load import load_job
 
     job = job_writer("stopped")
     monkeypatch.setattr(interrupts, "_requested", __import__("threading").Event())

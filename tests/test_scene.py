@@ -11,7 +11,7 @@ import pytest
 from sensaov_cli.errors import SceneError
 from sensaov_cli.render.scene import LoadedScene, load_scene
 from sensaov_cli.render.scene_xml import prepare_scene_xml
-from sensaov_cli.spec.job import load_job
+from sensaov_cli.spec.load import load_job
 
 SPLIT_WHITE = ("back_wall", "ceiling", "floor", "light")
 

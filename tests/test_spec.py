@@ -9,14 +9,13 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any
 
 import pytest
 import yaml
 
 from sensaov_cli.errors import EXIT_BAD_INPUT, SpecError
-from sensaov_cli.spec.job import (
-    SUPPORTED_VERSIONS,
+from sensaov_cli.spec.load import SUPPORTED_VERSIONS, job_schema, load_job
+from sensaov_cli.spec.model import (
     CameraSpec,
     ChannelSpec,
     JobSpec,
@@ -24,8 +23,6 @@ from sensaov_cli.spec.job import (
     ObjectiveSpec,
     ParameterSpec,
     RenderSpec,
-    job_schema,
-    load_job,
 )
 
 from .spec_cases import CASE_PARAMS, SpecCase, expected_where, write_fixture
@@ -96,14 +93,6 @@ objectives:
 
 
 def expected_full_job(root: Path) -> JobSpec:
-    def objective(name: str, kind: str, **fields: Any) -> ObjectiveSpec:
-        bare = ObjectiveSpec(name, kind, None, None, None, None, None)
-        return dataclasses.replace(bare, **fields)
-
-    def channel(name: str, kind: str, **fields: Any) -> ChannelSpec:
-        plain = ChannelSpec(name, kind, None, None, "value", "signed", "l2", "none", "none")
-        return dataclasses.replace(plain, **fields)
-
     overhead = LookAt((0.0, 3.0, 3.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0))
     return JobSpec(
         path=root / "job.yaml",
@@ -113,30 +102,24 @@ def expected_full_job(root: Path) -> JobSpec:
         render=RenderSpec(spp=8, max_depth=-1, seed=3, resolution=(64, 48)),
         parameters=ParameterSpec(("*.reflectance.*",), ("*.emitter.*",), "keep"),
         objective_camera=CameraSpec(
-            "objective",
-            None,
-            LookAt((0.0, 1.0, 5.0), (0.0, 1.0, 0.0), (0.0, 1.0, 0.0)),
-            35.0,
-            None,
-            False,
-            16,
+            "objective", look_at=LookAt((0.0, 1.0, 5.0), (0.0, 1.0, 0.0), (0.0, 1.0, 0.0)), fov=35.0
         ),
         objectives=(
-            objective("mean_luma", "mean_luminance"),
-            objective("centre", "region_luminance", region=(0.25, 0.25, 0.75, 0.75)),
-            objective("masked", "region_luminance", mask=root / "mask.exr"),
-            objective("match", "l2_to_target", target=root / "target.exr"),
-            objective("custom", "python", function="mymodule:objective", path=root / "pydir"),
+            ObjectiveSpec("mean_luma", "mean_luminance"),
+            ObjectiveSpec("centre", "region_luminance", region=(0.25, 0.25, 0.75, 0.75)),
+            ObjectiveSpec("masked", "region_luminance", mask=root / "mask.exr"),
+            ObjectiveSpec("match", "l2_to_target", target=root / "target.exr"),
+            ObjectiveSpec("custom", "python", function="mymodule:objective", path=root / "pydir"),
         ),
         inspection_cameras=(
-            CameraSpec("overhead", None, overhead, 40.0, (256, 256), False, 16),
-            CameraSpec("side", "sensor2", None, 40.0, None, False, 4),
-            CameraSpec("objective", None, None, 40.0, (32, 32), True, 16),
+            CameraSpec("overhead", look_at=overhead, resolution=(256, 256)),
+            CameraSpec("side", sensor="sensor2", vis_spp=4),
+            CameraSpec("objective", resolution=(32, 32), objective=True),
         ),
         channels=(
-            channel("objects", "object"),
-            channel("rough", "type", types=("roughness",), aggregate="rms"),
-            channel(
+            ChannelSpec("objects", "object"),
+            ChannelSpec("rough", "type", types=("roughness",), aggregate="rms"),
+            ChannelSpec(
                 "refl",
                 "select",
                 select="*.reflectance.*",
@@ -159,8 +142,9 @@ def test_defaults(tmp_path: Path) -> None:
     spec = load_job(write_fixture(tmp_path, MINIMAL_JOB))
     assert spec.variant == "auto"
     assert spec.render == RenderSpec(spp=64, max_depth=6, seed=0, resolution=None)
-    assert spec.parameters == ParameterSpec(("*",), (), "split")
-    assert spec.objective_camera == CameraSpec("objective", None, None, 40.0, None, False, 16)
+    assert spec.render == RenderSpec()
+    assert spec.parameters == ParameterSpec(("*",), (), "split") == ParameterSpec()
+    assert spec.objective_camera == CameraSpec("objective")
     assert spec.inspection_cameras == ()
     assert [(c.name, c.kind, c.types, c.select) for c in spec.channels] == [
         ("objects", "object", None, None),
@@ -177,7 +161,7 @@ def test_sensor_objective_camera_and_python_path_default(tmp_path: Path) -> None
     text = MINIMAL_JOB.replace("objectives:", "objective_camera: sensor2\nobjectives:")
     text += "  - name: mine\n    type: python\n    function: pkg.mod:fn\n"
     spec = load_job(write_fixture(tmp_path, text))
-    assert spec.objective_camera == CameraSpec("objective", "sensor2", None, 40.0, None, False, 16)
+    assert spec.objective_camera == CameraSpec("objective", sensor="sensor2")
     assert spec.objectives[1].path == tmp_path
     assert spec.objectives[1].definition() == {
         "name": "mine",
@@ -191,6 +175,13 @@ def test_specs_are_frozen(tmp_path: Path) -> None:
     spec = load_job(write_fixture(tmp_path, MINIMAL_JOB))
     with pytest.raises(dataclasses.FrozenInstanceError):
         spec.render.spp = 1  # type: ignore[misc]
+
+
+def test_a_spec_built_in_code_keeps_the_checks_of_a_job_file() -> None:
+    with pytest.raises(ValueError, match="target must differ from origin"):
+        LookAt((1.0, 2.0, 3.0), (1.0, 2.0, 3.0), (0.0, 1.0, 0.0))
+    with pytest.raises(ValueError, match="exactly one of region or mask"):
+        ObjectiveSpec("centre", "region_luminance")
 
 
 def test_to_dict_is_canonical_json(tmp_path: Path) -> None:
@@ -299,8 +290,8 @@ def test_the_documented_example_is_valid(tmp_path: Path) -> None:
     ]
 
 
-def test_spec_module_does_not_import_the_renderer() -> None:
-    code = "import sys, sensaov_cli.spec.job\n"
+def test_the_loader_does_not_import_the_renderer() -> None:
+    code = "import sys, sensaov_cli.spec.load\n"
     code += "print(sorted({'mitsuba', 'drjit'} & set(sys.modules)))"
     repo = Path(__file__).resolve().parents[1]
     result = subprocess.run(

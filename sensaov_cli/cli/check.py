@@ -60,7 +60,7 @@ def check(
 
     from sensaov_cli.check import check_job, exit_code
     from sensaov_cli.outputs.tables import checks_text
-    from sensaov_cli.spec.job import load_job
+    from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
     results = check_job(

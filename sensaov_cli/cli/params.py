@@ -35,7 +35,7 @@ def params(job: Path, as_json: bool, show_all: bool) -> None:
     """
     from sensaov_cli.outputs.tables import params_dict, params_text
     from sensaov_cli.render.scene import load_scene
-    from sensaov_cli.spec.job import load_job
+    from sensaov_cli.spec.load import load_job
 
     loaded = load_scene(load_job(job))
     if as_json:

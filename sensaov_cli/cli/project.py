@@ -69,7 +69,7 @@ def project(
 
     from sensaov_cli.progress import Progress
     from sensaov_cli.project import project_job
-    from sensaov_cli.spec.job import load_job
+    from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
     views = project_job(

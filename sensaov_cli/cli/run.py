@@ -40,7 +40,7 @@ def run(job: Path, as_json: bool, quiet: bool, top: int, allow_python: bool) -> 
     from sensaov_cli.outputs.tables import summary_text
     from sensaov_cli.progress import Progress
     from sensaov_cli.run import run_job
-    from sensaov_cli.spec.job import load_job
+    from sensaov_cli.spec.load import load_job
     from sensaov_cli.views.summary import summary_dict
 
     spec = load_job(job)

@@ -19,7 +19,7 @@ def validate(job: Path) -> None:
     Example:
       sensaov validate configs/cbox.yaml
     """
-    from sensaov_cli.spec.job import load_job
+    from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
     names = ", ".join(o.name for o in spec.objectives)

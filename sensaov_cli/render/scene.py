@@ -20,7 +20,7 @@ from sensaov_cli.errors import SceneError
 from sensaov_cli.render.runtime import import_mitsuba
 from sensaov_cli.render.scene_xml import prepare_scene_xml, scene_fingerprint
 from sensaov_cli.render.trust import verification_status
-from sensaov_cli.spec.job import JobSpec
+from sensaov_cli.spec.model import JobSpec
 
 # The slot a parameter fills, whatever its storage ("white.reflectance.value" and
 # "wall.bsdf.reflectance.data" are both reflectance): the paper's horizontal cut.

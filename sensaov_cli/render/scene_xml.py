@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sensaov_cli.errors import SceneError
-from sensaov_cli.spec.job import CameraSpec
+from sensaov_cli.spec.model import CameraSpec
 
 OBJECTIVE_SENSOR_ID = "sensaov_objective"
 _NAMED_TAGS = ("shape", "emitter", "bsdf", "texture", "sensor", "medium")

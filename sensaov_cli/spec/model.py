@@ -1,0 +1,311 @@
+"""The job as the pipeline sees it: frozen dataclasses, one per concept, standard library only.
+
+Every field of the job format is defined here once: name, type and default, and in its
+``Annotated`` metadata the range, wording and description a job file must respect
+(:mod:`.fields`, :mod:`.markers`). :func:`sensaov_cli.spec.load.load_job` validates a job file
+straight into these classes; importing them loads neither pydantic nor PyYAML, so views and
+outputs name them freely.
+
+A class a job file writes in several shapes keeps one field that tells them apart
+(``ObjectiveSpec.type``, ``ChannelSpec.kind``; a camera's kind is the key that picks it), and
+a field marked ``In`` is a key of the named shapes only. In a job file, null is accepted only
+where it is the default: a key written null means the key left out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from annotated_types import Ge, Lt
+
+from sensaov_cli.spec.fields import (
+    STRICT,
+    Fov,
+    Function,
+    Globs,
+    JobDir,
+    JobFile,
+    MaxDepth,
+    Name,
+    OutputDir,
+    Problem,
+    Region,
+    Resolution,
+    Text,
+    TrueFlag,
+    Vector,
+    VisSpp,
+    unique_names,
+)
+from sensaov_cli.spec.markers import (
+    After,
+    Doc,
+    Given,
+    In,
+    MinItems,
+    Section,
+    SensorOrPlaced,
+    Tagged,
+    TaggedByKey,
+)
+from sensaov_cli.vocabulary import Aggregate, Normalize, Sign, Tonemap, Weight
+
+Variant = Literal[
+    "auto",
+    "llvm_ad_rgb",
+    "cuda_ad_rgb",
+    "llvm_ad_mono",
+    "cuda_ad_mono",
+    "llvm_ad_spectral",
+    "cuda_ad_spectral",
+]
+ObjectiveType = Literal["mean_luminance", "region_luminance", "l2_to_target", "python"]
+ChannelKind = Literal["object", "type", "select"]
+# The shapes of a camera: an inspection camera's, named by the key that picks its kind, and
+# the mapping that places the objective camera.
+LOOK_AT, SENSOR, OBJECTIVE, PLACED = "look_at", "sensor", "objective", "placed"
+INSPECTION = (LOOK_AT, SENSOR, OBJECTIVE)
+
+
+@dataclass(frozen=True)
+class RenderSpec(Section):
+    """How the objective camera's image is rendered and differentiated."""
+
+    spp: Annotated[int, STRICT, Ge(1), Lt(2**32), Doc("Samples per pixel (32-bit).")] = 64
+    max_depth: Annotated[MaxDepth, Doc("Longest path; -1 = unbounded.")] = 6
+    seed: Annotated[int, STRICT, Ge(0), Lt(2**31), Doc("Sampler seed.")] = 0
+    resolution: Annotated[
+        Resolution | None,
+        Doc("[width, height] of the objective render; null = its film's size."),
+    ] = None
+    deterministic: Annotated[
+        bool,
+        STRICT,
+        Doc(
+            "Byte-identical buffers for the same job and seed. On the CPU backend the "
+            "backward passes then run on one thread (parallel atomic adds sum in varying order)."
+        ),
+    ] = True
+
+
+@dataclass(frozen=True)
+class ParameterSpec(Section):
+    """Which scene parameters are differentiated."""
+
+    include: Annotated[Globs, MinItems(1), Doc("fnmatch globs over parameter keys to select.")] = (
+        "*",
+    )
+    exclude: Annotated[Globs, Doc("Globs removed from the selection.")] = ()
+    shared: Annotated[
+        Literal["split", "keep"],
+        Doc(
+            "split: copy a BSDF shared by several shapes into each, so each "
+            "object gets its own gradient; keep: leave shared BSDFs shared."
+        ),
+    ] = "split"
+
+
+@dataclass(frozen=True)
+class LookAt(Section):
+    """A camera placed at origin, looking at target, with up pointing up."""
+
+    origin: Vector
+    target: Vector
+    up: Vector
+
+    def __post_init__(self) -> None:
+        view = [t - o for t, o in zip(self.target, self.origin, strict=True)]
+        if not any(view):
+            raise Problem("target must differ from origin", at=("target",))
+        # The camera frame is built from up x (target - origin); parallel vectors give NaNs.
+        ux, uy, uz = self.up
+        vx, vy, vz = view
+        cross = (uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+        if math.hypot(*cross) <= 1e-9 * math.hypot(*view) * max(math.hypot(*self.up), 1e-300):
+            raise Problem("up must not be zero or parallel to target - origin", at=("up",))
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """A camera: a scene sensor, a look_at camera, or (inspection only) the objective camera.
+
+    The objective camera is named "objective"; with neither sensor nor look_at it is the
+    scene's first sensor.
+    """
+
+    name: Annotated[Name, In(*INSPECTION), Doc("Unique among inspection cameras; the EXR name.")]
+    sensor: Annotated[
+        Text | None, In(SENSOR, required=True), Doc("Id of a sensor in the scene.")
+    ] = None
+    look_at: Annotated[LookAt | None, In(LOOK_AT, PLACED, required=True)] = None
+    fov: Annotated[Fov, In(LOOK_AT, PLACED)] = 40.0
+    resolution: Annotated[
+        Resolution | None,
+        In(LOOK_AT, default=(256, 256), doc="[width, height]."),
+        In(SENSOR, doc="null = the sensor's film."),
+        In(OBJECTIVE, doc="null = the objective camera's resolution."),
+        In(PLACED, doc="[width, height]; null = 256 x 256. render.resolution overrides it."),
+    ] = None
+    objective: Annotated[TrueFlag, In(OBJECTIVE, required=True), Doc("The objective camera.")] = (
+        False
+    )
+    vis_spp: Annotated[VisSpp, In(*INSPECTION)] = 16
+
+
+@dataclass(frozen=True)
+class ObjectiveSpec:
+    """A scalar of the rendered image whose derivatives are computed."""
+
+    name: Annotated[Name, Doc("Unique among objectives.")]
+    type: ObjectiveType
+    region: Annotated[
+        Region | None, In("region_luminance"), Doc("[x0, y0, x1, y1], normalised, y down.")
+    ] = None
+    mask: Annotated[
+        JobFile | None, In("region_luminance"), Doc("Mask image, relative to the job.")
+    ] = None
+    target: Annotated[
+        JobFile | None, In("l2_to_target", required=True), Doc("Target image, relative to the job.")
+    ] = None
+    function: Annotated[Function | None, In("python", required=True), Doc("'module:function'.")] = (
+        None
+    )
+    path: Annotated[
+        JobDir, In("python"), Doc("Put on sys.path; null = the job file's directory.")
+    ] = None
+
+    def __post_init__(self) -> None:
+        if self.type == "region_luminance" and (self.region is None) == (self.mask is None):
+            both = self.region is not None
+            raise Problem(
+                "give exactly one of region or mask" + (", not both" if both else ""),
+                at=("mask",) if both else (),
+            )
+
+    def definition(self) -> dict[str, Any]:
+        """The objective as written down in outputs: its non-None fields, JSON-able."""
+        fields = _jsonable(dataclasses.asdict(self), None)
+        return {key: value for key, value in fields.items() if value is not None}
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """A sensitivity image layer: a selection of parameters, aggregated and encoded."""
+
+    name: Annotated[Name, Doc("Unique among channels; the EXR layer name.")]
+    kind: ChannelKind
+    types: Annotated[
+        Annotated[tuple[Text, ...], MinItems(1)] | None,
+        In("type"),
+        Doc("Parameter types to show; null = all present."),
+    ] = None
+    select: Annotated[
+        Text | None, In("select", required=True), Doc("fnmatch glob over parameter keys.")
+    ] = None
+    weight: Weight = "value"
+    sign: Sign = "signed"
+    aggregate: Aggregate = "l2"
+    tonemap: Tonemap = "none"
+    normalize: Normalize = "none"
+
+
+def _inspection_name(camera: CameraSpec) -> CameraSpec:
+    if camera.name in ("primal", "buffer"):  # <output>/<camera>.exr must not clobber run's files
+        raise Problem(
+            f"the name {camera.name!r} is reserved: 'sensaov run' writes {camera.name} files",
+            at=("name",),
+            hint="choose another name",
+        )
+    if camera.name == "objective" and not camera.objective:
+        raise Problem(
+            "the name 'objective' is reserved for the objective camera",
+            at=("name",),
+            hint="use 'objective: true' to mean that camera, or choose another name",
+        )
+    return camera
+
+
+Objective = Annotated[
+    ObjectiveSpec, Tagged("type", "a mapping with name and type", noun="Objective")
+]
+Channel = Annotated[ChannelSpec, Tagged("kind", "a mapping with name and kind", noun="Channel")]
+InspectionCamera = Annotated[
+    CameraSpec,
+    TaggedByKey(
+        INSPECTION,
+        owners=(" for a look_at camera", " for a sensor camera", " for the objective camera"),
+        expects="a mapping with name and one of look_at, sensor or objective",
+        missing="an inspection camera needs one of look_at, sensor or objective: true",
+        clash="an inspection camera takes only one of look_at, sensor or objective; "
+        "this one also has {}",
+        noun="Inspection",
+    ),
+    After(_inspection_name),
+]
+
+
+@dataclass(frozen=True, kw_only=True)
+class JobSpec(Section):
+    """A sensaov job: which scene, which objectives, which views of their sensitivities."""
+
+    path: Annotated[Path, Given("job")]  # the job file itself
+    version: Annotated[Literal[1], Doc("Job format version.")]
+    scene: Annotated[JobFile, Doc("Mitsuba scene XML, relative to the job.")]
+    variant: Annotated[Variant, Doc("Mitsuba variant; auto picks one.")] = "auto"
+    render: RenderSpec = RenderSpec()
+    parameters: ParameterSpec = ParameterSpec()
+    objective_camera: Annotated[
+        CameraSpec,
+        SensorOrPlaced(PLACED, name="objective"),
+        Doc("Sensor id or look_at camera; null = the scene's first sensor."),
+    ]
+    objectives: Annotated[
+        tuple[Objective, ...],
+        MinItems(1),
+        unique_names("objective", "objectives"),
+        Doc("What to differentiate; one backward pass each."),
+    ]
+    inspection_cameras: Annotated[
+        tuple[InspectionCamera, ...],
+        unique_names("inspection camera", "inspection_cameras"),
+        Doc("Extra views the sensitivities are shown from."),
+    ] = ()
+    channels: Annotated[tuple[Channel, ...], unique_names("channel", "channels")] = (
+        ChannelSpec("objects", "object"),
+        ChannelSpec("types", "type"),
+    )
+    output: Annotated[
+        OutputDir, Doc("Output directory, relative to the job; null = out/<job stem>.")
+    ]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The whole spec as a canonical JSON-able dict (absolute paths as strings)."""
+        result: dict[str, Any] = _jsonable(dataclasses.asdict(self), None)
+        return result
+
+    def job_hash(self) -> str:
+        """sha256 of the spec without ``path``, its paths relative to the job's directory.
+
+        Relative paths make the hash survive moving or copying a project directory: the
+        same job next to the same files hashes the same wherever it lies.
+        """
+        fields = _jsonable(dataclasses.asdict(self), self.path.parent)
+        del fields["path"]
+        return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
+
+
+def _jsonable(value: Any, relative_to: Path | None) -> Any:
+    if isinstance(value, dict):
+        return {key: _jsonable(item, relative_to) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(item, relative_to) for item in value]
+    if isinstance(value, Path):
+        return str(value) if relative_to is None else os.path.relpath(value, relative_to)
+    return value
