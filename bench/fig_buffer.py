@@ -26,7 +26,7 @@ def make_buffer(side: int) -> SensitivityBuffer:
     rng = np.random.default_rng(0)
     shape = (side, side, 3)
     key = "wall.reflectance.data"
-    param = ParamRecord(key, "reflectance", ("wall",), shape, True, "diffuse", (), True, "")
+    param = ParamRecord(key, "reflectance", ("wall",), shape, True, "diffuse", (), "verified", "")
     objective = ObjectiveRecord("mean_luma", {"type": "mean_luminance"}, 0.5, 1)
     return SensitivityBuffer(
         provenance={"tool": "bench"},

@@ -11,7 +11,7 @@ OVERHEAD = (
     "sensaov's extra time is a fixed cost per process (the Δ in each case), so it weighs most "
     "on small jobs. A one-off profile of `sensaov run` (cbox 256², 32 spp) when this bench was "
     "written (re-checked at commit 2c743b7) put it at: importing the job-spec models "
-    "(`sensaov_cli.spec.job`, pydantic) ≈ 0.11 s; "
+    "(`sensaov_cli.spec`, pydantic) ≈ 0.11 s; "
     "click, PyYAML, OpenEXR and sensaov's own modules ≈ 0.05–0.08 s; loading the job, "
     "preparing the scene, writing buffer.npz, primal.exr and the summary ≈ 0.05 s; interpreter "
     "exit ≈ 0.06 s longer than the script's. The passes themselves cost the same on both sides "

@@ -27,12 +27,7 @@ from sensaov_cli.render.visibility import trace
 from sensaov_cli.spec.model import CameraSpec, JobSpec
 from sensaov_cli.views.channels import ChannelValues, channel_values
 from sensaov_cli.views.coverage import VisibilityPass, ranked
-from sensaov_cli.views.encoding import (
-    Encoding,
-    choose_scale,
-    encode_image,
-    signed_object_values,
-)
+from sensaov_cli.views.painting import paint_pass
 
 DEFAULT_BEAUTY_SPP = 4  # a quick reference for the compositor; it is a full path trace
 OBJECTIVE_CAMERA = CameraSpec("objective", objective=True)
@@ -80,7 +75,7 @@ def project_job(
 
 def _check_fingerprint(job: JobSpec, buffer: SensitivityBuffer, path: Path, force: bool) -> None:
     recorded = buffer.provenance.get("scene_fingerprint")
-    if recorded != scene_fingerprint(job.scene) and not force:
+    if recorded != scene_fingerprint(job.scene, job.scene_args) and not force:
         raise FingerprintMismatch(
             f"the buffer was made from another version of {job.scene.name} (fingerprint differs)",
             where=str(path),
@@ -176,33 +171,25 @@ def _material_cryptomatte(visibility: VisibilityPass, materials: dict[str, str])
 def _layer(
     values: ChannelValues, visibility: VisibilityPass, buffer_path: Path, camera: CameraSpec
 ) -> tuple[SensitivityLayer, float]:
-    """The encoded pass and the value at which its preview saturates (same for every camera)."""
-    encoding = Encoding.from_channel(values.spec)
-    names = visibility.objects
-    per_object = signed_object_values(
-        dict(zip(names, values.magnitudes, strict=True)),
-        dict(zip(names, values.signed_sums, strict=True)),
-        encoding.sign,
-    )
-    painted = visibility.paint(np.array([per_object[name] for name in names]))
-    scale = choose_scale(encoding, per_object, painted if encoding.normalize == "channel" else None)
-    data = encode_image(painted, encoding, scale.threshold, scale.scale)
-    peak = choose_scale(replace(encoding, normalize="shared"), per_object).scale
-    preview_scale = 1.0 if encoding.normalize == "channel" else peak / scale.scale
+    """The encoded pass and the value at which its preview saturates in this camera."""
+    painted = paint_pass(values, visibility)
+    encoding = painted.encoding
     metadata = {
         "selection": values.selection,
         "aggregate": encoding.aggregate,
         "weight": encoding.weight,
         "encoding": encoding.describe(),
-        "scale": scale.describe(),
+        "scale": painted.scale.describe(),
         "spp": str(visibility.spp),
         "buffer": str(buffer_path),
         "camera": camera.name,
         "keys": json.dumps(list(values.keys)),
         "unverified": json.dumps(list(values.unverified)),
+        "invisible": json.dumps(list(painted.invisible)),
         "original_name": f"{values.objective}.{values.pass_name}",
     }
-    return SensitivityLayer(values.objective, values.pass_name, data, metadata), preview_scale
+    layer = SensitivityLayer(values.objective, values.pass_name, painted.data, metadata)
+    return layer, painted.preview_scale
 
 
 def _attributes(

@@ -23,6 +23,7 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, run_adjoint
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.scene import LoadedScene, load_scene
+from sensaov_cli.render.scene_xml import check_cameras
 from sensaov_cli.spec.model import JobSpec
 
 BUFFER_NAME = "buffer.npz"
@@ -39,6 +40,7 @@ class RunOutputs:
 def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutputs:
     started = time.perf_counter()
     check_writable(job.output, [BUFFER_NAME, PRIMAL_NAME])
+    check_cameras(job)  # an unknown inspection camera fails here, not after the render
     with progress.stage("load_s", f"loading {job.scene.name}"):
         loaded = load_scene(job)
     if not loaded.selected:
@@ -46,6 +48,12 @@ def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutpu
             "no scene parameter is selected: there is nothing to differentiate",
             where=f"{job.path}: parameters",
             hint="'sensaov params JOB' lists every key and why it was left out",
+        )
+    scene_spp = loaded.scene_sample_count
+    if scene_spp is not None and scene_spp != job.render.spp:
+        progress.note(
+            f"the scene's sampler asks for {scene_spp} spp; rendering with the job's "
+            f"render.spp = {job.render.spp} (both are recorded in the buffer)"
         )
     width, height = loaded.resolution
     progress.note(
@@ -92,7 +100,7 @@ def _make_buffer(
     return SensitivityBuffer(
         provenance=provenance,
         objects=loaded.objects,
-        params=loaded.selected,
+        params=result.params,  # the selected records, labelled by the run's self-checks
         objectives=objectives,
         values=result.values,
         grads=result.grads,
@@ -116,7 +124,10 @@ def _provenance(
         "job": job.to_dict(),
         "scene_path": str(job.scene),
         "scene_fingerprint": loaded.fingerprint,
+        "scene_args": dict(loaded.scene_args),  # every $name the scene used, as substituted
+        "scene_sample_count": loaded.scene_sample_count,  # the scene's spp; the job's renders
         "integrator": "prb",
+        **result.provenance,  # which integrator differentiated what; the self-checks' figures
         "max_depth": job.render.max_depth,
         "spp": job.render.spp,
         "primal_seed": job.render.seed,

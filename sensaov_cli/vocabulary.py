@@ -1,4 +1,4 @@
-"""The words a job, a query and an encoding share, each list defined once.
+"""The words a job, a query, an encoding and a buffer share, each list defined once.
 
 The spec validates against these ``Literal`` types (and the JSON Schema lists them), the
 queries and the encoding check their arguments against the tuples, and the CLI offers the
@@ -15,6 +15,10 @@ Aggregate = Literal["l2", "rms", "sum"]
 Tonemap = Literal["none", "log", "symlog"]
 Normalize = Literal["none", "channel", "shared"]
 Grouping = Literal["param", "object", "type"]
+# How far a stored gradient can be trusted (docs/verification.md): checked against finite
+# differences | not checked | known to be wrong | identically 0 (never ranked) | failed a
+# run-time self-check.
+Trust = Literal["verified", "unverified", "biased", "no_gradient", "suspect"]
 
 WEIGHTS: tuple[str, ...] = get_args(Weight)
 SIGNS: tuple[str, ...] = get_args(Sign)
@@ -22,3 +26,4 @@ AGGREGATES: tuple[str, ...] = get_args(Aggregate)
 TONEMAPS: tuple[str, ...] = get_args(Tonemap)
 NORMALIZES: tuple[str, ...] = get_args(Normalize)
 GROUPINGS: tuple[str, ...] = get_args(Grouping)
+TRUSTS: tuple[str, ...] = get_args(Trust)

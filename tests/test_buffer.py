@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import os
@@ -30,11 +31,11 @@ REPO = Path(__file__).resolve().parents[1]
 
 PARAMS = (
     ParamRecord("white.bsdf.reflectance.value", "reflectance", ("white",), (3,), False,
-                "diffuse", (), True, ""),
+                "diffuse", (), "verified", ""),
     ParamRecord("mat.reflectance.data", "reflectance", ("floor", "wall"), (4, 5, 3), True,
-                "diffuse", (), True, ""),
+                "diffuse", (), "verified", ""),
     ParamRecord("floor.bsdf.alpha.value", "roughness", ("floor",), (1,), False,
-                "roughplastic", ("discontinuous",), False, "known biased"),
+                "roughplastic", ("discontinuous",), "biased", "known biased"),
 )  # fmt: skip
 OBJECTIVES = (
     ObjectiveRecord("brightness", {"kind": "mean_luminance", "region": [0, 0, 8, 8]}, 0.25, 7),
@@ -94,6 +95,8 @@ def test_objects_are_sorted_and_records_accessible(buf: SensitivityBuffer) -> No
     assert buf.objects == ("floor", "light", "wall", "white")
     assert buf.types() == ("reflectance", "roughness")
     assert buf.param("floor.bsdf.alpha.value").verified is False
+    assert buf.param("floor.bsdf.alpha.value").trust == "biased"
+    assert buf.param("white.bsdf.reflectance.value").verified is True
     assert buf.objective("contrast").value == -1.5
 
 
@@ -106,7 +109,7 @@ def test_tree_follows_dotted_keys(buf: SensitivityBuffer) -> None:
 def test_tree_keeps_a_parameter_that_is_also_a_prefix() -> None:
     parts = make_parts()
     extra = ParamRecord("floor.bsdf.alpha.value.x", "roughness", ("floor",), (1,), False,
-                        "roughplastic", (), True, "")  # fmt: skip
+                        "roughplastic", (), "verified", "")  # fmt: skip
     parts["params"] = (*PARAMS, extra)
     parts["values"][extra.key] = [0.5]
     for grads in parts["grads"].values():
@@ -172,6 +175,11 @@ def test_inconsistent_buffer_is_refused(spoil) -> None:
     spoil(parts)
     with pytest.raises(BufferContentError):
         SensitivityBuffer(**parts)
+
+
+def test_a_record_refuses_an_unknown_trust_label() -> None:
+    with pytest.raises(BufferContentError, match="trust 'trusted' is not one of"):
+        dataclasses.replace(PARAMS[0], trust="trusted")
 
 
 def test_unknown_objective_suggests_the_closest(buf: SensitivityBuffer) -> None:
@@ -301,6 +309,14 @@ def _bad_record(p: Path) -> None:
     _with_header(p, lambda h: h["params"][0].pop("owners"))
 
 
+def _unknown_label(p: Path) -> None:
+    _with_header(p, lambda h: h["params"][0].update(trust="trusted"))
+
+
+def _version_1_field_in_version_2(p: Path) -> None:
+    _with_header(p, lambda h: h["params"][0].update(verified=True))
+
+
 def _directory(p: Path) -> None:
     p.unlink()
     p.mkdir()
@@ -314,7 +330,8 @@ def _nonexistent(p: Path) -> None:
     "spoil",
     [_empty, _text, _truncated, _bit_flip, _plain_npy, _plain_npz, _foreign_format,
      _unknown_version, _missing_array, _shape_mismatch, _float64_array, _nan_in_file,
-     _bad_record, _directory, _nonexistent, _extra_header_field],
+     _bad_record, _directory, _nonexistent, _extra_header_field, _unknown_label,
+     _version_1_field_in_version_2],
 )  # fmt: skip
 def test_unreadable_file_is_a_buffer_format_error(saved: Path, spoil) -> None:
     spoil(saved)
@@ -326,14 +343,14 @@ def test_unreadable_file_is_a_buffer_format_error(saved: Path, spoil) -> None:
 
 def test_unknown_version_says_so(saved: Path) -> None:
     _unknown_version(saved)
-    with pytest.raises(BufferFormatError, match="version 2 is not supported"):
+    with pytest.raises(BufferFormatError, match=f"version {FORMAT_VERSION + 1} is not supported"):
         SensitivityBuffer.load(saved)
 
 
 # --- the format itself: a change to it must show up here ------------------------------------
 
 
-def test_file_layout_is_version_1(saved: Path) -> None:
+def test_file_layout_is_version_2(saved: Path) -> None:
     with np.load(saved, allow_pickle=False) as npz:
         names = sorted(npz.files)
         header = json.loads(str(npz["header"]))
@@ -343,19 +360,19 @@ def test_file_layout_is_version_1(saved: Path) -> None:
     )
     assert header == {
         "format": "sensaov-buffer",
-        "format_version": 1,
+        "format_version": 2,
         "provenance": {"tool": "sensaov 0.1.0", "spp": 16, "seeds": [1, 2], "scene": "cbox.xml"},
         "objects": ["floor", "light", "wall", "white"],
         "params": [
             {"key": "white.bsdf.reflectance.value", "type": "reflectance", "owners": ["white"],
              "shape": [3], "is_texture": False, "plugin": "diffuse", "flags": [],
-             "verified": True, "note": "", "array": 0},
+             "trust": "verified", "note": "", "array": 0},
             {"key": "mat.reflectance.data", "type": "reflectance", "owners": ["floor", "wall"],
              "shape": [4, 5, 3], "is_texture": True, "plugin": "diffuse", "flags": [],
-             "verified": True, "note": "", "array": 1},
+             "trust": "verified", "note": "", "array": 1},
             {"key": "floor.bsdf.alpha.value", "type": "roughness", "owners": ["floor"],
              "shape": [1], "is_texture": False, "plugin": "roughplastic",
-             "flags": ["discontinuous"], "verified": False, "note": "known biased", "array": 2},
+             "flags": ["discontinuous"], "trust": "biased", "note": "known biased", "array": 2},
         ],
         "objectives": [
             {"name": "brightness", "definition": {"kind": "mean_luminance", "region": [0, 0, 8, 8]},
@@ -366,23 +383,46 @@ def test_file_layout_is_version_1(saved: Path) -> None:
     }  # fmt: skip
 
 
-def test_reads_a_file_written_from_the_spec(tmp_path: Path) -> None:
-    """docs/buffer-format.md is enough to write a buffer without sensaov's writer."""
+def _write_by_hand(path: Path, version: int, label: dict) -> None:
+    """A buffer written from docs/buffer-format.md alone, deflated, big-endian value."""
     header = {
-        "format": FORMAT_NAME, "format_version": 1, "provenance": {}, "objects": ["lamp"],
+        "format": FORMAT_NAME, "format_version": version, "provenance": {}, "objects": ["lamp"],
         "params": [{"key": "lamp.emitter.radiance.value", "type": "radiance", "owners": ["lamp"],
                     "shape": [3], "is_texture": False, "plugin": "area", "flags": [],
-                    "verified": True, "note": "", "array": 0}],
+                    **label, "note": "", "array": 0}],
         "objectives": [{"name": "m", "definition": {}, "value": 1.0, "grad_seed": 0, "array": 0}],
     }  # fmt: skip
-    path = tmp_path / "by-hand.npz"
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         zf.writestr("header.npy", _npy(np.array(json.dumps(header))))
         zf.writestr("value_000000.npy", _npy(np.array([1, 2, 3], ">f4")))
         zf.writestr("grad_000_000000.npy", _npy(np.array([0.5, 0, -1], "<f4")))
+
+
+def test_reads_a_file_written_from_the_spec(tmp_path: Path) -> None:
+    """docs/buffer-format.md is enough to write a buffer without sensaov's writer."""
+    path = tmp_path / "by-hand.npz"
+    _write_by_hand(path, 2, {"trust": "suspect"})
     loaded = SensitivityBuffer.load(path)
     assert loaded.value("lamp.emitter.radiance.value").tolist() == [1, 2, 3]
     assert loaded.grad("m", "lamp.emitter.radiance.value").tolist() == [0.5, 0, -1]
+    assert loaded.param("lamp.emitter.radiance.value").trust == "suspect"
+
+
+@pytest.mark.parametrize(("verified", "trust"), [(True, "verified"), (False, "unverified")])
+def test_reads_a_version_1_file(tmp_path: Path, verified: bool, trust: str) -> None:
+    """Version 1 stored a boolean "verified"; it reads as the label it meant."""
+    path = tmp_path / "v1.npz"
+    _write_by_hand(path, 1, {"verified": verified})
+    record = SensitivityBuffer.load(path).param("lamp.emitter.radiance.value")
+    assert (record.trust, record.verified) == (trust, verified)
+
+
+@pytest.mark.parametrize("label", [{"trust": "verified"}, {"verified": "yes"}])
+def test_version_1_file_with_a_version_2_record_is_refused(tmp_path: Path, label: dict) -> None:
+    path = tmp_path / "v1.npz"
+    _write_by_hand(path, 1, label)
+    with pytest.raises(BufferFormatError, match="params\\[0\\]"):
+        SensitivityBuffer.load(path)
 
 
 def test_plain_numpy_example_in_the_docs_runs(saved: Path, capsys) -> None:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
-from sensaov_cli.buffer.queries import aggregate, per_object, per_type, ranking, select
+from sensaov_cli.buffer.queries import aggregate, per_object, ranking, select
 from sensaov_cli.errors import QueryError, UnknownNameError
 
 A = "a.bsdf.reflectance.value"  # owned by a; value [1, 2], dM/dθ [3, -4] -> θ·dM/dθ [3, -8]
@@ -17,7 +17,7 @@ B = "b.bsdf.alpha.value"  # owned by b; value [2], dM/dθ [-1] -> [-2]
 
 
 def record(key: str, ptype: str, owners: tuple[str, ...], size: int) -> ParamRecord:
-    return ParamRecord(key, ptype, owners, (size,), False, "diffuse", (), True, "")
+    return ParamRecord(key, ptype, owners, (size,), False, "diffuse", (), "verified", "")
 
 
 @pytest.fixture
@@ -100,8 +100,8 @@ def test_per_object_within_a_selection(buf: SensitivityBuffer) -> None:
     assert per_object(buf, "m", keys=keys, method="sum") == {"a": 0.0, "b": -2.0, "c": 0.0}
 
 
-def test_per_type(buf: SensitivityBuffer) -> None:
-    scores = per_type(buf, "m", weight="raw", method="rms")
+def test_ranking_by_type(buf: SensitivityBuffer) -> None:
+    scores = dict(ranking(buf, "m", by="type", weight="raw", method="rms"))
     assert scores == pytest.approx({"reflectance": math.sqrt(29 / 3), "roughness": 1.0})
 
 

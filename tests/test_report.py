@@ -1,4 +1,4 @@
-"""The ranked summary: unverified gradients are always marked, numbers read as promised."""
+"""The ranked summary: every trust label is marked, zeros are never ranked, numbers as promised."""
 
 from __future__ import annotations
 
@@ -9,36 +9,57 @@ import numpy as np
 import pytest
 
 from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
-from sensaov_cli.outputs.tables import UNVERIFIED_MARK, summary_text
+from sensaov_cli.outputs.tables import (
+    NO_GRADIENT_MARK,
+    SUSPECT_MARK,
+    UNVERIFIED_MARK,
+    params_dict,
+    params_text,
+    summary_text,
+)
 from sensaov_cli.views.summary import summary_dict
 
 BIASED = "known biased: roughplastic alpha gradient ~5x too small"
+ALPHA, WALL = "floor.bsdf.alpha.value", "wall.bsdf.reflectance.value"
+LAMP = "lamp.emitter.radiance.value"
+GOLD = "gold.bsdf.eta.value"
+NO_FLOW = "smooth (delta) BSDF lobe: prb differentiates BSDFs through eval()"
 
 
-def make_buffer(alpha_verified: bool = False) -> SensitivityBuffer:
-    note = "" if alpha_verified else BIASED
+def make_buffer(
+    alpha_trust: str = "biased", extra: tuple[ParamRecord, ...] = ()
+) -> SensitivityBuffer:
+    note = "" if alpha_trust == "verified" else BIASED
     params = (
-        ParamRecord("wall.bsdf.reflectance.value", "reflectance", ("wall",), (3,), False,
-                    "diffuse", (), True, ""),
-        ParamRecord("floor.bsdf.alpha.value", "roughness", ("floor",), (1,), False,
-                    "roughplastic", (), alpha_verified, note),
-        ParamRecord("lamp.emitter.radiance.value", "radiance", ("lamp",), (3,), False,
-                    "area", (), True, ""),
+        ParamRecord(WALL, "reflectance", ("wall",), (3,), False, "diffuse", (), "verified", ""),
+        ParamRecord(ALPHA, "roughness", ("floor",), (1,), False, "roughplastic", (),
+                    alpha_trust, note),
+        ParamRecord(LAMP, "radiance", ("lamp",), (3,), False, "area", (), "verified", ""),
+        *extra,
     )  # fmt: skip
     values = {p.key: np.ones(p.shape, np.float32) for p in params}
     grads = {
-        "wall.bsdf.reflectance.value": np.array([1e-3, 2e-3, 2e-3], np.float32),  # l2 3e-3
-        "floor.bsdf.alpha.value": np.array([-0.5], np.float32),
-        "lamp.emitter.radiance.value": np.array([0.0, 0.0, 4e-2], np.float32),
+        WALL: np.array([1e-3, 2e-3, 2e-3], np.float32),  # l2 3e-3
+        ALPHA: np.array([-0.5], np.float32),
+        LAMP: np.array([0.0, 0.0, 4e-2], np.float32),
+        **{p.key: np.zeros(p.shape, np.float32) for p in extra},
     }
+    objects = ("wall", "floor", "lamp", "ceiling", *(o for p in extra for o in p.owners))
     return SensitivityBuffer(
         provenance={"scene_path": "scenes/cbox.xml", "variant": "llvm_ad_rgb", "spp": 16},
-        objects=("wall", "floor", "lamp", "ceiling"),
+        objects=tuple(dict.fromkeys(objects)),
         params=params,
         objectives=(ObjectiveRecord("brightness", {"kind": "mean_luminance"}, 0.125, 3),),
         values=values,
         grads={"brightness": grads},
     )
+
+
+def with_gold_ball() -> SensitivityBuffer:
+    """The buffer plus a gold ball whose only parameter gets no gradient."""
+    gold = ParamRecord(GOLD, "eta", ("gold_ball",), (3,), False, "conductor", (),
+                       "no_gradient", NO_FLOW)  # fmt: skip
+    return make_buffer(extra=(gold,))
 
 
 @pytest.fixture
@@ -52,34 +73,110 @@ def row_of(text: str, key: str) -> str:
     return row
 
 
+# The text of make_buffer() before trust labels existed: a buffer with no suspect and no
+# zero-gradient parameter must still print exactly this.
+BEFORE_LABELS = """\
+sensitivity buffer: 3 parameters, 4 objects, 1 objective · scene scenes/cbox.xml · variant llvm_ad_rgb · spp 16
+scores: l2 of theta * dM/dtheta over each group's components
+signed: their plain sum; > 0 means increasing the parameter raises M
+
+objective 'brightness'   M = 0.125
+  parameters (top 3 of 3)
+    #        score     signed  type         key                          owners
+    1  !  5.00e-01  -5.00e-01  roughness    floor.bsdf.alpha.value       floor
+    2     4.00e-02  +4.00e-02  radiance     lamp.emitter.radiance.value  lamp
+    3     3.00e-03  +5.00e-03  reflectance  wall.bsdf.reflectance.value  wall
+  objects (top 4 of 4)
+    #        score  object
+    1  !  5.00e-01  floor
+    2     4.00e-02  lamp
+    3     3.00e-03  wall
+    4     0.00e+00  ceiling
+  types
+    #        score  type
+    1  !  5.00e-01  roughness
+    2     4.00e-02  radiance
+    3     3.00e-03  reflectance
+  ! = unverified gradient, do not trust the number:
+      floor.bsdf.alpha.value: known biased: roughplastic alpha gradient ~5x too small
+    objects and types marked ! include such a parameter
+"""  # noqa: E501
+
+
+@pytest.mark.parametrize("trust", ["biased", "unverified"])
+def test_text_without_new_labels_is_unchanged(trust: str) -> None:
+    assert summary_text(make_buffer(trust)) == BEFORE_LABELS
+
+
 def test_unverified_parameter_is_marked_in_text(buf: SensitivityBuffer) -> None:
     text = summary_text(buf)
-    assert UNVERIFIED_MARK in row_of(text, "floor.bsdf.alpha.value").split()
-    assert UNVERIFIED_MARK not in row_of(text, "wall.bsdf.reflectance.value").split()
-    assert f"floor.bsdf.alpha.value: {BIASED}" in text  # the legend gives the reason
+    assert UNVERIFIED_MARK in row_of(text, ALPHA).split()
+    assert UNVERIFIED_MARK not in row_of(text, WALL).split()
+    assert f"{ALPHA}: {BIASED}" in text  # the legend gives the reason
     assert "unverified" in text
 
 
-def test_unverified_parameter_is_false_in_dict(buf: SensitivityBuffer) -> None:
+def test_labels_are_in_the_dict(buf: SensitivityBuffer) -> None:
     (objective,) = summary_dict(buf)["objectives"]
-    verified = {p["key"]: (p["verified"], p["note"]) for p in objective["parameters"]}
-    assert verified["floor.bsdf.alpha.value"] == (False, BIASED)
-    assert verified["wall.bsdf.reflectance.value"] == (True, "")
-    assert {o["name"]: o["verified"] for o in objective["objects"]}["floor"] is False
+    labels = {p["key"]: (p["verified"], p["trust"], p["note"]) for p in objective["parameters"]}
+    assert labels[ALPHA] == (False, "biased", BIASED)
+    assert labels[WALL] == (True, "verified", "")
+    assert {o["name"]: o["trust"] for o in objective["objects"]}["floor"] == "biased"
     assert {t["type"]: t["verified"] for t in objective["types"]}["roughness"] is False
+
+
+def test_suspect_parameter_has_its_own_mark_and_legend() -> None:
+    buf = make_buffer("suspect")
+    text = summary_text(buf)
+    assert SUSPECT_MARK in row_of(text, ALPHA).split()
+    assert SUSPECT_MARK in row_of(summary_text(buf, top=0), "roughness").split()  # its type
+    assert "? = suspect gradient: it failed a run-time self-check:" in text
+    assert UNVERIFIED_MARK + " =" not in text  # nothing unverified here
+
+
+def test_zero_gradient_is_listed_apart_not_ranked() -> None:
+    text = summary_text(with_gold_ball())
+    assert not [line for line in text.splitlines() if re.match(rf"\s+\d+\s.*{GOLD}", line)]
+    assert f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:" in text
+    assert f"      {GOLD} (gold_ball): {NO_FLOW}" in text
+    assert "parameters (top 3 of 3)" in text and "objects (top 4 of 4)" in text
+    assert not re.search(r"^\s+\d+\s.*\b(gold_ball|eta)$", text, re.MULTILINE)
+
+
+def test_zero_gradient_in_json_and_out_of_every_score() -> None:
+    summary = json.loads(json.dumps(summary_dict(with_gold_ball(), top=10)))
+    assert (summary["format"], summary["format_version"]) == ("sensaov-summary", 2)
+    assert summary["counts"]["parameters"] == 4 and summary["counts"]["ranked_parameters"] == 3
+    (objective,) = summary["objectives"]
+    assert [p["key"] for p in objective["no_gradient"]] == [GOLD]
+    assert objective["no_gradient"][0]["note"] == NO_FLOW
+    assert GOLD not in [p["key"] for p in objective["parameters"]]
+    assert "gold_ball" not in [o["name"] for o in objective["objects"]]
+    assert "eta" not in [t["type"] for t in objective["types"]]
+    assert "ceiling" in [o["name"] for o in objective["objects"]]  # owns nothing: still scored
+
+
+def test_an_object_keeps_its_flowing_parameters() -> None:
+    """A zero-gradient parameter leaves its object only when it was the object's last one."""
+    extra = ParamRecord("floor.bsdf.reflectance.value", "reflectance", ("floor",), (3,), False,
+                        "diffuse", (), "no_gradient", NO_FLOW)  # fmt: skip
+    (objective,) = summary_dict(make_buffer(extra=(extra,)))["objectives"]
+    floor = {o["name"]: o for o in objective["objects"]}["floor"]
+    assert floor["score"] == 0.5 and floor["trust"] == "biased"
+    types = {t["type"]: t for t in objective["types"]}
+    assert types["reflectance"]["score"] == pytest.approx(3e-3)  # the wall's only
 
 
 def test_dict_is_json_and_ranked(buf: SensitivityBuffer) -> None:
     summary = json.loads(json.dumps(summary_dict(buf, top=2)))
-    assert (summary["format"], summary["format_version"]) == ("sensaov-summary", 1)
     (objective,) = summary["objectives"]
     assert (objective["name"], objective["value"]) == ("brightness", 0.125)
     assert objective["definition"] == {"kind": "mean_luminance"}
     keys = [p["key"] for p in objective["parameters"]]
-    assert keys == ["floor.bsdf.alpha.value", "lamp.emitter.radiance.value"]
+    assert keys == [ALPHA, LAMP]
     assert objective["parameters"][0]["signed"] == -0.5
     assert [t["type"] for t in objective["types"]] == ["roughness", "radiance", "reflectance"]
-    assert len(objective["objects"]) == 2
+    assert len(objective["objects"]) == 2 and objective["no_gradient"] == []
 
 
 def test_scores_have_three_significant_digits(buf: SensitivityBuffer) -> None:
@@ -101,7 +198,7 @@ def test_text_names_the_objective_and_provenance(buf: SensitivityBuffer) -> None
 
 
 def test_no_mark_and_no_legend_when_all_verified() -> None:
-    text = summary_text(make_buffer(alpha_verified=True))
+    text = summary_text(make_buffer("verified"))
     assert "unverified" not in text
     assert UNVERIFIED_MARK not in text.replace("!=", "")
 
@@ -110,3 +207,37 @@ def test_groups_stay_marked_when_the_parameter_is_not_shown(buf: SensitivityBuff
     text = summary_text(buf, top=0)
     assert UNVERIFIED_MARK in row_of(text, "roughness").split()
     assert "includes a parameter whose gradient is unverified" in text
+
+
+def test_a_suspect_group_outranks_an_unverified_one() -> None:
+    suspect = ParamRecord("floor.bsdf.k.value", "k", ("floor",), (1,), False, "x", (),
+                          "suspect", "failed a self-check")  # fmt: skip
+    (objective,) = summary_dict(make_buffer(extra=(suspect,)))["objectives"]
+    assert {o["name"]: o["trust"] for o in objective["objects"]}["floor"] == "suspect"
+
+
+class Inventory:
+    """What ``sensaov params`` reads of a loaded scene, without loading one."""
+
+    variant = "llvm_ad_rgb"
+    objects = ("floor", "gold_ball", "wall")
+    excluded = ()
+    split: dict[str, tuple[str, ...]] = {}
+    textures: dict[str, object] = {}
+
+    def __init__(self, records: tuple[ParamRecord, ...]) -> None:
+        self.selected = records
+
+
+def test_params_shows_every_label() -> None:
+    inventory = Inventory(with_gold_ball().params)
+    text = params_text(inventory)
+    assert "BIASED" in row_of_params(text, ALPHA) and "NO GRADIENT" in row_of_params(text, GOLD)
+    assert "UNVERIFIED" not in row_of_params(text, WALL) and f"  - {NO_FLOW}" in text
+    entries = {e["key"]: e for e in params_dict(inventory)["selected"]}
+    assert (entries[GOLD]["trust"], entries[GOLD]["verified"]) == ("no_gradient", False)
+
+
+def row_of_params(text: str, key: str) -> str:
+    (row,) = [line for line in text.splitlines() if line.startswith(key)]
+    return row

@@ -2,7 +2,7 @@
 
 One reverse-mode pass per objective fills it; every view afterwards is a re-projection of the
 stored buffer, never a second differentiation. The file is a plain ``.npz`` readable with
-``np.load(path, allow_pickle=False)``; its layout (format version 1) is specified in
+``np.load(path, allow_pickle=False)``; its layout (format version 2) is specified in
 ``docs/buffer-format.md``. This module needs numpy only: loading a buffer never imports Mitsuba.
 """
 
@@ -24,9 +24,10 @@ from sensaov_cli.errors import (
     NonFiniteGradientError,
     UnknownNameError,
 )
+from sensaov_cli.vocabulary import TRUSTS, Trust
 
 FORMAT_NAME = "sensaov-buffer"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 HEADER_MEMBER = "header"
 
 
@@ -73,8 +74,12 @@ class ParamRecord:
     is_texture: bool
     plugin: str
     flags: tuple[str, ...]
-    verified: bool
-    note: str
+    trust: Trust  # docs/verification.md; only "verified" gradients are shown without a mark
+    note: str  # why it is not verified: the known reason, or a self-check's figures
+
+    @property
+    def verified(self) -> bool:
+        return self.trust == "verified"
 
     def __post_init__(self) -> None:
         for name in ("key", "type"):
@@ -84,7 +89,7 @@ class ParamRecord:
         _require(isinstance(self.plugin, str), f"{what}: plugin must be a string")
         _require(isinstance(self.note, str), f"{what}: note must be a string")
         _require(isinstance(self.is_texture, bool), f"{what}: is_texture must be a bool")
-        _require(isinstance(self.verified, bool), f"{what}: verified must be a bool")
+        _require(self.trust in TRUSTS, f"{what}: trust {self.trust!r} is not one of {TRUSTS}")
         object.__setattr__(self, "owners", _str_tuple(self.owners, f"{what}: owners"))
         object.__setattr__(self, "flags", _str_tuple(self.flags, f"{what}: flags"))
         object.__setattr__(self, "shape", _shape(self.shape, f"{what}: shape"))

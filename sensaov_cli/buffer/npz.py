@@ -1,7 +1,8 @@
-"""The buffer's file format (version 1): a plain ``.npz`` of one JSON header and numbered arrays.
+"""The buffer's file format (version 2): a plain ``.npz`` of one JSON header and numbered arrays.
 
 Specified in ``docs/buffer-format.md``. Kept apart from the container so that the format, its
-validation and its error messages can be read in one place.
+validation and its error messages can be read in one place. Version 1 files (a boolean
+``verified`` per parameter instead of the ``trust`` label) are still read.
 """
 
 from __future__ import annotations
@@ -89,6 +90,9 @@ def grad_member(objective_index: int, param_index: int) -> str:
 
 _PARAM_FIELDS = tuple(f.name for f in fields(ParamRecord))
 _OBJECTIVE_FIELDS = tuple(f.name for f in fields(ObjectiveRecord))
+# Version 1 stored a boolean "verified" where version 2 stores the "trust" label.
+_V1_PARAM_FIELDS = tuple("verified" if name == "trust" else name for name in _PARAM_FIELDS)
+_READABLE_VERSIONS = (1, FORMAT_VERSION)
 
 
 def _param_json(p: ParamRecord, index: int) -> dict[str, Any]:
@@ -154,7 +158,8 @@ def _read_npz(npz: Any) -> SensitivityBuffer:
     if HEADER_MEMBER not in members:
         raise _Malformed(f"not a sensaov buffer: the archive has no {HEADER_MEMBER!r}", _FOREIGN)
     header = _read_header(npz[HEADER_MEMBER])
-    params = [_param_from_json(entry, i) for i, entry in enumerate(header["params"])]
+    version = header["format_version"]
+    params = [_param_from_json(entry, i, version) for i, entry in enumerate(header["params"])]
     objectives = [_objective_from_json(e, j) for j, e in enumerate(header["objectives"])]
     expected = {HEADER_MEMBER} | {value_member(i) for i in range(len(params))}
     expected |= {grad_member(j, i) for j in range(len(objectives)) for i in range(len(params))}
@@ -196,11 +201,11 @@ def _read_header(member: np.ndarray) -> dict[str, Any]:
             f"not a sensaov buffer: header format is {found!r}, not {FORMAT_NAME!r}", _FOREIGN
         )
     version = header.get("format_version")
-    if version != FORMAT_VERSION or isinstance(version, bool):
+    if version not in _READABLE_VERSIONS or isinstance(version, bool):
         newer = isinstance(version, int) and version > FORMAT_VERSION
         raise _Malformed(
-            f"buffer format version {version!r} is not supported; this sensaov reads version "
-            f"{FORMAT_VERSION}",
+            f"buffer format version {version!r} is not supported; this sensaov reads versions "
+            f"{', '.join(map(str, _READABLE_VERSIONS))}",
             "upgrade sensaov to read it" if newer else _REGENERATE,
         )
     kinds = {"provenance": dict, "objects": list, "params": list, "objectives": list}
@@ -208,7 +213,7 @@ def _read_header(member: np.ndarray) -> dict[str, Any]:
         if not isinstance(header.get(name), kind):
             raise _Malformed(f"malformed header: {name!r} must be a JSON {kind.__name__}")
     extra = sorted(set(header) - set(kinds) - {"format", "format_version"})
-    if extra:  # version 1 allows no others (docs/buffer-format.md)
+    if extra:  # no version allows others (docs/buffer-format.md)
         raise _Malformed(f"malformed header: unknown field(s) {', '.join(map(repr, extra))}")
     return header
 
@@ -225,8 +230,14 @@ def _entry(entry: Any, names: tuple[str, ...], index: int, where: str) -> dict[s
     return {name: entry[name] for name in names}
 
 
-def _param_from_json(entry: Any, index: int) -> ParamRecord:
-    return ParamRecord(**_entry(entry, _PARAM_FIELDS, index, "params"))
+def _param_from_json(entry: Any, index: int, version: int) -> ParamRecord:
+    if version == FORMAT_VERSION:
+        return ParamRecord(**_entry(entry, _PARAM_FIELDS, index, "params"))
+    fields_ = _entry(entry, _V1_PARAM_FIELDS, index, "params")
+    verified = fields_.pop("verified")
+    if not isinstance(verified, bool):
+        raise _Malformed(f"malformed header: params[{index}].verified must be a bool")
+    return ParamRecord(**fields_, trust="verified" if verified else "unverified")
 
 
 def _objective_from_json(entry: Any, index: int) -> ObjectiveRecord:

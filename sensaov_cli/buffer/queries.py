@@ -190,18 +190,6 @@ def per_object(
     return _grouped_scores(buf, objective, "object", method, weight, keys)
 
 
-def per_type(
-    buf: SensitivityBuffer,
-    objective: str,
-    *,
-    method: Aggregate = "l2",
-    weight: Weight = "value",
-    keys: Iterable[str] | None = None,
-) -> dict[str, float]:
-    """Score per parameter type (sorted; 0.0 where nothing is selected)."""
-    return _grouped_scores(buf, objective, "type", method, weight, keys)
-
-
 def ranking(
     buf: SensitivityBuffer,
     objective: str,

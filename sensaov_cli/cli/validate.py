@@ -1,4 +1,4 @@
-"""``sensaov validate``: check a job file without loading the scene."""
+"""``sensaov validate``: check a job file and its scene XML without rendering."""
 
 from __future__ import annotations
 
@@ -13,14 +13,22 @@ from sensaov_cli.cli.options import EXIT_CODES_EPILOG, job_argument, reports_err
 @job_argument
 @reports_errors
 def validate(job: Path) -> None:
-    """Check a job file without loading the scene.
+    """Check a job file and its scene's XML without rendering.
+
+    Reads the scene as Mitsuba would (includes, $name arguments) and checks that every
+    camera the job names is a sensor of the scene; Mitsuba is not loaded.
 
     \b
     Example:
       sensaov validate configs/cbox.yaml
     """
+    from sensaov_cli.render.scene_xml import check_cameras
     from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
+    sensors = check_cameras(spec)
     names = ", ".join(o.name for o in spec.objectives)
-    click.echo(f"{job}: ok (scene {spec.scene.name}, objectives: {names}, output {spec.output})")
+    click.echo(
+        f"{job}: ok (scene {spec.scene.name}, {len(sensors)} sensor(s), objectives: {names}, "
+        f"output {spec.output})"
+    )

@@ -1,7 +1,8 @@
 """PNG previews of a projected view: one image per pass and a labelled contact sheet.
 
-Each pass is coloured with its channel's camera-independent scale (the largest object value),
-so the same channel reads on the same colour scale in every camera (Fig. 6).
+Each pass is coloured at the largest value among the objects this camera sees, so an object
+no camera shows (an environment map, a point light, anything off-frame) never washes the
+picture out; a pass whose objects all lie out of view says so in its tile's title.
 """
 
 from __future__ import annotations
@@ -44,6 +45,8 @@ def write_previews(
         written.append(path)
         tile = _enlarged(diverging_rgb(layer.data / (scale or 1.0), 1.0))
         mark = " !" if json.loads(layer.metadata.get("unverified", "[]")) else ""
+        if not layer.data.any() and json.loads(layer.metadata.get("invisible", "[]")):
+            mark += " (not in view)"  # its objects matter, but this camera does not see them
         sheets[layer.objective].append((f"{layer.pass_name} +-{scale:.2e}{mark}", tile))
     for objective, tiles in sheets.items():
         sheet = contact_sheet(

@@ -19,7 +19,16 @@ from sensaov_cli.vocabulary import Aggregate, Weight
 if TYPE_CHECKING:
     from sensaov_cli.render.fdcheck import GradientCheck
 
-UNVERIFIED_MARK = "!"
+# Marks in the mark column of a ranking, one per label that is not "verified"; a parameter
+# with no gradient is never ranked: it is listed under its objective behind NO_GRADIENT_MARK.
+UNVERIFIED_MARK = "!"  # unverified or known biased
+SUSPECT_MARK = "?"  # failed a run-time self-check
+NO_GRADIENT_MARK = "0"
+_MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
+_PARAMS_NOTES = {
+    "unverified": "UNVERIFIED", "biased": "BIASED", "suspect": "SUSPECT",
+    "no_gradient": "NO GRADIENT",
+}  # fmt: skip
 _PROVENANCE_SHOWN = {"scene_path": "scene", "variant": "variant", "spp": "spp"}  # key: label
 _OWNERS_SHOWN = 3
 
@@ -71,7 +80,9 @@ def _selected_entry(record: ParamRecord, texture: TextureSource | None) -> dict[
     return {
         **{key: entry[key] for key in ("key", "type", "owners")},
         "plugin": plugin,
-        **{key: entry[key] for key in ("shape", "is_texture", "flags", "verified", "note")},
+        **{key: entry[key] for key in ("shape", "is_texture", "flags")},
+        "verified": record.verified,
+        **{key: entry[key] for key in ("trust", "note")},
         "texture_file": texture.file if texture else None,
         "converted": texture.converted if texture else False,
     }
@@ -85,7 +96,7 @@ def params_text(loaded: ParameterInventory, *, show_all: bool = False) -> str:
             converted = loaded.textures[info.key].converted
             notes.append("texture, 8-bit -> float" if converted else "texture")
         if not info.verified:
-            notes.append("UNVERIFIED")
+            notes.append(_PARAMS_NOTES[info.trust])
         shape = "x".join(str(n) for n in info.shape)
         rows.append(
             (info.key, info.type, ",".join(info.owners), info.plugin, shape, ", ".join(notes))
@@ -181,8 +192,8 @@ def _fmt(score: float, signed: bool) -> str:
     return f"{score:+.2e}" if signed else f"{score:.2e}"
 
 
-def _mark(verified: bool) -> str:
-    return "" if verified else UNVERIFIED_MARK
+def _mark(trust: str) -> str:
+    return _MARKS.get(trust, "")
 
 
 def _owners(owners: Sequence[str]) -> str:
@@ -196,16 +207,16 @@ def _objective_lines(objective: dict[str, Any], method: str, counts: dict[str, i
     params, objects, types = objective["parameters"], objective["objects"], objective["types"]
     lines = [f"objective {objective['name']!r}   M = {objective['value']:.4g}"]
 
-    lines.append(f"  parameters (top {len(params)} of {counts['parameters']})")
+    lines.append(f"  parameters (top {len(params)} of {counts['ranked_parameters']})")
     headers = ["#", "", "score", *([] if signed else ["signed"]), "type", "key", "owners"]
     rows = [
-        [str(i), _mark(p["verified"]), _fmt(p["score"], signed),
+        [str(i), _mark(p["trust"]), _fmt(p["score"], signed),
          *([] if signed else [_fmt(p["signed"], True)]), p["type"], p["key"], _owners(p["owners"])]
         for i, p in enumerate(params, 1)
     ]  # fmt: skip
     lines.extend(_indented(headers, rows, numeric={0, 2} if signed else {0, 2, 3}))
 
-    lines.append(f"  objects (top {len(objects)} of {counts['objects']})")
+    lines.append(f"  objects (top {len(objects)} of {counts['ranked_objects']})")
     lines.extend(_group_table("object", "name", objects, signed))
     lines.append("  types")
     lines.extend(_group_table("type", "type", types, signed))
@@ -215,20 +226,40 @@ def _objective_lines(objective: dict[str, Any], method: str, counts: dict[str, i
 
 def _group_table(title: str, field: str, entries: list[dict[str, Any]], signed: bool) -> list[str]:
     rows = [
-        [str(i), _mark(e["verified"]), _fmt(e["score"], signed), e[field]]
+        [str(i), _mark(e["trust"]), _fmt(e["score"], signed), e[field]]
         for i, e in enumerate(entries, 1)
     ]
     return _indented(["#", "", "score", title], rows, numeric={0, 2})
 
 
+_LEGENDS = (  # mark, the word for a group that includes such a parameter, what it means
+    (UNVERIFIED_MARK, "unverified", "unverified gradient, do not trust the number"),
+    (SUSPECT_MARK, "suspect", "suspect gradient: it failed a run-time self-check"),
+)
+
+
 def _legend(objective: dict[str, Any]) -> list[str]:
-    unverified = [p for p in objective["parameters"] if not p["verified"]]
-    groups_marked = any(not g["verified"] for g in objective["objects"] + objective["types"])
-    mark = UNVERIFIED_MARK
-    if not unverified:
-        return [f"  {mark} = includes a parameter whose gradient is unverified"] * groups_marked
-    lines = [f"  {mark} = unverified gradient, do not trust the number:"]
-    lines += [f"      {p['key']}: {p['note'] or 'not verified'}" for p in unverified]
+    lines = []
+    for mark, word, meaning in _LEGENDS:
+        lines += _mark_legend(objective, mark, word, meaning)
+    if objective["no_gradient"]:
+        lines.append(f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:")
+        lines += [
+            f"      {p['key']} ({', '.join(p['owners']) or '-'}): {p['note']}"
+            for p in objective["no_gradient"]
+        ]
+    return lines
+
+
+def _mark_legend(objective: dict[str, Any], mark: str, word: str, meaning: str) -> list[str]:
+    """What ``mark`` means, with the notes of the parameters it marks."""
+    marked = [p for p in objective["parameters"] if _mark(p["trust"]) == mark]
+    groups = objective["objects"] + objective["types"]
+    groups_marked = any(_mark(g["trust"]) == mark for g in groups)
+    if not marked:
+        return [f"  {mark} = includes a parameter whose gradient is {word}"] * groups_marked
+    lines = [f"  {mark} = {meaning}:"]
+    lines += [f"      {p['key']}: {p['note'] or 'not verified'}" for p in marked]
     if groups_marked:
         lines.append(f"    objects and types marked {mark} include such a parameter")
     return lines

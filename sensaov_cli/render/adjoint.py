@@ -1,25 +1,38 @@
-"""One primal render at the objective camera, then one backward pass per objective (paper §2).
+"""One primal render at the objective camera, then the backward passes of each objective (§2).
 
 prb's ``render_backward`` takes the image-space adjoint dM/dI directly, so each objective costs
 one backward propagation and the primal is rendered once, without AD. The gradient seed differs
 from the primal seed so that, for objectives that are non-linear in the image, the adjoint's
 noise is independent of the primal's (an unbiased product of two estimates).
+
+prb cannot differentiate smooth (delta) BSDF lobes: their parameters take a second backward
+pass of Mitsuba's ``path`` integrator (``trust.gradient_integrator``), with gradients enabled
+on those parameters only, its samples split into chunks that bound its memory. After the
+passes, :mod:`~sensaov_cli.render.selfcheck` labels what the gradients themselves show to be
+wrong (docs/verification.md).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from sensaov_cli.buffer.model import ParamRecord
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
 from sensaov_cli.render.scene import LoadedScene
+from sensaov_cli.render.selfcheck import self_check
+from sensaov_cli.render.trust import gradient_integrator
 
 SEED_STRIDE = 0x9E3779B1  # golden-ratio stride: distinct, reproducible seeds per objective
+# Mitsuba's path integrator differentiates by recording the whole render in the AD graph:
+# 3 GB for 128x128 at 256 spp in one pass (measured, docs/verification.md). Passes of at most
+# this many samples (pixels x spp) keep it near 200 MB, for 24 % more time.
+PATH_SAMPLES_PER_PASS = 1 << 18
 
 
 def gradient_seed(primal_seed: int, objective_index: int) -> int:
@@ -34,6 +47,8 @@ class AdjointResult:
     grad_seeds: dict[str, int]
     grads: dict[str, dict[str, np.ndarray]]  # objective -> key -> dM/dθ
     deterministic: bool = False  # computed so that the same job and seed give the same bits
+    params: tuple[ParamRecord, ...] = ()  # the selected records, trust labels after self-checks
+    provenance: dict[str, Any] = field(default_factory=dict)  # integrators, self-check figures
 
 
 def to_numpy(value: Any, shape: tuple[int, ...]) -> np.ndarray:
@@ -41,39 +56,131 @@ def to_numpy(value: Any, shape: tuple[int, ...]) -> np.ndarray:
     return np.array(value, dtype=np.float32, copy=True).reshape(shape)
 
 
-def enable_gradients(loaded: LoadedScene) -> None:
+def enable_gradients(loaded: LoadedScene, keys: set[str] | None = None) -> dict[str, Any]:
+    """Give every selected parameter a fresh leaf of its own; gradients on ``keys`` (default all).
+
+    The gradient is read from our leaf, never from ``params[key]``: an envmap's update replaces
+    the tensor that ``params[key]`` refers to by a copy with its halo columns filled in, and the
+    gradient of that copy reads 0 (Mitsuba 3.9.1, docs/verification.md). The other parameters
+    hold the leaf itself. Leaves not in ``keys`` are detached, so a pass differentiates nothing
+    else (prb raises if only delta-lobe parameters carry gradients; path's memory grows with them).
+    """
     import drjit as dr
 
+    leaves = {}
     for info in loaded.selected:
-        dr.enable_grad(loaded.params[info.key])
-    loaded.params.update()  # bitmap data only takes the gradient-enabled tensor after update()
+        current = loaded.params[info.key]
+        leaf = type(current)(dr.detach(current))
+        if keys is None or info.key in keys:
+            dr.enable_grad(leaf)
+        loaded.params[info.key] = leaf
+        leaves[info.key] = leaf
+    loaded.params.update()  # bitmap and envmap data only take the new tensor after update()
+    return leaves
 
 
-def render_primal(loaded: LoadedScene, spp: int, seed: int) -> Any:
+def render_primal(loaded: LoadedScene, spp: int, seed: int, integrator: Any = None) -> Any:
+    """The image at ``seed`` through ``integrator`` (default: the scene's prb), without AD."""
     import drjit as dr
 
+    integrator = loaded.integrator if integrator is None else integrator
     with dr.suspend_grad():
-        image = loaded.integrator.render(loaded.scene, loaded.sensor, seed=seed, spp=spp)
+        image = integrator.render(loaded.scene, loaded.sensor, seed=seed, spp=spp)
     dr.eval(image)
     dr.sync_thread()  # kernels run asynchronously: without this the primal's timing is fiction
     return image
 
 
+def integrator_plan(loaded: LoadedScene) -> dict[str, set[str]]:
+    """Integrator name -> the selected keys it differentiates (prb first); empty ones left out."""
+    plan: dict[str, set[str]] = {"prb": set(), "path": set()}
+    for info in loaded.selected:
+        plan[gradient_integrator(info.plugin)].add(info.key)
+    return {name: keys for name, keys in plan.items() if keys}
+
+
 def backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int) -> dict[str, np.ndarray]:
     """dM/dθ for every selected parameter, given dM/dI at the objective camera."""
+    grads: dict[str, np.ndarray] = {}
+    for name, keys in integrator_plan(loaded).items():
+        grads.update(backward_pass(loaded, name, keys, adjoint_image, spp, seed))
+    return {info.key: grads[info.key] for info in loaded.selected}
+
+
+def backward_pass(
+    loaded: LoadedScene, name: str, keys: set[str], adjoint_image: Any, spp: int, seed: int
+) -> dict[str, np.ndarray]:
+    """dM/dθ for ``keys`` through integrator ``name`` ("prb": the scene's, or "path")."""
     import drjit as dr
 
-    for info in loaded.selected:
-        dr.clear_grad(loaded.params[info.key])
-    loaded.integrator.render_backward(
-        loaded.scene, loaded.params, grad_in=adjoint_image, sensor=loaded.sensor, seed=seed, spp=spp
-    )
-    grads = {
-        info.key: to_numpy(dr.grad(loaded.params[info.key]), info.shape) for info in loaded.selected
-    }
-    for info in loaded.selected:
-        dr.clear_grad(loaded.params[info.key])
+    leaves = enable_gradients(loaded, keys)
+    if name == "prb":
+        _prb_backward(loaded, adjoint_image, spp, seed)
+    else:
+        _path_backward(loaded, adjoint_image, spp, seed)
+    shapes = {info.key: info.shape for info in loaded.selected}
+    grads = {key: to_numpy(dr.grad(leaves[key]), shapes[key]) for key in keys}
+    enable_gradients(loaded, set())  # leave no gradient-enabled leaf behind for the next pass
     return grads
+
+
+# What prb and path raise when no gradient-enabled parameter reaches the image (a spot light's
+# unused texture, a parameter Mitsuba does not differentiate): no gradient flows, which is a
+# finding for the self-checks (zeros), not an error.
+_NOTHING_ATTACHED = ("not attached to the AD graph", "does not depend on the input variable")
+
+
+@contextmanager
+def _nothing_attached_is_zero() -> Iterator[None]:
+    try:
+        yield
+    except Exception as exc:  # Mitsuba raises plain exceptions; anything else propagates
+        if not any(message in str(exc) for message in _NOTHING_ATTACHED):
+            raise
+
+
+def _prb_backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int) -> None:
+    with _nothing_attached_is_zero():
+        loaded.integrator.render_backward(
+            loaded.scene, loaded.params, grad_in=adjoint_image, sensor=loaded.sensor,
+            seed=seed, spp=spp,
+        )  # fmt: skip
+
+
+def path_chunks(pixels: int, spp: int) -> list[int]:
+    """spp split into passes of at most PATH_SAMPLES_PER_PASS samples (at least 1 spp each)."""
+    per_pass = max(1, PATH_SAMPLES_PER_PASS // max(pixels, 1))
+    count = -(-spp // per_pass)
+    return [spp // count + (1 if i < spp % count else 0) for i in range(count)]
+
+
+def path_integrator(loaded: LoadedScene) -> Any:
+    """Mitsuba's ``path`` with the depth and Russian roulette of the scene's prb."""
+    max_depth = int(getattr(loaded.integrator, "max_depth", 6))
+    return loaded.mi.load_dict(
+        {
+            "type": "path",
+            "max_depth": -1 if max_depth >= 0xFFFFFFFF else max_depth,  # prb's "infinite"
+            "rr_depth": int(getattr(loaded.integrator, "rr_depth", 5)),
+        }
+    )
+
+
+def chunk_seed(seed: int, index: int) -> int:
+    """The seed of path's ``index``-th chunk; the first is ``seed``, as a primal at ``seed``."""
+    return (seed + SEED_STRIDE * index) % 2**31
+
+
+def _path_backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int) -> None:
+    """Accumulate path's gradients chunk by chunk; each chunk's share is its fraction of spp."""
+    width, height = loaded.resolution
+    path = path_integrator(loaded)
+    for index, chunk in enumerate(path_chunks(width * height, spp)):
+        with _nothing_attached_is_zero():
+            path.render_backward(
+                loaded.scene, loaded.params, grad_in=adjoint_image * (chunk / spp),
+                sensor=loaded.sensor, seed=chunk_seed(seed, index), spp=chunk,
+            )  # fmt: skip
 
 
 @contextmanager
@@ -107,13 +214,26 @@ def run_adjoint(
 ) -> AdjointResult:
     with reproducible(loaded, deterministic) as exact:
         result = _run_passes(loaded, objectives, spp=spp, seed=seed, progress=progress)
-    return replace(result, deterministic=exact)
+    plan = integrator_plan(loaded)
+    integrators = {key: name for name, keys in plan.items() for key in keys}
+    checked = self_check(
+        loaded, objectives, result.image, result.values, result.grads,
+        result.objective_values, spp, integrators,
+    )  # fmt: skip
+    return replace(
+        result,
+        deterministic=exact,
+        params=checked.params,
+        provenance={
+            "gradient_integrators": {name: sorted(keys) for name, keys in plan.items()},
+            "self_checks": checked.figures,
+        },
+    )
 
 
 def _run_passes(
     loaded: LoadedScene, objectives: list[Objective], *, spp: int, seed: int, progress: Progress
 ) -> AdjointResult:
-    enable_gradients(loaded)
     width, height = loaded.resolution
     with progress.stage("primal_s", f"primal render {width}x{height} at {spp} spp"):
         image = render_primal(loaded, spp, seed)
@@ -125,9 +245,14 @@ def _run_passes(
         name = objective.spec.name
         value, adjoint_image = value_and_adjoint(loaded.mi, objective, image)
         grad_seeds[name] = gradient_seed(seed, objective.index)
-        label = f"backward pass for '{name}' ({len(loaded.selected)} parameters)"
-        with progress.stage(f"backward_{name}_s", label):
-            grads[name] = backward(loaded, adjoint_image, spp, grad_seeds[name])
+        grads[name] = {}
+        for integrator, keys in integrator_plan(loaded).items():
+            stage = f"backward_{name}_s" if integrator == "prb" else f"backward_{name}_path_s"
+            label = f"{integrator} backward pass for '{name}' ({len(keys)} parameters)"
+            with progress.stage(stage, label):
+                grads[name].update(
+                    backward_pass(loaded, integrator, keys, adjoint_image, spp, grad_seeds[name])
+                )
         objective_values[name] = value
     return AdjointResult(
         np.array(image, dtype=np.float32), values, objective_values, grad_seeds, grads
@@ -146,12 +271,5 @@ def assign(loaded: LoadedScene, key: str, array: np.ndarray) -> None:
         replacement = type(current)(*[float(v) for v in flat.reshape(-1)])
     else:
         replacement = type(current)(flat.reshape(-1))
-    dr.enable_grad(replacement)  # the new value replaces a gradient-enabled leaf
     loaded.params[key] = replacement
     loaded.params.update()
-
-
-def objective_at_seed(loaded: LoadedScene, objective: Objective, spp: int, seed: int) -> float:
-    """M of a fresh primal render at ``seed`` (finite differences hold the seed fixed)."""
-    value, _ = value_and_adjoint(loaded.mi, objective, render_primal(loaded, spp, seed))
-    return value

@@ -8,7 +8,7 @@ the live scene objects the adjoint needs.
 from __future__ import annotations
 
 import fnmatch
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +18,7 @@ from typing import Any
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
 from sensaov_cli.errors import SceneError
 from sensaov_cli.render.runtime import import_mitsuba
-from sensaov_cli.render.scene_xml import prepare_scene_xml, scene_fingerprint
+from sensaov_cli.render.scene_xml import files_fingerprint, prepare_scene_xml
 from sensaov_cli.render.trust import verification_status
 from sensaov_cli.spec.model import JobSpec
 
@@ -37,6 +37,9 @@ TYPE_ALIASES = {
     "int_ior": "eta",
     "ext_ior": "eta",
 }
+# Emitter slots that scale what it emits: an envmap's ``data`` is its radiance map and
+# ``scale`` multiplies it; a spot or projector light's ``texture`` modulates its intensity.
+_EMITTER_SLOT_TYPES = {"data": "radiance", "scale": "radiance", "texture": "radiance"}
 # Mitsuba class names of the common plugins -> the plugin names users write in XML.
 PLUGIN_NAMES = {
     "SmoothDiffuse": "diffuse",
@@ -76,6 +79,8 @@ class LoadedScene:
     split: dict[str, tuple[str, ...]]
     inspection_sensors: dict[str, Any]  # inspection camera name -> its own sensor
     materials: dict[str, str]  # object -> material (BSDF id) name, for the material Cryptomatte
+    scene_args: dict[str, str]  # every $name the scene used and the value it got
+    scene_sample_count: int | None  # the scene's own spp (a default: the job's spp renders)
 
 
 def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> LoadedScene:
@@ -88,15 +93,17 @@ def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> Loaded
         resolution=job.render.resolution,
         shared=job.parameters.shared,
         inspection=job.inspection_cameras if with_inspection_cameras else (),
+        scene_args=job.scene_args,
     )
     try:
-        with _resolving_from(mi, job.scene.parent):
+        with _resolving_from(mi, prepared.search_path):
             scene = mi.load_string(prepared.text, optimize=False)
     except Exception as exc:  # Mitsuba raises plain RuntimeError with a long message
-        raise SceneError(_first_line(exc), where=str(job.scene)) from exc
+        message, where = prepared.locate(str(exc))
+        raise SceneError(message, where=where or str(job.scene)) from exc
     sensors = {sensor.id(): sensor for sensor in scene.sensors()}
     sensor = sensors[prepared.sensor_id]
-    ownership = _ownership(mi, scene)
+    ownership = _ownership(mi, scene, prepared.instances)
     params = mi.traverse(scene)
     sources = {Path(name).name: job.scene.parent / name for name in prepared.bitmap_files}
     selected, excluded, textures = _select(mi, job, params, ownership, sources)
@@ -112,32 +119,31 @@ def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> Loaded
         excluded=excluded,
         textures=textures,
         objects=ownership.objects,
-        fingerprint=scene_fingerprint(job.scene),
+        fingerprint=files_fingerprint(prepared.files, job.scene_args, job.scene.parent),
         resolution=(int(size[0]), int(size[1])),
         split=prepared.split,
         inspection_sensors={name: sensors[sid] for name, sid in prepared.inspection_ids.items()},
         materials=prepared.materials,
+        scene_args={name: arg.value for name, arg in prepared.scene_args.items()},
+        scene_sample_count=prepared.sample_count,
     )
 
 
 @contextmanager
-def _resolving_from(mi: ModuleType, folder: Path) -> Iterator[None]:
-    """Resolve relative file names against ``folder`` first, as load_file would, then restore
-    the process-wide resolver (tests and the bench load many scenes in one process)."""
+def _resolving_from(mi: ModuleType, folders: tuple[Path, ...]) -> Iterator[None]:
+    """Resolve names still relative in the prepared text against ``folders`` first (the main
+    file's ``<path>`` folders and its own folder, as load_file would), then restore the
+    process-wide resolver (tests and the bench load many scenes in one process)."""
     resolver = mi.file_resolver()
     saved = [str(resolver[i]) for i in range(len(resolver))]
-    resolver.prepend(str(folder))
+    for folder in reversed(folders):
+        resolver.prepend(str(folder))
     try:
         yield
     finally:
         resolver.clear()
         for entry in saved:
             resolver.append(entry)
-
-
-def _first_line(exc: Exception) -> str:
-    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
-    return lines[-1] if lines else type(exc).__name__
 
 
 @dataclass(frozen=True)
@@ -153,11 +159,21 @@ class _Ownership:
         return self.owners.get(id(node), ())
 
 
-def _ownership(mi: ModuleType, scene: Any) -> _Ownership:
-    """Every object (shape, or emitter not attached to a shape) and the nodes it owns."""
+def _ownership(mi: ModuleType, scene: Any, instances: Mapping[str, str]) -> _Ownership:
+    """Every object (shape, instance, or emitter not attached to a shape) and the nodes it owns.
+
+    An instance owns its shapegroup's shapes, BSDFs and textures (``instances`` maps instance
+    ids to shapegroup ids, from the XML: Mitsuba exposes no link), so a BSDF used only inside
+    a shapegroup belongs to every instance of it.
+    """
+    groups = _shapegroups(mi, scene)
     owned: dict[str, list[Any]] = {}
     for index, shape in enumerate(scene.shapes()):
-        owned[shape.id() or f"shape_{index}"] = list(mi.traverse(shape).hierarchy)
+        nodes = list(mi.traverse(shape).hierarchy)
+        group = groups.get(instances.get(shape.id(), ""))
+        if group is not None:
+            nodes += list(mi.traverse(group).hierarchy)
+        owned[shape.id() or f"shape_{index}"] = nodes
     for index, emitter in enumerate(scene.emitters()):
         if emitter.get_shape() is None:
             owned[emitter.id() or f"emitter_{index}"] = list(mi.traverse(emitter).hierarchy)
@@ -169,6 +185,16 @@ def _ownership(mi: ModuleType, scene: Any) -> _Ownership:
     return _Ownership(
         tuple(sorted(owned)), {key: tuple(sorted(v)) for key, v in owners.items()}, alive
     )
+
+
+def _shapegroups(mi: ModuleType, scene: Any) -> dict[str, Any]:
+    """Shapegroup nodes by id (they are not shapes of the scene, only parents in its graph)."""
+    hierarchy = mi.traverse(scene).hierarchy
+    return {
+        node.id(): node
+        for node in hierarchy
+        if isinstance(node, mi.Shape) and node.class_name() == "ShapeGroupPlugin"
+    }
 
 
 def _select(
@@ -234,12 +260,12 @@ def _describe(mi: ModuleType, key: str, params: Any, owners: tuple[str, ...]) ->
     _, _, node, flags = params.properties[key]
     parts = key.split(".")
     is_texture_node = isinstance(node, mi.Texture)
-    slot = parts[-2] if is_texture_node and len(parts) > 1 else parts[-1]
-    holder = params.hierarchy[node][0] if is_texture_node else node
+    slot, holder = _slot_and_holder(mi, parts, node, params.hierarchy)
     plugin = _plugin_name(holder)
-    ptype = TYPE_ALIASES.get(slot, slot)
+    ptype = _EMITTER_SLOT_TYPES.get(slot, slot) if isinstance(holder, mi.Emitter) else slot
+    ptype = TYPE_ALIASES.get(ptype, ptype)
     is_texture = is_texture_node and parts[-1] == "data"
-    verified, note = verification_status(plugin, ptype)
+    trust, note = verification_status(plugin, ptype)
     flag_names = ("discontinuous",) if flags & int(mi.ParamFlags.Discontinuous) else ()
     shape = value_shape(np.asarray(params[key]))
     return ParamRecord(
@@ -250,9 +276,31 @@ def _describe(mi: ModuleType, key: str, params: Any, owners: tuple[str, ...]) ->
         is_texture=is_texture,
         plugin=plugin,
         flags=flag_names,
-        verified=verified,
+        trust=trust,
         note=note,
     )
+
+
+def _slot_and_holder(
+    mi: ModuleType, parts: list[str], node: Any, hierarchy: Any
+) -> tuple[str, Any]:
+    """The slot a parameter fills in the plugin that is not a texture, and that plugin.
+
+    A texture's parameters take the slot of the outermost texture: in
+    ``glaze.roughness.color0.value`` the uniform ``color0`` sits in a checkerboard that fills
+    the BSDF's ``roughness``, so its type is roughness, whatever the nesting.
+    """
+    levels = 0
+    holder = node
+    while isinstance(holder, mi.Texture):
+        levels += 1
+        parent = hierarchy.get(holder)
+        if parent is None:
+            break
+        holder = parent[0]
+    if levels == 0 or len(parts) <= levels:
+        return parts[-1], node
+    return parts[-1 - levels], holder
 
 
 def value_shape(array: Any) -> tuple[int, ...]:

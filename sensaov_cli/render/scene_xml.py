@@ -1,34 +1,60 @@
 """Rewrite a Mitsuba 3 scene description before loading it (pure XML, no Mitsuba import).
 
-The user's file is never modified: the rewritten text is handed to ``mitsuba.load_string``.
-What changes, and why:
+The user's files are never modified. The scene is first expanded as Mitsuba's parser reads it
+(scene_expand.py: includes, ``$name`` arguments, ``<path>``, aliases, file names made
+absolute), then rewritten, and the text is handed to ``mitsuba.load_string``. What the rewrite
+changes, and why:
 
 - every integrator is replaced by ``prb`` with the job's ``max_depth`` (``path`` costs memory
   that grows with spp under AD; ``prb`` is constant-memory, MITSUBA-NOTES);
-- bitmap textures load as float (``format = variant``) so their texels receive gradients
-  (8-bit textures load as non-differentiable integers by default);
+- bitmap textures, nested ones too, load as float (``format = variant``) so their texels
+  receive gradients (8-bit textures load as non-differentiable integers by default); envmaps
+  load their images as float already and take no ``format``;
+- unnamed objects get stable ids people recognise (scene_names.py); Mitsuba would key them by
+  memory address;
+- a top-level texture used through ``<ref>`` is written where it is used: Mitsuba keys a
+  top-level bitmap by memory address (its id is lost when the plugin expands), a nested one by
+  the path of its user (``floor_mat.reflectance.data``). With ``shared: split`` each use gets
+  its own copy (its own parameters, like split BSDFs); with ``keep`` the texture moves into its
+  first user and the other uses keep referring to it;
 - with ``shared: split``, a BSDF used by several shapes is copied into each of them, so each
   object gets its own gradient (the copies' gradients sum to the shared one);
-- unnamed top-level objects get stable ids (otherwise Mitsuba keys them by pointer);
-- the objective camera is chosen, added (inline ``look_at``) or resized.
+- the objective camera is chosen, added (inline ``look_at``) or resized, and each inspection
+  camera gets a sensor of its own (scene_sensors.py).
+
+Scene arguments and the job's render settings: ``scene_args`` fill the scene's ``$name``s as
+``mitsuba.load_file(path, **scene_args)`` would, and the values used are recorded
+(``PreparedXml.scene_args``). sensaov renders with the job's ``render.spp`` and, when given,
+``render.resolution``; the scene's own film size (often ``$res``) is used when the job leaves
+the resolution unset, and its sampler's ``sample_count`` (often ``$spp``) is reported as
+``PreparedXml.sample_count`` for a job that leaves spp unset. A scene argument is never
+rewritten: to change what the scene itself says, set the argument.
 """
 
 from __future__ import annotations
 
-import copy
 import hashlib
+import os
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from sensaov_cli.errors import SceneError
-from sensaov_cli.spec.model import CameraSpec
+from sensaov_cli.errors import SceneError, SpecError
+from sensaov_cli.render import scene_names
+from sensaov_cli.render.scene_expand import SceneArgument, expand_scene
+from sensaov_cli.render.scene_sensors import (
+    add_inspection_sensor,
+    choose_sensor,
+    sample_count,
+    sensor_ids,
+    set_film_size,
+)
+from sensaov_cli.render.scene_share import place_textures, split_shared_bsdfs
+from sensaov_cli.render.scene_source import locate_load_error, write_xml
+from sensaov_cli.spec.model import CameraSpec, JobSpec
 
-OBJECTIVE_SENSOR_ID = "sensaov_objective"
-_NAMED_TAGS = ("shape", "emitter", "bsdf", "texture", "sensor", "medium")
-
-
-INSPECTION_PREFIX = "sensaov_inspect_"
+_CHUNK = 1 << 20  # files are hashed a MiB at a time, never read whole
 
 
 @dataclass(frozen=True)
@@ -37,38 +63,20 @@ class PreparedXml:
     sensor_id: str
     inspection_ids: dict[str, str]  # inspection camera name -> sensor id in the prepared scene
     split: dict[str, tuple[str, ...]]  # shared BSDF id -> the shapes that received a copy
-    bitmap_files: tuple[str, ...]  # filename values of bitmap textures, as written
+    bitmap_files: tuple[str, ...]  # bitmap texture files, absolute where found
     materials: dict[str, str]  # shape id -> the BSDF id it uses, as the user named it
+    instances: dict[str, str]  # instance shape id -> the shapegroup id it instantiates
+    shapegroups: dict[str, tuple[str, ...]]  # shapegroup id -> ids of its member shapes
+    textures: dict[str, tuple[str, ...]]  # top-level texture id -> "object.slot" of each use
+    scene_args: dict[str, SceneArgument]  # each $name the scene used, its value and origin
+    sample_count: int | None  # the objective sensor's sampler sample_count, as the scene says
+    files: tuple[Path, ...]  # every file the scene reads (for the fingerprint)
+    search_path: tuple[Path, ...]  # folders Mitsuba resolves names still relative against
+    line_sources: tuple[str | None, ...]  # line of `text` -> the user's file:line it came from
 
-
-def parse_scene(path: Path) -> ET.Element:
-    try:
-        root = ET.parse(path).getroot()
-    except FileNotFoundError as exc:
-        raise SceneError("scene file not found", where=str(path)) from exc
-    except ET.ParseError as exc:
-        line = exc.position[0]
-        raise SceneError(f"malformed XML: {exc.msg}", where=f"{path}:{line}") from exc
-    except OSError as exc:
-        raise SceneError(f"cannot read scene: {exc.strerror}", where=str(path)) from exc
-    if root.tag != "scene":
-        raise SceneError(f"root element is <{root.tag}>, expected <scene>", where=str(path))
-    return root
-
-
-def scene_fingerprint(path: Path) -> str:
-    """sha256 over the scene file and every file it names, so edits to a texture count too."""
-    digest = hashlib.sha256(path.read_bytes())
-    root = parse_scene(path)
-    names = sorted(
-        {el.get("value", "") for el in root.iter("string") if el.get("name") == "filename"}
-    )
-    for name in names:
-        referenced = path.parent / name
-        digest.update(name.encode())
-        if referenced.is_file():
-            digest.update(referenced.read_bytes())
-    return digest.hexdigest()
+    def locate(self, message: str) -> tuple[str, str | None]:
+        """Mitsuba's load error on ``text`` -> (one-line message, the user's file:line)."""
+        return locate_load_error(message, self.line_sources)
 
 
 def prepare_scene_xml(
@@ -79,33 +87,110 @@ def prepare_scene_xml(
     resolution: tuple[int, int] | None,
     shared: str,
     inspection: tuple[CameraSpec, ...] = (),
+    scene_args: Mapping[str, str] | None = None,
 ) -> PreparedXml:
-    root = parse_scene(path)
-    _name_top_level(root)
+    expanded = expand_scene(path, scene_args or {})
+    root = expanded.root
+    scene_names.name_objects(root)
     _replace_integrator(root, max_depth)
     bitmaps = _bitmaps_as_float(root)
-    materials = _materials(root)  # before splitting: copies keep the name the user gave
-    split = _split_shared_bsdfs(root) if shared == "split" else {}
-    sensor = _choose_sensor(root, camera, path)
+    materials = scene_names.materials(root)  # before splitting: copies keep the user's name
+    textures = place_textures(root, copies=shared == "split")
+    split = split_shared_bsdfs(root) if shared == "split" else {}
+    sensor, inspection_ids = _cameras(root, path, camera, resolution, inspection)
+    text, line_sources = write_xml(root)
+    return PreparedXml(
+        text=text,
+        sensor_id=sensor.get("id", ""),
+        inspection_ids=inspection_ids,
+        split=split,
+        bitmap_files=bitmaps,
+        materials=materials,
+        instances=scene_names.instances(root),
+        shapegroups=scene_names.shapegroups(root),
+        textures=textures,
+        scene_args=expanded.arguments,
+        sample_count=sample_count(root, sensor),
+        files=expanded.files,
+        search_path=expanded.search_path,
+        line_sources=line_sources,
+    )
+
+
+def _cameras(
+    root: ET.Element,
+    path: Path,
+    camera: CameraSpec,
+    resolution: tuple[int, int] | None,
+    inspection: tuple[CameraSpec, ...],
+) -> tuple[ET.Element, dict[str, str]]:
+    """The objective sensor, and each inspection camera's own sensor id."""
+    sensor = choose_sensor(root, camera, path)
     if resolution is not None:
-        _set_film_size(sensor, resolution)
-    inspection_ids = {
-        cam.name: _add_inspection_sensor(
-            root, cam, sensor, path, f"inspection camera {cam.name!r}: sensor"
-        )
+        set_film_size(root, sensor, resolution)
+    where = "inspection camera {!r}: sensor"
+    return sensor, {
+        cam.name: add_inspection_sensor(root, cam, sensor, path, where.format(cam.name))
         for cam in inspection
     }
-    text = ET.tostring(root, encoding="unicode")
-    return PreparedXml(text, sensor.get("id", ""), inspection_ids, split, bitmaps, materials)
 
 
-def _name_top_level(root: ET.Element) -> None:
-    counts: dict[str, int] = {}
-    for element in root:
-        if element.tag in _NAMED_TAGS and not element.get("id"):
-            index = counts.get(element.tag, 0)
-            counts[element.tag] = index + 1
-            element.set("id", f"{element.tag}_{index}")
+def scene_sensor_ids(path: Path, scene_args: Mapping[str, str] | None = None) -> tuple[str, ...]:
+    """The ids of the scene's sensors, includes followed, unnamed ones named as when loading
+    (no Mitsuba import: ``validate`` checks camera ids with it)."""
+    root = expand_scene(path, scene_args or {}).root
+    scene_names.name_objects(root)
+    return sensor_ids(root)
+
+
+def check_cameras(job: JobSpec) -> tuple[str, ...]:
+    """The scene's sensor ids, after refusing a job whose cameras name a sensor it lacks.
+
+    Pure XML, so ``validate`` catches the mistake without Mitsuba, and ``run`` before it
+    renders anything (not ``project``, after the expensive part).
+    """
+    ids = scene_sensor_ids(job.scene, job.scene_args)
+    if not ids and job.objective_camera.look_at is None:
+        raise SceneError(
+            "the scene has no sensor",
+            where=str(job.scene),
+            hint="add one, or give objective_camera a look_at",
+        )
+    named = [("objective_camera", job.objective_camera)]
+    named += [(f"inspection_cameras[{i}].sensor", c) for i, c in enumerate(job.inspection_cameras)]
+    for where, camera in named:
+        if camera.sensor is not None and camera.sensor not in ids:
+            raise SpecError(
+                f"no sensor with id {camera.sensor!r} in {job.scene.name}",
+                where=f"{job.path}: {where}",
+                hint=f"sensors in the scene: {', '.join(ids) or 'none'}",
+            )
+    return ids
+
+
+def scene_fingerprint(path: Path, scene_args: Mapping[str, str] | None = None) -> str:
+    """sha256 over every file the scene reads (the scene, its includes, meshes, textures,
+    envmaps, spectra) and the scene arguments, so an edit to any of them counts."""
+    expanded = expand_scene(path, scene_args or {})
+    return files_fingerprint(expanded.files, scene_args or {}, path.parent)
+
+
+def files_fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: Path) -> str:
+    """The fingerprint of a prepared scene (its ``files``), without expanding it again."""
+    digest = hashlib.sha256()
+    for name, value in sorted((str(k), str(v)) for k, v in scene_args.items()):
+        digest.update(f"arg\0{name}\0{value}\0".encode())
+    for file in files:
+        # Names relative to the scene folder: moving the whole project keeps the fingerprint.
+        label = os.path.relpath(file, base.absolute()) if file.is_absolute() else str(file)
+        if not file.is_file():
+            digest.update(f"missing\0{label}\0".encode())
+            continue
+        digest.update(f"file\0{label}\0{file.stat().st_size}\0".encode())
+        with file.open("rb") as stream:
+            while chunk := stream.read(_CHUNK):
+                digest.update(chunk)
+    return digest.hexdigest()
 
 
 def _replace_integrator(root: ET.Element, max_depth: int) -> None:
@@ -121,141 +206,9 @@ def _bitmaps_as_float(root: ET.Element) -> tuple[str, ...]:
     for texture in root.iter("texture"):
         if texture.get("type") != "bitmap":
             continue
-        children = {child.get("name"): child for child in texture}
-        if "filename" in children:
-            files.append(children["filename"].get("value", ""))
-        if "format" not in children:
+        filename = scene_names.child_value(texture, "filename")
+        if filename is not None:
+            files.append(filename)
+        if scene_names.child_value(texture, "format") is None:
             ET.SubElement(texture, "string", {"name": "format", "value": "variant"})
     return tuple(files)
-
-
-def _materials(root: ET.Element) -> dict[str, str]:
-    """Shape id -> material name for a material Cryptomatte (Mitsuba's default BSDF: "default")."""
-    materials = {}
-    for shape in root.iter("shape"):
-        ref = next((r for r in shape.findall("ref") if r.get("name") in (None, "bsdf")), None)
-        inline = shape.find("bsdf")
-        if ref is not None:
-            name = ref.get("id", "")
-        elif inline is not None:
-            name = inline.get("id") or f"{shape.get('id', 'shape')}_bsdf"
-        else:
-            name = "default"
-        materials[shape.get("id", "")] = name
-    return materials
-
-
-def _shape_bsdf_refs(
-    root: ET.Element, bsdf_ids: set[str]
-) -> dict[str, list[tuple[ET.Element, ET.Element]]]:
-    """For each top-level BSDF id, the (shape, ref) pairs that use it."""
-    uses: dict[str, list[tuple[ET.Element, ET.Element]]] = {}
-    for shape in root.iter("shape"):
-        for ref in shape.findall("ref"):
-            target = ref.get("id", "")
-            if target in bsdf_ids and ref.get("name") in (None, "bsdf"):
-                uses.setdefault(target, []).append((shape, ref))
-    return uses
-
-
-def _split_shared_bsdfs(root: ET.Element) -> dict[str, tuple[str, ...]]:
-    bsdfs = {el.get("id", ""): el for el in root.findall("bsdf")}
-    uses = _shape_bsdf_refs(root, set(bsdfs))
-    split: dict[str, tuple[str, ...]] = {}
-    for bsdf_id, pairs in uses.items():
-        if len(pairs) < 2:
-            continue
-        for shape, ref in pairs:
-            clone = copy.deepcopy(bsdfs[bsdf_id])
-            for element in clone.iter():
-                element.attrib.pop("id", None)  # the copy is keyed under its shape
-            index = list(shape).index(ref)
-            shape.remove(ref)
-            shape.insert(index, clone)
-        split[bsdf_id] = tuple(shape.get("id", "") for shape, _ in pairs)
-        if not any(ref.get("id") == bsdf_id for ref in root.iter("ref")):
-            root.remove(bsdfs[bsdf_id])
-    return split
-
-
-def _choose_sensor(
-    root: ET.Element, camera: CameraSpec, path: Path, where: str = "objective_camera"
-) -> ET.Element:
-    sensors = root.findall("sensor")
-    if camera.look_at is not None:
-        return _add_look_at_sensor(root, camera, sensors[0] if sensors else None)
-    if not sensors:
-        raise SceneError(
-            "the scene has no sensor",
-            where=str(path),
-            hint="add one, or give objective_camera a look_at",
-        )
-    if camera.sensor is None:
-        return sensors[0]
-    for sensor in sensors:
-        if sensor.get("id") == camera.sensor:
-            return sensor
-    # Sensors this pass added for the objective and inspection cameras are not the user's.
-    ids = ", ".join(s.get("id", "?") for s in sensors if not s.get("id", "").startswith("sensaov_"))
-    raise SceneError(
-        f"no sensor with id {camera.sensor!r} in {path.name}",
-        where=where,
-        hint=f"sensors in the scene: {ids}",
-    )
-
-
-def _add_inspection_sensor(
-    root: ET.Element, camera: CameraSpec, objective: ET.Element, path: Path, where: str
-) -> str:
-    """A sensor of its own for each inspection camera, so resolution overrides stay local."""
-    if camera.look_at is not None:
-        source = _add_look_at_sensor(root, camera, objective)
-    else:
-        source = objective if camera.objective else _choose_sensor(root, camera, path, where)
-        source = copy.deepcopy(source)
-        root.append(source)
-        if camera.resolution is not None:
-            _set_film_size(source, camera.resolution)
-    sensor_id = f"{INSPECTION_PREFIX}{camera.name}"
-    source.set("id", sensor_id)
-    return sensor_id
-
-
-def _vector(values: tuple[float, float, float]) -> str:
-    return ", ".join(repr(float(v)) for v in values)
-
-
-def _add_look_at_sensor(
-    root: ET.Element, camera: CameraSpec, template: ET.Element | None
-) -> ET.Element:
-    assert camera.look_at is not None
-    sensor = ET.SubElement(root, "sensor", {"type": "perspective", "id": OBJECTIVE_SENSOR_ID})
-    ET.SubElement(sensor, "float", {"name": "fov", "value": repr(float(camera.fov))})
-    transform = ET.SubElement(sensor, "transform", {"name": "to_world"})
-    ET.SubElement(
-        transform,
-        "lookat",
-        {
-            "origin": _vector(camera.look_at.origin),
-            "target": _vector(camera.look_at.target),
-            "up": _vector(camera.look_at.up),
-        },
-    )
-    film = template.find("film") if template is not None else None
-    if film is not None:
-        sensor.append(copy.deepcopy(film))
-    else:
-        film = ET.SubElement(sensor, "film", {"type": "hdrfilm"})
-        ET.SubElement(film, "rfilter", {"type": "box"})
-    _set_film_size(sensor, camera.resolution or (256, 256))
-    return sensor
-
-
-def _set_film_size(sensor: ET.Element, resolution: tuple[int, int]) -> None:
-    film = sensor.find("film")
-    if film is None:
-        film = ET.SubElement(sensor, "film", {"type": "hdrfilm"})
-    for name, value in zip(("width", "height"), resolution, strict=True):
-        for old in [c for c in film if c.get("name") == name]:
-            film.remove(old)
-        ET.SubElement(film, "integer", {"name": name, "value": str(value)})

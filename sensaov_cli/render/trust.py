@@ -1,51 +1,151 @@
-"""Which kinds of parameter have reverse-mode gradients we trust, and why the others are marked.
+"""How far each kind of reverse-mode gradient can be trusted, as measured (docs/verification.md).
 
-A (plugin, type) kind is *verified* when its gradient has been shown to agree with central
-finite differences (sensaov_cli/fdcheck.py) with Mitsuba 3.9.1:
+A kind is a (plugin, type) pair, the way sensaov names a parameter's holder and slot. Its label
+comes from ``scripts/trust_table.py``, which compares sensaov's own gradients of a tiny scene
+per plugin with central finite differences (Mitsuba 3.9.1, Dr.Jit 1.5.0, llvm_ad_rgb); the
+table in docs/verification.md is that script's output, and tests/test_trust.py keeps the two
+in step. A kind missing from the table is "unverified". At run time the self-checks
+(:mod:`~sensaov_cli.render.selfcheck`) can only lower a label, never raise it.
 
-- ``CHECKED_IN_TESTS``: re-checked by every test run (tests/test_gradients.py);
-- ``CHECKED_AT_HIGH_SPP``: their sampling depends on the parameter, so finite differences are
-  noisy and agreement only shows at high sample counts (1024 spp, 12 seeds; too slow for the
-  test suite). Measured once, recorded in docs/verification.md; the test suite still checks
-  that they never *disagree*.
-
-Everything else is reported as unverified, with the reason, so a ranking never presents an
-unchecked number as a trusted one. ``sensaov check`` measures any job's own parameters.
+prb differentiates a BSDF through ``bsdf.eval``, which is 0 for a delta lobe: the parameters of
+smooth conductors, dielectrics and plastics get 0 (plastic's diffuse reflectance a biased
+value). Their gradients come from Mitsuba's ``path`` instead, whose naive AD keeps the sampled
+lobe's weight attached (docs/verification.md has the cost).
 """
 
 from __future__ import annotations
 
-CHECKED_IN_TESTS = frozenset(
-    {
-        ("diffuse", "reflectance"),  # uniform and bitmap textures
-        ("area", "radiance"),
-        ("roughplastic", "reflectance"),
-        ("roughconductor", "eta"),
-        ("roughconductor", "k"),
-    }
-)
-CHECKED_AT_HIGH_SPP = frozenset(
-    {("roughdielectric", "roughness"), ("roughdielectric", "eta"), ("roughconductor", "roughness")}
-)
-VERIFIED = CHECKED_IN_TESTS | CHECKED_AT_HIGH_SPP
+from dataclasses import dataclass
 
-KNOWN_BIASED = {
-    ("roughplastic", "roughness"): (
-        "known biased: Mitsuba's roughplastic alpha gradient comes out 3-6x too small "
-        "against finite differences"
+from sensaov_cli.vocabulary import Trust
+
+MITSUBA = "Mitsuba 3.9.1"
+DELTA_PLUGINS = frozenset({"conductor", "dielectric", "plastic", "thindielectric"})
+DELTA_LOBE_REASON = (
+    f"smooth (delta) BSDF lobe: {MITSUBA}'s prb differentiates BSDFs through eval(), which is "
+    "0 for delta lobes"
+)
+ZERO_VALUE_REASON = (
+    f"value exactly 0: zero throughput ends the path {MITSUBA} replays, so the derivative at 0 "
+    "is lost"
+)
+SPOT_TEXTURE_REASON = (
+    f"{MITSUBA}'s spot light uses its texture only when it varies over the beam (a bitmap): "
+    "this uniform value has no effect"
+)
+# Principled parameters that switch a lobe on: Mitsuba evaluates only the lobes a scene sets.
+PRINCIPLED_LOBES = frozenset(
+    {"anisotropic", "clearcoat", "clearcoat_gloss", "flatness", "metallic", "sheen",
+     "sheen_tint", "spec_tint", "spec_trans"}
+)  # fmt: skip
+PRINCIPLED_LOBE_REASON = (
+    f"{MITSUBA}'s principled evaluates only the lobes the scene sets (decided at load): this "
+    "parameter's lobe is off, so it has no effect"
+)
+NO_FLOW_REASON = (
+    f"{MITSUBA} propagated no gradient to this parameter (it may not affect M at all: off "
+    "frame and on no sampled light path)"
+)
+
+
+@dataclass(frozen=True)
+class Entry:
+    trust: Trust
+    note: str = ""  # what a record of this kind says about its gradient ("" when verified)
+
+
+VERIFIED = Entry("verified")
+_PATH_PLASTIC = (
+    f"known biased: {MITSUBA}'s path integrator (prb gives 0 or worse for smooth plastic) "
+    "differentiates the lobe-selection weight"
+)
+
+
+def _noisy(kind: str) -> Entry:
+    return Entry("unverified", f"{kind} gradient: measured, too noisy to tell at 32x32/1024 spp")
+
+
+# (plugin, type) -> label. docs/verification.md "The trust table" is the measured evidence,
+# one row per parameter checked; the label of a kind is the weakest of its rows.
+TABLE: dict[tuple[str, str], Entry] = {
+    ("area", "radiance"): VERIFIED,
+    ("blendbsdf", "weight"): VERIFIED,
+    ("conductor", "eta"): VERIFIED,  # through path, like every parameter of a smooth BSDF
+    ("conductor", "k"): VERIFIED,
+    ("conductor", "specular"): VERIFIED,
+    ("constant", "radiance"): VERIFIED,
+    ("dielectric", "specular"): VERIFIED,
+    ("dielectric", "transmittance"): VERIFIED,
+    ("diffuse", "reflectance"): VERIFIED,  # uniform, bitmap, checkerboard, twosided, blended
+    ("directional", "radiance"): VERIFIED,
+    ("envmap", "radiance"): VERIFIED,  # data (through our own leaf) and scale
+    ("plastic", "reflectance"): Entry("biased", f"{_PATH_PLASTIC}: 6 % too high, measured"),
+    ("plastic", "specular"): Entry("biased", f"{_PATH_PLASTIC}: 60 % too low, measured"),
+    ("point", "radiance"): VERIFIED,
+    ("principled", "anisotropic"): _noisy("principled anisotropic"),
+    ("principled", "clearcoat"): _noisy("principled clearcoat"),
+    ("principled", "clearcoat_gloss"): _noisy("principled clearcoat_gloss"),
+    ("principled", "flatness"): VERIFIED,
+    ("principled", "metallic"): VERIFIED,
+    ("principled", "reflectance"): VERIFIED,
+    ("principled", "roughness"): _noisy("principled roughness"),
+    ("principled", "sheen"): VERIFIED,
+    ("principled", "sheen_tint"): VERIFIED,
+    ("principled", "spec_tint"): VERIFIED,
+    ("principled", "spec_trans"): VERIFIED,
+    ("principled", "specular"): VERIFIED,
+    ("roughconductor", "eta"): VERIFIED,
+    ("roughconductor", "k"): VERIFIED,
+    ("roughconductor", "roughness"): VERIFIED,
+    ("roughdielectric", "eta"): VERIFIED,
+    ("roughdielectric", "roughness"): VERIFIED,
+    ("roughplastic", "eta"): Entry(
+        "biased",
+        "known biased: Mitsuba's roughplastic eta gradient has the wrong sign against finite "
+        "differences",
     ),
-    ("roughplastic", "eta"): (
-        "known biased: Mitsuba's roughplastic eta gradient has the wrong sign "
-        "against finite differences"
+    ("roughplastic", "reflectance"): VERIFIED,
+    ("roughplastic", "roughness"): Entry(
+        "biased",
+        "known biased: Mitsuba's roughplastic alpha gradient comes out 3-25x too small against "
+        "finite differences",
     ),
+    ("spot", "beam_width"): VERIFIED,
+    ("spot", "cutoff_angle"): VERIFIED,
+    ("spot", "radiance"): VERIFIED,  # intensity and a bitmap texture
+    ("thindielectric", "eta"): Entry(
+        "no_gradient",
+        f"{MITSUBA}'s thindielectric picks reflection or transmission with its Fresnel term as "
+        "the probability and 1 as the weight: eta acts only through that choice, which neither "
+        "prb nor path differentiates",
+    ),
+    ("thindielectric", "transmittance"): VERIFIED,
 }
 
 
-def verification_status(plugin: str, ptype: str) -> tuple[bool, str]:
-    """(verified, note) for a parameter of type ``ptype`` held by ``plugin``."""
-    if (plugin, ptype) in VERIFIED:
-        return True, ""
-    known = KNOWN_BIASED.get((plugin, ptype))
-    if known:
-        return False, known
-    return False, f"{plugin} {ptype} gradient not verified against finite differences"
+def known_zero_reason(
+    plugin: str, ptype: str, key: str, integrator: str, all_zero: bool
+) -> str | None:
+    """Why a parameter differentiated by ``integrator`` can get an identically zero gradient."""
+    if plugin in DELTA_PLUGINS and integrator == "prb":
+        return DELTA_LOBE_REASON
+    if all_zero:
+        return ZERO_VALUE_REASON
+    if plugin == "spot" and key.endswith(".texture.value"):
+        return SPOT_TEXTURE_REASON
+    if plugin == "principled" and ptype in PRINCIPLED_LOBES:
+        return PRINCIPLED_LOBE_REASON
+    return None
+
+
+def gradient_integrator(plugin: str) -> str:
+    """The integrator whose backward pass differentiates a parameter held by ``plugin``."""
+    return "path" if plugin in DELTA_PLUGINS else "prb"
+
+
+def verification_status(plugin: str, ptype: str) -> tuple[Trust, str]:
+    """(label, note) the table gives a parameter of type ``ptype`` held by ``plugin``."""
+    entry = TABLE.get((plugin, ptype))
+    if entry is None:
+        return "unverified", f"{plugin} {ptype} gradient not verified against finite differences"
+    return entry.trust, entry.note

@@ -54,7 +54,11 @@ def trace(
         position = film_positions(mi, width, height, spp, seed)
         ray, _ = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5, 0.5))
         si = scene.ray_intersect(ray)
-        registry: Any = dr.reinterpret_array(mi.UInt32, si.shape)  # the stubs type it as object
+        # A hit through an instance reports the shapegroup's member in si.shape and the
+        # instance (the object people see) in si.instance; 0 there means no instance.
+        instance: Any = dr.reinterpret_array(mi.UInt32, si.instance)  # stubs say object
+        shape: Any = dr.reinterpret_array(mi.UInt32, si.shape)
+        registry = dr.select(instance != 0, instance, shape)
         table = mi.Int32(_object_of_registry_id(mi, scene, objects))
         hit = si.is_valid() & (registry < dr.width(table))
         index = dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)

@@ -19,9 +19,11 @@ from sensaov_cli.spec.markers import After, Before, Doc, JobPath, Json, Setting
 
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,31}$"
 FUNCTION_PATTERN = r"^[A-Za-z_][A-Za-z0-9_.]*:[A-Za-z_][A-Za-z0-9_]*$"
+SCENE_ARG_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
 PATTERN_MEANINGS = {
     NAME_PATTERN: "a name of 1 to 32 letters, digits or _, starting with a letter",
     FUNCTION_PATTERN: "'module:function', e.g. 'mymodule:objective'",
+    SCENE_ARG_PATTERN: "a scene argument name (letters, digits, _), as in $name",
 }
 
 
@@ -180,3 +182,20 @@ Globs = Annotated[
 ]
 MaxDepth = Annotated[int, STRICT, Ge(-1), After(_not_zero), Json({"not": {"const": 0}})]
 TrueFlag = Annotated[bool, Before(_only_true), Json({"const": True})]
+
+
+def _scene_arg_text(value: Any) -> Any:
+    """A scene argument as the text Mitsuba substitutes: ``str()`` of it, as load_file does."""
+    if isinstance(value, str | int | float) and not (isinstance(value, float) and value != value):
+        return str(value)
+    raise Problem(f"must be a string, a number or true/false, got {describe(value)}")
+
+
+# A scene's $name arguments, as mitsuba.load_file takes them: each value is passed as text.
+SceneArgs = Annotated[
+    dict[
+        Annotated[str, STRICT, Setting(pattern=SCENE_ARG_PATTERN)],
+        Annotated[str, Before(_scene_arg_text), Json({"type": ["string", "number", "boolean"]})],
+    ],
+    Doc("Values for the scene's $name arguments, like mitsuba.load_file's keywords."),
+]

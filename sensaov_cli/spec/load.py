@@ -147,7 +147,10 @@ def _first_error(exc: ValidationError, document: YamlDocument, shown: str) -> Sp
 
 def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
     """(key path, message, hint) for one pydantic error."""
-    path: KeyPath = tuple(part for part in error["loc"] if part not in _union_tags())
+    # "[key]" is pydantic's marker for a mapping's key (scene_args); the key itself precedes it.
+    path: KeyPath = tuple(
+        part for part in error["loc"] if part not in _union_tags() and part != "[key]"
+    )
     kind, ctx, value = error["type"], error.get("ctx", {}), error["input"]
     if kind == "value_error" and isinstance(ctx.get("error"), Problem):
         problem: Problem = ctx["error"]

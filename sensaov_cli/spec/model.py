@@ -38,6 +38,7 @@ from sensaov_cli.spec.fields import (
     Problem,
     Region,
     Resolution,
+    SceneArgs,
     Text,
     TrueFlag,
     Vector,
@@ -258,6 +259,7 @@ class JobSpec(Section):
     path: Annotated[Path, Given("job")]  # the job file itself
     version: Annotated[Literal[1], Doc("Job format version.")]
     scene: Annotated[JobFile, Doc("Mitsuba scene XML, relative to the job.")]
+    scene_args: SceneArgs = dataclasses.field(default_factory=dict)
     variant: Annotated[Variant, Doc("Mitsuba variant; auto picks one.")] = "auto"
     render: RenderSpec = RenderSpec()
     parameters: ParameterSpec = ParameterSpec()

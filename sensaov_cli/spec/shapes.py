@@ -178,6 +178,8 @@ def _keys(cls: type, shape: str | None) -> list[_Key]:
 
 def _key(field: dataclasses.Field[Any], hint: Any, here: In | None) -> _Key:
     default = field.default
+    if default is MISSING and field.default_factory is not MISSING:
+        default = field.default_factory()  # a mutable default (scene_args: {})
     if here is not None:
         if here.required:
             default = MISSING

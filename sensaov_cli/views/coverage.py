@@ -57,6 +57,11 @@ class VisibilityPass:
         )
         return (hits / self.spp).astype(np.float32).reshape(self.height, self.width)
 
+    @property
+    def visible_objects(self) -> tuple[str, ...]:
+        """The objects at least one sample of this view hit."""
+        return tuple(self.objects[i] for i in np.unique(self.coverage.obj))
+
     def paint(self, values: np.ndarray) -> np.ndarray:
         """(H, W) coverage-weighted mean of per-object ``values`` (background contributes 0)."""
         cov = self.coverage

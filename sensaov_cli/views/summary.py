@@ -1,32 +1,39 @@
 """The ranked summary of a buffer as a JSON-able dict (``sensaov rank --json``, ``run --json``).
 
 :mod:`sensaov_cli.outputs.tables` renders the text from this dict, so both always say the same
-thing. Parameters whose gradient
-is not verified against finite differences (``ParamRecord.verified`` false) carry a ``!`` in the
-text, with their notes in a legend under the table, and ``"verified": false`` in the dict;
-objects and types that include such a parameter are marked the same way.
+thing. Every parameter carries its trust label (docs/verification.md) and ``"verified"``
+(label "verified"); objects and types carry the weakest label among their parameters. The
+text marks them (``!`` unverified or biased, ``?`` suspect) with their notes in a legend.
+
+A parameter whose gradient is identically zero (label ``no_gradient``) is not a result: it is
+listed apart, under ``"no_gradient"`` with its reason, and left out of every score, and an
+object or type made only of such parameters is left out of its ranking.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
-from sensaov_cli.buffer.queries import groups, key_stats, rank, scores
-from sensaov_cli.vocabulary import Aggregate, Weight
+from sensaov_cli.buffer.queries import KeyStats, groups, key_stats, rank, scores
+from sensaov_cli.vocabulary import Aggregate, Grouping, Trust, Weight
 
 SUMMARY_FORMAT = "sensaov-summary"
-SUMMARY_VERSION = 1
+SUMMARY_VERSION = 2  # 2: trust labels, the "no_gradient" list, ranked counts
 
 _CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}
+# A group shows the weakest label among its ranked parameters.
+_WEAKEST_FIRST: tuple[Trust, ...] = ("suspect", "biased", "unverified", "verified")
+_GROUPINGS: tuple[Grouping, ...] = ("param", "object", "type")
 
 
 def summary_dict(
     buf: SensitivityBuffer, *, top: int = 8, method: Aggregate = "l2", weight: Weight = "value"
 ) -> dict[str, Any]:
     """Per objective: M, its definition, the top parameters and objects, and every type's score."""
+    ranked = _ranked_groups(buf)
     return {
         "format": SUMMARY_FORMAT,
         "format_version": SUMMARY_VERSION,
@@ -39,27 +46,74 @@ def summary_dict(
             "parameters": len(buf.params),
             "objects": len(buf.objects),
             "objectives": len(buf.objectives),
+            "ranked_parameters": len(ranked["param"]),
+            "ranked_objects": len(ranked["object"]),
         },
         "provenance": copy.deepcopy(buf.provenance),
-        "objectives": [_objective_summary(buf, o, top, method, weight) for o in buf.objectives],
+        "objectives": [
+            _objective_summary(buf, o, ranked, top, method, weight) for o in buf.objectives
+        ],
     }
 
 
+def _ranked_groups(buf: SensitivityBuffer) -> dict[Grouping, dict[str, tuple[str, ...]]]:
+    """Groups by parameter, object and type over the parameters a gradient flows to; a group
+    that had parameters and lost them all to ``no_gradient`` is dropped."""
+    flowing = [p.key for p in buf.params if p.trust != "no_gradient"]
+    ranked: dict[Grouping, dict[str, tuple[str, ...]]] = {}
+    for by in _GROUPINGS:
+        every, kept = groups(buf, None, by), groups(buf, flowing, by)
+        ranked[by] = {name: keys for name, keys in kept.items() if keys or not every[name]}
+    return ranked
+
+
+def _weakest(buf: SensitivityBuffer, keys: Sequence[str]) -> Trust:
+    labels = {buf.param(k).trust for k in keys}
+    return next((label for label in _WEAKEST_FIRST if label in labels), "verified")
+
+
 def _objective_summary(
-    buf: SensitivityBuffer, objective: ObjectiveRecord, top: int, method: Aggregate, weight: Weight
+    buf: SensitivityBuffer,
+    objective: ObjectiveRecord,
+    ranked: Mapping[Grouping, Mapping[str, Sequence[str]]],
+    top: int,
+    method: Aggregate,
+    weight: Weight,
 ) -> dict[str, Any]:
-    stats = key_stats(buf, objective.name, weight=weight)  # one pass, three groupings
-    by_param = groups(buf, None, "param")
-    by_object = groups(buf, None, "object")
-    by_type = groups(buf, None, "type")
+    stats = key_stats(buf, objective.name, ranked["param"], weight=weight)  # one pass, 3 groupings
+    return {
+        "name": objective.name,
+        "value": objective.value,
+        "definition": copy.deepcopy(objective.definition),
+        "grad_seed": objective.grad_seed,
+        "parameters": _parameters(buf, stats, ranked["param"], top, method),
+        "objects": _group_entries(buf, stats, ranked["object"], "name", method, top),
+        "types": _group_entries(buf, stats, ranked["type"], "type", method, None),
+        "no_gradient": [
+            {
+                "key": p.key,
+                "type": p.type,
+                "owners": list(p.owners),
+                "plugin": p.plugin,
+                "note": p.note,
+            }
+            for p in buf.params
+            if p.trust == "no_gradient"
+        ],
+    }
 
-    def verified(keys: Sequence[str]) -> bool:
-        return all(buf.param(k).verified for k in keys)
 
-    parameters = []
+def _parameters(
+    buf: SensitivityBuffer,
+    stats: Mapping[str, KeyStats],
+    by_param: Mapping[str, Sequence[str]],
+    top: int,
+    method: Aggregate,
+) -> list[dict[str, Any]]:
+    entries = []
     for key, score in rank(scores(stats, by_param, method), top):
         p = buf.param(key)
-        parameters.append(
+        entries.append(
             {
                 "key": key,
                 "type": p.type,
@@ -69,23 +123,24 @@ def _objective_summary(
                 "score": score,
                 "signed": stats[key].total,
                 "verified": p.verified,
+                "trust": p.trust,
                 "note": p.note,
             }
         )
-    objects = [
-        {"name": name, "score": score, "verified": verified(by_object[name])}
-        for name, score in rank(scores(stats, by_object, method), top)
-    ]
-    types = [
-        {"type": name, "score": score, "verified": verified(by_type[name])}
-        for name, score in rank(scores(stats, by_type, method))
-    ]
-    return {
-        "name": objective.name,
-        "value": objective.value,
-        "definition": copy.deepcopy(objective.definition),
-        "grad_seed": objective.grad_seed,
-        "parameters": parameters,
-        "objects": objects,
-        "types": types,
-    }
+    return entries
+
+
+def _group_entries(
+    buf: SensitivityBuffer,
+    stats: Mapping[str, KeyStats],
+    grouped: Mapping[str, Sequence[str]],
+    field: str,
+    method: Aggregate,
+    top: int | None,
+) -> list[dict[str, Any]]:
+    entries = []
+    for name, score in rank(scores(stats, grouped, method), top):
+        trust = _weakest(buf, grouped[name])
+        entries.append({field: name, "score": score, "verified": trust == "verified",
+                        "trust": trust})  # fmt: skip
+    return entries

@@ -1,0 +1,358 @@
+"""Measure the trust table of docs/verification.md: sensaov's gradients against finite differences.
+
+One tiny scene per plugin kind (32x32, a unit sphere before a checkered wall, lit by an area
+light, or lit by the emitter under test), loaded through sensaov's own scene stage so every
+parameter is named, typed and routed (prb or path) exactly as in a run. Each parameter is
+checked with sensaov's fdcheck: same-seed central differences where θ does not change how
+paths are sampled, independent-seed differences at a high sample count where it does (lobe
+selection, roughness, eta, blend weights: a shared seed does not give shared paths there).
+
+    .venv/bin/python scripts/trust_table.py            # about 3 minutes on 2 cores
+    .venv/bin/python scripts/trust_table.py --only plastic,envmap
+
+It prints the markdown that docs/verification.md holds: one row per parameter checked, then one
+label per (plugin, type) kind, the worst of its rows. sensaov_cli/render/trust.py must say the
+same (tests/test_trust.py compares them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from importlib.metadata import version
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from sensaov_cli.render.fdcheck import (
+    GradientCheck,
+    check_parameter,
+    check_parameter_independent,
+)
+from sensaov_cli.render.objectives import build_objectives
+from sensaov_cli.render.scene import load_scene
+from sensaov_cli.spec.load import load_job
+
+RES, SPP, SEEDS = 32, 32, 8  # same-seed checks
+IND_SPP, IND_FD_SPP, IND_SEEDS = 32, 1024, 12  # independent-seed checks
+WORST_FIRST = ("no_gradient", "biased", "suspect", "unverified", "verified")
+
+STAGE = """<scene version="3.0.0">
+  <integrator type="path"><integer name="max_depth" value="5"/></integrator>
+  <sensor type="perspective" id="sensor">
+    <float name="fov" value="40"/>
+    <transform name="to_world">
+      <lookat origin="0, 0.3, 3.4" target="0, 0, 0" up="0, 1, 0"/></transform>
+    <sampler type="independent"><integer name="sample_count" value="16"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="{res}"/><integer name="height" value="{res}"/>
+      <rfilter type="box"/></film>
+  </sensor>
+  <shape type="sphere" id="object"><float name="radius" value="1"/>{bsdf}</shape>
+  <shape type="rectangle" id="wall">
+    <transform name="to_world"><scale value="4"/><translate z="-2"/></transform>
+    <bsdf type="diffuse"><texture type="checkerboard" name="reflectance">
+      <transform name="to_uv"><scale value="6"/></transform></texture></bsdf>
+  </shape>
+  <shape type="rectangle" id="floor">
+    <transform name="to_world">
+      <scale value="4"/><rotate x="1" angle="-90"/><translate y="-1"/></transform>
+    <bsdf type="diffuse"><rgb name="reflectance" value="0.6, 0.25, 0.2"/></bsdf>
+  </shape>
+  {lights}
+</scene>"""
+AREA = """<shape type="rectangle" id="light">
+    <transform name="to_world">
+      <rotate x="1" angle="90"/><translate x="0.5" y="3" z="2"/></transform>
+    <emitter type="area">{radiance}</emitter></shape>"""
+AREA_RGB = AREA.format(radiance='<rgb name="radiance" value="9, 8, 7"/>')
+DIFFUSE = '<bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.6, 0.4"/></bsdf>'
+RGB = '<rgb name="{}" value="{}"/>'
+SPOT_AT = '<transform name="to_world"><lookat origin="0, 3, 2" target="0, 0, 0"/></transform>'
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str  # what the scene shows, e.g. "conductor (smooth)"
+    bsdf: str = DIFFUSE
+    lights: str = AREA_RGB
+    include: tuple[str, ...] = ("object.bsdf.*",)
+    independent: tuple[str, ...] = ()  # key suffixes checked with independent seeds
+    kind: bool = True  # False: a condition the self-checks catch, not evidence for its kind
+    ad_spp: int = IND_SPP  # independent checks of small or noisy derivatives need more
+    fd_spp: int = IND_FD_SPP
+
+
+def _bsdf(kind: str, *children: str) -> str:
+    return f'<bsdf type="{kind}">{"".join(children)}</bsdf>'
+
+
+def _bitmap(name: str, file: str) -> str:
+    return (
+        f'<texture type="bitmap" name="{name}"><string name="filename" value="{file}"/></texture>'
+    )
+
+
+# Parameters that change which lobe is sampled (plastics, blends, Fresnel-weighted choices,
+# principled's lobe weights): checked with independent seeds. Roughness changes sampled
+# directions continuously, so a shared seed still gives nearby paths: same seed, more seeds.
+PRINCIPLED_LOBES = ("metallic.value", "spec_trans.value", "clearcoat.value", "specular")
+CASES = (
+    Case("diffuse, uniform colour"),
+    Case("diffuse, bitmap", _bsdf("diffuse", _bitmap("reflectance", "tex.exr"))),
+    Case(
+        "diffuse, checkerboard",
+        _bsdf(
+            "diffuse",
+            '<texture type="checkerboard" name='
+            '"reflectance"><rgb name="color0" value="0.7, 0.5, 0.3"/></texture>',
+        ),
+    ),
+    Case("twosided diffuse", _bsdf("twosided", DIFFUSE)),
+    Case(
+        "plastic (smooth)",
+        _bsdf(
+            "plastic",
+            RGB.format("diffuse_reflectance", "0.3, 0.5, 0.2"),
+            RGB.format("specular_reflectance", "0.8, 0.8, 0.8"),
+        ),
+        independent=("diffuse_reflectance.value", "specular_reflectance.value"),
+        fd_spp=4096,
+    ),
+    Case(
+        "roughplastic",
+        _bsdf(
+            "roughplastic",
+            RGB.format("diffuse_reflectance", "0.3, 0.5, 0.2"),
+            '<float name="alpha" value="0.2"/>',
+        ),
+        independent=("diffuse_reflectance.value", "alpha", "eta"),
+    ),
+    Case(
+        "conductor (smooth)",
+        _bsdf(
+            "conductor",
+            RGB.format("eta", "0.2, 0.9, 1.1"),
+            RGB.format("k", "3.9, 2.4, 2.2"),
+            RGB.format("specular_reflectance", "0.9, 0.9, 0.9"),
+        ),
+    ),
+    Case(
+        "roughconductor",
+        _bsdf(
+            "roughconductor",
+            RGB.format("eta", "0.2, 0.9, 1.1"),
+            RGB.format("k", "3.9, 2.4, 2.2"),
+            '<float name="alpha" value="0.2"/>',
+        ),
+        independent=("alpha.value",),
+        ad_spp=1024,
+        fd_spp=4096,
+    ),
+    Case(
+        "dielectric (smooth)",
+        _bsdf(
+            "dielectric",
+            RGB.format("specular_reflectance", "0.9, 0.9, 0.9"),
+            RGB.format("specular_transmittance", "0.9, 0.8, 0.7"),
+        ),
+    ),
+    Case(
+        "roughdielectric",
+        _bsdf("roughdielectric", '<float name="alpha" value="0.2"/>'),
+        independent=("eta", "alpha.value"),
+        ad_spp=512,
+        fd_spp=4096,
+    ),
+    Case(
+        "thindielectric",
+        _bsdf("thindielectric", RGB.format("specular_transmittance", "0.9, 0.8, 0.7")),
+        independent=("eta",),
+    ),
+    Case(
+        "principled",
+        _bsdf(
+            "principled",
+            RGB.format("base_color", "0.6, 0.4, 0.3"),
+            '<float name="metallic" value="0.3"/><float name="roughness" value="0.4"/>'
+            '<float name="sheen" value="0.3"/><float name="clearcoat" value="0.3"/>'
+            '<float name="spec_trans" value="0.2"/>',
+        ),
+        independent=PRINCIPLED_LOBES,
+    ),
+    Case(
+        "blendbsdf (diffuse + roughconductor)",
+        _bsdf(
+            "blendbsdf",
+            '<float name="weight" value="0.4"/>',
+            DIFFUSE,
+            _bsdf("roughconductor", '<float name="alpha" value="0.3"/>'),
+        ),
+        include=("object.bsdf.weight.value", "object.bsdf.bsdf_0.*"),
+        independent=("weight.value",),
+    ),
+    Case("area, uniform", include=("light.emitter.*",)),
+    Case(
+        "area, bitmap",
+        lights=AREA.format(radiance=_bitmap("radiance", "tex.exr")),
+        include=("light.emitter.*",),
+    ),
+    Case(
+        "point",
+        lights=f'<emitter type="point" id="lamp"><point name="position" x="0.5" '
+        f'y="2.5" z="2"/>{RGB.format("intensity", "20, 18, 15")}</emitter>',
+        include=("lamp.*",),
+    ),
+    Case(
+        "spot, bitmap texture",
+        lights=f'<emitter type="spot" id="lamp">{SPOT_AT}'
+        f'{RGB.format("intensity", "40, 36, 30")}<float name="cutoff_angle" value="25"/>'
+        f"{_bitmap('texture', 'tex.exr')}</emitter>",
+        include=("lamp.*",),
+    ),
+    Case(
+        "directional",
+        lights='<emitter type="directional" id="sun"><vector name="direction" '
+        'x="-0.3" y="-1" z="-0.4"/><rgb name="irradiance" value="3, 2.8, 2.5"/></emitter>',
+        include=("sun.*",),
+    ),
+    Case(
+        "constant",
+        lights='<emitter type="constant" id="sky">'
+        '<rgb name="radiance" value="0.8, 0.9, 1.0"/></emitter>',
+        include=("sky.*",),
+    ),
+    Case(
+        "diffuse, reflectance exactly 0 (an area light's default BSDF)",
+        include=("light.bsdf.*",),
+        kind=False,
+    ),
+    Case(
+        "envmap",
+        lights='<emitter type="envmap" id="sky"><string name="filename" '
+        'value="sky.exr"/><float name="scale" value="1.5"/></emitter>',
+        include=("sky.*",),
+    ),
+)
+
+
+def write_case(case: Case, folder: Path) -> Path:
+    """The case's scene, its textures and a job selecting its parameters, in ``folder``."""
+    rng = np.random.default_rng(1)
+    import mitsuba as mi
+
+    mi.Bitmap(0.2 + 0.6 * rng.random((8, 8, 3), dtype=np.float32)).write(str(folder / "tex.exr"))
+    sky = 0.3 + rng.random((8, 16, 3), dtype=np.float32)
+    sky[1:3, 3:5] = 20.0  # a small sun, so the map is not flat
+    mi.Bitmap(sky).write(str(folder / "sky.exr"))
+    (folder / "scene.xml").write_text(STAGE.format(res=RES, bsdf=case.bsdf, lights=case.lights))
+    job = {
+        "version": 1,
+        "scene": "scene.xml",
+        "variant": "llvm_ad_rgb",
+        "render": {"spp": SPP, "max_depth": 5, "seed": 0, "resolution": [RES, RES]},
+        "parameters": {"include": list(case.include)},
+        "objectives": [{"name": "mean_luma", "type": "mean_luminance"}],
+        "output": "out",
+    }
+    (folder / "job.yaml").write_text(yaml.safe_dump(job, sort_keys=False))
+    return folder / "job.yaml"
+
+
+def label(check: GradientCheck) -> str:
+    if check.verdict == "agrees":
+        return "verified"
+    if check.verdict == "inconclusive":
+        return "unverified"
+    return "no_gradient" if check.adjoint == 0 else "biased"
+
+
+def measure(case: Case) -> list[tuple[Case, GradientCheck, bool]]:
+    with tempfile.TemporaryDirectory(prefix="sensaov-trust-") as tmp:
+        job = load_job(write_case(case, Path(tmp)))
+        loaded = load_scene(job)
+        (objective,) = build_objectives(loaded.mi, job.objectives, (RES, RES), False)
+        rows = []
+        for info in loaded.selected:
+            independent = info.key.endswith(case.independent) if case.independent else False
+            if independent:
+                check = check_parameter_independent(
+                    loaded,
+                    objective,
+                    info,
+                    spp=case.ad_spp,
+                    fd_spp=case.fd_spp,
+                    seeds=list(range(IND_SEEDS)),
+                )
+            else:
+                check = check_parameter(loaded, objective, info, spp=SPP, seeds=list(range(SEEDS)))
+            rows.append((case, check, independent))
+        return rows
+
+
+def row(case: Case, c: GradientCheck, independent: bool) -> str:
+    how = (
+        f"independent seeds, AD {case.ad_spp} spp, FD {case.fd_spp} spp"
+        if independent
+        else f"same seed, {SPP} spp"
+    )
+    seeds = IND_SEEDS if independent else SEEDS
+    error = f"{c.relative_error:.1e}" if c.finite_difference else "n/a"
+    noise = c.standard_error / max(abs(c.finite_difference), 1e-30)
+    return (
+        f"| {c.plugin} | {c.type} | {case.name}: `{c.key}` | {c.adjoint:+.4e} | "
+        f"{c.finite_difference:+.4e} | {error} | {noise:.1e} | {how} | {seeds} | {label(c)} |"
+    )
+
+
+def kinds(rows: list[tuple[Case, GradientCheck, bool]]) -> dict[tuple[str, str], str]:
+    worst: dict[tuple[str, str], str] = {}
+    for case, check, _ in rows:
+        if not case.kind:
+            continue
+        kind = (check.plugin, check.type)
+        labels = [worst.get(kind, "verified"), label(check)]
+        worst[kind] = min(labels, key=WORST_FIRST.index)
+    return dict(sorted(worst.items()))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", help="comma-separated case name prefixes")
+    args = parser.parse_args()
+    wanted = args.only.split(",") if args.only else None
+    cases = [c for c in CASES if wanted is None or c.name.startswith(tuple(wanted))]
+    start = time.perf_counter()
+    rows = []
+    for case in cases:
+        rows += measure(case)
+        print(f"measured {case.name} ({time.perf_counter() - start:.0f} s)", file=sys.stderr)
+    today = datetime.date.today().isoformat()
+    print(
+        f"Measured {today} with `scripts/trust_table.py`: Mitsuba {version('mitsuba')}, "
+        f"Dr.Jit {version('drjit')}, llvm_ad_rgb, {RES}x{RES}, M = mean luminance, "
+        f"{time.perf_counter() - start:.0f} s on {os.cpu_count()} CPU cores."
+    )
+    for kind in (True, False):
+        if not kind:
+            print("\nConditions the run-time self-checks catch (not evidence for a kind):")
+        print()
+        print(
+            "| plugin | type | case: parameter | adjoint | finite diff. | rel. error | "
+            "std. err. (rel.) | method | seeds | label |"
+        )
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        print("\n".join(row(*r) for r in rows if r[0].kind == kind))
+    print(
+        "\nThe labels, the weakest of each kind's rows:\n\n| plugin | type | label |\n|---|---|---|"
+    )
+    print("\n".join(f"| {p} | {t} | {lab} |" for (p, t), lab in kinds(rows).items()))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,343 @@
+"""Expand a scene into one XML tree the way Mitsuba 3.9.1's parser reads it (pure Python).
+
+sensaov rewrites the scene before Mitsuba sees it, so the rewrite has to see what Mitsuba
+would: the reference is ``src/core/parser.cpp`` (``parse_xml_node``, ``substitute_parameters``,
+``parse_file_impl``); the measured behaviour is in the issue-8 research notes. What is done:
+
+- ``<include>`` is replaced by the included file's objects (a ``<scene>`` root) or by its root
+  object (any other root, under the include's ``name``). The file is found next to the including
+  file first, then in the folders of the files that include that one and the ``<path>``
+  folders declared so far; cycles are refused (Mitsuba would only stop at its depth limit,
+  which is kept: 15).
+- ``$name`` substitution runs on every attribute in document order with one parameter table
+  shared by all files: job arguments first, ``<default>`` adds a name only if it is absent
+  (so defaults leak out of included files), plain substring replacement longest name first,
+  ``\\$`` escapes a dollar. A ``$`` left over is an error at its file and line, and so is a
+  job argument the scene never uses (Mitsuba refuses both).
+- ``<path>`` adds a search folder; ``<alias>`` is resolved into the ``<ref>``s that use it.
+- Plugin file names (meshes, bitmaps, envmaps) are resolved the way Mitsuba resolves them at
+  instantiation: against the main file's folder and the main file's ``<path>`` folders, never
+  an included file's folder. A ``<spectrum filename>`` is resolved when it is read, with the
+  folders of the files that include its file (measured: not its own file's folder). Found
+  names are made absolute, so a scene loaded from a string resolves them the same.
+- Files of a format version below 2.0 get Mitsuba's upgrade (scene_upgrade.py).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from sensaov_cli.errors import SceneError
+from sensaov_cli.render.scene_source import is_object, read_xml, user_attributes, where
+from sensaov_cli.render.scene_upgrade import upgrade_legacy
+
+MAX_INCLUDE_DEPTH = 15  # Mitsuba's ParserConfig.max_include_depth
+_PARAMETER_NAME = re.compile(r"[A-Za-z0-9_]*")
+
+
+@dataclass(frozen=True)
+class SceneArgument:
+    """A ``$name`` the scene was expanded with: its value and where it came from."""
+
+    value: str
+    origin: str  # "job", or the file:line of the scene's <default>
+
+
+@dataclass(frozen=True)
+class ExpandedScene:
+    root: ET.Element
+    files: tuple[Path, ...]  # every file the scene reads (XML first); names not found as written
+    search_path: tuple[Path, ...]  # where Mitsuba looks for names still relative, first wins
+    arguments: dict[str, SceneArgument]
+
+
+def expand_scene(path: Path, scene_args: Mapping[str, object]) -> ExpandedScene:
+    expansion = _Expansion(_Parameters(scene_args))
+    main = _Context(path, [path.parent.absolute()], ())
+    root = expansion.file(main)
+    if root.tag != "scene":
+        raise SceneError(f"root element is <{root.tag}>, expected <scene>", where=where(root))
+    expansion.finish(root, main)
+    return ExpandedScene(
+        root,
+        tuple(dict.fromkeys(expansion.files)),
+        tuple(dict.fromkeys(main.resolver)),
+        expansion.parameters.arguments(),
+    )
+
+
+@dataclass
+class _Parameter:
+    key: str  # "$name"
+    value: str
+    origin: str
+    used: bool  # Mitsuba's flag: a job argument never used is an error, a default never is
+    substituted: bool = False
+
+
+class _Parameters:
+    """Mitsuba's SortedParameters: one table for the main file and all its includes."""
+
+    def __init__(self, scene_args: Mapping[str, object]) -> None:
+        # Mitsuba turns every keyword argument into text with Python's str().
+        given = [_Parameter(f"${k}", str(v), "job", False) for k, v in scene_args.items()]
+        self.table = sorted(given, key=lambda p: -len(p.key))
+
+    def default(self, name: str, value: str, origin: str) -> None:
+        if any(p.key == f"${name}" for p in self.table):
+            return  # job arguments and earlier defaults win
+        new = _Parameter(f"${name}", value, origin, True)
+        shorter = (i for i, p in enumerate(self.table) if len(new.key) > len(p.key))
+        self.table.insert(next(shorter, len(self.table)), new)  # longest names first
+
+    def substitute(self, value: str, origin: str) -> str:
+        for param in self.table:
+            pos = value.find(param.key)
+            while pos != -1:
+                if pos > 0 and value[pos - 1] == "\\":
+                    pos += len(param.key)
+                else:
+                    value = value[:pos] + param.value + value[pos + len(param.key) :]
+                    param.used = param.substituted = True
+                    pos += len(param.value)
+                pos = value.find(param.key, pos)
+        _refuse_unresolved(value, origin)
+        return value.replace("\\$", "$")
+
+    def arguments(self) -> dict[str, SceneArgument]:
+        """The arguments the scene text actually used, with their values."""
+        return {p.key[1:]: SceneArgument(p.value, p.origin) for p in self.table if p.substituted}
+
+    def refuse_unused(self, path: Path) -> None:
+        unused = [p.key[1:] for p in self.table if p.origin == "job" and not p.used]
+        if unused:
+            known = sorted(p.key[1:] for p in self.table if p.used)
+            raise SceneError(
+                f"scene argument {unused[0]!r} is not used by the scene",
+                where=str(path),
+                hint=f"arguments the scene has: {', '.join(known) or 'none'}",
+            )
+
+
+def _refuse_unresolved(value: str, origin: str) -> None:
+    for pos, char in enumerate(value):
+        if char != "$" or (pos > 0 and value[pos - 1] == "\\"):
+            continue
+        name = _PARAMETER_NAME.match(value, pos + 1)
+        name_text = name.group() if name else ""
+        if not name_text:
+            raise SceneError(
+                "a '$' that names no scene argument", where=origin, hint="write \\$ for a '$'"
+            )
+        raise SceneError(
+            f"scene argument ${name_text} has no value",
+            where=origin,
+            hint=f"set it in the job (scene_args: {{{name_text}: ...}}) "
+            f'or give the scene a <default name="{name_text}" value="..."/>',
+        )
+
+
+@dataclass
+class _Context:
+    """One file being read: Mitsuba's per-file parser state.
+
+    Measured on 3.9.1: a file's resolver is its includer's, with the includer's folder
+    prepended; its own folder is searched first only for ``<include>`` and ``<path>``, so a
+    ``<spectrum filename>`` next to an included file is not found (one next to its includer
+    is).
+    """
+
+    path: Path
+    resolver: list[Path]  # search folders, first wins; <path> prepends to it
+    chain: tuple[Path, ...]  # this file and the files that include it, outermost first
+
+    def here(self) -> list[Path]:
+        """The folders an ``<include>`` or ``<path>`` in this file is looked for in."""
+        return [self.path.parent.absolute(), *self.resolver]
+
+
+@dataclass
+class _Expansion:
+    parameters: _Parameters
+    ids: dict[str, str] = field(default_factory=dict)  # id -> where it is defined
+    aliases: dict[str, str] = field(default_factory=dict)  # alias -> the id it stands for
+    files: list[Path] = field(default_factory=list)
+    filenames: list[ET.Element] = field(default_factory=list)  # resolved once <path>s are known
+    legacy: set[str] = field(default_factory=set)  # files older than format 2.0
+
+    def file(self, context: _Context) -> ET.Element:
+        root = read_xml(context.path)
+        self.files.append(context.path)
+        if _version(root) < (2, 0, 0):
+            self.legacy.add(str(context.path))
+        context.chain += (context.path,)
+        self._attributes(root)
+        if root.get("type", "scene") != "scene":
+            self._register(root)
+        for child in list(root):
+            self._element(root, child, context, at_root=True)
+        return root
+
+    def finish(self, root: ET.Element, main: _Context) -> None:
+        self.parameters.refuse_unused(main.path)
+        for ref in root.iter("ref"):
+            ref.set("id", self.aliases.get(ref.get("id", ""), ref.get("id", "")))
+        for element in self.filenames:
+            resolved = _resolve(element.get("value", ""), main.resolver)
+            self.files.append(resolved)
+            if resolved.is_absolute():
+                element.set("value", str(resolved))
+        upgrade_legacy(root, self.legacy)
+
+    def _attributes(self, element: ET.Element) -> None:
+        for key, value in user_attributes(element):
+            if "$" in value:
+                element.set(key, self.parameters.substitute(value, where(element)))
+
+    def _element(
+        self, parent: ET.Element, element: ET.Element, context: _Context, at_root: bool
+    ) -> None:
+        self._attributes(element)
+        handler = _DIRECTIVES.get(element.tag)
+        if handler is not None:
+            index = list(parent).index(element)
+            parent.remove(element)
+            for offset, replacement in enumerate(handler(self, element, context, at_root)):
+                parent.insert(index + offset, replacement)
+            return
+        if is_object(element):
+            self._register(element)
+        elif element.tag == "spectrum" and element.get("filename"):
+            self._spectrum_file(element, context)
+        elif (
+            element.tag == "string" and element.get("name") == "filename" and parent.tag != "scene"
+        ):
+            self.filenames.append(element)
+        for child in list(element):
+            self._element(element, child, context, at_root=False)
+
+    def _register(self, element: ET.Element) -> None:
+        identifier = element.get("id")
+        if identifier is None:
+            return
+        if identifier in self.ids:
+            first = self.ids[identifier]
+            raise SceneError(
+                f"duplicate id {identifier!r} (first defined at {first})", where=where(element)
+            )
+        self.ids[identifier] = where(element)
+
+    def _spectrum_file(self, element: ET.Element, context: _Context) -> None:
+        resolved = _resolve(element.get("filename", ""), context.resolver)
+        self.files.append(resolved)
+        if resolved.is_absolute():
+            element.set("filename", str(resolved))
+
+    def _include(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+        name = _required(element, "filename")
+        folders = context.here()
+        path = _resolve(name, folders)
+        if not path.exists():
+            raise SceneError(
+                f'included file "{name}" not found',
+                where=where(element),
+                hint=f"looked in {', '.join(str(p) for p in dict.fromkeys(folders))}",
+            )
+        _refuse_nesting(path, context.chain, where(element))
+        root = self.file(_Context(path, folders, context.chain))
+        if root.get("type", "scene") == "scene":
+            # Only objects cross over; properties and refs on an included <scene> are dropped.
+            return [child for child in root if is_object(child)]
+        root.attrib.pop("version")
+        root.attrib.pop("name", None)
+        if element.get("name"):
+            root.set("name", element.get("name", ""))
+        return [root]
+
+    def _default(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+        name = _required(element, "name")
+        if not name:
+            raise SceneError("<default>: name must be non-empty", where=where(element))
+        self.parameters.default(name, _required(element, "value"), where(element))
+        return []
+
+    def _path(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+        if not at_root:
+            raise SceneError("<path> can only be a child of the root element", where=where(element))
+        value = _required(element, "value")
+        folder = _resolve(value, context.here())
+        if not folder.exists():
+            raise SceneError(f'<path>: folder "{value}" not found', where=where(element))
+        context.resolver.insert(0, folder)
+        return []
+
+    def _alias(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+        source, alias = _required(element, "id"), _required(element, "as")
+        if alias in self.ids:
+            raise SceneError(f'alias destination id "{alias}" already exists', where=where(element))
+        if source not in self.ids:
+            raise SceneError(
+                f'alias source id "{source}" not found',
+                where=where(element),
+                hint="an alias must come after the object it names",
+            )
+        self.aliases[alias] = self.aliases.get(source, source)
+        self.ids[alias] = where(element)
+        return []
+
+
+_DIRECTIVES = {
+    "include": _Expansion._include,
+    "default": _Expansion._default,
+    "path": _Expansion._path,
+    "alias": _Expansion._alias,
+}
+
+
+def _required(element: ET.Element, attribute: str) -> str:
+    value = element.get(attribute)
+    if value is None:
+        raise SceneError(
+            f'missing required attribute "{attribute}" in <{element.tag}>', where=where(element)
+        )
+    return value
+
+
+def _version(root: ET.Element) -> tuple[int, ...]:
+    text = root.get("version")
+    if text is None:
+        raise SceneError(
+            f"missing version attribute in root element <{root.tag}>", where=where(root)
+        )
+    parts = text.strip().split(".")
+    if len(parts) != 3 or not all(part.isdigit() for part in parts):
+        raise SceneError(f'invalid version number "{text}"', where=where(root))
+    return tuple(int(part) for part in parts)
+
+
+def _resolve(name: str, folders: list[Path]) -> Path:
+    """Mitsuba's FileResolver.resolve: the first folder holding ``name``, else ``name``."""
+    path = Path(name)
+    if path.is_absolute():
+        return path
+    for folder in folders:
+        if (folder / path).exists():
+            return folder / path
+    return path
+
+
+def _refuse_nesting(path: Path, chain: tuple[Path, ...], origin: str) -> None:
+    real = [os.path.realpath(p) for p in chain]
+    if os.path.realpath(path) in real:
+        start = real.index(os.path.realpath(path))
+        names = " -> ".join(p.name for p in (*chain[start:], path))
+        raise SceneError(f"include cycle: {names}", where=origin)
+    if len(chain) >= MAX_INCLUDE_DEPTH:
+        raise SceneError(
+            f"include depth exceeds Mitsuba's limit of {MAX_INCLUDE_DEPTH}", where=origin
+        )

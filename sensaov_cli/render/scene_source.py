@@ -1,0 +1,149 @@
+"""Scene XML files with the file and line of every element, and the way back from Mitsuba.
+
+Elements read here carry their origin (``file:line``) in a private attribute that survives
+``copy.deepcopy`` (split BSDFs, inlined textures, sensor copies keep pointing at the user's
+line) and is never written out. :func:`write_xml` puts every element on a line of its own and
+returns, per line of the text Mitsuba reads, the user's ``file:line`` it came from, so that a
+load error Mitsuba reports as ``string (line L, col C)`` can be told at the user's file.
+"""
+
+from __future__ import annotations
+
+import copy
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from xml.parsers import expat
+
+from sensaov_cli.errors import SceneError
+
+OBJECT_TAGS = frozenset(
+    "scene bsdf emitter field film integrator medium phase rfilter sampler sensor shape texture"
+    " volume".split()
+)
+# Clark notation keeps the key out of every plain attribute lookup a rewrite does.
+_WHERE = "{urn:sensaov}where"
+# Mitsuba's location in a string-loaded scene, e.g. "Error while loading string (line 3, col 5): "
+_MITSUBA_LOCATION = re.compile(
+    r"(?:Error while loading |While loading |At )?string \(line (\d+), col \d+\):?\s*"
+)
+_MITSUBA_SOURCE_TAG = re.compile(r"\[[\w.]+:\d+\]\s*")  # "[parser.cpp:451] "
+_ATTRIBUTE_ESCAPES = str.maketrans(
+    {
+        "&": "&amp;",
+        "<": "&lt;",
+        '"': "&quot;",
+        "\n": "&#10;",
+        "\r": "&#13;",
+        "\t": "&#9;",
+        # Mitsuba substitutes parameters again on the text it is given: a literal "$" left by the
+        # expansion (the user wrote "\$") must reach it escaped.
+        "$": "\\$",
+    }
+)
+
+
+def is_object(element: ET.Element) -> bool:
+    """An element Mitsuba instantiates (``<spectrum type=..>`` is a texture object)."""
+    return element.tag in OBJECT_TAGS or (element.tag == "spectrum" and "type" in element.attrib)
+
+
+def read_xml(path: Path) -> ET.Element:
+    """Parse ``path``; every element remembers the line its start tag is on."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError as exc:
+        raise SceneError("scene file not found", where=str(path)) from exc
+    except OSError as exc:
+        raise SceneError(f"cannot read scene file: {exc.strerror}", where=str(path)) from exc
+    parser = expat.ParserCreate()
+    stack: list[ET.Element] = []
+    found: list[ET.Element] = []
+
+    def start(tag: str, attrs: dict[str, str]) -> None:
+        element = ET.Element(tag, attrs)
+        element.set(_WHERE, f"{path}:{parser.CurrentLineNumber}")
+        if stack:
+            stack[-1].append(element)
+        else:
+            found.append(element)
+        stack.append(element)
+
+    parser.StartElementHandler = start
+    parser.EndElementHandler = lambda tag: stack.pop()
+    try:
+        parser.Parse(data, True)
+    except expat.ExpatError as exc:
+        message = f"malformed XML: {expat.ErrorString(exc.code)}"
+        raise SceneError(message, where=f"{path}:{exc.lineno}") from exc
+    return found[0]
+
+
+def where(element: ET.Element) -> str:
+    """The user's ``file:line`` of ``element`` ("" for an element sensaov added)."""
+    return element.get(_WHERE, "")
+
+
+def user_attributes(element: ET.Element) -> list[tuple[str, str]]:
+    """The attributes as the user wrote them (without the location sensaov keeps)."""
+    return [(key, value) for key, value in element.attrib.items() if key != _WHERE]
+
+
+def source_file(element: ET.Element) -> str:
+    return where(element).rpartition(":")[0]
+
+
+def new_element(tag: str, attrib: dict[str, str], like: ET.Element | None = None) -> ET.Element:
+    """An element sensaov writes; ``like`` lends it the user's line it stands for."""
+    element = ET.Element(tag, attrib)
+    if like is not None and like.get(_WHERE):
+        element.set(_WHERE, where(like))
+    return element
+
+
+def detached_copy(element: ET.Element) -> ET.Element:
+    """A deep copy without ids (ids are global in Mitsuba; the original keeps them)."""
+    clone = copy.deepcopy(element)
+    for node in clone.iter():
+        node.attrib.pop("id", None)
+    return clone
+
+
+def write_xml(root: ET.Element) -> tuple[str, tuple[str | None, ...]]:
+    """The scene text, and for each of its lines the user's ``file:line`` (None: added)."""
+    lines: list[str] = []
+    sources: list[str | None] = []
+    _write(root, 0, lines, sources)
+    return "\n".join(lines) + "\n", tuple(sources)
+
+
+def _write(element: ET.Element, depth: int, lines: list[str], sources: list[str | None]) -> None:
+    attributes = "".join(f' {key}="{_escape(value)}"' for key, value in user_attributes(element))
+    pad = "  " * depth
+    children = list(element)
+    sources.append(element.get(_WHERE))
+    if not children:
+        lines.append(f"{pad}<{element.tag}{attributes}/>")
+        return
+    lines.append(f"{pad}<{element.tag}{attributes}>")
+    for child in children:
+        _write(child, depth + 1, lines, sources)
+    lines.append(f"{pad}</{element.tag}>")
+    sources.append(element.get(_WHERE))
+
+
+def _escape(value: str) -> str:
+    return value.translate(_ATTRIBUTE_ESCAPES)
+
+
+def locate_load_error(message: str, sources: tuple[str | None, ...]) -> tuple[str, str | None]:
+    """Mitsuba's load error on the rewritten text -> (one-line message, user's file:line)."""
+    text = _MITSUBA_SOURCE_TAG.sub("", message.strip())
+    found = None
+    match = _MITSUBA_LOCATION.search(text)
+    if match:
+        line = int(match.group(1))
+        found = sources[line - 1] if 0 < line <= len(sources) else None
+        text = text[: match.start()] + text[match.end() :]
+    parts = [part.strip() for part in text.splitlines() if part.strip()]
+    return " ".join(parts) or "Mitsuba could not load the scene", found
