@@ -8,6 +8,7 @@ pydantic) is caught too.
 from __future__ import annotations
 
 import pkgutil
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -83,3 +84,20 @@ def test_no_module_is_over_the_size_limit() -> None:
 def test_every_stage_package_exists() -> None:
     stages = {m.name for m in pkgutil.iter_modules(sensaov_cli.__path__) if m.ispkg}
     assert stages == {"cli", "spec", "render", "buffer", "views", "outputs"}
+
+
+def test_architecture_doc_lists_every_module() -> None:
+    doc = (REPO / "docs" / "architecture.md").read_text()
+    modules = sorted(str(p.relative_to(REPO)) for p in PACKAGE.rglob("*.py"))
+    assert [m for m in modules if f"`{m}`" not in doc] == []
+
+
+def test_module_paths_named_in_the_docs_exist() -> None:
+    texts = [REPO / "README.md", *(REPO / "docs").glob("*.md")]
+    named = {
+        (text.name, match)
+        for text in texts
+        for match in re.findall(r"sensaov_cli/[\w/]+\.py", text.read_text())
+    }
+    assert named, "the docs name no module at all"
+    assert sorted((doc, path) for doc, path in named if not (REPO / path).is_file()) == []
