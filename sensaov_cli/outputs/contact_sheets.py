@@ -2,7 +2,7 @@
 
 Each pass is coloured at the largest value among the objects this camera sees, so an object
 no camera shows (an environment map, a point light, anything off-frame) never washes the
-picture out; a pass whose objects all lie out of view says so in its tile's title.
+picture out; a pass whose objects all lie out of view is titled "unseen".
 """
 
 from __future__ import annotations
@@ -45,9 +45,10 @@ def write_previews(
         written.append(path)
         tile = _enlarged(diverging_rgb(layer.data / (scale or 1.0), 1.0))
         mark = " !" if json.loads(layer.metadata.get("unverified", "[]")) else ""
+        title = f"{layer.pass_name} +-{scale:.2e}{mark}"
         if not layer.data.any() and json.loads(layer.metadata.get("invisible", "[]")):
-            mark += " (not in view)"  # its objects matter, but this camera does not see them
-        sheets[layer.objective].append((f"{layer.pass_name} +-{scale:.2e}{mark}", tile))
+            title = f"{layer.pass_name}: unseen{mark}"  # it matters; this camera does not see it
+        sheets[layer.objective].append((title, tile))
     for objective, tiles in sheets.items():
         sheet = contact_sheet(
             tiles,
