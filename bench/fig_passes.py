@@ -65,7 +65,11 @@ class Passes:
         """The same pass with no sensaov code: ``render_backward``, then read each gradient."""
         import drjit as dr
 
+        from sensaov_cli.render.adjoint import enable_gradients
+
         scene = self.loaded
+        # Untimed: sensaov's own backward (interleaved with this one) leaves every gradient off.
+        enable_gradients(scene)
 
         def run() -> None:
             scene.integrator.render_backward(
