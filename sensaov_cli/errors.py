@@ -141,6 +141,12 @@ class ExrError(SensaovError, ValueError):
     """An EXR cannot be written as asked (bad shapes, NaN, clashing names) or cannot be read."""
 
 
+class CameraFileError(SensaovError):
+    """An inspection camera's EXR that cannot be read, or that holds no CryptoObject layer."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
 class PreviewError(SensaovError):
     """The preview cannot be drawn on this machine (OpenImageIO without its fonts)."""
 

@@ -15,6 +15,8 @@ Aggregate = Literal["l2", "rms", "sum"]
 Tonemap = Literal["none", "log", "symlog"]
 Normalize = Literal["none", "channel", "shared"]
 Grouping = Literal["param", "object", "type"]
+Cut = Literal["key", "object", "type"]  # what `rank --by` names a grouping (key = param)
+Order = Literal["object,type", "type,object"]  # the sunburst's rings, innermost first
 # How far a stored gradient can be trusted (docs/verification.md): checked against finite
 # differences | not checked | known to be wrong | identically 0 (never ranked) | failed a
 # run-time self-check.
@@ -26,4 +28,6 @@ AGGREGATES: tuple[str, ...] = get_args(Aggregate)
 TONEMAPS: tuple[str, ...] = get_args(Tonemap)
 NORMALIZES: tuple[str, ...] = get_args(Normalize)
 GROUPINGS: tuple[str, ...] = get_args(Grouping)
+CUTS: tuple[str, ...] = get_args(Cut)
+ORDERS: tuple[str, ...] = get_args(Order)
 TRUSTS: tuple[str, ...] = get_args(Trust)

@@ -19,7 +19,7 @@ import sensaov_cli
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = REPO / "sensaov_cli"
-HEAVY = ("mitsuba", "drjit", "pydantic", "yaml", "click")
+HEAVY = ("mitsuba", "drjit", "pydantic", "yaml", "click", "matplotlib")
 # Packages (and top-level modules) that a buffer reader, a compositor script or a farm's
 # post-processing step may import on a machine without the renderer or the CLI.
 NUMPY_ONLY = (

@@ -23,7 +23,17 @@ from sensaov_cli.cli import main
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_MEANINGS, EXIT_OK
 
 REPO = Path(__file__).resolve().parents[1]
-COMMANDS = ("validate", "schema", "params", "run", "project", "check", "rank")
+COMMANDS = (
+    "validate",
+    "schema",
+    "params",
+    "run",
+    "project",
+    "check",
+    "rank",
+    "sunburst",
+    "report",
+)
 CLI_MODULES = [f"sensaov_cli.cli.{m.name}" for m in pkgutil.iter_modules(sensaov_cli.cli.__path__)]
 
 

@@ -13,7 +13,17 @@ from __future__ import annotations
 import click
 
 from sensaov_cli import __version__
-from sensaov_cli.cli import check, params, project, rank, run, schema, validate
+from sensaov_cli.cli import (
+    check,
+    params,
+    project,
+    rank,
+    report,
+    run,
+    schema,
+    sunburst,
+    validate,
+)
 from sensaov_cli.cli.options import EXIT_CODES_EPILOG
 
 
@@ -43,6 +53,8 @@ main.add_command(run.run)
 main.add_command(project.project)
 main.add_command(check.check)
 main.add_command(rank.rank)
+main.add_command(sunburst.sunburst)
+main.add_command(report.report)
 
 __all__ = ["main"]
 

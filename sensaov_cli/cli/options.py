@@ -19,6 +19,7 @@ import click
 
 from sensaov_cli import interrupts
 from sensaov_cli.errors import EXIT_INTERRUPTED, EXIT_JOB_FAILED, EXIT_MEANINGS, SensaovError
+from sensaov_cli.vocabulary import AGGREGATES, WEIGHTS
 
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 
@@ -37,6 +38,25 @@ json_option = click.option(
     "--json", "as_json", is_flag=True, help="Print JSON on stdout instead of a table."
 )
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
+aggregate_option = click.option(
+    "--aggregate",
+    type=click.Choice(AGGREGATES),
+    default="l2",
+    show_default=True,
+    help="How a group's contributions become one score (docs/buffer-format.md).",
+)
+weight_option = click.option(
+    "--weight",
+    type=click.Choice(WEIGHTS),
+    default="value",
+    show_default=True,
+    help="value: θ·∂M/∂θ (response to a proportional change); raw: ∂M/∂θ.",
+)
+
+
+def objective_option(help_text: str, *, multiple: bool = False) -> Decorator:
+    """``--objective NAME``: an objective of the buffer (all of them when not given)."""
+    return click.option("--objective", multiple=multiple, help=help_text)
 
 
 def top_option(help_text: str) -> Decorator:

@@ -1,5 +1,5 @@
-"""Files and text a person or a tool reads (numpy, OpenEXR, OpenImageIO).
+"""Files and text a person or a tool reads (numpy, OpenEXR, OpenImageIO, matplotlib).
 
 Atomic writes, EXR and the layered EXR with Cryptomatte, PNG previews, provenance and the text
-tables. Nothing here renders or validates; see docs/architecture.md.
+tables, the rankings and the sunburst. Nothing here renders or validates; see docs/architecture.md.
 """

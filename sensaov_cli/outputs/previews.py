@@ -246,6 +246,12 @@ def _draw_text(canvas: np.ndarray, texts: Sequence[tuple[int, int, str, str]]) -
     canvas[...] = np.rint(blended).astype(np.uint8)
 
 
+def srgb_uint8(linear: np.ndarray) -> np.ndarray:
+    """A linear (H, W, 3) image as uint8 sRGB: clipped to [0, 1], non-finite pixels black."""
+    clean = np.nan_to_num(np.asarray(linear, dtype=np.float64), nan=0.0, posinf=1.0, neginf=0.0)
+    return np.rint(_srgb(np.clip(clean, 0.0, 1.0)) * 255.0).astype(np.uint8)
+
+
 def _srgb(linear: np.ndarray) -> np.ndarray:
     """The sRGB transfer curve (IEC 61966-2-1) of values in [0, 1]."""
     return np.where(

@@ -33,7 +33,7 @@ def summary_dict(
     buf: SensitivityBuffer, *, top: int = 8, method: Aggregate = "l2", weight: Weight = "value"
 ) -> dict[str, Any]:
     """Per objective: M, its definition, the top parameters and objects, and every type's score."""
-    ranked = _ranked_groups(buf)
+    ranked = ranked_groups(buf)
     return {
         "format": SUMMARY_FORMAT,
         "format_version": SUMMARY_VERSION,
@@ -56,7 +56,7 @@ def summary_dict(
     }
 
 
-def _ranked_groups(buf: SensitivityBuffer) -> dict[Grouping, dict[str, tuple[str, ...]]]:
+def ranked_groups(buf: SensitivityBuffer) -> dict[Grouping, dict[str, tuple[str, ...]]]:
     """Groups by parameter, object and type over the parameters a gradient flows to; a group
     that had parameters and lost them all to ``no_gradient`` is dropped."""
     flowing = [p.key for p in buf.params if p.trust != "no_gradient"]
@@ -67,7 +67,8 @@ def _ranked_groups(buf: SensitivityBuffer) -> dict[Grouping, dict[str, tuple[str
     return ranked
 
 
-def _weakest(buf: SensitivityBuffer, keys: Sequence[str]) -> Trust:
+def weakest_trust(buf: SensitivityBuffer, keys: Sequence[str]) -> Trust:
+    """The label a group of ``keys`` shows: the weakest among its parameters'."""
     labels = {buf.param(k).trust for k in keys}
     return next((label for label in _WEAKEST_FIRST if label in labels), "verified")
 
@@ -140,7 +141,7 @@ def _group_entries(
 ) -> list[dict[str, Any]]:
     entries = []
     for name, score in rank(scores(stats, grouped, method), top):
-        trust = _weakest(buf, grouped[name])
+        trust = weakest_trust(buf, grouped[name])
         entries.append({field: name, "score": score, "verified": trust == "verified",
                         "trust": trust})  # fmt: skip
     return entries

@@ -1,0 +1,38 @@
+"""``sensaov report``: one self-contained HTML page of a job's outputs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from sensaov_cli.cli.options import EXIT_CODES_EPILOG, job_argument, reports_errors
+
+
+@click.command(epilog=EXIT_CODES_EPILOG)
+@job_argument
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="The page to write (default: <output>/report.html of the job).",
+)
+@reports_errors
+def report(job: Path, output: Path | None) -> None:
+    """Write one HTML page of a job's outputs: nothing is rendered again.
+
+    \b
+    The primal, a sunburst and ranked tables (by object, type and key) per
+    objective, every channel preview of every camera (`project --png`), the
+    trust of every parameter and the provenance. Images are embedded: the file
+    opens in a browser straight from disk, with no network and no server.
+
+    \b
+    Example:
+      sensaov run configs/cbox.yaml && sensaov project configs/cbox.yaml --png
+      sensaov report configs/cbox.yaml          # -> out/cbox/report.html
+    """
+    from sensaov_cli.report import make_report
+    from sensaov_cli.spec.load import load_job
+
+    click.echo(str(make_report(load_job(job), output)))

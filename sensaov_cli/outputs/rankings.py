@@ -1,0 +1,151 @@
+"""``sensaov rank --by``'s outputs: the JSON document, the CSV and the text table.
+
+All three come from the same :class:`~sensaov_cli.views.hierarchy.Ranking` rows and carry the
+same columns (docs/rankings.md): the JSON is the reference, the CSV one line per row with the
+objective first, and the text the same numbers aligned, with the trust marks of ``rank``'s
+default summary and their legend.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import io
+from collections.abc import Sequence
+from typing import Any
+
+from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.outputs.tables import NO_GRADIENT_MARK, SUSPECT_MARK, UNVERIFIED_MARK, format_table
+from sensaov_cli.views.hierarchy import RANKING_FORMAT, RANKING_VERSION, Ranking, RankRow
+from sensaov_cli.vocabulary import Aggregate, Weight
+
+# The columns of a row, in JSON, CSV and text order (CSV puts "objective" first).
+COLUMNS = ("rank", "name", "score", "signed", "share", "sign", "value", "trust", "off_frame")
+_MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
+_CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}
+
+
+def row_dict(row: RankRow) -> dict[str, Any]:
+    """One row as JSON: the :data:`COLUMNS`, ``off_frame`` a list or null."""
+    entry = {column: getattr(row, column) for column in COLUMNS}
+    entry["off_frame"] = None if row.off_frame is None else list(row.off_frame)
+    return entry
+
+
+def ranking_dict(
+    buf: SensitivityBuffer,
+    found: Sequence[Ranking],
+    *,
+    method: Aggregate,
+    weight: Weight,
+    cameras: Sequence[str] | None,
+) -> dict[str, Any]:
+    """What ``sensaov rank --by ... --json`` prints (docs/rankings.md)."""
+    return {
+        "format": RANKING_FORMAT,
+        "format_version": RANKING_VERSION,
+        "by": found[0].by if found else None,
+        "aggregation": {
+            "method": method,
+            "weight": weight,
+            "contribution": _CONTRIBUTION[weight],
+        },
+        "columns": list(COLUMNS),
+        "cameras": None if cameras is None else list(cameras),
+        "provenance": copy.deepcopy(buf.provenance),
+        "objectives": [
+            {
+                "name": r.objective,
+                "value": r.objective_value,
+                "ranked": r.ranked,
+                "total_signed": r.total_signed,
+                "rows": [row_dict(row) for row in r.rows],
+                "no_gradient": [
+                    {"key": p.key, "type": p.type, "owners": list(p.owners), "note": p.note}
+                    for p in r.no_gradient
+                ],
+            }
+            for r in found
+        ],
+    }
+
+
+def ranking_csv(found: Sequence[Ranking]) -> str:
+    """One line per row, the objective first; off-frame cameras joined by ``;``, no value ""."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(("objective", *COLUMNS))
+    for r in found:
+        for row in r.rows:
+            cells = row_dict(row)
+            cells["value"] = "" if row.value is None else repr(row.value)
+            cells["off_frame"] = "" if row.off_frame is None else ";".join(row.off_frame)
+            writer.writerow((r.objective, *(cells[c] for c in COLUMNS)))
+    return out.getvalue()
+
+
+def ranking_text(found: Sequence[Ranking], *, method: Aggregate, weight: Weight) -> str:
+    """The rankings as aligned tables, one per objective, with the marks' legend."""
+    lines = [
+        f"score: {method} of {_CONTRIBUTION[weight]} over each row's components",
+        "signed: their sum (> 0: increasing it raises M); share: of the total sum of squares",
+    ]
+    for r in found:
+        lines += ["", f"objective {r.objective!r}   M = {r.objective_value:.4g}"]
+        lines.append(f"  by {r.by} (top {len(r.rows)} of {r.ranked})")
+        lines += _table(r)
+        lines += _legend(r)
+    return "\n".join(lines) + "\n"
+
+
+def _table(r: Ranking) -> list[str]:
+    if not r.rows:
+        return ["    (none)"]
+    cameras = any(row.off_frame is not None for row in r.rows)
+    values = r.by == "key"  # only a parameter has a value; groups leave the column out
+    headers = [
+        "#",
+        "",
+        "score",
+        "signed",
+        "sign",
+        "share",
+        *(["value"] * values),
+        r.by,
+        *(["off-frame"] * cameras),
+    ]
+    rows = [
+        [
+            str(row.rank),
+            _MARKS.get(row.trust, ""),
+            f"{row.score:.2e}",
+            f"{row.signed:+.2e}",
+            row.sign,
+            f"{100 * row.share:.1f}%",
+            *([_value(row.value)] * values),
+            row.name,
+            *([", ".join(row.off_frame or ()) or "-"] * cameras),
+        ]
+        for row in r.rows
+    ]
+    numeric = {0, 2, 3, 5, 6} if values else {0, 2, 3, 5}
+    return format_table([headers, *rows], numeric=numeric, indent="    ")
+
+
+def _value(value: float | None) -> str:
+    return "-" if value is None else f"{value:.4g}"
+
+
+def _legend(r: Ranking) -> list[str]:
+    marks = {_MARKS.get(row.trust, "") for row in r.rows}
+    lines = []
+    if UNVERIFIED_MARK in marks:
+        lines.append(f"  {UNVERIFIED_MARK} = unverified or biased gradient (or a group with one)")
+    if SUSPECT_MARK in marks:
+        lines.append(f"  {SUSPECT_MARK} = suspect gradient: it failed a run-time self-check")
+    if any(row.off_frame for row in r.rows):
+        lines.append("  off-frame: the cameras that see none of its objects")
+    if r.no_gradient:
+        lines.append(f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:")
+        lines += [f"      {p.key} ({', '.join(p.owners) or '-'}): {p.note}" for p in r.no_gradient]
+    return lines

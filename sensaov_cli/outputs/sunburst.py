@@ -1,0 +1,240 @@
+"""The sunburst as an SVG or PNG (paper Fig. 1), drawn with matplotlib from views' wedges.
+
+:mod:`sensaov_cli.views.sunburst` computes every angle; this module only draws. Colour is the
+wedge's signed sum Σc on the previews' RdBu (blue: increasing the group lowers M, red: raises
+it), relative to the largest |Σc| in its ring, so a pale wedge is a small one or one whose
+parameters pull both ways. Wedges with a gradient that is not verified are hatched. Labels go
+on the wedges wide enough to hold a line of text, along the radius, shortened to fit.
+matplotlib is imported inside the functions, with the Agg backend: no display is needed, and
+importing this module costs nothing.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from sensaov_cli.errors import OutputError
+from sensaov_cli.outputs.atomic import atomic_write
+from sensaov_cli.outputs.previews import RDBU, diverging_rgb
+from sensaov_cli.views.sunburst import Panel, Wedge
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+FORMATS = ("svg", "png")
+PANEL_INCHES = 7.0
+DPI = 120  # PNG only
+# Outer radius of the objective's disc and of each ring; the parameters' ring is the widest
+# because keys are the longest labels.
+RADII = (0.17, 0.43, 0.68, 1.0)
+FONT_PT = 7.5
+MIN_LABEL_ARC_IN = 0.17  # a wedge narrower than this at mid-radius gets no label
+_VIEW = 1.12  # axes limits: the disc plus a margin
+_HATCH = "////"
+_RING_NAMES = {
+    "object,type": "objects → types → parameters",
+    "type,object": "types → objects → parameters",
+}
+
+
+def write_sunburst(
+    path: Path, panels: Sequence[Panel], *, order: str, encoding: str, provenance: dict[str, Any]
+) -> None:
+    """Draw ``panels`` side by side into ``path`` (``.svg`` or ``.png``), atomically."""
+    fmt = path.suffix.lower().lstrip(".")
+    if fmt not in FORMATS:
+        raise OutputError(
+            f"cannot write a sunburst as {path.suffix or 'no suffix'!r}",
+            where=str(path),
+            hint="name the file .svg or .png",
+        )
+    data = sunburst_bytes(panels, fmt=fmt, order=order, encoding=encoding, provenance=provenance)
+
+    def write(tmp: Path) -> None:
+        tmp.write_bytes(data)
+
+    atomic_write(path, write)
+
+
+def sunburst_bytes(
+    panels: Sequence[Panel], *, fmt: str, order: str, encoding: str, provenance: dict[str, Any]
+) -> bytes:
+    """The drawing as the bytes of an SVG or PNG file (a report embeds them)."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # no display on a farm; must precede pyplot
+    from matplotlib import pyplot as plt
+
+    fig = _figure(panels, order, encoding)
+    out = io.BytesIO()
+    try:
+        metadata = {"Description": json.dumps(provenance, sort_keys=True)}
+        fig.savefig(out, format=fmt, dpi=DPI, metadata=metadata)
+    finally:
+        plt.close(fig)
+    return out.getvalue()
+
+
+def _figure(panels: Sequence[Panel], order: str, encoding: str) -> Figure:
+    from matplotlib import pyplot as plt
+
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(PANEL_INCHES * len(panels), PANEL_INCHES + 0.9), squeeze=False
+    )
+    for ax, panel in zip(axes[0], panels, strict=True):
+        _draw_panel(ax, panel)
+    _legend(fig, order, encoding)
+    fig.subplots_adjust(left=0.01, right=0.99, top=0.96, bottom=0.12, wspace=0.02)
+    return fig
+
+
+def _draw_panel(ax: Axes, panel: Panel) -> None:
+    from matplotlib.patches import Circle
+
+    ax.set_xlim(-_VIEW, _VIEW)
+    ax.set_ylim(-_VIEW, _VIEW)
+    ax.set_aspect("equal")
+    ax.axis("off")
+    ax.add_patch(Circle((0, 0), RADII[0], facecolor="#f0f0f0", edgecolor="white"))
+    ax.set_title(f"objective {panel.objective!r}", fontsize=11, weight="bold")
+    ax.text(0, 0, f"M =\n{panel.value:.4g}", ha="center", va="center", fontsize=8)
+    rings = [w for w in panel.wedges if w.ring > 0]
+    for ring in sorted({w.ring for w in rings}):
+        members = [w for w in rings if w.ring == ring]
+        scale = max(abs(w.signed) for w in members)
+        colours = diverging_rgb(np.array([w.signed for w in members]), scale) / 255.0
+        for wedge, colour in zip(members, colours, strict=True):
+            _draw_wedge(ax, wedge, tuple(colour))
+    if panel.no_gradient:
+        shown = ", ".join(panel.no_gradient[:4]) + (" …" if len(panel.no_gradient) > 4 else "")
+        ax.text(
+            0,
+            -_VIEW + 0.02,
+            f"not drawn (no gradient): {shown}",
+            ha="center",
+            fontsize=7,
+            color="#555555",
+        )
+
+
+def _degrees(fraction: float) -> float:
+    """A fraction of a turn clockwise from the top, as matplotlib's counter-clockwise degrees."""
+    return 90.0 - 360.0 * fraction
+
+
+def _draw_wedge(ax: Axes, wedge: Wedge, colour: tuple[float, ...]) -> None:
+    from matplotlib.patches import Wedge as WedgePatch
+
+    inner, outer = RADII[wedge.ring - 1], RADII[wedge.ring]
+    theta1, theta2 = _degrees(wedge.stop), _degrees(wedge.start)
+    ax.add_patch(
+        WedgePatch(
+            (0, 0),
+            outer,
+            theta1,
+            theta2,
+            width=outer - inner,
+            facecolor=colour,
+            edgecolor="white",
+            linewidth=0.8,
+        )
+    )
+    hatched = wedge.trust != "verified"
+    if hatched:
+        ax.add_patch(
+            WedgePatch(
+                (0, 0),
+                outer,
+                theta1,
+                theta2,
+                width=outer - inner,
+                fill=False,
+                hatch=_HATCH,
+                edgecolor="#444444",
+                linewidth=0,
+            )
+        )
+    _label(ax, wedge, (inner, outer), colour, hatched)
+
+
+def _label(
+    ax: Axes, wedge: Wedge, radii: tuple[float, float], colour: tuple[float, ...], boxed: bool
+) -> None:
+    inches_per_unit = PANEL_INCHES / (2 * _VIEW)
+    radius = sum(radii) / 2
+    if wedge.span * 2 * math.pi * radius * inches_per_unit < MIN_LABEL_ARC_IN:
+        return
+    fits = int((radii[1] - radii[0]) * 0.9 * inches_per_unit * 72 / (0.5 * FONT_PT))
+    text = _short(wedge, fits)
+    middle = math.radians(_degrees((wedge.start + wedge.stop) / 2))
+    rotation = math.degrees(middle)
+    if math.cos(middle) < 0:  # keep text upright on the left half
+        rotation += 180.0
+    dark = float(np.dot(colour[:3], (0.2126, 0.7152, 0.0722))) < 0.45
+    # On a hatched wedge the text sits on a patch of the wedge's colour, or the hatch hides it.
+    box = {"facecolor": colour, "edgecolor": "none", "pad": 0.6} if boxed else None
+    ax.text(
+        radius * math.cos(middle),
+        radius * math.sin(middle),
+        text,
+        rotation=rotation,
+        rotation_mode="anchor",
+        ha="center",
+        va="center",
+        fontsize=FONT_PT,
+        color="white" if dark else "black",
+        bbox=box,
+    )
+
+
+def _short(wedge: Wedge, fits: int) -> str:
+    """The wedge's name, cut to ``fits`` characters with an ellipsis; for a key, without what
+    the rings inside already say (its object's name in front, ``.value``/``.data`` behind)."""
+    label = wedge.label
+    for inner in wedge.path[:-1]:
+        label = label.removeprefix(f"{inner}.")
+    for tail in (".value", ".data"):
+        label = label.removesuffix(tail)
+    return label if len(label) <= fits else label[: max(fits - 1, 1)] + "…"
+
+
+def _legend(fig: Figure, order: str, encoding: str) -> None:
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import LinearSegmentedColormap, Normalize
+    from matplotlib.patches import Patch
+
+    cmap = LinearSegmentedColormap.from_list("sensaov_rdbu", RDBU / 255.0)
+    bar_ax = fig.add_axes((0.1, 0.075, 0.35, 0.02))
+    bar = fig.colorbar(ScalarMappable(Normalize(-1, 1), cmap), cax=bar_ax, orientation="horizontal")
+    bar.set_ticks([-1, 0, 1], labels=["lowers M", "0", "raises M"])
+    bar.ax.tick_params(labelsize=8)
+    bar.ax.set_title("colour: signed sum Σc / largest |Σc| in its ring", fontsize=8)
+    hatched = Patch(
+        facecolor="white",
+        edgecolor="#444444",
+        hatch=_HATCH,
+        label="gradient not verified (unverified, biased or suspect)",
+    )
+    fig.legend(
+        handles=[hatched],
+        loc="lower right",
+        bbox_to_anchor=(0.98, 0.055),
+        fontsize=8,
+        frameon=False,
+    )
+    fig.text(
+        0.5,
+        0.012,
+        f"rings from the centre: objective → {_RING_NAMES.get(order, order)}; "
+        f"angle ∝ {encoding} among the wedges of one parent",
+        ha="center",
+        fontsize=8,
+    )

@@ -1,0 +1,178 @@
+"""The sunburst's geometry (paper Fig. 1): rings from the objective out to the parameters.
+
+Ring 0 is the objective, a full disc. With the order ``object,type`` ring 1 holds the objects,
+ring 2 each object's parameter types and ring 3 the parameters (keys); ``type,object`` swaps
+rings 1 and 2. Every wedge is a group of keys scored with the chosen aggregate, and the
+siblings under one parent split the parent's angle in proportion to their scores' magnitudes:
+with l2 (or rms) a parent's score is not the sum of its children's, so "proportional" holds
+among siblings, which is what a reader compares. Angles are fractions of a turn, clockwise
+from the top, and numpy-free of drawing: :mod:`sensaov_cli.outputs.sunburst` draws them.
+
+As in the rankings, only parameters a gradient flows to are drawn (``no_gradient`` ones are
+listed apart), a parameter shared by several objects sits under each of its owners, one that
+no object owns sits under :data:`SCENE_WIDE`, and a group that scores exactly 0 gets no wedge.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.queries import KeyStats, combine, key_stats, rank
+from sensaov_cli.errors import QueryError
+from sensaov_cli.views.summary import ranked_groups, weakest_trust
+from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Trust, Weight
+
+# The object ring's wedge for parameters no object owns (a sensor's, an integrator's): the
+# paper's "global exposure that never appears in the frame" must not vanish from the rings.
+SCENE_WIDE = "(scene-wide)"
+
+Level = Callable[[SensitivityBuffer, Sequence[str]], dict[str, tuple[str, ...]]]
+
+
+@dataclass(frozen=True)
+class Wedge:
+    """One wedge: its ring, its path from ring 1, and its span in fractions of a turn."""
+
+    ring: int  # 0 the objective, 1 the innermost group ring, 3 the parameters
+    path: tuple[str, ...]  # names from ring 1 to this wedge; () for the objective
+    start: float  # fraction of a turn, clockwise from the top
+    stop: float
+    score: float  # the aggregate of the wedge's keys
+    signed: float  # Σc of its keys: its sign colours the wedge
+    trust: Trust  # the weakest label among its keys
+
+    @property
+    def label(self) -> str:
+        return self.path[-1] if self.path else ""
+
+    @property
+    def span(self) -> float:
+        return self.stop - self.start
+
+
+@dataclass(frozen=True)
+class Panel:
+    """One objective's sunburst: its name, M and wedges, and the keys it leaves out."""
+
+    objective: str
+    value: float
+    wedges: tuple[Wedge, ...]
+    no_gradient: tuple[str, ...]  # no gradient flows: listed under the disc, never drawn
+
+
+def panels(
+    buf: SensitivityBuffer,
+    objectives: Sequence[str] | None = None,
+    *,
+    order: Order = "object,type",
+    method: Aggregate = "l2",
+    weight: Weight = "value",
+) -> tuple[Panel, ...]:
+    """One panel per objective (all of the buffer's when ``objectives`` is None)."""
+    names = [o.name for o in buf.objectives] if objectives is None else list(objectives)
+    zero = tuple(p.key for p in buf.params if p.trust == "no_gradient")
+    return tuple(
+        Panel(
+            name,
+            buf.objective(name).value,
+            sunburst_wedges(buf, name, order=order, method=method, weight=weight),
+            zero,
+        )
+        for name in names
+    )
+
+
+def _owners(buf: SensitivityBuffer, key: str) -> tuple[str, ...]:
+    return buf.param(key).owners or (SCENE_WIDE,)
+
+
+def _by_object(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
+    owners = dict.fromkeys(o for k in keys for o in _owners(buf, k))
+    return {o: tuple(k for k in keys if o in _owners(buf, k)) for o in owners}
+
+
+def _by_type(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
+    types = dict.fromkeys(buf.param(k).type for k in keys)
+    return {t: tuple(k for k in keys if buf.param(k).type == t) for t in types}
+
+
+def _by_key(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
+    return {k: (k,) for k in keys}
+
+
+_LEVELS: dict[str, Level] = {"object": _by_object, "type": _by_type}
+
+
+def sunburst_wedges(
+    buf: SensitivityBuffer,
+    objective: str,
+    *,
+    order: Order = "object,type",
+    method: Aggregate = "l2",
+    weight: Weight = "value",
+) -> tuple[Wedge, ...]:
+    """Every wedge of ``objective``'s sunburst, ring by ring, largest first within a parent."""
+    if order not in ORDERS:
+        raise QueryError(f"unknown order {order!r}", hint=f"use one of: {', '.join(ORDERS)}")
+    keys = tuple(ranked_groups(buf)["param"])
+    stats = key_stats(buf, objective, keys, weight=weight)
+    levels = [_LEVELS[name] for name in order.split(",")] + [_by_key]
+    centre = _wedge(buf, stats, keys, 0, (), 0.0, 1.0, method)
+    wedges = [centre]
+    _children(buf, stats, centre, keys, levels, method, wedges)
+    return tuple(wedges)
+
+
+def _children(
+    buf: SensitivityBuffer,
+    stats: Mapping[str, KeyStats],
+    parent: Wedge,
+    keys: Sequence[str],
+    levels: Sequence[Level],
+    method: Aggregate,
+    out: list[Wedge],
+) -> None:
+    """Split ``parent``'s span among its groups at the next level, then recurse."""
+    if not levels:
+        return
+    grouped = levels[0](buf, keys)
+    magnitudes = {
+        name: abs(combine((stats[k] for k in members), method)) for name, members in grouped.items()
+    }
+    total = math.fsum(magnitudes.values())
+    start = parent.start
+    for name, magnitude in rank(magnitudes):
+        if magnitude == 0.0:
+            continue
+        stop = start + parent.span * magnitude / total
+        wedge = _wedge(
+            buf, stats, grouped[name], parent.ring + 1, (*parent.path, name), start, stop, method
+        )
+        out.append(wedge)
+        _children(buf, stats, wedge, grouped[name], levels[1:], method, out)
+        start = stop
+
+
+def _wedge(
+    buf: SensitivityBuffer,
+    stats: Mapping[str, KeyStats],
+    keys: Sequence[str],
+    ring: int,
+    path: tuple[str, ...],
+    start: float,
+    stop: float,
+    method: Aggregate,
+) -> Wedge:
+    group = [stats[k] for k in keys]
+    return Wedge(
+        ring=ring,
+        path=path,
+        start=start,
+        stop=stop,
+        score=combine(group, method),
+        signed=math.fsum(s.total for s in group),
+        trust=weakest_trust(buf, keys),
+    )

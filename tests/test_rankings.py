@@ -1,0 +1,245 @@
+"""`sensaov rank --by`: every cut agrees with a direct computation from the raw ``.npz``."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from sensaov_cli import interrupts
+from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
+from sensaov_cli.cli import main
+from sensaov_cli.errors import EXIT_BAD_INPUT
+from sensaov_cli.outputs.cryptomatte import metadata, rank_channels
+from sensaov_cli.outputs.frames import seen_names
+from sensaov_cli.outputs.rankings import COLUMNS
+from sensaov_cli.outputs.tables import summary_text
+
+from .conftest import sensaov
+
+OBJECTIVES = ("brightness", "centre")
+
+
+def record(
+    key: str, type_: str, owners: tuple[str, ...], shape: tuple[int, ...], trust: str = "verified"
+) -> ParamRecord:
+    note = "" if trust == "verified" else "a reason"
+    return ParamRecord(key, type_, owners, shape, len(shape) == 3, "diffuse", (), trust, note)
+
+
+def make_buffer() -> SensitivityBuffer:
+    """Shared and unshared parameters, a texture, a no-gradient one and an unverified one."""
+    params = (
+        record("wall.bsdf.reflectance.value", "reflectance", ("wall",), (3,)),
+        record("white.reflectance.value", "reflectance", ("floor", "ceiling"), (3,)),
+        record("floor.bsdf.alpha.value", "roughness", ("floor",), (1,), "biased"),
+        record("lamp.emitter.radiance.value", "radiance", ("lamp",), (3,)),
+        record("wall.bsdf.reflectance.data", "reflectance", ("wall",), (4, 5, 3)),
+        record("glass.eta", "eta", ("ball",), (1,), "no_gradient"),
+        record("exposure.scale", "scale", (), (1,)),
+    )
+    rng = np.random.default_rng(7)
+    values = {p.key: rng.uniform(0.1, 2.0, p.shape).astype(np.float32) for p in params}
+    grads = {
+        name: {
+            p.key: (
+                np.zeros(p.shape, np.float32)
+                if p.trust == "no_gradient"
+                else rng.normal(0.0, 1.0 + i, p.shape).astype(np.float32)
+            )
+            for i, p in enumerate(params)
+        }
+        for name in OBJECTIVES
+    }
+    return SensitivityBuffer(
+        provenance={"spp": 4},
+        objects=("ball", "ceiling", "floor", "lamp", "wall"),
+        params=params,
+        objectives=tuple(
+            ObjectiveRecord(n, {"type": "mean"}, 0.5, i) for i, n in enumerate(OBJECTIVES)
+        ),
+        values=values,
+        grads=grads,
+    )
+
+
+@pytest.fixture(scope="module")
+def buffer_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("rankings") / "buffer.npz"
+    make_buffer().save(path)
+    return path
+
+
+@pytest.fixture
+def runner(monkeypatch: pytest.MonkeyPatch) -> CliRunner:
+    monkeypatch.setattr(interrupts, "install", lambda: None)
+    return CliRunner()
+
+
+def direct(path: Path, objective: str, by: str, method: str, weight: str) -> list[dict]:
+    """The ranking from the raw archive with plain numpy, as docs/rankings.md defines it."""
+    with np.load(path, allow_pickle=False) as npz:
+        header = json.loads(str(npz["header"]))
+        j = next(o["array"] for o in header["objectives"] if o["name"] == objective)
+        params = [p for p in header["params"] if p["trust"] != "no_gradient"]
+        c = {}
+        for p in params:
+            grad = npz[f"grad_{j:03d}_{p['array']:06d}"].astype(np.float64).ravel()
+            value = npz[f"value_{p['array']:06d}"].astype(np.float64).ravel()
+            c[p["key"]] = grad * value if weight == "value" else grad
+            c[p["key"] + "/mean"] = value.mean()
+    if by == "key":
+        groups = {p["key"]: [p["key"]] for p in params}
+    else:
+        field = "owners" if by == "object" else "type"
+        names = sorted({n for p in params for n in (p[field] if by == "object" else [p[field]])})
+        groups = {
+            n: [p["key"] for p in params if n in (p[field] if by == "object" else [p[field]])]
+            for n in names
+        }
+    total_sq = sum(float(c[k] @ c[k]) for k in (p["key"] for p in params))
+    rows = []
+    for name, keys in groups.items():
+        allc = np.concatenate([c[k] for k in keys])
+        score = {
+            "l2": math.sqrt(allc @ allc),
+            "rms": math.sqrt(allc @ allc / allc.size),
+            "sum": allc.sum(),
+        }[method]
+        rows.append(
+            {
+                "name": name,
+                "score": score,
+                "signed": allc.sum(),
+                "share": float(allc @ allc) / total_sq,
+                "value": c[name + "/mean"] if by == "key" else None,
+            }
+        )
+    return sorted(rows, key=lambda r: -abs(r["score"]))
+
+
+@pytest.mark.parametrize("by", ["key", "object", "type"])
+@pytest.mark.parametrize(("method", "weight"), [("l2", "value"), ("rms", "raw"), ("sum", "value")])
+def test_rank_json_agrees_with_the_raw_arrays(
+    runner: CliRunner, buffer_path: Path, by: str, method: str, weight: str
+) -> None:
+    args = ["rank", str(buffer_path), "--by", by, "--json", "--top", "100"]
+    result = runner.invoke(main, [*args, "--aggregate", method, "--weight", weight])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.output)
+    assert doc["format"] == "sensaov-ranking" and doc["columns"] == list(COLUMNS)
+    for objective in doc["objectives"]:
+        expected = direct(buffer_path, objective["name"], by, method, weight)
+        rows = objective["rows"]
+        assert [r["name"] for r in rows] == [e["name"] for e in expected]
+        for row, want in zip(rows, expected, strict=True):
+            for column in ("score", "signed", "share"):
+                assert row[column] == pytest.approx(want[column], rel=1e-9, abs=1e-12)
+            assert row["value"] == (None if want["value"] is None else pytest.approx(want["value"]))
+            assert row["sign"] == ("+" if row["signed"] > 0 else "-")
+        assert [p["key"] for p in objective["no_gradient"]] == ["glass.eta"]
+        assert "ball" not in {r["name"] for r in rows}  # all its parameters are no_gradient
+
+
+def test_shares_of_keys_and_of_types_add_up_to_one(runner: CliRunner, buffer_path: Path) -> None:
+    for by in ("key", "type"):
+        result = runner.invoke(
+            main, ["rank", str(buffer_path), "--by", by, "--json", "--top", "99"]
+        )
+        for objective in json.loads(result.output)["objectives"]:
+            assert sum(r["share"] for r in objective["rows"]) == pytest.approx(1.0)
+
+
+def test_csv_carries_the_json_columns_and_numbers(runner: CliRunner, buffer_path: Path) -> None:
+    base = ["rank", str(buffer_path), "--by", "key", "--objective", "centre", "--top", "3"]
+    doc = json.loads(runner.invoke(main, [*base, "--json"]).output)
+    table = list(csv.DictReader(io.StringIO(runner.invoke(main, [*base, "--csv"]).output)))
+    assert list(table[0]) == ["objective", *COLUMNS]
+    assert [o["name"] for o in doc["objectives"]] == ["centre"]
+    for line, row in zip(table, doc["objectives"][0]["rows"], strict=True):
+        assert line["name"] == row["name"] and line["trust"] == row["trust"]
+        assert float(line["score"]) == row["score"] and float(line["share"]) == row["share"]
+        assert float(line["value"]) == row["value"] and line["off_frame"] == ""
+
+
+def test_text_marks_trust_and_lists_no_gradient(runner: CliRunner, buffer_path: Path) -> None:
+    result = runner.invoke(main, ["rank", str(buffer_path), "--by", "object"])
+    assert result.exit_code == 0
+    floor = next(line for line in result.output.splitlines() if line.rstrip().endswith("floor"))
+    assert " ! " in floor  # floor owns the biased alpha
+    assert "glass.eta (ball): a reason" in result.output
+
+
+def test_default_output_is_the_summary(runner: CliRunner, buffer_path: Path) -> None:
+    result = runner.invoke(main, ["rank", str(buffer_path), "--top", "3"])
+    assert result.output == summary_text(SensitivityBuffer.load(buffer_path), top=3) + "\n"
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [
+        ["--csv"],
+        ["--objective", "centre"],
+        ["--by", "key", "--json", "--csv"],
+        ["--by", "type", "--exr", "x.exr"],
+        ["--by", "key", "--objective", "nope"],
+    ],
+)
+def test_option_misuse_is_bad_input(runner: CliRunner, buffer_path: Path, extra: list) -> None:
+    result = runner.invoke(main, ["rank", str(buffer_path), *extra])
+    assert result.exit_code == EXIT_BAD_INPUT, result.output
+
+
+def crypto_header(names: list[str]) -> dict[str, Any]:
+    return metadata("CryptoObject", names)
+
+
+def test_seen_names_reads_coverage_not_the_manifest() -> None:
+    names = ["floor", "lamp", "wall"]
+    index = np.array([[[0, 2], [2, -1]]], np.int32)  # 1 x 2 pixels, 2 ranks; lamp nowhere
+    coverage = np.array([[[0.75, 0.25], [1.0, 0.0]]], np.float32)
+    found = rank_channels("CryptoObject", names, index, coverage)
+    assert seen_names(found, crypto_header(names)) == {"floor", "wall"}
+
+
+# The demo job's cameras (configs/cbox.yaml), smaller: the light on the ceiling is in the
+# objective camera's frame and hidden from the overhead one, which looks down from outside.
+DEMO_CAMERAS = [
+    {"name": "objective", "objective": True, "vis_spp": 4},
+    {
+        "name": "overhead",
+        "look_at": {"origin": [0.0, 0.9, 3.0], "target": [0.0, -0.4, 0.0], "up": [0.0, 1.0, 0.0]},
+        "fov": 50,
+        "resolution": [48, 48],
+        "vis_spp": 4,
+    },
+]
+
+
+def test_demo_light_is_off_frame_for_the_overhead_camera(job_writer: Any) -> None:
+    job = job_writer(
+        "offframe",
+        inspection_cameras=DEMO_CAMERAS,
+        channels=[{"name": "objects", "kind": "object"}],
+    )
+    assert sensaov("run", "-q", str(job)).returncode == 0
+    done = sensaov("project", "-q", str(job))
+    assert done.returncode == 0, done.stderr
+    out = job.parent / "out"
+    exrs = ["--exr", str(out / "objective.exr"), "--exr", str(out / "overhead.exr")]
+    result = sensaov("rank", str(out / "buffer.npz"), "--by", "object", "--json", *exrs)
+    assert result.returncode == 0, result.stderr
+    doc = json.loads(result.stdout)
+    assert doc["cameras"] == ["objective", "overhead"]
+    off = {r["name"]: r["off_frame"] for r in doc["objectives"][0]["rows"]}
+    assert off.pop("light") == ["overhead"]
+    assert off and all(cameras == [] for cameras in off.values())
+    text = sensaov("rank", str(out / "buffer.npz"), "--by", "object", *exrs).stdout
+    assert any(line.split()[-2:] == ["light", "overhead"] for line in text.splitlines())
