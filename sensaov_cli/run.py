@@ -49,6 +49,12 @@ def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutpu
             where=f"{job.path}: parameters",
             hint="'sensaov params JOB' lists every key and why it was left out",
         )
+    if loaded.replaced_integrator is not None:
+        progress.note(
+            f"the scene's '{loaded.replaced_integrator}' integrator renders other light "
+            f"transport than the path replay sensaov differentiates (full paths up to "
+            f"max_depth {job.render.max_depth}): M is measured on that image"
+        )
     scene_spp = loaded.scene_sample_count
     if scene_spp is not None and scene_spp != job.render.spp:
         progress.note(
@@ -126,7 +132,8 @@ def _provenance(
         "scene_fingerprint": loaded.fingerprint,
         "scene_args": dict(loaded.scene_args),  # every $name the scene used, as substituted
         "scene_sample_count": loaded.scene_sample_count,  # the scene's spp; the job's renders
-        "integrator": "prb",
+        "integrator": loaded.integrator_type,  # the replay integrator that ran
+        "scene_integrator_replaced": loaded.replaced_integrator,
         **result.provenance,  # which integrator differentiated what; the self-checks' figures
         "max_depth": job.render.max_depth,
         "spp": job.render.spp,

@@ -10,6 +10,7 @@ fills, camera ids and scene arguments checked before anything renders, and ``run
 from __future__ import annotations
 
 import json
+import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -23,9 +24,10 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_OK
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.render.scene import LoadedScene, load_scene
+from sensaov_cli.render.scene_xml import prepare_scene_xml
 from sensaov_cli.render.visibility import trace
 from sensaov_cli.spec.load import load_job
-from sensaov_cli.spec.model import ChannelSpec
+from sensaov_cli.spec.model import CameraSpec, ChannelSpec
 from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass, histogram, ranked
 from sensaov_cli.views.painting import paint_pass
@@ -182,3 +184,47 @@ def test_previews_take_their_scale_from_what_the_camera_sees() -> None:
     assert painted.scale.scale == pytest.approx(10.0)
     assert painted.preview_scale * painted.scale.scale == pytest.approx(0.1)
     assert painted.invisible == ("sky",)
+
+
+def integrator_of(tmp_path: Path, integrator: str) -> tuple[ET.Element, str | None]:
+    scene = tmp_path / "scene.xml"
+    scene.write_text(
+        f'<scene version="3.0.0">{integrator}'
+        '<sensor type="perspective"><film type="hdrfilm"/></sensor>'
+        '<shape type="sphere" id="ball"/></scene>'
+    )
+    prepared = prepare_scene_xml(
+        scene, max_depth=4, camera=CameraSpec("objective"), resolution=None, shared="split"
+    )
+    return ET.fromstring(prepared.text).find("integrator"), prepared.replaced_integrator
+
+
+def test_integrator_settings_that_change_the_image_are_kept(tmp_path: Path) -> None:
+    settings = '<boolean name="hide_emitters" value="true"/><integer name="rr_depth" value="3"/>'
+    integrator, replaced = integrator_of(
+        tmp_path, f'<integrator type="path">{settings}</integrator>'
+    )
+    assert integrator is not None and integrator.get("type") == "prb" and replaced is None
+    kept = {child.get("name"): child.get("value") for child in integrator}
+    assert kept == {"max_depth": "4", "hide_emitters": "true", "rr_depth": "3"}
+
+
+def test_a_volumetric_scene_keeps_its_media(tmp_path: Path) -> None:
+    integrator, replaced = integrator_of(tmp_path, '<integrator type="volpath"/>')
+    assert integrator is not None and integrator.get("type") == "prbvolpath" and replaced is None
+
+
+def test_an_integrator_rendering_other_transport_is_reported(tmp_path: Path) -> None:
+    integrator, replaced = integrator_of(tmp_path, '<integrator type="direct"/>')
+    assert integrator is not None and integrator.get("type") == "prb"
+    assert replaced == "direct"
+
+
+def test_spectral_colour_coefficients_are_not_trusted(tmp_path: Path) -> None:
+    job = write_job(tmp_path, variant="llvm_ad_spectral")
+    result = sensaov("params", str(job), "--json")
+    assert result.returncode == EXIT_OK, result.stderr
+    selected = {p["key"]: p for p in json.loads(result.stdout)["selected"]}
+    colour = selected["green.reflectance.value"]
+    assert colour["trust"] == "unverified" and "spectral-upsampling" in colour["note"]
+    assert selected["glass.eta"]["trust"] != "unverified"  # a plain float is what it says

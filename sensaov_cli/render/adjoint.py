@@ -155,13 +155,16 @@ def path_chunks(pixels: int, spp: int) -> list[int]:
 
 
 def path_integrator(loaded: LoadedScene) -> Any:
-    """Mitsuba's ``path`` with the depth and Russian roulette of the scene's prb."""
+    """Mitsuba's ``path`` (``volpath`` beside ``prbvolpath``) with the depth, Russian roulette
+    and emitter visibility of the scene's replay integrator, so both see the same image."""
     max_depth = int(getattr(loaded.integrator, "max_depth", 6))
+    volumetric = type(loaded.integrator).__name__ == "PRBVolpathIntegrator"
     return loaded.mi.load_dict(
         {
-            "type": "path",
+            "type": "volpath" if volumetric else "path",
             "max_depth": -1 if max_depth >= 0xFFFFFFFF else max_depth,  # prb's "infinite"
             "rr_depth": int(getattr(loaded.integrator, "rr_depth", 5)),
+            "hide_emitters": bool(getattr(loaded.integrator, "hide_emitters", False)),
         }
     )
 

@@ -40,6 +40,12 @@ TYPE_ALIASES = {
 # Emitter slots that scale what it emits: an envmap's ``data`` is its radiance map and
 # ``scale`` multiplies it; a spot or projector light's ``texture`` modulates its intensity.
 _EMITTER_SLOT_TYPES = {"data": "radiance", "scale": "radiance", "texture": "radiance"}
+# Spectral variants store an RGB colour (a value, a bitmap's texels) as the coefficients of
+# its spectral upsampling, not as the colour: θ·∂M/∂θ over them is no proportional change.
+SPECTRAL_COEFFICIENTS_NOTE = (
+    "in spectral variants Mitsuba stores this colour as spectral-upsampling coefficients, so "
+    "its scores are not a proportional change of the colour; use an RGB variant for colours"
+)
 # Mitsuba class names of the common plugins -> the plugin names users write in XML.
 PLUGIN_NAMES = {
     "SmoothDiffuse": "diffuse",
@@ -81,6 +87,12 @@ class LoadedScene:
     materials: dict[str, str]  # object -> material (BSDF id) name, for the material Cryptomatte
     scene_args: dict[str, str]  # every $name the scene used and the value it got
     scene_sample_count: int | None  # the scene's own spp (a default: the job's spp renders)
+    replaced_integrator: str | None  # the scene's integrator when it renders other transport
+
+    @property
+    def integrator_type(self) -> str:
+        """The plugin name of the replay integrator: "prb", or "prbvolpath" for media."""
+        return "prbvolpath" if type(self.integrator).__name__ == "PRBVolpathIntegrator" else "prb"
 
 
 def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> LoadedScene:
@@ -126,6 +138,7 @@ def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> Loaded
         materials=prepared.materials,
         scene_args={name: arg.value for name, arg in prepared.scene_args.items()},
         scene_sample_count=prepared.sample_count,
+        replaced_integrator=prepared.replaced_integrator,
     )
 
 
@@ -266,8 +279,10 @@ def _describe(mi: ModuleType, key: str, params: Any, owners: tuple[str, ...]) ->
     ptype = TYPE_ALIASES.get(ptype, ptype)
     is_texture = is_texture_node and parts[-1] == "data"
     trust, note = verification_status(plugin, ptype)
-    flag_names = ("discontinuous",) if flags & int(mi.ParamFlags.Discontinuous) else ()
     shape = value_shape(np.asarray(params[key]))
+    if is_texture_node and "spectral" in mi.variant() and shape[-1:] == (3,):
+        trust, note = "unverified", SPECTRAL_COEFFICIENTS_NOTE
+    flag_names = ("discontinuous",) if flags & int(mi.ParamFlags.Discontinuous) else ()
     return ParamRecord(
         key=key,
         type=ptype,
@@ -284,7 +299,7 @@ def _describe(mi: ModuleType, key: str, params: Any, owners: tuple[str, ...]) ->
 def _slot_and_holder(
     mi: ModuleType, parts: list[str], node: Any, hierarchy: Any
 ) -> tuple[str, Any]:
-    """The slot a parameter fills in the plugin that is not a texture, and that plugin.
+    """The slot a parameter fills in the plugin that is not a texture (or volume), and that plugin.
 
     A texture's parameters take the slot of the outermost texture: in
     ``glaze.roughness.color0.value`` the uniform ``color0`` sits in a checkerboard that fills
@@ -292,7 +307,7 @@ def _slot_and_holder(
     """
     levels = 0
     holder = node
-    while isinstance(holder, mi.Texture):
+    while isinstance(holder, mi.Texture | mi.Volume):  # a medium's albedo is a volume
         levels += 1
         parent = hierarchy.get(holder)
         if parent is None:

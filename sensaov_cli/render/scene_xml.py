@@ -5,8 +5,11 @@ The user's files are never modified. The scene is first expanded as Mitsuba's pa
 absolute), then rewritten, and the text is handed to ``mitsuba.load_string``. What the rewrite
 changes, and why:
 
-- every integrator is replaced by ``prb`` with the job's ``max_depth`` (``path`` costs memory
-  that grows with spp under AD; ``prb`` is constant-memory, MITSUBA-NOTES);
+- every integrator is replaced by ``prb`` (``prbvolpath`` for a ``volpath`` scene, so media
+  stay in the image) with the job's ``max_depth`` and the scene's ``hide_emitters`` and
+  ``rr_depth`` (``path`` costs memory that grows with spp under AD; ``prb`` is
+  constant-memory, MITSUBA-NOTES); an integrator that renders other light transport
+  (``direct``, ``aov``, …) is reported, since the objective then sees another image;
 - bitmap textures, nested ones too, load as float (``format = variant``) so their texels
   receive gradients (8-bit textures load as non-differentiable integers by default); envmaps
   load their images as float already and take no ``format``;
@@ -73,6 +76,7 @@ class PreparedXml:
     files: tuple[Path, ...]  # every file the scene reads (for the fingerprint)
     search_path: tuple[Path, ...]  # folders Mitsuba resolves names still relative against
     line_sources: tuple[str | None, ...]  # line of `text` -> the user's file:line it came from
+    replaced_integrator: str | None  # the scene's integrator, if it renders other transport
 
     def locate(self, message: str) -> tuple[str, str | None]:
         """Mitsuba's load error on ``text`` -> (one-line message, the user's file:line)."""
@@ -92,7 +96,7 @@ def prepare_scene_xml(
     expanded = expand_scene(path, scene_args or {})
     root = expanded.root
     scene_names.name_objects(root)
-    _replace_integrator(root, max_depth)
+    replaced = _replace_integrator(root, max_depth)
     bitmaps = _bitmaps_as_float(root)
     materials = scene_names.materials(root)  # before splitting: copies keep the user's name
     textures = place_textures(root, copies=shared == "split")
@@ -114,6 +118,7 @@ def prepare_scene_xml(
         files=expanded.files,
         search_path=expanded.search_path,
         line_sources=line_sources,
+        replaced_integrator=replaced,
     )
 
 
@@ -193,12 +198,30 @@ def files_fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], ba
     return digest.hexdigest()
 
 
-def _replace_integrator(root: ET.Element, max_depth: int) -> None:
-    for element in root.findall("integrator"):
+# The user's integrator -> the path-replay one that differentiates the same light transport:
+# volumetric path tracers keep their media (prb ignores them), everything else becomes prb.
+_REPLAY_OF = {"volpath": "prbvolpath", "volpathmis": "prbvolpath", "prbvolpath": "prbvolpath"}
+# What sensaov replaces without changing the image the objective sees (max_depth is the job's).
+_SAME_TRANSPORT = frozenset({"path", "prb", "prb_basic", "direct_projective", *_REPLAY_OF})
+# Integrator settings that change the image and that prb and prbvolpath take as they are.
+_KEPT_SETTINGS = ("hide_emitters", "rr_depth")
+
+
+def _replace_integrator(root: ET.Element, max_depth: int) -> str | None:
+    """Put the replay integrator in place of the scene's; return the scene's integrator type
+    when it renders other light transport than the replacement (``direct``, ``aov``, …)."""
+    found = root.findall("integrator")
+    user = found[0] if found else None
+    kind = user.get("type", "path") if user is not None else "path"
+    for element in found:
         root.remove(element)
-    integrator = ET.Element("integrator", {"type": "prb"})
+    integrator = ET.Element("integrator", {"type": _REPLAY_OF.get(kind, "prb")})
     ET.SubElement(integrator, "integer", {"name": "max_depth", "value": str(max_depth)})
+    for setting in user.iter() if user is not None else ():
+        if setting is not user and setting.get("name") in _KEPT_SETTINGS:
+            ET.SubElement(integrator, setting.tag, dict(setting.attrib))
     root.insert(0, integrator)
+    return None if kind in _SAME_TRANSPORT else kind
 
 
 def _bitmaps_as_float(root: ET.Element) -> tuple[str, ...]:
