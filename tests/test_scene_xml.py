@@ -16,14 +16,16 @@ import pytest
 from sensaov_cli.errors import SceneError
 from sensaov_cli.render.scene_expand import expand_scene
 from sensaov_cli.render.scene_names import name_objects
-from sensaov_cli.render.scene_source import write_xml
+from sensaov_cli.render.scene_source import locate_load_error, write_xml
 from sensaov_cli.render.scene_xml import (
     PreparedXml,
+    check_cameras,
     prepare_scene_xml,
     scene_fingerprint,
     scene_sensor_ids,
 )
-from sensaov_cli.spec.model import CameraSpec
+from sensaov_cli.spec.load import load_job
+from sensaov_cli.spec.model import CameraSpec, LookAt
 
 CORPUS = Path(__file__).resolve().parents[1] / "scenes" / "corpus"
 SENSOR = (
@@ -246,6 +248,14 @@ def test_every_line_of_the_rewritten_text_points_at_the_users_file(tmp_path: Pat
     assert prepared.locate(error) == ('could not parse "x"', f"{inc}:4")
 
 
+def test_a_long_value_in_mitsubas_error_is_shortened() -> None:
+    error = (
+        f'Error while loading string (line 1, col 2): could not parse integer value "{"9" * 5000}"'
+    )
+    message, found = locate_load_error(error, ("f.xml:1",))
+    assert message == f'could not parse integer value "{"9" * 60}…"' and found == "f.xml:1"
+
+
 def test_copied_sensors_carry_no_ids_of_their_own(tmp_path: Path) -> None:
     sampler = '<sampler type="independent" id="smp"/>'
     main = write(tmp_path, "main.xml", SENSOR.replace("</sensor>", f"{sampler}</sensor>"))
@@ -268,10 +278,163 @@ def test_a_film_shared_by_ref_is_copied_before_it_is_resized(tmp_path: Path) -> 
     assert root.find("film").find("integer").get("value") == "4"  # type: ignore[union-attr]
 
 
+def test_a_sensor_with_a_refd_film_can_be_copied_for_every_kind_of_camera(tmp_path: Path) -> None:
+    # Review item 5: the copy used to strip the <ref>'s id, and Mitsuba refused the <ref>.
+    film = '<film type="hdrfilm" id="film"><integer name="width" value="4"/></film>'
+    sampler = '<sampler type="independent" id="smp"/>'
+    sensors = "".join(
+        f'<sensor type="perspective" id="{i}"><ref id="film"/><ref id="smp"/></sensor>'
+        for i in ("a", "b")
+    )
+    main = write(tmp_path, "main.xml", film + sampler + sensors)
+    look = LookAt(origin=(0.0, 0.0, 5.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))
+    cameras = (
+        CameraSpec(name="objective", objective=True),
+        CameraSpec(name="other", sensor="b", resolution=(6, 2)),
+        CameraSpec(name="look", look_at=look, resolution=(3, 3)),
+    )
+    root = parsed(prepare(main, inspection=cameras))
+    assert all(ref.get("id") for ref in root.iter("ref"))
+    ids = [el.get("id") for el in root.iter() if el.get("id") and el.tag != "ref"]
+    assert len(ids) == len(set(ids))
+    sizes = {
+        s.get("id"): {i.get("name"): i.get("value") for i in s.findall("film/integer")}
+        for s in root.findall("sensor")
+    }
+    assert sizes["sensaov_inspect_objective"] == {"width": "4"}  # a copy of the shared film
+    assert sizes["sensaov_inspect_other"] == {"width": "6", "height": "2"}
+    assert sizes["sensaov_inspect_look"] == {"width": "3", "height": "3"}
+    assert sizes["a"] == sizes["b"] == {}  # the scene's own sensors still share "film"
+
+
+def test_a_resized_film_loses_its_crop_window(tmp_path: Path) -> None:
+    # Review item 8: a crop window overrode the size an inspection camera or the job asked for.
+    crop = "".join(
+        f'<integer name="{n}" value="{v}"/>'
+        for n, v in (("width", 32), ("height", 32), ("crop_offset_x", 8), ("crop_width", 16))
+    )
+    sensor = f'<sensor type="perspective" id="cam"><film type="hdrfilm">{crop}</film></sensor>'
+    main = write(tmp_path, "main.xml", sensor)
+    look = LookAt(origin=(0.0, 0.0, 5.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))
+    cameras = (
+        CameraSpec(name="same", sensor="cam", resolution=(48, 48)),
+        CameraSpec(name="look", look_at=look, resolution=(40, 40)),
+    )
+    kept = parsed(prepare(main, inspection=cameras)).find("sensor[@id='cam']/film")
+    assert kept is not None and len(kept.findall("integer")) == 4  # not resized: as written
+    root = parsed(prepare(main, inspection=cameras, resolution=(20, 20)))
+    for sensor_element in root.findall("sensor"):
+        names = [i.get("name") for i in sensor_element.findall("film/integer")]
+        assert names == ["width", "height"], sensor_element.get("id")
+
+
+def test_a_film_larger_than_a_job_may_ask_for_is_refused(tmp_path: Path) -> None:
+    film = '<film type="hdrfilm"><integer name="width" value="$res"/></film>'
+    main = write(tmp_path, "main.xml", f"\n<sensor type='perspective'>{film}</sensor>")
+    with pytest.raises(SceneError, match="film width 99999 is larger than 16384") as info:
+        prepare(main, scene_args={"res": "99999"})
+    assert info.value.where == f"{main}:3"
+    prepare(main, scene_args={"res": "99999"}, resolution=(8, 8))  # the job's size wins
+    look = LookAt(origin=(0.0, 0.0, 5.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))
+    with pytest.raises(SceneError, match="inspection camera 'same'"):
+        prepare(
+            main,
+            scene_args={"res": "99999"},
+            camera=CameraSpec(name="objective", look_at=look),
+            inspection=(CameraSpec(name="same", objective=False, sensor=None),),
+        )
+
+
+def test_a_huge_name_is_a_scene_error_with_the_name_shortened(tmp_path: Path) -> None:
+    # Review item 6: the OS refused the name ("File name too long") as an internal error.
+    texture = '<texture type="bitmap" name="reflectance"><string name="filename" value="$tex"/>'
+    shape = f'<shape type="sphere"><bsdf type="diffuse">{texture}</texture></bsdf></shape>'
+    main = write(tmp_path, "main.xml", f"{SENSOR}\n{shape}")
+    with pytest.raises(SceneError) as info:
+        prepare(main, scene_args={"tex": "x" * 200_000 + ".png"})
+    assert info.value.where == f"{main}:3" and len(str(info.value)) < 400
+    assert "…" in str(info.value)
+
+
+def test_files_the_scene_reads_must_exist(tmp_path: Path) -> None:
+    # Review item 9: validate said ok, and run failed in Mitsuba.
+    mesh = '<shape type="obj"><string name="filename" value="meshes/nothere.obj"/></shape>'
+    main = write(tmp_path, "main.xml", f'{SENSOR}\n<include filename="sub/objs.xml"/>')
+    write(tmp_path, "sub/objs.xml", f"\n{mesh}")
+    with pytest.raises(SceneError, match='file "meshes/nothere.obj" not found') as info:
+        prepare(main)
+    assert info.value.where == f"{tmp_path / 'sub/objs.xml'}:3"
+    spectrum = '<bsdf type="diffuse" id="b"><spectrum name="reflectance" filename="r.spd"/></bsdf>'
+    with pytest.raises(SceneError, match='file "r.spd" not found'):
+        prepare(write(tmp_path, "spd.xml", f"{SENSOR}\n{spectrum}"))
+
+
+def test_elements_mitsuba_does_not_read_are_refused_at_their_line(tmp_path: Path) -> None:
+    old = '<shapegroup id="g"><shape type="sphere"/></shapegroup>'
+    main = write(tmp_path, "main.xml", f"{SENSOR}\n\n{old}")
+    with pytest.raises(SceneError, match=r"<shapegroup> is not an element") as info:
+        prepare(main)
+    assert info.value.where == f"{main}:4" and 'type="shapegroup"' in str(info.value)
+    with pytest.raises(SceneError, match=r"<colour> is not an element"):
+        prepare(write(tmp_path, "c.xml", f'{SENSOR}<bsdf type="diffuse"><colour/></bsdf>'))
+
+
+def test_check_cameras_refuses_what_the_preparation_refuses(tmp_path: Path) -> None:
+    # validate and the start of run call check_cameras: they refuse what run would.
+    film = '<film type="hdrfilm"><integer name="width" value="$res"/></film>'
+    main = write(tmp_path, "main.xml", f'<sensor type="perspective" id="cam">{film}</sensor>')
+    job = tmp_path / "job.yaml"
+    job.write_text(
+        f"version: 1\nscene: {main}\nscene_args: {{res: 99999}}\n"
+        "objectives: [{name: luma, type: mean_luminance}]\noutput: out\n"
+    )
+    with pytest.raises(SceneError, match="larger than 16384"):
+        check_cameras(load_job(job))
+    job.write_text(job.read_text().replace("99999", "16"))
+    assert check_cameras(load_job(job)) == ("cam",)
+
+
+def test_split_gives_each_instance_its_own_shapegroup() -> None:
+    # Review item 4: instances shared their group's parameters, so each got the whole gradient.
+    prepared = prepare(CORPUS / "instanced_shelf" / "scene.xml", shared="split")
+    assert prepared.instances == {
+        "pot_a": "pot_group_pot_a",
+        "pot_b": "pot_group_pot_b",
+        "pot_group_2": "pot_group_pot_group_2",
+    }
+    assert prepared.shapegroups["pot_group_pot_b"] == ("blob_pot_b", "lid_sphere_pot_b")
+    assert set(prepared.shapegroups) == set(prepared.instances.values())
+    assert prepared.materials["blob_pot_a"] == "pot_glaze"
+    assert prepared.materials["pot_b"] == "pot_glaze+lid_mat"
+    assert prepared.split["lid_mat"] == (
+        "lid_sphere_pot_a",
+        "lid_sphere_pot_b",
+        "lid_sphere_pot_group_2",
+    )
+    root = parsed(prepared)
+    assert root.find("shape[@id='pot_group']") is None
+    ids = [el.get("id") for el in root.iter() if el.get("id") and el.tag != "ref"]
+    assert len(ids) == len(set(ids))
+
+
+def test_a_latin_1_file_without_a_declaration_is_read_as_mitsuba_reads_it(
+    tmp_path: Path,
+) -> None:
+    # Review item 10: Mitsuba loads it; sensaov said "not well-formed (invalid token)".
+    main = write(tmp_path, "main.xml", f'{SENSOR}<include filename="objs.xml"/>')
+    body = '<scene version="3.0.0">\n<!-- Matériau créé par Günther -->\n<shape type="sphere"/>'
+    (tmp_path / "objs.xml").write_bytes((body + "</scene>\n").encode("latin-1"))
+    assert [s.get("type") for s in parsed(prepare(main)).findall("shape")] == ["sphere"]
+    (tmp_path / "objs.xml").write_bytes(b"<scene version='3.0.0'>\n<shape type='sphere'>\n")
+    with pytest.raises(SceneError, match="malformed XML"):
+        prepare(main)
+
+
 def test_unnamed_objects_get_names_from_what_the_scene_says() -> None:
     names = {
         scene: tuple(
-            s.get("id") for s in parsed(prepare(CORPUS / scene / "scene.xml")).iter("shape")
+            s.get("id")
+            for s in parsed(prepare(CORPUS / scene / "scene.xml", shared="keep")).iter("shape")
         )
         for scene in ("cbox_spectral", "instanced_shelf", "emitter_zoo")
     }
@@ -288,6 +451,9 @@ def test_unnamed_objects_get_names_from_what_the_scene_says() -> None:
 
 
 def test_generated_names_never_take_a_users_id(tmp_path: Path) -> None:
+    for folder in ("m", "n"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "blob.ply").write_bytes(b"ply")
     main = write(
         tmp_path,
         "main.xml",
@@ -304,7 +470,7 @@ def test_names_are_the_same_on_every_preparation() -> None:
 
 
 def test_instances_shapegroups_and_their_materials() -> None:
-    prepared = prepare(CORPUS / "instanced_shelf" / "scene.xml")
+    prepared = prepare(CORPUS / "instanced_shelf" / "scene.xml", shared="keep")
     assert prepared.instances == {
         "pot_a": "pot_group",
         "pot_b": "pot_group",

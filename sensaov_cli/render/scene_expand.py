@@ -33,10 +33,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sensaov_cli.errors import SceneError
-from sensaov_cli.render.scene_source import is_object, read_xml, user_attributes, where
+from sensaov_cli.render.scene_source import (
+    OBJECT_TAGS,
+    is_object,
+    read_xml,
+    user_attributes,
+    where,
+)
 from sensaov_cli.render.scene_upgrade import upgrade_legacy
 
 MAX_INCLUDE_DEPTH = 15  # Mitsuba's ParserConfig.max_include_depth
+# Every tag Mitsuba 3.9.1's parser knows (interpret_tag); any other is "an unsupported XML
+# element" to it, the 0.6 <shapegroup> included. Objects are scene_source.OBJECT_TAGS.
+_KNOWN_TAGS = OBJECT_TAGS | frozenset(
+    "boolean integer float string point vector rgb spectrum transform"
+    " translate rotate scale lookat matrix ref include alias default path".split()
+)
+_SHOWN = 60  # characters of a long value shown in a message
 _PARAMETER_NAME = re.compile(r"[A-Za-z0-9_]*")
 
 
@@ -129,7 +142,7 @@ def _refuse_unresolved(value: str, origin: str) -> None:
         if char != "$" or (pos > 0 and value[pos - 1] == "\\"):
             continue
         name = _PARAMETER_NAME.match(value, pos + 1)
-        name_text = name.group() if name else ""
+        name_text = shorten(name.group() if name else "")
         if not name_text:
             raise SceneError(
                 "a '$' that names no scene argument", where=origin, hint="write \\$ for a '$'"
@@ -188,10 +201,9 @@ class _Expansion:
         for ref in root.iter("ref"):
             ref.set("id", self.aliases.get(ref.get("id", ""), ref.get("id", "")))
         for element in self.filenames:
-            resolved = _resolve(element.get("value", ""), main.resolver)
+            resolved = _existing(element.get("value", ""), main.resolver, where(element))
             self.files.append(resolved)
-            if resolved.is_absolute():
-                element.set("value", str(resolved))
+            element.set("value", str(resolved))
         upgrade_legacy(root, self.legacy)
 
     def _attributes(self, element: ET.Element) -> None:
@@ -203,6 +215,12 @@ class _Expansion:
         self, parent: ET.Element, element: ET.Element, context: _Context, at_root: bool
     ) -> None:
         self._attributes(element)
+        if element.tag not in _KNOWN_TAGS:
+            raise SceneError(
+                f"<{element.tag}> is not an element Mitsuba 3 reads",
+                where=where(element),
+                hint=_TAG_HINTS.get(element.tag, "see Mitsuba's scene format documentation"),
+            )
         handler = _DIRECTIVES.get(element.tag)
         if handler is not None:
             index = list(parent).index(element)
@@ -228,26 +246,20 @@ class _Expansion:
         if identifier in self.ids:
             first = self.ids[identifier]
             raise SceneError(
-                f"duplicate id {identifier!r} (first defined at {first})", where=where(element)
+                f"duplicate id {shorten(identifier)!r} (first defined at {first})",
+                where=where(element),
             )
         self.ids[identifier] = where(element)
 
     def _spectrum_file(self, element: ET.Element, context: _Context) -> None:
-        resolved = _resolve(element.get("filename", ""), context.resolver)
+        resolved = _existing(element.get("filename", ""), context.resolver, where(element))
         self.files.append(resolved)
-        if resolved.is_absolute():
-            element.set("filename", str(resolved))
+        element.set("filename", str(resolved))
 
     def _include(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
         name = _required(element, "filename")
         folders = context.here()
-        path = _resolve(name, folders)
-        if not path.exists():
-            raise SceneError(
-                f'included file "{name}" not found',
-                where=where(element),
-                hint=f"looked in {', '.join(str(p) for p in dict.fromkeys(folders))}",
-            )
+        path = _existing(name, folders, where(element), what="included file")
         _refuse_nesting(path, context.chain, where(element))
         root = self.file(_Context(path, folders, context.chain))
         if root.get("type", "scene") == "scene":
@@ -270,9 +282,9 @@ class _Expansion:
         if not at_root:
             raise SceneError("<path> can only be a child of the root element", where=where(element))
         value = _required(element, "value")
-        folder = _resolve(value, context.here())
-        if not folder.exists():
-            raise SceneError(f'<path>: folder "{value}" not found', where=where(element))
+        folder = _resolve(value, context.here(), where(element))
+        if not _exists(folder, where(element)):
+            raise SceneError(f'<path>: folder "{shorten(value)}" not found', where=where(element))
         context.resolver.insert(0, folder)
         return []
 
@@ -290,6 +302,10 @@ class _Expansion:
         self.ids[alias] = where(element)
         return []
 
+
+_TAG_HINTS = {
+    "shapegroup": 'write <shape type="shapegroup" id="..."> (the 0.6 <shapegroup> tag is gone)',
+}
 
 _DIRECTIVES = {
     "include": _Expansion._include,
@@ -320,15 +336,42 @@ def _version(root: ET.Element) -> tuple[int, ...]:
     return tuple(int(part) for part in parts)
 
 
-def _resolve(name: str, folders: list[Path]) -> Path:
+def _resolve(name: str, folders: list[Path], origin: str) -> Path:
     """Mitsuba's FileResolver.resolve: the first folder holding ``name``, else ``name``."""
     path = Path(name)
     if path.is_absolute():
         return path
     for folder in folders:
-        if (folder / path).exists():
+        if _exists(folder / path, origin):
             return folder / path
     return path
+
+
+def _existing(name: str, folders: list[Path], origin: str, what: str = "file") -> Path:
+    """``name`` resolved, refused where Mitsuba would fail to open it (run and validate alike)."""
+    path = _resolve(name, folders, origin)
+    if not _exists(path, origin):
+        looked = "" if path.is_absolute() else ", ".join(str(p) for p in dict.fromkeys(folders))
+        raise SceneError(
+            f'{what} "{shorten(name)}" not found',
+            where=origin,
+            hint=f"looked in {looked}" if looked else None,
+        )
+    return path.absolute()
+
+
+def _exists(path: Path, origin: str) -> bool:
+    try:
+        return path.exists()
+    except OSError as exc:  # a name too long for the file system, say
+        raise SceneError(
+            f'cannot look for "{shorten(str(path))}": {exc.strerror or exc}', where=origin
+        ) from exc
+
+
+def shorten(value: str) -> str:
+    """A value as a message shows it: at most 60 characters and an ellipsis."""
+    return value if len(value) <= _SHOWN else value[:_SHOWN] + "…"
 
 
 def _refuse_nesting(path: Path, chain: tuple[Path, ...], origin: str) -> None:

@@ -2,8 +2,10 @@
 
 Every id in one Mitsuba scene must be unique, films, samplers and filters included, so a
 sensor copied for an inspection camera (or a film copied for a look-at camera) loses the ids
-it carried. A film shared between sensors by ``<ref>`` is copied into a sensor before that
-sensor's film is resized, so resizing one camera never resizes another.
+of the objects it carried (its ``<ref>``s keep theirs). A film shared between sensors by
+``<ref>`` is copied into a sensor before that sensor's film is resized, so resizing one camera
+never resizes another. A film sensaov resizes loses its crop window, so its image has the size
+asked for.
 """
 
 from __future__ import annotations
@@ -13,10 +15,13 @@ from pathlib import Path
 
 from sensaov_cli.errors import SceneError
 from sensaov_cli.render.scene_names import child_value, objects_by_id
-from sensaov_cli.render.scene_source import detached_copy
+from sensaov_cli.render.scene_source import detached_copy, where
 from sensaov_cli.spec.model import CameraSpec
 
 OBJECTIVE_SENSOR_ID = "sensaov_objective"
+MAX_FILM_SIZE = 16384  # the largest width or height a job's resolution may ask for
+_SIZE = ("width", "height")
+_CROP = ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height")
 INSPECTION_PREFIX = "sensaov_inspect_"
 
 
@@ -68,6 +73,7 @@ def add_inspection_sensor(
             set_film_size(root, source, camera.resolution)
     sensor_id = f"{INSPECTION_PREFIX}{camera.name}"
     source.set("id", sensor_id)
+    check_film_size(root, source, f"inspection camera {camera.name!r}")
     return sensor_id
 
 
@@ -97,11 +103,31 @@ def own_film(root: ET.Element, sensor: ET.Element) -> ET.Element:
 
 
 def set_film_size(root: ET.Element, sensor: ET.Element, resolution: tuple[int, int]) -> None:
+    """Give the sensor's own film this size; a crop window goes, so the image is the size asked
+    for (a crop would override it, or not fit in it)."""
     film = own_film(root, sensor)
-    for name, value in zip(("width", "height"), resolution, strict=True):
-        for old in [c for c in film if c.get("name") == name]:
-            film.remove(old)
+    for old in [c for c in film if c.get("name") in (*_SIZE, *_CROP)]:
+        film.remove(old)
+    for name, value in zip(_SIZE, resolution, strict=True):
         ET.SubElement(film, "integer", {"name": name, "value": str(value)})
+
+
+def check_film_size(root: ET.Element, sensor: ET.Element, what: str) -> None:
+    """Refuse a film larger than a job's ``resolution`` may be (e.g. ``$res`` = 99999): it
+    would only fail at render time, for want of memory."""
+    film = _child_object(root, sensor, "film")
+    for name in _SIZE if film is not None else ():
+        assert film is not None
+        prop = next((c for c in film if c.get("name") == name and c.tag == "integer"), None)
+        text = (prop.get("value") or "").strip() if prop is not None else ""
+        if text.lstrip("+-").isdigit() and len(text) < 12 and int(text) > MAX_FILM_SIZE:
+            assert prop is not None
+            raise SceneError(
+                f"{what}: film {name} {int(text)} is larger than {MAX_FILM_SIZE}",
+                where=where(prop) or where(film),
+                hint="lower it in the scene (or its scene argument), or set the job's "
+                "render.resolution",
+            )
 
 
 def _child_object(root: ET.Element, sensor: ET.Element, tag: str) -> ET.Element | None:

@@ -103,3 +103,64 @@ def split_shared_bsdfs(root: ET.Element) -> dict[str, tuple[str, ...]]:
         if referenced[bsdf_id] == len(pairs):
             root.remove(bsdfs[bsdf_id])
     return split
+
+
+def split_shapegroups(root: ET.Element) -> dict[str, tuple[str, ...]]:
+    """Give each instance of a shapegroup used by several instances a copy of its own.
+
+    Instances share their shapegroup's parameters, so without copies each instance would get
+    the whole group's gradient. A copy of group ``g`` for instance ``i`` is ``g_i`` and its
+    member ``m`` is ``m_i``; the instance's ``<ref>`` names the copy and the group goes.
+    Returns group id -> the instances that received a copy. A group with an object inside it
+    that something outside refs is left shared (a copy could not keep that ref).
+    """
+    groups = {
+        g.get("id", ""): g
+        for g in root.findall("shape")
+        if g.get("type") == "shapegroup" and g.get("id")
+    }
+    uses: dict[str, list[tuple[ET.Element, ET.Element]]] = {}
+    for instance in root.findall("shape"):
+        for ref in instance.findall("ref") if instance.get("type") == "instance" else ():
+            if ref.get("id") in groups and instance.get("id"):
+                uses.setdefault(ref.get("id", ""), []).append((instance, ref))
+    taken = {el.get("id", "") for el in root.iter() if el.get("id") and el.tag != "ref"}
+    split: dict[str, tuple[str, ...]] = {}
+    for group_id, pairs in uses.items():
+        group = groups[group_id]
+        if len(pairs) < 2 or _refd_from_outside(root, group):
+            continue
+        position = list(root).index(group)
+        for offset, (instance, ref) in enumerate(pairs):
+            suffix = instance.get("id", "")
+            copy = _group_copy(group, suffix, taken)
+            root.insert(position + offset, copy)
+            ref.set("id", copy.get("id", ""))
+        root.remove(group)
+        split[group_id] = tuple(instance.get("id", "") for instance, _ in pairs)
+    return split
+
+
+def _refd_from_outside(root: ET.Element, group: ET.Element) -> bool:
+    inner = {el.get("id") for el in group.iter() if el is not group and el.get("id")}
+    inner.discard(None)
+    inside = set(group.iter())
+    return any(ref.get("id") in inner for ref in root.iter("ref") if ref not in inside)
+
+
+def _group_copy(group: ET.Element, suffix: str, taken: set[str]) -> ET.Element:
+    copy = detached_copy(group)
+    copy.set("id", _fresh(f"{group.get('id')}_{suffix}", taken))
+    for member, copied in zip(group, copy, strict=True):
+        if member.tag == "shape" and member.get("id"):
+            copied.set("id", _fresh(f"{member.get('id')}_{suffix}", taken))
+    return copy
+
+
+def _fresh(base: str, taken: set[str]) -> str:
+    name, counter = base, 0
+    while name in taken:
+        counter += 1
+        name = f"{base}_{counter}"
+    taken.add(name)
+    return name

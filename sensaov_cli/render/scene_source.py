@@ -27,6 +27,7 @@ _WHERE = "{urn:sensaov}where"
 _MITSUBA_LOCATION = re.compile(
     r"(?:Error while loading |While loading |At )?string \(line (\d+), col \d+\):?\s*"
 )
+_LONG_QUOTED = re.compile(r'"([^"]{61,})"')  # a long value Mitsuba echoes, shown shortened
 _MITSUBA_SOURCE_TAG = re.compile(r"\[[\w.]+:\d+\]\s*")  # "[parser.cpp:451] "
 _ATTRIBUTE_ESCAPES = str.maketrans(
     {
@@ -56,7 +57,7 @@ def read_xml(path: Path) -> ET.Element:
         raise SceneError("scene file not found", where=str(path)) from exc
     except OSError as exc:
         raise SceneError(f"cannot read scene file: {exc.strerror}", where=str(path)) from exc
-    parser = expat.ParserCreate()
+    parser = expat.ParserCreate(_fallback_encoding(data))
     stack: list[ET.Element] = []
     found: list[ET.Element] = []
 
@@ -77,6 +78,21 @@ def read_xml(path: Path) -> ET.Element:
         message = f"malformed XML: {expat.ErrorString(exc.code)}"
         raise SceneError(message, where=f"{path}:{exc.lineno}") from exc
     return found[0]
+
+
+def _fallback_encoding(data: bytes) -> str | None:
+    """Latin-1 for a file that declares no encoding and is not UTF-8 (Mitsuba's parser loads
+    such files, often written by Windows tools); None: the file says, or is UTF-8."""
+    head = data[:200].lstrip(b"\xef\xbb\xbf")
+    if head.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return None  # UTF-16, by its byte order mark
+    if head.startswith(b"<?xml") and b"encoding" in head.split(b"?>", 1)[0]:
+        return None
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        return "ISO-8859-1"
+    return None
 
 
 def where(element: ET.Element) -> str:
@@ -102,10 +118,12 @@ def new_element(tag: str, attrib: dict[str, str], like: ET.Element | None = None
 
 
 def detached_copy(element: ET.Element) -> ET.Element:
-    """A deep copy without ids (ids are global in Mitsuba; the original keeps them)."""
+    """A deep copy whose objects carry no ids (ids are global in Mitsuba; the original keeps
+    them). A ``<ref>`` keeps its id: it names the object it uses, and defines none."""
     clone = copy.deepcopy(element)
     for node in clone.iter():
-        node.attrib.pop("id", None)
+        if node.tag != "ref":
+            node.attrib.pop("id", None)
     return clone
 
 
@@ -146,4 +164,5 @@ def locate_load_error(message: str, sources: tuple[str | None, ...]) -> tuple[st
         found = sources[line - 1] if 0 < line <= len(sources) else None
         text = text[: match.start()] + text[match.end() :]
     parts = [part.strip() for part in text.splitlines() if part.strip()]
-    return " ".join(parts) or "Mitsuba could not load the scene", found
+    text = _LONG_QUOTED.sub(lambda m: f'"{m.group(1)[:60]}…"', " ".join(parts))
+    return text or "Mitsuba could not load the scene", found

@@ -21,7 +21,8 @@ changes, and why:
   its own copy (its own parameters, like split BSDFs); with ``keep`` the texture moves into its
   first user and the other uses keep referring to it;
 - with ``shared: split``, a BSDF used by several shapes is copied into each of them, so each
-  object gets its own gradient (the copies' gradients sum to the shared one);
+  object gets its own gradient (the copies' gradients sum to the shared one); a shapegroup
+  used by several instances is copied for each instance first (scene_share.py);
 - the objective camera is chosen, added (inline ``look_at``) or resized, and each inspection
   camera gets a sensor of its own (scene_sensors.py).
 
@@ -48,12 +49,17 @@ from sensaov_cli.render import scene_names
 from sensaov_cli.render.scene_expand import SceneArgument, expand_scene
 from sensaov_cli.render.scene_sensors import (
     add_inspection_sensor,
+    check_film_size,
     choose_sensor,
     sample_count,
     sensor_ids,
     set_film_size,
 )
-from sensaov_cli.render.scene_share import place_textures, split_shared_bsdfs
+from sensaov_cli.render.scene_share import (
+    place_textures,
+    split_shapegroups,
+    split_shared_bsdfs,
+)
 from sensaov_cli.render.scene_source import locate_load_error, write_xml
 from sensaov_cli.spec.model import CameraSpec, JobSpec
 
@@ -98,6 +104,8 @@ def prepare_scene_xml(
     scene_names.name_objects(root)
     replaced = _replace_integrator(root, max_depth)
     bitmaps = _bitmaps_as_float(root)
+    if shared == "split":
+        split_shapegroups(root)  # before the BSDFs: a copied group's BSDFs split per shape
     materials = scene_names.materials(root)  # before splitting: copies keep the user's name
     textures = place_textures(root, copies=shared == "split")
     split = split_shared_bsdfs(root) if shared == "split" else {}
@@ -133,6 +141,7 @@ def _cameras(
     sensor = choose_sensor(root, camera, path)
     if resolution is not None:
         set_film_size(root, sensor, resolution)
+    check_film_size(root, sensor, "objective camera")
     where = "inspection camera {!r}: sensor"
     return sensor, {
         cam.name: add_inspection_sensor(root, cam, sensor, path, where.format(cam.name))
@@ -152,7 +161,8 @@ def check_cameras(job: JobSpec) -> tuple[str, ...]:
     """The scene's sensor ids, after refusing a job whose cameras name a sensor it lacks.
 
     Pure XML, so ``validate`` catches the mistake without Mitsuba, and ``run`` before it
-    renders anything (not ``project``, after the expensive part).
+    renders anything (not ``project``, after the expensive part). The scene is then prepared
+    as ``run`` and ``project`` prepare it, so what that refuses is refused here too.
     """
     ids = scene_sensor_ids(job.scene, job.scene_args)
     if not ids and job.objective_camera.look_at is None:
@@ -170,6 +180,17 @@ def check_cameras(job: JobSpec) -> tuple[str, ...]:
                 where=f"{job.path}: {where}",
                 hint=f"sensors in the scene: {', '.join(ids) or 'none'}",
             )
+    # The whole preparation, inspection cameras included: what it refuses (a missing mesh, a
+    # film too large, an element Mitsuba does not read) is refused before anything renders.
+    prepare_scene_xml(
+        job.scene,
+        max_depth=job.render.max_depth,
+        camera=job.objective_camera,
+        resolution=job.render.resolution,
+        shared=job.parameters.shared,
+        inspection=job.inspection_cameras,
+        scene_args=job.scene_args,
+    )
     return ids
 
 
