@@ -15,6 +15,7 @@ import io
 import json
 import math
 from collections.abc import Sequence
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -134,34 +135,13 @@ def _draw_wedge(ax: Axes, wedge: Wedge, colour: tuple[float, ...]) -> None:
     from matplotlib.patches import Wedge as WedgePatch
 
     inner, outer = RADII[wedge.ring - 1], RADII[wedge.ring]
-    theta1, theta2 = _degrees(wedge.stop), _degrees(wedge.start)
-    ax.add_patch(
-        WedgePatch(
-            (0, 0),
-            outer,
-            theta1,
-            theta2,
-            width=outer - inner,
-            facecolor=colour,
-            edgecolor="white",
-            linewidth=0.8,
-        )
+    ring = partial(
+        WedgePatch, (0, 0), outer, _degrees(wedge.stop), _degrees(wedge.start), width=outer - inner
     )
+    ax.add_patch(ring(facecolor=colour, edgecolor="white", linewidth=0.8))
     hatched = wedge.trust != "verified"
-    if hatched:
-        ax.add_patch(
-            WedgePatch(
-                (0, 0),
-                outer,
-                theta1,
-                theta2,
-                width=outer - inner,
-                fill=False,
-                hatch=_HATCH,
-                edgecolor="#444444",
-                linewidth=0,
-            )
-        )
+    if hatched:  # a second, unfilled patch: matplotlib hatches in the edge colour
+        ax.add_patch(ring(fill=False, hatch=_HATCH, edgecolor="#444444", linewidth=0))
     _label(ax, wedge, (inner, outer), colour, hatched)
 
 
