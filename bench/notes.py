@@ -38,16 +38,20 @@ DETERMINISTIC = (
 def adjoint(reference: float) -> str:
     return (
         "The 'Mitsuba alone' rows call `prb.render_backward` directly and read the gradients "
-        "back, with no sensaov code; they cost the same multiple of the primal, so the excess "
-        "is inside prb, not sensaov. prb's backward runs a primal-mode pass to re-estimate the "
-        "radiance, then an adjoint pass over the same paths that also differentiates the BSDFs "
-        "and emitters and scatter-adds every parameter's gradient with atomics; on these scenes "
-        "(rough plastic, rough dielectric, a texture) that adjoint pass costs more than a "
-        "primal pass. On Mitsuba's diffuse-only `cornell_box()` the same measurement gives "
-        f"{reference:.2f}× (reference row; MITSUBA-NOTES measured ≈ 1.9× on a Cornell box). "
-        "Fix: nothing inside "
-        "sensaov; re-base the goal at ≈ 2.4× for glossy and refractive scenes under prb on the "
-        "LLVM backend (and measure it on a GPU)."
+        "back, with no sensaov code. Most of the multiple is inside prb: its backward runs a "
+        "primal-mode pass to re-estimate the radiance, then an adjoint pass over the same paths "
+        "that also differentiates the BSDFs and emitters and scatter-adds every parameter's "
+        "gradient with atomics; on these scenes (rough plastic, rough dielectric, a texture) "
+        "that adjoint pass costs more than a primal pass. On Mitsuba's diffuse-only "
+        f"`cornell_box()` the same measurement gives {reference:.2f}× (reference row; "
+        "MITSUBA-NOTES measured ≈ 1.9× on a Cornell box). sensaov adds a fixed cost per "
+        "backward pass on top (0.07–0.14× of the primal at 256², up to 0.45× at 128²): every "
+        "pass gives each parameter a fresh "
+        "leaf and calls `params.update()` (the envmap gradient needs a leaf of our own, and a "
+        "pass must enable only its own parameters), which rebuilds bitmap textures, and the "
+        "self-checks read every gradient once more. Fix: re-base the goal at ≈ 2.4× for glossy "
+        "and refractive scenes under prb on the LLVM backend (and measure it on a GPU); inside "
+        "sensaov, create the leaves once per run and only re-enable gradients between passes."
     )
 
 
