@@ -241,3 +241,13 @@ def test_params_shows_every_label() -> None:
 def row_of_params(text: str, key: str) -> str:
     (row,) = [line for line in text.splitlines() if line.startswith(key)]
     return row
+
+
+def test_a_pass_is_not_marked_for_a_parameter_no_gradient_flows_through() -> None:
+    """The gold ball's eta adds exactly 0 to every picture: only the biased alpha marks it."""
+    from sensaov_cli.spec.model import ChannelSpec
+    from sensaov_cli.views.channels import channel_values
+
+    (objects,) = channel_values(with_gold_ball(), (ChannelSpec("objects", "object"),))
+    assert GOLD in objects.keys
+    assert objects.unverified == (ALPHA,)

@@ -88,7 +88,9 @@ def _values(
     method, weight = cast(Aggregate, channel.aggregate), cast(Weight, channel.weight)
     magnitude = per_object(buf, objective, method=method, weight=weight, keys=keys)
     signed = per_object(buf, objective, method="sum", weight=weight, keys=keys)
-    unverified = tuple(key for key in keys if not buf.param(key).verified)
+    # A parameter through which no gradient flows adds exactly 0 to the picture: it is listed
+    # apart in the rankings, and marking the pass "!" for it would flag numbers that are right.
+    unverified = tuple(k for k in keys if buf.param(k).trust not in ("verified", "no_gradient"))
     return ChannelValues(
         objective,
         pass_name,
