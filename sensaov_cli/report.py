@@ -31,7 +31,14 @@ ABSENT = ("texel, forward-mode and transport views: not computed by this version
 
 def make_report(job: JobSpec, path: Path | None = None) -> Path:
     """Write the report of ``job`` (default ``<output>/report.html``) and return its path."""
-    buf = SensitivityBuffer.load(job.output / BUFFER_NAME)
+    buffer_path = job.output / BUFFER_NAME
+    if not buffer_path.is_file():
+        raise OutputError(
+            "no buffer to report on",
+            where=str(buffer_path),
+            hint=f"run 'sensaov run {job.path}' first",
+        )
+    buf = SensitivityBuffer.load(buffer_path)
     cameras = [job.output / f"{c.name}.exr" for c in job.inspection_cameras]
     visible = visible_objects([p for p in cameras if p.is_file()]) or None
     content = ReportContent(

@@ -114,3 +114,14 @@ def test_chromium_loads_every_image(reported: Path, tmp_path: Path) -> None:
         check=True,
     )
     assert png_size(shot.read_bytes())[0] > 0
+
+
+def test_a_report_before_run_says_what_to_do(tmp_path: Path) -> None:
+    from .conftest import write_job
+
+    job = write_job(tmp_path)
+    result = sensaov("report", str(job))
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert "no buffer to report on" in line and f"sensaov run {job}" in line
+    assert not (tmp_path / "out").exists()  # nothing half-written

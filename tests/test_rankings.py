@@ -243,3 +243,13 @@ def test_demo_light_is_off_frame_for_the_overhead_camera(job_writer: Any) -> Non
     assert off and all(cameras == [] for cameras in off.values())
     text = sensaov("rank", str(out / "buffer.npz"), "--by", "object", *exrs).stdout
     assert any(line.split()[-2:] == ["light", "overhead"] for line in text.splitlines())
+
+
+def test_a_missing_camera_exr_is_one_line_of_bad_input(buffer_path: Path) -> None:
+    """A fresh process, so the OpenEXR library's own stderr would show if it were reached."""
+    missing = buffer_path.parent / "nope.exr"
+    result = sensaov("rank", str(buffer_path), "--by", "object", "--exr", str(missing))
+    assert result.returncode == EXIT_BAD_INPUT
+    assert result.stderr.strip().splitlines() == [
+        f"sensaov: error: {missing}: no such OpenEXR file"
+    ]

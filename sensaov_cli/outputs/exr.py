@@ -56,6 +56,8 @@ def read_exr(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """
     import OpenEXR
 
+    if not path.is_file():  # else the OpenEXR library prints its own line to stderr first
+        raise ExrError("no such OpenEXR file", where=str(path))
     try:
         # ``separate_channels`` keeps full channel names: by default the binding groups
         # ``X.R``, ``X.G``, ``X.B`` into one ``X`` entry. Read inside ``with``: the File's
