@@ -60,6 +60,12 @@ class BufferFormatError(SensaovError):
     exit_code = EXIT_BAD_INPUT
 
 
+class MergeError(SensaovError):
+    """Shards that cannot be merged: other scenes, jobs, parameters or versions, gaps, twins."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
 class ObjectiveError(SensaovError):
     """An objective cannot be evaluated (size mismatch, user function failure, NaN)."""
 

@@ -7,7 +7,7 @@ import os
 import platform
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib.metadata import version
 from pathlib import Path
 from typing import Any
@@ -20,10 +20,10 @@ from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
 from sensaov_cli.outputs.exr import exr_writer, image_channels
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.adjoint import AdjointResult, run_adjoint
+from sensaov_cli.render.adjoint import AdjointResult, batch_plan, integrator_plan, run_adjoint
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.scene import LoadedScene, load_scene
-from sensaov_cli.render.scene_xml import check_cameras
+from sensaov_cli.render.scene_xml import check_cameras, scene_fingerprint
 from sensaov_cli.spec.model import JobSpec
 
 BUFFER_NAME = "buffer.npz"
@@ -35,11 +35,46 @@ class RunOutputs:
     buffer: SensitivityBuffer
     buffer_path: Path
     primal_path: Path
+    resumed: bool = False  # the outputs were already complete (--resume): nothing ran
 
 
-def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutputs:
+@dataclass(frozen=True)
+class Task:
+    """Which part of a job one process renders: a shard of the samples, some objectives."""
+
+    shard: tuple[int, int] | None = None  # (i, n), 1 <= i <= n: batch i-1 of n (adjoint.py)
+    objectives: tuple[str, ...] = ()  # empty: all of the job's
+
+    def file_names(self) -> tuple[str, str]:
+        """buffer.npz / primal.exr, or e.g. buffer.shard-2-of-8.objective-mean_luma.npz."""
+        parts = [f"shard-{self.shard[0]}-of-{self.shard[1]}"] if self.shard else []
+        parts += [f"objective-{name}" for name in self.objectives]
+        middle = "".join(f".{part}" for part in parts)
+        return f"buffer{middle}.npz", f"primal{middle}.exr"
+
+    def describe(self) -> dict[str, Any]:
+        shard = {"index": self.shard[0], "count": self.shard[1]} if self.shard else None
+        return {"shard": shard, "objectives": list(self.objectives) or None}
+
+
+def run_job(
+    job: JobSpec,
+    *,
+    allow_python: bool,
+    progress: Progress,
+    task: Task = Task(),
+    resume: bool = False,
+) -> RunOutputs:
     started = time.perf_counter()
-    check_writable(job.output, [BUFFER_NAME, PRIMAL_NAME])
+    job = _task_job(job, task)
+    buffer_name, primal_name = task.file_names()
+    buffer_path, primal_path = job.output / buffer_name, job.output / primal_name
+    if resume:
+        done = completed(job, task, buffer_path, primal_path)
+        if done is not None:
+            progress.note(f"{buffer_path.name} is complete for this job: skipped (--resume)")
+            return RunOutputs(done, buffer_path, primal_path, resumed=True)
+    check_writable(job.output, [buffer_name, primal_name])
     check_cameras(job)  # an unknown inspection camera fails here, not after the render
     with progress.stage("load_s", f"loading {job.scene.name}"):
         loaded = load_scene(job)
@@ -67,18 +102,23 @@ def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutpu
         f"variant {loaded.variant}, {len(job.objectives)} objective(s)"
     )
     objectives = build_objectives(loaded.mi, job.objectives, (height, width), allow_python)
+    passes = len(integrator_plan(loaded)) * len(objectives)
+    progress.plan(min(job.render.batches, job.render.spp) * (1 + passes) + 1)  # + the write
+    spp, seed = job.render.spp, job.render.seed
+    if task.shard is not None:  # shard i of n: batch i-1 of the job's n-batch plan
+        spp, seed = batch_plan(spp, seed, task.shard[1])[task.shard[0] - 1]
     result = run_adjoint(
         loaded,
         objectives,
-        spp=job.render.spp,
-        seed=job.render.seed,
+        spp=spp,
+        seed=seed,
         deterministic=job.render.deterministic,
         progress=progress,
+        batches=min(job.render.batches, spp),
     )
     provenance = _provenance(job, loaded, result, progress.timings, time.perf_counter() - started)
+    provenance["task"] = task.describe()
     buffer = _make_buffer(job, loaded, result, provenance)
-    buffer_path = job.output / BUFFER_NAME
-    primal_path = job.output / PRIMAL_NAME
     interrupts.check()  # a stop asked for during a kernel must not end in written files
     with progress.stage("write_s", f"writing {buffer_path.name} and {primal_path.name}"):
         primal = exr_writer(image_channels(result.image), provenance_attributes(provenance))
@@ -110,7 +150,49 @@ def _make_buffer(
         objectives=objectives,
         values=result.values,
         grads=result.grads,
+        statistics=result.statistics,
     )
+
+
+def _task_job(job: JobSpec, task: Task) -> JobSpec:
+    """The job restricted to the task's objectives (each named once, in the job's order)."""
+    if task.shard is not None:
+        index, count = task.shard
+        if not 1 <= index <= count or count > job.render.spp:
+            raise SpecError(
+                f"shard {index}/{count} is not one of 1/{count} ... {count}/{count}"
+                if not 1 <= index <= count
+                else f"{count} shards cannot split render.spp = {job.render.spp}",
+                where="--shard",
+            )
+    if not task.objectives:
+        return job
+    known = [spec.name for spec in job.objectives]
+    unknown = [name for name in task.objectives if name not in known]
+    if unknown:
+        raise SpecError(
+            f"no objective named {unknown[0]!r}",
+            where="--objective",
+            hint=f"objectives: {', '.join(known)}",
+        )
+    chosen = tuple(spec for spec in job.objectives if spec.name in task.objectives)
+    return replace(job, objectives=chosen)
+
+
+def completed(
+    job: JobSpec, task: Task, buffer_path: Path, primal_path: Path
+) -> SensitivityBuffer | None:
+    """The task's buffer if it and its primal are complete and made by this very job."""
+    if not (buffer_path.is_file() and primal_path.is_file()):
+        return None
+    try:
+        buffer = SensitivityBuffer.load(buffer_path)
+    except SensaovError:
+        return None  # unreadable: render it again
+    made = buffer.provenance
+    same = made.get("job_hash") == job.job_hash() and made.get("task") == task.describe()
+    same = same and made.get("scene_fingerprint") == scene_fingerprint(job.scene, job.scene_args)
+    return buffer if same and primal_path.stat().st_size > 0 else None
 
 
 def _provenance(
@@ -136,8 +218,9 @@ def _provenance(
         "scene_integrator_replaced": loaded.replaced_integrator,
         **result.provenance,  # which integrator differentiated what; the self-checks' figures
         "max_depth": job.render.max_depth,
-        "spp": job.render.spp,
-        "primal_seed": job.render.seed,
+        "spp": result.spp,  # this task's: a shard renders its share of render.spp
+        "job_spp": job.render.spp,
+        "primal_seed": result.provenance["batches"][0]["seed"],
         "gradient_seeds": result.grad_seeds,
         "deterministic": result.deterministic,
         "resolution": [width, height],

@@ -6,6 +6,7 @@ import dataclasses
 import io
 import json
 import os
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -283,6 +284,25 @@ def _extra_header_field(p: Path) -> None:
     _with_header(p, lambda h: h.update(extra=1))
 
 
+def _float_version(p: Path) -> None:
+    _with_header(p, lambda h: h.update(format_version=float(FORMAT_VERSION)))
+
+
+def _no_statistics_field(p: Path) -> None:
+    _with_header(p, lambda h: h.pop("statistics"))
+
+
+def _float_array_index(p: Path) -> None:
+    _with_header(p, lambda h: h["params"][0].update(array=0.0))
+
+
+def _duplicate_member(p: Path) -> None:
+    """A second member of the same name: np.load would silently read one of them."""
+    with zipfile.ZipFile(p, "a") as zf, warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # zipfile warns about the duplicate name
+        zf.writestr("value_000000.npy", _npy(np.array([9, 9, 9], "<f4")))
+
+
 def _missing_array(p: Path) -> None:
     members = _members(p)
     del members["grad_001_000002.npy"]
@@ -331,7 +351,8 @@ def _nonexistent(p: Path) -> None:
     [_empty, _text, _truncated, _bit_flip, _plain_npy, _plain_npz, _foreign_format,
      _unknown_version, _missing_array, _shape_mismatch, _float64_array, _nan_in_file,
      _bad_record, _directory, _nonexistent, _extra_header_field, _unknown_label,
-     _version_1_field_in_version_2],
+     _version_1_field_in_version_2, _float_version, _no_statistics_field, _float_array_index,
+     _duplicate_member],
 )  # fmt: skip
 def test_unreadable_file_is_a_buffer_format_error(saved: Path, spoil) -> None:
     spoil(saved)
@@ -350,7 +371,7 @@ def test_unknown_version_says_so(saved: Path) -> None:
 # --- the format itself: a change to it must show up here ------------------------------------
 
 
-def test_file_layout_is_version_2(saved: Path) -> None:
+def test_file_layout_is_version_3(saved: Path) -> None:
     with np.load(saved, allow_pickle=False) as npz:
         names = sorted(npz.files)
         header = json.loads(str(npz["header"]))
@@ -360,7 +381,7 @@ def test_file_layout_is_version_2(saved: Path) -> None:
     )
     assert header == {
         "format": "sensaov-buffer",
-        "format_version": 2,
+        "format_version": 3,
         "provenance": {"tool": "sensaov 0.1.0", "spp": 16, "seeds": [1, 2], "scene": "cbox.xml"},
         "objects": ["floor", "light", "wall", "white"],
         "params": [
@@ -380,6 +401,7 @@ def test_file_layout_is_version_2(saved: Path) -> None:
             {"name": "contrast", "definition": {"kind": "contrast"}, "value": -1.5,
              "grad_seed": 8, "array": 1},
         ],
+        "statistics": None,
     }  # fmt: skip
 
 
@@ -392,16 +414,19 @@ def _write_by_hand(path: Path, version: int, label: dict) -> None:
                     **label, "note": "", "array": 0}],
         "objectives": [{"name": "m", "definition": {}, "value": 1.0, "grad_seed": 0, "array": 0}],
     }  # fmt: skip
+    if version >= 3:
+        header["statistics"] = None
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         zf.writestr("header.npy", _npy(np.array(json.dumps(header))))
         zf.writestr("value_000000.npy", _npy(np.array([1, 2, 3], ">f4")))
         zf.writestr("grad_000_000000.npy", _npy(np.array([0.5, 0, -1], "<f4")))
 
 
-def test_reads_a_file_written_from_the_spec(tmp_path: Path) -> None:
+@pytest.mark.parametrize("version", [2, 3])
+def test_reads_a_file_written_from_the_spec(tmp_path: Path, version: int) -> None:
     """docs/buffer-format.md is enough to write a buffer without sensaov's writer."""
     path = tmp_path / "by-hand.npz"
-    _write_by_hand(path, 2, {"trust": "suspect"})
+    _write_by_hand(path, version, {"trust": "suspect"})
     loaded = SensitivityBuffer.load(path)
     assert loaded.value("lamp.emitter.radiance.value").tolist() == [1, 2, 3]
     assert loaded.grad("m", "lamp.emitter.radiance.value").tolist() == [0.5, 0, -1]

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import (
     BufferContentError,
     NonFiniteGradientError,
@@ -27,7 +28,7 @@ from sensaov_cli.errors import (
 from sensaov_cli.vocabulary import TRUSTS, Trust
 
 FORMAT_NAME = "sensaov-buffer"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 HEADER_MEMBER = "header"
 
 
@@ -184,6 +185,7 @@ class SensitivityBuffer:
     objectives: tuple[ObjectiveRecord, ...]
     values: Mapping[str, np.ndarray]
     grads: Mapping[str, Mapping[str, np.ndarray]]
+    statistics: Statistics | None = None  # standard errors, from >= 2 batches or shards
     _by_key: Mapping[str, ParamRecord] = field(init=False)
     _by_name: Mapping[str, ObjectiveRecord] = field(init=False)
     _copy_arrays: InitVar[bool] = True
@@ -214,6 +216,28 @@ class SensitivityBuffer:
         set_(self, "_by_name", MappingProxyType({o.name: o for o in self.objectives}))
         set_(self, "values", MappingProxyType(self._checked_values(self.values, _copy_arrays)))
         set_(self, "grads", MappingProxyType(self._checked_grads(self.grads, _copy_arrays)))
+        if self.statistics is not None:
+            self._check_statistics(self.statistics)
+
+    def _check_statistics(self, statistics: Statistics) -> None:
+        _require(isinstance(statistics, Statistics), "statistics must be a Statistics")
+        names = [o.name for o in self.objectives]
+        _require(sorted(statistics.stderr) == sorted(names), "statistics: objectives differ")
+        _require(sorted(statistics.batch_sums) == sorted(names), "batch sums: objectives differ")
+        _require(
+            sorted(statistics.objective_values) == sorted(names), "batch values: objectives differ"
+        )
+        for name in names:
+            sums = statistics.batch_sums[name]
+            _require(sums.shape[0] == len(self.params), f"batch sums of {name!r}: wrong length")
+            given = statistics.stderr[name]
+            _check_no_extra(f"standard errors of {name!r}", given, self._by_key)
+            for p in self.params:
+                _require(p.key in given, f"objective {name!r} has no standard error for {p.key!r}")
+                arr, bad = _frozen_array(
+                    given[p.key], p.shape, f"standard error of {p.key!r}", False
+                )
+                _require(bad == 0 and bool((arr >= 0).all()), f"bad standard error of {p.key!r}")
 
     def _checked_values(self, values: Mapping[str, Any], copy: bool) -> dict[str, np.ndarray]:
         _check_no_extra("values", values, self._by_key)

@@ -1,8 +1,8 @@
-"""The buffer's file format (version 2): a plain ``.npz`` of one JSON header and numbered arrays.
+"""The buffer's file format (version 3): a plain ``.npz`` of one JSON header and numbered arrays.
 
 Specified in ``docs/buffer-format.md``. Kept apart from the container so that the format, its
-validation and its error messages can be read in one place. Version 1 files (a boolean
-``verified`` per parameter instead of the ``trust`` label) are still read.
+validation and its error messages can be read in one place. Version 2 files (no statistics) and
+version 1 files (a boolean ``verified`` per parameter instead of the ``trust`` label) are read.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from sensaov_cli.buffer.model import (
     ParamRecord,
     SensitivityBuffer,
 )
+from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import BufferFormatError, BufferWriteError, SensaovError
 from sensaov_cli.outputs.atomic import atomic_write
 
@@ -58,6 +59,11 @@ def buffer_writer(buffer: SensitivityBuffer) -> Callable[[Path], None]:
 
 
 def read_buffer(path: Path) -> SensitivityBuffer:
+    return _load(path)[0]
+
+
+def read_buffer_versioned(path: Path) -> tuple[SensitivityBuffer, int]:
+    """The buffer and the format version its file was written in."""
     return _load(path)
 
 
@@ -69,13 +75,30 @@ def _members(buffer: SensitivityBuffer) -> dict[str, np.ndarray]:
         "objects": list(buffer.objects),
         "params": [_param_json(p, i) for i, p in enumerate(buffer.params)],
         "objectives": [_objective_json(o, j) for j, o in enumerate(buffer.objectives)],
+        "statistics": _statistics_json(buffer.statistics),
     }
     members = {HEADER_MEMBER: np.array(json.dumps(header, allow_nan=False))}
     for i, p in enumerate(buffer.params):
         members[value_member(i)] = buffer.values[p.key]
         for j, o in enumerate(buffer.objectives):
             members[grad_member(j, i)] = buffer.grads[o.name][p.key]
+    if buffer.statistics is not None:
+        for j, o in enumerate(buffer.objectives):
+            members[batch_sums_member(j)] = buffer.statistics.batch_sums[o.name]
+            for i, p in enumerate(buffer.params):
+                members[stderr_member(j, i)] = buffer.statistics.stderr[o.name][p.key]
     return members
+
+
+def _statistics_json(statistics: Statistics | None) -> dict[str, Any] | None:
+    if statistics is None:
+        return None
+    return {
+        "source": statistics.source,
+        "spp": list(statistics.spp),
+        "seeds": list(statistics.seeds),
+        "objective_values": {k: list(v) for k, v in statistics.objective_values.items()},
+    }
 
 
 def value_member(param_index: int) -> str:
@@ -88,11 +111,21 @@ def grad_member(objective_index: int, param_index: int) -> str:
     return f"grad_{objective_index:03d}_{param_index:06d}"
 
 
+def stderr_member(objective_index: int, param_index: int) -> str:
+    """The npz member holding the standard error of a gradient (version 3, with statistics)."""
+    return f"stderr_{objective_index:03d}_{param_index:06d}"
+
+
+def batch_sums_member(objective_index: int) -> str:
+    """The npz member holding an objective's per-parameter batch scalars (P, k, 4) float64."""
+    return f"batchsums_{objective_index:03d}"
+
+
 _PARAM_FIELDS = tuple(f.name for f in fields(ParamRecord))
 _OBJECTIVE_FIELDS = tuple(f.name for f in fields(ObjectiveRecord))
 # Version 1 stored a boolean "verified" where version 2 stores the "trust" label.
 _V1_PARAM_FIELDS = tuple("verified" if name == "trust" else name for name in _PARAM_FIELDS)
-_READABLE_VERSIONS = (1, FORMAT_VERSION)
+_READABLE_VERSIONS = (1, 2, FORMAT_VERSION)
 
 
 def _param_json(p: ParamRecord, index: int) -> dict[str, Any]:
@@ -121,7 +154,7 @@ _READ_ERRORS = (
 )  # fmt: skip
 
 
-def _load(path: Path) -> SensitivityBuffer:
+def _load(path: Path) -> tuple[SensitivityBuffer, int]:
     try:
         _require_zip(path)
         with np.load(path, allow_pickle=False) as npz:
@@ -153,7 +186,11 @@ def _require_zip(path: Path) -> None:
         raise _Malformed("not a sensaov buffer: not an .npz (zip) archive", _FOREIGN)
 
 
-def _read_npz(npz: Any) -> SensitivityBuffer:
+def _read_npz(npz: Any) -> tuple[SensitivityBuffer, int]:
+    names = [name.removesuffix(".npy") for name in npz.zip.namelist()]
+    duplicates = sorted({name for name in names if names.count(name) > 1})
+    if duplicates:  # np.load would silently read one of them
+        raise _Malformed(f"inconsistent buffer: archive members appear twice: {duplicates[:5]}")
     members = set(npz.files)
     if HEADER_MEMBER not in members:
         raise _Malformed(f"not a sensaov buffer: the archive has no {HEADER_MEMBER!r}", _FOREIGN)
@@ -161,24 +198,75 @@ def _read_npz(npz: Any) -> SensitivityBuffer:
     version = header["format_version"]
     params = [_param_from_json(entry, i, version) for i, entry in enumerate(header["params"])]
     objectives = [_objective_from_json(e, j) for j, e in enumerate(header["objectives"])]
+    statistics = header.get("statistics")
     expected = {HEADER_MEMBER} | {value_member(i) for i in range(len(params))}
     expected |= {grad_member(j, i) for j in range(len(objectives)) for i in range(len(params))}
-    if members != expected:
+    if statistics is not None:
+        expected |= {batch_sums_member(j) for j in range(len(objectives))}
+        expected |= {
+            stderr_member(j, i) for j in range(len(objectives)) for i in range(len(params))
+        }
+    if members != expected or len(names) != len(members):
         raise _Malformed(f"inconsistent buffer: {_differences('arrays', expected, members)}")
     values = {p.key: _read_array(npz, value_member(i), p) for i, p in enumerate(params)}
     grads = {
         o.name: {p.key: _read_array(npz, grad_member(j, i), p) for i, p in enumerate(params)}
         for j, o in enumerate(objectives)
     }
-    return SensitivityBuffer(
+    buffer = SensitivityBuffer(
         provenance=header["provenance"],
         objects=tuple(header["objects"]),
         params=tuple(params),
         objectives=tuple(objectives),
         values=values,
         grads=grads,
+        statistics=_read_statistics(npz, statistics, params, objectives),
         _copy_arrays=False,  # fresh arrays from read_array: freezing them in place halves the peak
     )
+    return buffer, version
+
+
+def _read_statistics(
+    npz: Any, entry: Any, params: list[ParamRecord], objectives: list[ObjectiveRecord]
+) -> Statistics | None:
+    if entry is None:
+        return None
+    fields_ = {"source", "spp", "seeds", "objective_values"}
+    if not isinstance(entry, dict) or set(entry) != fields_:
+        raise _Malformed(f"malformed header: 'statistics' must be null or have {sorted(fields_)}")
+    counts = (entry["spp"], entry["seeds"])
+    if not all(isinstance(c, list) and all(_is_int(n) for n in c) for c in counts):
+        raise _Malformed("malformed header: statistics.spp and .seeds must be integer lists")
+    values = entry["objective_values"]
+    if not isinstance(values, dict) or not all(
+        isinstance(v, list) and all(_is_number(x) for x in v) for v in values.values()
+    ):
+        raise _Malformed("malformed header: statistics.objective_values must map to number lists")
+    sums = {}
+    for j, o in enumerate(objectives):
+        arr = npz[batch_sums_member(j)]
+        if arr.dtype != np.float64:
+            raise _Malformed(f"inconsistent buffer: {batch_sums_member(j)!r} is not float64")
+        sums[o.name] = arr
+    return Statistics(
+        source=str(entry["source"]),
+        spp=tuple(entry["spp"]),
+        seeds=tuple(entry["seeds"]),
+        objective_values={k: tuple(float(x) for x in v) for k, v in values.items()},
+        stderr={
+            o.name: {p.key: _read_array(npz, stderr_member(j, i), p) for i, p in enumerate(params)}
+            for j, o in enumerate(objectives)
+        },
+        batch_sums=sums,
+    )
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def _differences(kind: str, expected: set[str], found: set[str]) -> str:
@@ -201,7 +289,7 @@ def _read_header(member: np.ndarray) -> dict[str, Any]:
             f"not a sensaov buffer: header format is {found!r}, not {FORMAT_NAME!r}", _FOREIGN
         )
     version = header.get("format_version")
-    if version not in _READABLE_VERSIONS or isinstance(version, bool):
+    if not _is_int(version) or version not in _READABLE_VERSIONS:  # 1.0 is not a version
         newer = isinstance(version, int) and version > FORMAT_VERSION
         raise _Malformed(
             f"buffer format version {version!r} is not supported; this sensaov reads versions "
@@ -212,7 +300,12 @@ def _read_header(member: np.ndarray) -> dict[str, Any]:
     for name, kind in kinds.items():
         if not isinstance(header.get(name), kind):
             raise _Malformed(f"malformed header: {name!r} must be a JSON {kind.__name__}")
-    extra = sorted(set(header) - set(kinds) - {"format", "format_version"})
+    allowed = set(kinds) | {"format", "format_version"}
+    if version >= 3:  # "statistics" (null or an object) is required from version 3 on
+        if "statistics" not in header:
+            raise _Malformed("malformed header: missing field 'statistics'")
+        allowed.add("statistics")
+    extra = sorted(set(header) - allowed)
     if extra:  # no version allows others (docs/buffer-format.md)
         raise _Malformed(f"malformed header: unknown field(s) {', '.join(map(repr, extra))}")
     return header
@@ -225,13 +318,13 @@ def _entry(entry: Any, names: tuple[str, ...], index: int, where: str) -> dict[s
     if set(entry) != expected:
         problem = _differences("fields", expected, set(entry))
         raise _Malformed(f"malformed header: {where}[{index}] has {problem}")
-    if entry["array"] != index or isinstance(entry["array"], bool):
+    if not _is_int(entry["array"]) or entry["array"] != index:
         raise _Malformed(f"malformed header: {where}[{index}].array is {entry['array']!r}")
     return {name: entry[name] for name in names}
 
 
 def _param_from_json(entry: Any, index: int, version: int) -> ParamRecord:
-    if version == FORMAT_VERSION:
+    if version >= 2:
         return ParamRecord(**_entry(entry, _PARAM_FIELDS, index, "params"))
     fields_ = _entry(entry, _V1_PARAM_FIELDS, index, "params")
     verified = fields_.pop("verified")

@@ -15,6 +15,7 @@ import click
 from sensaov_cli import __version__
 from sensaov_cli.cli import (
     check,
+    merge,
     params,
     project,
     rank,
@@ -52,6 +53,7 @@ main.add_command(params.params)
 main.add_command(run.run)
 main.add_command(project.project)
 main.add_command(check.check)
+main.add_command(merge.merge)
 main.add_command(rank.rank)
 main.add_command(sunburst.sunburst)
 main.add_command(report.report)

@@ -38,6 +38,15 @@ json_option = click.option(
     "--json", "as_json", is_flag=True, help="Print JSON on stdout instead of a table."
 )
 quiet_option = click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
+progress_option = click.option(
+    "--progress",
+    "progress_style",
+    type=click.Choice(["auto", "plain", "farm"]),
+    default="auto",
+    show_default=True,
+    help="farm: also print 'Progress: N%' lines for farm managers (Deadline, OpenCue, Slurm "
+    "logs); auto: farm when stderr is not a terminal.",
+)
 aggregate_option = click.option(
     "--aggregate",
     type=click.Choice(AGGREGATES),

@@ -12,10 +12,21 @@ from sensaov_cli.cli.options import (
     echo_json,
     job_argument,
     json_option,
+    objective_option,
+    progress_option,
     quiet_option,
     reports_errors,
     top_option,
 )
+
+
+def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[int, int] | None:
+    if value is None:
+        return None
+    index, _, count = value.partition("/")
+    if not (index.isdigit() and count.isdigit()) or not 1 <= int(index) <= int(count):
+        raise click.BadParameter(f"{value!r} is not I/N with 1 <= I <= N (e.g. 3/8)")
+    return int(index), int(count)
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
@@ -24,8 +35,34 @@ from sensaov_cli.cli.options import (
 @quiet_option
 @top_option("Rows per table in the summary.")
 @allow_python_option
+@click.option(
+    "--shard",
+    metavar="I/N",
+    callback=_shard,
+    help="Render shard I of N (1/N of render.spp, its own seed) into buffer.shard-I-of-N.npz; "
+    "'sensaov merge' combines the N shards.",
+)
+@objective_option(
+    "Differentiate this objective only (repeatable): one farm task per pass.", multiple=True
+)
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="Skip the work if this task's outputs are complete and were made by this job.",
+)
+@progress_option
 @reports_errors
-def run(job: Path, as_json: bool, quiet: bool, top: int, allow_python: bool) -> None:
+def run(
+    job: Path,
+    as_json: bool,
+    quiet: bool,
+    top: int,
+    allow_python: bool,
+    shard: tuple[int, int] | None,
+    objective: tuple[str, ...],
+    resume: bool,
+    progress_style: str,
+) -> None:
     """Render the objective camera once and fill the sensitivity buffer.
 
     One primal render, then one reverse-mode pass per objective. Writes
@@ -33,18 +70,26 @@ def run(job: Path, as_json: bool, quiet: bool, top: int, allow_python: bool) -> 
     ranked summary per objective; progress goes to stderr.
 
     \b
-    Example:
+    Examples:
       sensaov run configs/cbox.yaml
       sensaov run configs/cbox.yaml --json -q > summary.json
+      sensaov run configs/cbox.yaml --shard 3/8 --resume    # one farm task
+      sensaov run configs/cbox.yaml --objective mean_luma   # one adjoint pass
     """
     from sensaov_cli.outputs.tables import summary_text
     from sensaov_cli.progress import Progress
-    from sensaov_cli.run import run_job
+    from sensaov_cli.run import Task, run_job
     from sensaov_cli.spec.load import load_job
     from sensaov_cli.views.summary import summary_dict
 
     spec = load_job(job)
-    outputs = run_job(spec, allow_python=allow_python, progress=Progress(quiet=quiet))
+    outputs = run_job(
+        spec,
+        allow_python=allow_python,
+        progress=Progress(quiet=quiet, style=progress_style),
+        task=Task(shard, tuple(dict.fromkeys(objective))),
+        resume=resume,
+    )
     if as_json:
         summary = summary_dict(outputs.buffer, top=top)
         summary["files"] = {"buffer": str(outputs.buffer_path), "primal": str(outputs.primal_path)}

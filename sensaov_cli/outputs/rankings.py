@@ -20,7 +20,10 @@ from sensaov_cli.views.hierarchy import RANKING_FORMAT, RANKING_VERSION, Ranking
 from sensaov_cli.vocabulary import Aggregate, Weight
 
 # The columns of a row, in JSON, CSV and text order (CSV puts "objective" first).
-COLUMNS = ("rank", "name", "score", "signed", "share", "sign", "value", "trust", "off_frame")
+COLUMNS = (
+    "rank", "name", "score", "signed", "share", "sign", "value", "trust", "off_frame",
+    "score_se", "signed_se", "significant",
+)  # fmt: skip
 _MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
 _CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}
 
@@ -59,6 +62,9 @@ def ranking_dict(
                 "value": r.objective_value,
                 "ranked": r.ranked,
                 "total_signed": r.total_signed,
+                "batches": r.batches,
+                "stability": r.stability,
+                "stability_top": r.stability_top,
                 "rows": [row_dict(row) for row in r.rows],
                 "no_gradient": [
                     {"key": p.key, "type": p.type, "owners": list(p.owners), "note": p.note}
@@ -80,6 +86,8 @@ def ranking_csv(found: Sequence[Ranking]) -> str:
             cells = row_dict(row)
             cells["value"] = "" if row.value is None else repr(row.value)
             cells["off_frame"] = "" if row.off_frame is None else ";".join(row.off_frame)
+            for column in ("score_se", "signed_se", "significant"):
+                cells[column] = "" if cells[column] is None else repr(cells[column])
             writer.writerow((r.objective, *(cells[c] for c in COLUMNS)))
     return out.getvalue()
 
@@ -103,11 +111,14 @@ def _table(r: Ranking) -> list[str]:
         return ["    (none)"]
     cameras = any(row.off_frame is not None for row in r.rows)
     values = r.by == "key"  # only a parameter has a value; groups leave the column out
+    errors = r.batches is not None
     headers = [
         "#",
         "",
         "score",
+        *(["±"] * errors),
         "signed",
+        *(["±"] * errors),
         "sign",
         "share",
         *(["value"] * values),
@@ -119,8 +130,10 @@ def _table(r: Ranking) -> list[str]:
             str(row.rank),
             _MARKS.get(row.trust, ""),
             f"{row.score:.2e}",
+            *([f"{row.score_se:.1e}"] * errors),
             f"{row.signed:+.2e}",
-            row.sign,
+            *([f"{row.signed_se:.1e}"] * errors),
+            row.sign + ("" if row.significant is not False else "?"),
             f"{100 * row.share:.1f}%",
             *([_value(row.value)] * values),
             row.name,
@@ -128,7 +141,8 @@ def _table(r: Ranking) -> list[str]:
         ]
         for row in r.rows
     ]
-    numeric = {0, 2, 3, 5, 6} if values else {0, 2, 3, 5}
+    numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "±", "signed", "share")}
+    numeric |= {headers.index("value")} if values else set()
     return format_table([headers, *rows], numeric=numeric, indent="    ")
 
 
@@ -143,6 +157,15 @@ def _legend(r: Ranking) -> list[str]:
         lines.append(f"  {UNVERIFIED_MARK} = unverified or biased gradient (or a group with one)")
     if SUSPECT_MARK in marks:
         lines.append(f"  {SUSPECT_MARK} = suspect gradient: it failed a run-time self-check")
+    if r.batches is not None:
+        lines.append(
+            f"  ±: standard error from {r.batches} batches; ? = sign within 2 standard errors"
+        )
+        if r.stability is not None:
+            lines.append(
+                f"  the top {r.stability_top} keep their order in {100 * r.stability:.0f}% "
+                "of bootstrap resamples of the batches"
+            )
     if any(row.off_frame for row in r.rows):
         lines.append("  off-frame: the cameras that see none of its objects")
     if r.no_gradient:

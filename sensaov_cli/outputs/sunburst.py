@@ -40,6 +40,7 @@ FONT_PT = 7.5
 MIN_LABEL_ARC_IN = 0.17  # a wedge narrower than this at mid-radius gets no label
 _VIEW = 1.12  # axes limits: the disc plus a margin
 _HATCH = "////"
+_NOISE_HATCH = "...."  # the sign is within 2 standard errors (buffers with statistics)
 _RING_NAMES = {
     "object,type": "objects → types → parameters",
     "type,object": "types → objects → parameters",
@@ -139,9 +140,10 @@ def _draw_wedge(ax: Axes, wedge: Wedge, colour: tuple[float, ...]) -> None:
         WedgePatch, (0, 0), outer, _degrees(wedge.stop), _degrees(wedge.start), width=outer - inner
     )
     ax.add_patch(ring(facecolor=colour, edgecolor="white", linewidth=0.8))
-    hatched = wedge.trust != "verified"
+    hatches = _HATCH * (wedge.trust != "verified") + _NOISE_HATCH * (wedge.significant is False)
+    hatched = bool(hatches)
     if hatched:  # a second, unfilled patch: matplotlib hatches in the edge colour
-        ax.add_patch(ring(fill=False, hatch=_HATCH, edgecolor="#444444", linewidth=0))
+        ax.add_patch(ring(fill=False, hatch=hatches, edgecolor="#444444", linewidth=0))
     _label(ax, wedge, (inner, outer), colour, hatched)
 
 
@@ -203,8 +205,14 @@ def _legend(fig: Figure, order: str, encoding: str) -> None:
         hatch=_HATCH,
         label="gradient not verified (unverified, biased or suspect)",
     )
+    noisy = Patch(
+        facecolor="white",
+        edgecolor="#444444",
+        hatch=_NOISE_HATCH,
+        label="sign not significant (|Σc| < 2 standard errors)",
+    )
     fig.legend(
-        handles=[hatched],
+        handles=[hatched, noisy],
         loc="lower right",
         bbox_to_anchor=(0.98, 0.055),
         fontsize=8,

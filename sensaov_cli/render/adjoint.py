@@ -21,7 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import ParamRecord
+from sensaov_cli.buffer.statistics import Statistics, combine_batches, weighted_mean
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
 from sensaov_cli.render.scene import LoadedScene
@@ -33,6 +35,10 @@ SEED_STRIDE = 0x9E3779B1  # golden-ratio stride: distinct, reproducible seeds pe
 # 3 GB for 128x128 at 256 spp in one pass (measured, docs/verification.md). Passes of at most
 # this many samples (pixels x spp) keep it near 200 MB, for 24 % more time.
 PATH_SAMPLES_PER_PASS = 1 << 18
+# A stop (a farm's SIGTERM, Ctrl-C) can only be acted on between kernel launches: every primal
+# and prb pass is split into sub-passes of at most this many samples (pixels x spp), with a
+# check between them. The wait it bounds is measured in docs/exit-codes.md.
+SAMPLES_PER_SUBPASS = 1 << 22
 
 
 def gradient_seed(primal_seed: int, objective_index: int) -> int:
@@ -49,6 +55,8 @@ class AdjointResult:
     deterministic: bool = False  # computed so that the same job and seed give the same bits
     params: tuple[ParamRecord, ...] = ()  # the selected records, trust labels after self-checks
     provenance: dict[str, Any] = field(default_factory=dict)  # integrators, self-check figures
+    spp: int = 0  # samples per pixel behind the mean (the sum over batches)
+    statistics: Statistics | None = None  # standard errors, with >= 2 batches
 
 
 def to_numpy(value: Any, shape: tuple[int, ...]) -> np.ndarray:
@@ -80,15 +88,35 @@ def enable_gradients(loaded: LoadedScene, keys: set[str] | None = None) -> dict[
 
 
 def render_primal(loaded: LoadedScene, spp: int, seed: int, integrator: Any = None) -> Any:
-    """The image at ``seed`` through ``integrator`` (default: the scene's prb), without AD."""
+    """The image at ``seed`` through ``integrator`` (default: the scene's prb), without AD.
+
+    Rendered in sub-passes (:func:`subpasses`), each weighted by its share of ``spp``; one
+    sub-pass (every small render) is exactly the single render at ``seed``.
+    """
     import drjit as dr
 
     integrator = loaded.integrator if integrator is None else integrator
-    with dr.suspend_grad():
-        image = integrator.render(loaded.scene, loaded.sensor, seed=seed, spp=spp)
-    dr.eval(image)
-    dr.sync_thread()  # kernels run asynchronously: without this the primal's timing is fiction
+    width, height = loaded.resolution
+    image = None
+    for index, chunk in subpasses(width * height, spp):
+        with dr.suspend_grad():
+            part = integrator.render(
+                loaded.scene, loaded.sensor, seed=chunk_seed(seed, index), spp=chunk
+            )
+            weighted = part if chunk == spp else part * (chunk / spp)
+            image = weighted if image is None else image + weighted
+        dr.eval(image)
+        dr.sync_thread()  # kernels run asynchronously: without this the timing is fiction
     return image
+
+
+def subpasses(pixels: int, spp: int, limit: int = SAMPLES_PER_SUBPASS) -> Iterator[tuple[int, int]]:
+    """(index, spp) of each sub-pass, at most ``limit`` samples each; a pending stop is raised
+    (as KeyboardInterrupt) before every sub-pass after the first."""
+    for index, chunk in enumerate(sample_chunks(pixels, spp, limit)):
+        if index:
+            interrupts.check()
+        yield index, chunk
 
 
 def integrator_plan(loaded: LoadedScene) -> dict[str, set[str]]:
@@ -140,18 +168,27 @@ def _nothing_attached_is_zero() -> Iterator[None]:
 
 
 def _prb_backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int) -> None:
-    with _nothing_attached_is_zero():
-        loaded.integrator.render_backward(
-            loaded.scene, loaded.params, grad_in=adjoint_image, sensor=loaded.sensor,
-            seed=seed, spp=spp,
-        )  # fmt: skip
+    """prb's backward pass in the primal's sub-passes (same seeds, same shares of spp)."""
+    width, height = loaded.resolution
+    for index, chunk in subpasses(width * height, spp):
+        grad_in = adjoint_image if chunk == spp else adjoint_image * (chunk / spp)
+        with _nothing_attached_is_zero():
+            loaded.integrator.render_backward(
+                loaded.scene, loaded.params, grad_in=grad_in, sensor=loaded.sensor,
+                seed=chunk_seed(seed, index), spp=chunk,
+            )  # fmt: skip
+
+
+def sample_chunks(pixels: int, spp: int, limit: int) -> list[int]:
+    """spp split into near-equal passes of at most ``limit`` samples (at least 1 spp each)."""
+    per_pass = max(1, limit // max(pixels, 1))
+    count = -(-spp // per_pass)
+    return [spp // count + (1 if i < spp % count else 0) for i in range(count)]
 
 
 def path_chunks(pixels: int, spp: int) -> list[int]:
     """spp split into passes of at most PATH_SAMPLES_PER_PASS samples (at least 1 spp each)."""
-    per_pass = max(1, PATH_SAMPLES_PER_PASS // max(pixels, 1))
-    count = -(-spp // per_pass)
-    return [spp // count + (1 if i < spp % count else 0) for i in range(count)]
+    return sample_chunks(pixels, spp, PATH_SAMPLES_PER_PASS)
 
 
 def path_integrator(loaded: LoadedScene) -> Any:
@@ -170,8 +207,18 @@ def path_integrator(loaded: LoadedScene) -> Any:
 
 
 def chunk_seed(seed: int, index: int) -> int:
-    """The seed of path's ``index``-th chunk; the first is ``seed``, as a primal at ``seed``."""
-    return (seed + SEED_STRIDE * index) % 2**31
+    """The seed of a pass's ``index``-th chunk; the first is ``seed``, as a primal at ``seed``.
+
+    Later ones are hashed, not strided: a stride would give chunk ``j`` of a primal the seed of
+    objective ``j``'s backward pass, correlating the two (the bias gradient_seed avoids).
+    """
+    return seed if index == 0 else derived_seed(seed, "chunk", index)
+
+
+def derived_seed(seed: int, purpose: str, index: int) -> int:
+    """A reproducible 31-bit seed for (seed, purpose, index), independent of its neighbours."""
+    tag = int.from_bytes(purpose.encode()[:8].ljust(8, b"\0"), "little")
+    return int(np.random.SeedSequence([seed, tag, index]).generate_state(1)[0]) % 2**31
 
 
 def _path_backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int) -> None:
@@ -179,6 +226,8 @@ def _path_backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int)
     width, height = loaded.resolution
     path = path_integrator(loaded)
     for index, chunk in enumerate(path_chunks(width * height, spp)):
+        if index:
+            interrupts.check()
         with _nothing_attached_is_zero():
             path.render_backward(
                 loaded.scene, loaded.params, grad_in=adjoint_image * (chunk / spp),
@@ -206,6 +255,16 @@ def reproducible(loaded: LoadedScene, enabled: bool) -> Iterator[bool]:
         dr.set_thread_count(threads)
 
 
+def batch_plan(spp: int, seed: int, batches: int) -> list[tuple[int, int]]:
+    """(spp, primal seed) of each of ``batches`` independent batches; batch 0 has ``seed``.
+
+    Shard i of n (``sensaov run --shard i/n``) is batch i-1 of this plan, so a merge of n
+    shards is the same estimate as one run with ``render.batches: n``.
+    """
+    sizes = [spp // batches + (1 if i < spp % batches else 0) for i in range(batches)]
+    return [(n, seed if i == 0 else derived_seed(seed, "batch", i)) for i, n in enumerate(sizes)]
+
+
 def run_adjoint(
     loaded: LoadedScene,
     objectives: list[Objective],
@@ -214,31 +273,78 @@ def run_adjoint(
     seed: int,
     deterministic: bool,
     progress: Progress,
+    batches: int = 1,
+    only_batch: int | None = None,
 ) -> AdjointResult:
+    """Every batch's primal and backward passes, their mean, its statistics and self-checks.
+
+    ``only_batch``: render that batch of the plan alone (a farm shard); its spp is the result's.
+    """
+    plan = batch_plan(spp, seed, batches)
+    if only_batch is not None:
+        plan = [plan[only_batch]]
+    results = []
     with reproducible(loaded, deterministic) as exact:
-        result = _run_passes(loaded, objectives, spp=spp, seed=seed, progress=progress)
-    plan = integrator_plan(loaded)
-    integrators = {key: name for name, keys in plan.items() for key in keys}
+        for index, (batch_spp, batch_seed) in enumerate(plan):
+            labels = (f"batch {index + 1}/{len(plan)}: ", f"_batch{index + 1}")
+            results.append(
+                _run_passes(
+                    loaded,
+                    objectives,
+                    spp=batch_spp,
+                    seed=batch_seed,
+                    progress=progress,
+                    labels=labels if len(plan) > 1 else ("", ""),
+                )  # fmt: skip
+            )
+    keys = [info.key for info in loaded.selected]
+    spps = [n for n, _ in plan]
+    grads, objective_values, statistics = combine_batches(
+        keys,
+        results[0].values,
+        [r.grads for r in results],
+        [r.objective_values for r in results],
+        spps,
+        [s for _, s in plan],
+        "batches",
+    )
+    image = weighted_mean([r.image for r in results], spps)
+    result = replace(
+        results[0], image=image, grads=grads, objective_values=objective_values,
+        statistics=statistics, spp=sum(spps),
+    )  # fmt: skip
+    integrator_names = integrator_plan(loaded)
+    integrators = {key: name for name, keys in integrator_names.items() for key in keys}
     checked = self_check(
         loaded, objectives, result.image, result.values, result.grads,
-        result.objective_values, spp, integrators,
+        result.objective_values, result.spp, integrators,
     )  # fmt: skip
     return replace(
         result,
         deterministic=exact,
         params=checked.params,
         provenance={
-            "gradient_integrators": {name: sorted(keys) for name, keys in plan.items()},
+            "gradient_integrators": {name: sorted(keys) for name, keys in integrator_names.items()},
             "self_checks": checked.figures,
+            "batches": [{"spp": n, "seed": s} for n, s in plan],
         },
     )
 
 
 def _run_passes(
-    loaded: LoadedScene, objectives: list[Objective], *, spp: int, seed: int, progress: Progress
+    loaded: LoadedScene,
+    objectives: list[Objective],
+    *,
+    spp: int,
+    seed: int,
+    progress: Progress,
+    labels: tuple[str, str] = ("", ""),
 ) -> AdjointResult:
+    """One batch: a primal, then each objective's backward passes (``labels``: the batch's
+    prefix in progress lines and suffix in timing names)."""
+    tag, suffix = labels
     width, height = loaded.resolution
-    with progress.stage("primal_s", f"primal render {width}x{height} at {spp} spp"):
+    with progress.stage(f"primal{suffix}_s", f"{tag}primal render {width}x{height} at {spp} spp"):
         image = render_primal(loaded, spp, seed)
     values = {info.key: to_numpy(loaded.params[info.key], info.shape) for info in loaded.selected}
     objective_values: dict[str, float] = {}
@@ -250,15 +356,16 @@ def _run_passes(
         grad_seeds[name] = gradient_seed(seed, objective.index)
         grads[name] = {}
         for integrator, keys in integrator_plan(loaded).items():
-            stage = f"backward_{name}_s" if integrator == "prb" else f"backward_{name}_path_s"
-            label = f"{integrator} backward pass for '{name}' ({len(keys)} parameters)"
+            path = "" if integrator == "prb" else "_path"
+            stage = f"backward_{name}{path}{suffix}_s"
+            label = f"{tag}{integrator} backward pass for '{name}' ({len(keys)} parameters)"
             with progress.stage(stage, label):
                 grads[name].update(
                     backward_pass(loaded, integrator, keys, adjoint_image, spp, grad_seeds[name])
                 )
         objective_values[name] = value
     return AdjointResult(
-        np.array(image, dtype=np.float32), values, objective_values, grad_seeds, grads
+        np.array(image, dtype=np.float32), values, objective_values, grad_seeds, grads, spp=spp
     )
 
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from annotated_types import Ge, Lt
+from annotated_types import Ge, Le, Lt
 
 from sensaov_cli.spec.fields import (
     STRICT,
@@ -90,10 +90,27 @@ class RenderSpec(Section):
         bool,
         STRICT,
         Doc(
-            "Byte-identical buffers for the same job and seed. On the CPU backend the "
-            "backward passes then run on one thread (parallel atomic adds sum in varying order)."
+            "Byte-identical buffers for the same job and seed: on the CPU backend the "
+            "backward passes then run on one thread (parallel atomic adds sum in varying "
+            "order). Off by default: the differences are far below Monte Carlo noise."
         ),
-    ] = True
+    ] = False
+    batches: Annotated[
+        int,
+        STRICT,
+        Ge(1),
+        Le(1024),
+        Doc(
+            "Independent batches of spp/batches samples, each with its own primal and backward "
+            "passes; with 2 or more the buffer stores standard errors (docs/farm.md)."
+        ),
+    ] = 1
+
+    def __post_init__(self) -> None:
+        if self.batches > self.spp:
+            raise Problem(
+                f"batches ({self.batches}) cannot exceed spp ({self.spp})", at=("batches",)
+            )
 
 
 @dataclass(frozen=True)

@@ -14,16 +14,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, key_stats, rank, scores
 from sensaov_cli.errors import QueryError
 from sensaov_cli.views.summary import ranked_groups, weakest_trust
+from sensaov_cli.views.uncertainty import GroupError, Uncertainty
 from sensaov_cli.vocabulary import Aggregate, Cut, Grouping, Trust, Weight
 
 RANKING_FORMAT = "sensaov-ranking"
-RANKING_VERSION = 1
+RANKING_VERSION = 2  # 2: standard errors, significance and stability
 # The grouping each cut reads: a key row is one parameter.
 GROUPING_OF: dict[Cut, Grouping] = {"key": "param", "object": "object", "type": "type"}
 
@@ -41,6 +42,9 @@ class RankRow:
     value: float | None  # mean of the parameter's value array at the primal
     trust: Trust  # the parameter's label, or the weakest of the group's parameters
     off_frame: tuple[str, ...] | None  # cameras that see none of its objects
+    score_se: float | None = None  # standard errors, when the buffer has batch statistics
+    signed_se: float | None = None
+    significant: bool | None = None  # |signed| > 2 signed_se: the sign is beyond noise
 
 
 @dataclass(frozen=True)
@@ -54,6 +58,9 @@ class Ranking:
     ranked: int  # rows before the --top cut
     total_signed: float  # Σc over every ranked parameter
     no_gradient: tuple[ParamRecord, ...]  # listed apart, never ranked
+    batches: int | None = None  # batches behind the standard errors (None: no statistics)
+    stability: float | None = None  # how often the top ``stability_top`` rows keep their order
+    stability_top: int | None = None
 
 
 def rankings(
@@ -119,6 +126,11 @@ def _ranking(
         )
         for i, (name, score) in enumerate(ordered if top is None else ordered[:top], 1)
     )
+    noise = Uncertainty.of(buf, objective, method, weight)
+    stable: tuple[float, int] | None = None
+    if noise is not None:
+        rows = tuple(_with_errors(row, noise.error(grouped[row.name], row.score)) for row in rows)
+        stable = noise.stability(ordered, grouped)
     return Ranking(
         objective=objective,
         objective_value=buf.objective(objective).value,
@@ -127,6 +139,18 @@ def _ranking(
         ranked=len(ordered),
         total_signed=math.fsum(s.total for s in stats.values()),
         no_gradient=tuple(p for p in buf.params if p.trust == "no_gradient"),
+        batches=None if noise is None else noise.batches,
+        stability=None if stable is None else stable[0],
+        stability_top=None if stable is None else stable[1],
+    )
+
+
+def _with_errors(row: RankRow, error: GroupError) -> RankRow:
+    return replace(
+        row,
+        score_se=error.score_se,
+        signed_se=error.signed_se,
+        significant=error.significant(row.signed),
     )
 
 

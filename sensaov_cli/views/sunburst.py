@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, combine, key_stats, rank
 from sensaov_cli.errors import QueryError
 from sensaov_cli.views.summary import ranked_groups, weakest_trust
+from sensaov_cli.views.uncertainty import Uncertainty
 from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Trust, Weight
 
 # The object ring's wedge for parameters no object owns (a sensor's, an integrator's): the
@@ -43,6 +44,7 @@ class Wedge:
     score: float  # the aggregate of the wedge's keys
     signed: float  # Σc of its keys: its sign colours the wedge
     trust: Trust  # the weakest label among its keys
+    significant: bool | None = None  # sign beyond 2 standard errors; None: no statistics
 
     @property
     def label(self) -> str:
@@ -123,7 +125,27 @@ def sunburst_wedges(
     centre = _wedge(buf, stats, keys, 0, (), 0.0, 1.0, method)
     wedges = [centre]
     _children(buf, stats, centre, keys, levels, method, wedges)
-    return tuple(wedges)
+    noise = Uncertainty.of(buf, objective, method, weight)
+    if noise is None:
+        return tuple(wedges)
+    members = {(): keys} | _members(buf, keys, levels)
+    return tuple(
+        replace(w, significant=noise.error(members[w.path], w.score).significant(w.signed))
+        for w in wedges
+    )
+
+
+def _members(
+    buf: SensitivityBuffer, keys: Sequence[str], levels: Sequence[Level], path: tuple[str, ...] = ()
+) -> dict[tuple[str, ...], tuple[str, ...]]:
+    """The keys under every wedge path (as _children splits them)."""
+    found: dict[tuple[str, ...], tuple[str, ...]] = {}
+    if not levels:
+        return found
+    for name, group in levels[0](buf, keys).items():
+        found[(*path, name)] = tuple(group)
+        found |= _members(buf, group, levels[1:], (*path, name))
+    return found
 
 
 def _children(

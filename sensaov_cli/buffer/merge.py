@@ -1,0 +1,193 @@
+"""Shards of one job into one buffer: the spp-weighted mean, and the shards' statistics (§7).
+
+``sensaov run --shard i/n`` renders batch i-1 of the job's n-batch plan (render/adjoint.py), so
+the merge of n shards is the estimate one run with ``render.batches: n`` gives, standard errors
+included (each shard is a batch). Shards may also split objectives (``--objective``): every
+(shard, objective) pair must be present exactly once. Anything else is refused with the reason.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.statistics import combine_batches
+from sensaov_cli.errors import MergeError
+
+# How bad a label is, for the merged record: the worst any shard found (no_gradient apart).
+_SEVERITY = ("verified", "unverified", "suspect", "biased")
+
+
+@dataclass(frozen=True)
+class Shard:
+    path: Path
+    buffer: SensitivityBuffer
+    version: int  # the file's format version
+
+    @property
+    def task(self) -> dict[str, Any]:
+        return self.buffer.provenance.get("task") or {}
+
+    @property
+    def index(self) -> tuple[int, int]:
+        shard = self.task.get("shard") or {}
+        return int(shard["index"]), int(shard["count"])
+
+    @property
+    def objectives(self) -> tuple[str, ...]:
+        return tuple(o.name for o in self.buffer.objectives)
+
+
+def merge_shards(shards: Sequence[Shard], current_version: int) -> SensitivityBuffer:
+    """The merged buffer; :class:`MergeError` (one line, exit 2) if the shards do not fit."""
+    if len(shards) < 1:
+        raise MergeError("no shards given")
+    _check_alike(shards, current_version)
+    first = shards[0]
+    count = first.index[1]
+    job_objectives = [o["name"] for o in first.buffer.provenance["job"]["objectives"]]
+    by_index: dict[int, list[Shard]] = {}
+    for shard in shards:
+        by_index.setdefault(shard.index[0], []).append(shard)
+    missing = sorted(set(range(1, count + 1)) - set(by_index))
+    if missing:
+        raise MergeError(
+            f"missing shard(s) {', '.join(f'{i}/{count}' for i in missing[:8])}",
+            where=str(first.path.parent),
+            hint="run them ('sensaov run JOB --shard I/N') or list every shard file",
+        )
+    merged_grads, merged_values, spp, seeds = [], [], [], []
+    for index in range(1, count + 1):
+        grads, values, spps = _one_index(by_index[index], job_objectives, index, count)
+        merged_grads.append(grads)
+        merged_values.append(values)
+        spp.append(spps)
+        seeds.append(int(by_index[index][0].buffer.provenance["primal_seed"]))
+    keys = first.buffer.keys
+    grads, objective_values, statistics = combine_batches(
+        keys, first.buffer.values, merged_grads, merged_values, spp, seeds, "shards"
+    )
+    records = {o.name: o for s in shards for o in s.buffer.objectives}
+    objectives = tuple(
+        replace(records[name], value=objective_values[name]) for name in job_objectives
+    )
+    return SensitivityBuffer(
+        provenance=_provenance(shards, sum(spp)),
+        objects=first.buffer.objects,
+        params=_merged_records(shards, grads),
+        objectives=objectives,
+        values=dict(first.buffer.values),
+        grads=grads,
+        statistics=statistics,
+    )
+
+
+def _check_alike(shards: Sequence[Shard], current_version: int) -> None:
+    first = shards[0]
+    seen: dict[Path, Path] = {}
+    for shard in shards:
+        where = str(shard.path)
+        resolved = shard.path.resolve()
+        if resolved in seen:
+            raise MergeError("the same file is given twice", where=where)
+        seen[resolved] = shard.path
+        if shard.version != current_version:
+            raise MergeError(
+                f"buffer format version {shard.version}, not {current_version}",
+                where=where,
+                hint="re-run the shard with this sensaov",
+            )
+        if not shard.task.get("shard"):
+            raise MergeError("not a shard (made without --shard)", where=where)
+        made, reference = shard.buffer.provenance, first.buffer.provenance
+        for field, what in (("scene_fingerprint", "scene"), ("job_hash", "job")):
+            if made.get(field) != reference.get(field):
+                raise MergeError(
+                    f"another {what} than {first.path.name} ({field} differs)", where=where
+                )
+        if shard.index[1] != first.index[1]:
+            raise MergeError(
+                f"shard of {shard.index[1]}, {first.path.name} is a shard of {first.index[1]}",
+                where=where,
+            )
+        _check_parameters(shard, first)
+
+
+def _check_parameters(shard: Shard, first: Shard) -> None:
+    where = str(shard.path)
+    if shard.buffer.keys != first.buffer.keys or shard.buffer.objects != first.buffer.objects:
+        raise MergeError(f"other parameters or objects than {first.path.name}", where=where)
+    for key in first.buffer.keys:
+        if not np.array_equal(shard.buffer.values[key], first.buffer.values[key]):
+            raise MergeError(
+                f"parameter {key!r} has another value than in {first.path.name}", where=where
+            )
+
+
+def _one_index(
+    files: list[Shard], job_objectives: list[str], index: int, count: int
+) -> tuple[dict[str, Any], dict[str, float], int]:
+    """One shard's gradients and objective values (its objectives may be in several files)."""
+    grads: dict[str, Any] = {}
+    values: dict[str, float] = {}
+    spps = {int(f.buffer.provenance["spp"]) for f in files}
+    if len(spps) > 1:
+        raise MergeError(f"files of shard {index}/{count} disagree on spp: {sorted(spps)}")
+    for shard in files:
+        for record in shard.buffer.objectives:
+            if record.name in grads:
+                raise MergeError(
+                    f"shard {index}/{count} of objective {record.name!r} is given twice",
+                    where=str(shard.path),
+                )
+            grads[record.name] = shard.buffer.grads[record.name]
+            values[record.name] = record.value
+    absent = [name for name in job_objectives if name not in grads]
+    if absent:
+        raise MergeError(
+            f"shard {index}/{count} lacks objective(s) {', '.join(map(repr, absent))}",
+            where=str(files[0].path.parent),
+        )
+    return grads, values, spps.pop()
+
+
+def _merged_records(shards: Sequence[Shard], grads: dict[str, Any]) -> tuple[ParamRecord, ...]:
+    """Each parameter with the worst label a shard gave it; no_gradient only if the merged
+    gradient is 0 for every objective."""
+    merged = []
+    for record in shards[0].buffer.params:
+        labels = [s.buffer.param(record.key) for s in shards]
+        flowing = any(np.any(grads[name][record.key]) for name in grads)
+        if not flowing:
+            zero = next((r for r in labels if r.trust == "no_gradient"), None)
+            merged.append(zero or replace(record, trust="no_gradient", note="0 in every shard"))
+            continue
+        rated = [r for r in labels if r.trust in _SEVERITY]
+        worst = max(rated, key=lambda r: _SEVERITY.index(r.trust), default=None)
+        merged.append(worst or replace(record, trust="unverified", note="not checked"))
+    return tuple(merged)
+
+
+def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:
+    base = dict(shards[0].buffer.provenance)
+    base.update(
+        spp=spp,
+        primal_seed=int(base.get("primal_seed", 0)),
+        task={"shard": None, "objectives": None},
+        merged_from=[
+            {
+                "file": s.path.name,
+                "task": s.task,
+                "spp": s.buffer.provenance.get("spp"),
+                "created_utc": s.buffer.provenance.get("created_utc"),
+                "deterministic": s.buffer.provenance.get("deterministic"),
+            }
+            for s in shards
+        ],
+    )
+    return base

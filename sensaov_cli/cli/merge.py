@@ -1,0 +1,44 @@
+"""``sensaov merge``: combine shard buffers into one, with standard errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from sensaov_cli.cli.options import EXIT_CODES_EPILOG, progress_option, quiet_option, reports_errors
+
+
+@click.command(epilog=EXIT_CODES_EPILOG)
+@click.argument("shards", nargs=-1, required=True, type=click.Path(path_type=Path, dir_okay=False))
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="The merged buffer; its primal is written beside it (buffer -> primal, .exr).",
+)
+@quiet_option
+@progress_option
+@reports_errors
+def merge(shards: tuple[Path, ...], output: Path, quiet: bool, progress_style: str) -> None:
+    """Merge the shards of a job ('sensaov run JOB --shard I/N') into one buffer.
+
+    Gradients, objective values and primals become the spp-weighted mean of the
+    shards; with 2 or more shards the buffer also stores standard errors (each
+    shard is one batch). Refused, with the reason: shards of other scenes, jobs,
+    parameter sets or format versions, a missing or duplicated shard.
+
+    \b
+    Examples:
+      sensaov merge out/cbox/buffer.shard-*-of-4.npz -o out/cbox/buffer.npz
+      sensaov rank out/cbox/buffer.npz --top 5      # with standard errors
+    """
+    from sensaov_cli.merge import merge_files
+    from sensaov_cli.progress import Progress
+
+    result = merge_files(list(shards), output, progress=Progress(quiet, style=progress_style))
+    click.echo(
+        f"merged {result.shards} shard file(s), {result.buffer.provenance['spp']} spp: "
+        f"wrote {result.buffer_path} and {result.primal_path}"
+    )

@@ -1,0 +1,94 @@
+"""Wire ``sensaov merge``: shard buffers (and their primals) -> one buffer and one primal.
+
+The arithmetic and every refusal are in :mod:`sensaov_cli.buffer.merge`; this module reads the
+files, finds each shard's primal beside it, and writes both results atomically together.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sensaov_cli import interrupts
+from sensaov_cli.buffer.merge import Shard, merge_shards
+from sensaov_cli.buffer.model import FORMAT_VERSION, SensitivityBuffer
+from sensaov_cli.buffer.npz import buffer_writer, read_buffer_versioned
+from sensaov_cli.buffer.statistics import weighted_mean
+from sensaov_cli.errors import MergeError, SensaovError
+from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
+from sensaov_cli.outputs.exr import exr_writer, read_exr
+from sensaov_cli.outputs.provenance import made_by, provenance_attributes
+from sensaov_cli.progress import Progress
+
+
+@dataclass(frozen=True)
+class MergeOutputs:
+    buffer: SensitivityBuffer
+    buffer_path: Path
+    primal_path: Path
+    shards: int
+    seconds: float
+
+
+def primal_beside(buffer_path: Path) -> Path:
+    """The primal written with a buffer: buffer.shard-1-of-4.npz -> primal.shard-1-of-4.exr."""
+    name = buffer_path.name
+    stem = name.removesuffix(".npz")
+    if stem.startswith("buffer"):
+        return buffer_path.with_name("primal" + stem.removeprefix("buffer") + ".exr")
+    return buffer_path.with_name(stem + ".primal.exr")
+
+
+def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> MergeOutputs:
+    started = time.perf_counter()
+    primal_path = primal_beside(output)
+    inputs = {p.resolve() for p in paths}
+    for target in (output, primal_path):
+        if target.resolve() in inputs or target.resolve() in {
+            primal_beside(p).resolve() for p in paths
+        }:
+            raise MergeError("the output would overwrite an input shard", where=str(target))
+    check_writable(output.parent, [output.name, primal_path.name])
+    shards = []
+    with progress.stage("read_s", f"reading {len(paths)} shard(s)"):
+        for path in paths:
+            buffer, version = read_buffer_versioned(path)
+            shards.append(Shard(path, buffer, version))
+    with progress.stage("merge_s", "merging"):
+        merged = merge_shards(shards, FORMAT_VERSION)
+        merged.provenance.update(made_by("merge"))
+        primal = _merged_primal(shards)
+    interrupts.check()
+    with progress.stage("write_s", f"writing {output.name} and {primal_path.name}"):
+        attributes = provenance_attributes(merged.provenance)
+        try:
+            atomic_write_all(
+                [(output, buffer_writer(merged)), (primal_path, exr_writer(primal, attributes))]
+            )
+        except OSError as exc:
+            raise SensaovError(
+                f"cannot write outputs: {exc.strerror or exc}", where=str(output.parent)
+            ) from exc
+    return MergeOutputs(merged, output, primal_path, len(shards), time.perf_counter() - started)
+
+
+def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:
+    """The spp-weighted mean of one primal per shard index (objective splits share it)."""
+    first_of_index: dict[int, Shard] = {}
+    for shard in shards:
+        first_of_index.setdefault(shard.index[0], shard)
+    images, spp = [], []
+    for _, shard in sorted(first_of_index.items()):
+        path = primal_beside(shard.path)
+        if not path.is_file():
+            raise MergeError("the shard's primal is missing", where=str(path))
+        channels, _ = read_exr(path)
+        images.append(channels)
+        spp.append(int(shard.buffer.provenance["spp"]))
+    names = list(images[0])
+    if any(list(image) != names for image in images):
+        raise MergeError("the shards' primals have different channels", where=str(path))
+    return {name: weighted_mean([image[name] for image in images], spp) for name in names}
