@@ -66,11 +66,11 @@ def run_job(
     resume: bool = False,
 ) -> RunOutputs:
     started = time.perf_counter()
-    job = _task_job(job, task)
+    whole, job = job, _task_job(job, task)  # provenance records the whole job: shards compare
     buffer_name, primal_name = task.file_names()
     buffer_path, primal_path = job.output / buffer_name, job.output / primal_name
     if resume:
-        done = completed(job, task, buffer_path, primal_path)
+        done = completed(whole, task, buffer_path, primal_path)
         if done is not None:
             progress.note(f"{buffer_path.name} is complete for this job: skipped (--resume)")
             return RunOutputs(done, buffer_path, primal_path, resumed=True)
@@ -101,7 +101,9 @@ def run_job(
         f"{len(loaded.selected)} parameters over {len(loaded.objects)} objects, "
         f"variant {loaded.variant}, {len(job.objectives)} objective(s)"
     )
-    objectives = build_objectives(loaded.mi, job.objectives, (height, width), allow_python)
+    objectives = build_objectives(loaded.mi, whole.objectives, (height, width), allow_python)
+    # An objective keeps its index in the whole job (its gradient seed) when a task picks it.
+    objectives = [o for o in objectives if o.spec in job.objectives]
     passes = len(integrator_plan(loaded)) * len(objectives)
     progress.plan(min(job.render.batches, job.render.spp) * (1 + passes) + 1)  # + the write
     spp, seed = job.render.spp, job.render.seed
@@ -116,7 +118,7 @@ def run_job(
         progress=progress,
         batches=min(job.render.batches, spp),
     )
-    provenance = _provenance(job, loaded, result, progress.timings, time.perf_counter() - started)
+    provenance = _provenance(whole, loaded, result, progress.timings, time.perf_counter() - started)
     provenance["task"] = task.describe()
     buffer = _make_buffer(job, loaded, result, provenance)
     interrupts.check()  # a stop asked for during a kernel must not end in written files
