@@ -7,7 +7,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: setup demo test lint typecheck unit bench clean
+.PHONY: setup demo farm-demo test lint typecheck unit bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,14 @@ demo: setup
 	$(BIN)/sensaov run configs/cbox.yaml
 	$(BIN)/sensaov project configs/cbox.yaml --png
 	@echo "demo done: out/cbox/buffer.npz, primal.exr, one EXR per camera, previews/ (PNG)"
+
+# The demo job as farm tasks (docs/farm.md): 4 shards rendered in parallel, merged, then one
+# project per camera, with make -j as the scheduler. Same outputs as `make demo`.
+FARM_SHARDS ?= 4
+farm-demo: setup
+	$(MAKE) --no-print-directory -j$(FARM_SHARDS) -f scripts/farm.mk JOB=configs/cbox.yaml \
+		N=$(FARM_SHARDS) SENSAOV=$(BIN)/sensaov PYTHON=$(BIN)/python
+	$(BIN)/sensaov rank out/cbox/buffer.npz --by object --top 5
 
 # The import boundaries of docs/architecture.md are part of lint (ruff's TID251 rule, with the
 # per-package ruff.toml files); bench/ and scripts/ are held to the package's standard.

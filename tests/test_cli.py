@@ -30,6 +30,7 @@ COMMANDS = (
     "run",
     "project",
     "check",
+    "merge",
     "rank",
     "sunburst",
     "report",

@@ -92,9 +92,14 @@ def test_same_seed_gives_byte_identical_gradients(
     first_run, job_writer: Callable[..., Path]
 ) -> None:  # noqa: ANN001
     job_a, _ = first_run
-    job_b = job_writer("run_b", **JOB_EXTRAS)
-    assert sensaov("run", "-q", str(job_b)).returncode == 0
     a = SensitivityBuffer.load(job_a.parent / "out" / "buffer.npz")
+    assert a.provenance["deterministic"] is False  # the default since issue 12: all threads
+    render = {"spp": 16, "max_depth": 6, "seed": 0, "resolution": [24, 24], "deterministic": True}
+    job_c = job_writer("run_c", render=render, **JOB_EXTRAS)
+    job_b = job_writer("run_b", render=render, **JOB_EXTRAS)
+    assert sensaov("run", "-q", str(job_b)).returncode == 0
+    assert sensaov("run", "-q", str(job_c)).returncode == 0
+    a = SensitivityBuffer.load(job_c.parent / "out" / "buffer.npz")
     b = SensitivityBuffer.load(job_b.parent / "out" / "buffer.npz")
     assert a.provenance["deterministic"] is True
     for objective in ("mean_luma", "centre"):

@@ -30,7 +30,7 @@ def merge(shards: tuple[Path, ...], output: Path, quiet: bool, progress_style: s
     parameter sets or format versions, a missing or duplicated shard.
 
     \b
-    Examples:
+    Example:
       sensaov merge out/cbox/buffer.shard-*-of-4.npz -o out/cbox/buffer.npz
       sensaov rank out/cbox/buffer.npz --top 5      # with standard errors
     """

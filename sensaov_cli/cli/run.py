@@ -70,7 +70,7 @@ def run(
     ranked summary per objective; progress goes to stderr.
 
     \b
-    Examples:
+    Example:
       sensaov run configs/cbox.yaml
       sensaov run configs/cbox.yaml --json -q > summary.json
       sensaov run configs/cbox.yaml --shard 3/8 --resume    # one farm task

@@ -130,9 +130,9 @@ def _table(r: Ranking) -> list[str]:
             str(row.rank),
             _MARKS.get(row.trust, ""),
             f"{row.score:.2e}",
-            *([f"{row.score_se:.1e}"] * errors),
+            *([_error(row.score_se)] * errors),
             f"{row.signed:+.2e}",
-            *([f"{row.signed_se:.1e}"] * errors),
+            *([_error(row.signed_se)] * errors),
             row.sign + ("" if row.significant is not False else "?"),
             f"{100 * row.share:.1f}%",
             *([_value(row.value)] * values),
@@ -144,6 +144,10 @@ def _table(r: Ranking) -> list[str]:
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "±", "signed", "share")}
     numeric |= {headers.index("value")} if values else set()
     return format_table([headers, *rows], numeric=numeric, indent="    ")
+
+
+def _error(se: float | None) -> str:
+    return "-" if se is None else f"{se:.1e}"
 
 
 def _value(value: float | None) -> str:

@@ -1,0 +1,155 @@
+"""Figure 10: farm scale: threads, the deterministic switch, sub-passes, and merging shards."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from bench.fig_buffer import MB, make_buffer
+from bench.fig_passes import PRIMAL_SEED, Passes
+from bench.jobs import SCENES, Workspace
+from bench.results import Figure, Row, fmt
+from bench.settings import Settings
+from bench.timing import interleave, synced
+
+
+def farm(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figure:
+    res, spp = s.resolutions[0], 2 * s.spp
+    figure = Figure(
+        10,
+        "Farm scale: threads, deterministic, sub-passes, merge",
+        "report (no goal)",
+        f"In-process `run_adjoint` on cbox {res}² at {spp} spp, one objective (primal, backward, "
+        "self-checks), sides interleaved: Dr.Jit with 1 thread vs all threads "
+        "(`dr.set_thread_count`), `deterministic: true` vs `false`, and every pass split into "
+        "4 sub-passes (the stop check SIGTERM needs) vs 1. Merge: `sensaov merge` in-process on "
+        f"4 shard buffers of one {s.io_texture}² RGB texture each (value and gradient: "
+        f"{2 * s.io_texture**2 * 3 * 4 / MB:.0f} MB a shard), writing the merged buffer with "
+        "standard errors and its primal.",
+    )
+    passes = Passes.load(ws.job("farm", SCENES["cbox"], resolution=res, spp=spp))
+    threads = _thread_counts()
+    t = interleave(
+        {
+            "1 thread": _adjoint(passes, threads=1),
+            "all threads": _adjoint(passes, threads=threads),
+            "deterministic": _adjoint(passes, threads=threads, deterministic=True),
+            "4 sub-passes": _adjoint(passes, threads=threads, subpasses=4),
+        },
+        s.rounds,
+    )
+    every = t["all threads"]
+    figure.rows += [
+        Row(
+            f"{threads} threads vs 1 (deterministic: false, the default)",
+            t["1 thread"].ratio_to(every),
+            "x",
+            None,
+            f"speed-up; 1 thread {fmt(t['1 thread'].median, 's')}, "
+            f"{threads} threads {fmt(every.median, 's')}",
+        ),
+        Row(
+            "deterministic: true vs false",
+            t["deterministic"].ratio_to(every),
+            "x",
+            None,
+            f"{fmt(t['deterministic'].median, 's')} vs {fmt(every.median, 's')}",
+        ),
+        Row(
+            "4 sub-passes vs 1",
+            t["4 sub-passes"].ratio_to(every),
+            "x",
+            None,
+            f"{fmt(t['4 sub-passes'].median, 's')}: the price of stop checks 4× as often",
+        ),
+    ]
+    log("figure 10: passes done")
+    merged = _merge(ws, s)
+    figure.rows.append(merged)
+    log("figure 10: merge done")
+    return figure
+
+
+def _thread_counts() -> int:
+    import drjit as dr
+
+    return int(dr.thread_count())
+
+
+def _adjoint(
+    passes: Passes, *, threads: int, deterministic: bool = False, subpasses: int = 1
+) -> Callable[[], float]:
+    import drjit as dr
+
+    from sensaov_cli.progress import Progress
+    from sensaov_cli.render import adjoint
+
+    width, height = passes.loaded.resolution
+    samples = width * height * passes.spp
+
+    def measure() -> float:
+        before, limit = dr.thread_count(), adjoint.SAMPLES_PER_SUBPASS
+        dr.set_thread_count(threads)
+        adjoint.SAMPLES_PER_SUBPASS = max(1, samples // subpasses) if subpasses > 1 else limit
+        try:
+            seconds, _ = synced(
+                lambda: adjoint.run_adjoint(
+                    passes.loaded,
+                    passes.objectives[:1],
+                    spp=passes.spp,
+                    seed=PRIMAL_SEED,
+                    deterministic=deterministic,
+                    progress=Progress(quiet=True),
+                )  # fmt: skip
+            )
+        finally:
+            dr.set_thread_count(before)
+            adjoint.SAMPLES_PER_SUBPASS = limit
+        return seconds
+
+    return measure
+
+
+def _merge(ws: Workspace, s: Settings) -> Row:
+    from sensaov_cli.merge import merge_files
+    from sensaov_cli.outputs.exr import write_exr
+    from sensaov_cli.progress import Progress
+
+    folder = ws.root / "merge"
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i in range(1, 5):
+        shard = make_buffer(s.io_texture)
+        provenance = {
+            "job_hash": "bench", "scene_fingerprint": "bench", "spp": 16, "primal_seed": i,
+            "job": {"objectives": [{"name": "mean_luma"}]},
+            "task": {"shard": {"index": i, "count": 4}, "objectives": None},
+        }  # fmt: skip
+        grads = {"mean_luma": {k: g * (1 + 0.1 * i) for k, g in shard.grads["mean_luma"].items()}}
+        shard = type(shard)(
+            provenance, shard.objects, shard.params, shard.objectives, dict(shard.values), grads
+        )
+        path = folder / f"buffer.shard-{i}-of-4.npz"
+        shard.save(path)
+        write_exr(path.with_name(f"primal.shard-{i}-of-4.exr"), {"Y": np.zeros((8, 8))}, {})
+        paths.append(path)
+    size = paths[0].stat().st_size / MB
+
+    def measure() -> float:
+        start = time.perf_counter()
+        merge_files(paths, folder / "buffer.npz", progress=Progress(quiet=True))
+        return time.perf_counter() - start
+
+    t = interleave({"merge": measure}, max(2, s.rounds // 2))
+    out = Path(folder / "buffer.npz").stat().st_size / MB
+    return Row(
+        f"merge 4 shards of {size:.0f} MB",
+        t["merge"],
+        "s",
+        None,
+        f"{fmt(4 * size / t['merge'].median, 'MB/s')} read; merged file {out:.0f} MB "
+        "(with standard errors)",
+    )
