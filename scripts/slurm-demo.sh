@@ -109,8 +109,11 @@ while squeue -h -j "$array,$merge,$(IFS=,; echo "${views[*]}")" 2>/dev/null | gr
 done
 elapsed=$(( $(date +%s) - started ))
 for id in "$array" "$merge" "${views[@]}"; do
-    state=$(sacct -n -X -j "$id" -o State 2>/dev/null | sort -u | tr -d ' ' | paste -sd, || true)
-    echo "slurm-demo: job $id: ${state:-finished}"
+    # Finished jobs stay visible to scontrol for MinJobAge (300 s by default); an array shows
+    # one line per task.
+    state=$(scontrol show job "$id" 2>/dev/null | grep -o 'JobState=[A-Z_]*' | sort | uniq -c \
+        | awk '{print $2 " x" $1}' | paste -sd, || true)
+    echo "slurm-demo: job $id: ${state:-gone from scontrol}"
 done
 [ -s "$OUT/buffer.npz" ] || { echo "slurm-demo: no merged buffer (see $DEMO/logs)" >&2; exit 1; }
 for camera in $CAMERAS; do
