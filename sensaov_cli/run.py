@@ -14,8 +14,10 @@ from typing import Any
 
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
+from sensaov_cli.buffer.forward import forward_writer
 from sensaov_cli.buffer.npz import buffer_writer
 from sensaov_cli.errors import SensaovError, SpecError
+from sensaov_cli.forward import FORWARD_NAME, plan_forward, run_forward
 from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
 from sensaov_cli.outputs.exr import exr_writer, image_channels
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
@@ -39,7 +41,7 @@ class RunOutputs:
 
 def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutputs:
     started = time.perf_counter()
-    check_writable(job.output, [BUFFER_NAME, PRIMAL_NAME])
+    check_writable(job.output, [BUFFER_NAME, PRIMAL_NAME, FORWARD_NAME])
     check_cameras(job)  # an unknown inspection camera fails here, not after the render
     with progress.stage("load_s", f"loading {job.scene.name}"):
         loaded = load_scene(job)
@@ -67,6 +69,7 @@ def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutpu
         f"variant {loaded.variant}, {len(job.objectives)} objective(s)"
     )
     objectives = build_objectives(loaded.mi, job.objectives, (height, width), allow_python)
+    plan_forward(job, loaded)  # a forward entry that selects nothing fails before rendering
     result = run_adjoint(
         loaded,
         objectives,
@@ -77,13 +80,17 @@ def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutpu
     )
     provenance = _provenance(job, loaded, result, progress.timings, time.perf_counter() - started)
     buffer = _make_buffer(job, loaded, result, provenance)
+    forward = run_forward(job, loaded, objectives, buffer, result.image, progress)
     buffer_path = job.output / BUFFER_NAME
     primal_path = job.output / PRIMAL_NAME
     interrupts.check()  # a stop asked for during a kernel must not end in written files
     with progress.stage("write_s", f"writing {buffer_path.name} and {primal_path.name}"):
         primal = exr_writer(image_channels(result.image), provenance_attributes(provenance))
+        files = [(buffer_path, buffer_writer(buffer)), (primal_path, primal)]
+        if forward is not None:  # the forward sidecar is written with its buffer, or neither
+            files.append((job.output / FORWARD_NAME, forward_writer(forward)))
         try:
-            atomic_write_all([(buffer_path, buffer_writer(buffer)), (primal_path, primal)])
+            atomic_write_all(files)
         except OSError as exc:
             raise SensaovError(
                 f"cannot write outputs: {exc.strerror or exc}", where=str(job.output)
