@@ -153,8 +153,13 @@ class _Passes:
             self.progress.note(f"warning: Mitsuba cannot push '{group.name}': {result.failure}")
         self.passes.append(
             ForwardPass(
-                group.keys, group.direction, seed, result.seconds, result.integrators,
-                result.failure, result.image,
+                group.keys,
+                group.direction,
+                seed,
+                result.seconds,
+                result.integrators,
+                result.failure,
+                result.image,
             )  # fmt: skip
         )
         self.index[key] = n

@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from sensaov_cli import interrupts
-from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
 from sensaov_cli.buffer.forward import forward_writer
+from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
 from sensaov_cli.buffer.npz import buffer_writer
 from sensaov_cli.errors import SensaovError, SpecError
 from sensaov_cli.forward import FORWARD_NAME, plan_forward, run_forward

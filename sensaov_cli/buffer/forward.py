@@ -30,7 +30,7 @@ TIES = ("job_hash", "scene_fingerprint", "created_utc")  # buffer provenance the
 
 @dataclass(frozen=True, eq=False)
 class ForwardPass:
-    """One forward pass: J·v for v over ``keys`` (``direction``: value = θ, ones = 1) at ``seed``."""
+    """One forward pass: J·v over ``keys`` (``direction``: value = θ, ones = 1) at ``seed``."""
 
     keys: tuple[str, ...]
     direction: str
@@ -134,7 +134,9 @@ def read_forward(path: Path) -> ForwardData:
         raise BufferFormatError(str(exc), where=str(path), hint=_AGAIN) from exc
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
         raise BufferFormatError(
-            f"cannot read forward sidecar: {type(exc).__name__}: {exc}", where=str(path), hint=_AGAIN
+            f"cannot read forward sidecar: {type(exc).__name__}: {exc}",
+            where=str(path),
+            hint=_AGAIN,
         ) from exc
     for layer in layers:
         _require(0 <= layer.pass_index < len(passes), f"layer {layer.name!r} names no pass")
@@ -147,7 +149,7 @@ _AGAIN = "re-run 'sensaov run' to write it again"
 def _pass(npz: Any, index: int, entry: dict[str, Any]) -> ForwardPass:
     failure = str(entry["failure"])
     image = None if failure else np.array(npz[f"image_{index}"], np.float32)
-    _require(image is None or np.all(np.isfinite(image)), f"image_{index} holds NaN or infinity")
+    _require(image is None or bool(np.all(np.isfinite(image))), f"image_{index} holds NaN or infinity")
     return ForwardPass(
         tuple(entry["keys"]),
         str(entry["direction"]),

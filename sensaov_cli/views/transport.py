@@ -96,7 +96,9 @@ def reverse_along(
     """⟨g, v⟩ from the stored gradients, in float64."""
     v = direction_values(buffer, keys, direction)
     return float(
-        sum(np.dot(buffer.grad(objective, k).astype(np.float64).ravel(), v[k].ravel()) for k in keys)
+        sum(
+            np.dot(buffer.grad(objective, k).astype(np.float64).ravel(), v[k].ravel()) for k in keys
+        )
     )
 
 
@@ -121,8 +123,13 @@ def forward_views(buffer: SensitivityBuffer, data: ForwardData) -> list[ForwardV
         image = None if p.image is None else _colour(p.image)
         views.append(
             ForwardView(
-                layer.name, image, p.keys, p.direction, p.seed,
-                unverified_keys(buffer, p.keys), p.failure,
+                layer.name,
+                image,
+                p.keys,
+                p.direction,
+                p.seed,
+                unverified_keys(buffer, p.keys),
+                p.failure,
             )  # fmt: skip
         )
     return views
@@ -137,7 +144,9 @@ def transport_views(buffer: SensitivityBuffer, data: ForwardData) -> list[Transp
     ]
 
 
-def transport_view(buffer: SensitivityBuffer, data: ForwardData, layer: ForwardLayer) -> TransportView:
+def transport_view(
+    buffer: SensitivityBuffer, data: ForwardData, layer: ForwardLayer
+) -> TransportView:
     assert layer.objective is not None
     p = data.passes[layer.pass_index]
     assert p.image is not None
