@@ -12,7 +12,7 @@ from pathlib import Path
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, FingerprintMismatch, SpecError
-from sensaov_cli.render.duality import DUALITY_TOLERANCE, FD_TOLERANCE, DualityCheck, check_duality
+from sensaov_cli.render.duality import FD_TOLERANCE, DualityCheck, check_duality  # noqa: F401 - re-exported for the CLI
 from sensaov_cli.render.fdcheck import GradientCheck, check_gradients
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.scene import load_scene
@@ -21,7 +21,6 @@ from sensaov_cli.spec.model import JobSpec, ObjectiveSpec
 DEFAULT_SEEDS = 6
 DEFAULT_TOP = 3
 DEFAULT_DIRECTIONS = 2  # random directions per parameter, besides ones
-TOLERANCES = (DUALITY_TOLERANCE, FD_TOLERANCE)  # what the duality column's verdicts use
 
 
 def check_job(

@@ -35,7 +35,6 @@ from sensaov_cli.render.objectives import Objective
 from sensaov_cli.render.scene import LoadedScene
 from sensaov_cli.spec.model import JobSpec
 from sensaov_cli.views.transport import (
-    DUALITY_TOLERANCE,
     direction_values,
     forward_views,
     group_keys,
@@ -172,7 +171,6 @@ def _provenance(job: JobSpec, runner: _Passes) -> dict[str, object]:
         "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "spp": job.render.spp,
         "max_depth": job.render.max_depth,
-        "duality_tolerance": DUALITY_TOLERANCE,
         "backward_s": runner.backward_s,
         "forward_s": [round(p.seconds, 4) for p in runner.passes],
     }
@@ -183,7 +181,7 @@ def _warn(data: ForwardData, buffer: SensitivityBuffer, progress: Progress) -> N
         if not view.agrees:
             progress.note(
                 f"warning: transport layer {view.objective}.transport_{view.name}: duality "
-                f"residual {view.residual:.2e} exceeds {DUALITY_TOLERANCE:g} (layer marked)"
+                f"residual {view.residual:.2e} exceeds {view.tolerance:.1e} (layer marked)"
             )
 
 
@@ -222,7 +220,7 @@ def projected_layers(
             forward_sum=repr(t.forward_sum),
             reverse=repr(t.reverse),
             duality_residual=repr(t.residual),
-            duality_tolerance=repr(DUALITY_TOLERANCE),
+            duality_tolerance=repr(t.tolerance),
             duality="agrees" if t.agrees else "EXCEEDS TOLERANCE: do not trust this layer",
         )
         layer = SensitivityLayer(t.objective, f"transport_{t.name}", t.data, meta)

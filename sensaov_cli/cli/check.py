@@ -70,7 +70,8 @@ def check(
     When the job's buffer exists, a duality column follows: for the --top
     parameters of every objective (or the --key ones) along ones and
     --directions random directions, the stored <g, v> against forward mode
-    <dM/dI, J v> at the buffer's own seed (tolerance 1e-4) and against central
+    <dM/dI, J v> at the buffer's own seed (tolerance 1e-4, more for large
+    images: float32 sums) and against central
     differences of the image at that seed (2 %). Exits 1 if a parameter the
     verification table trusts disagrees, or the buffer disagrees with forward
     mode (a corrupt or stale buffer).
@@ -82,7 +83,7 @@ def check(
     """
     from dataclasses import asdict
 
-    from sensaov_cli.check import TOLERANCES, check_job, duality_job, exit_code
+    from sensaov_cli.check import FD_TOLERANCE, check_job, duality_job, exit_code
     from sensaov_cli.outputs.tables import checks_text, duality_text
     from sensaov_cli.spec.load import load_job
 
@@ -118,5 +119,5 @@ def check(
         click.echo(checks_text(results))
         if duality:
             click.echo("")
-            click.echo(duality_text(duality, buffer_path, TOLERANCES))
+            click.echo(duality_text(duality, buffer_path, FD_TOLERANCE))
     sys.exit(exit_code(results, duality))

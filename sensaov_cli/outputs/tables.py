@@ -298,13 +298,12 @@ def checks_text(checks: list[GradientCheck]) -> str:
     return "\n".join(format_table(rows))
 
 
-def duality_text(rows: list[DualityCheck], buffer: Path, tolerances: tuple[float, float]) -> str:
+def duality_text(rows: list[DualityCheck], buffer: Path, fd_tolerance: float) -> str:
     """The duality column of ``check``: the buffer against forward mode and central differences."""
-    duality_tolerance, fd_tolerance = tolerances
     head = (
         f"duality at the buffer's gradient seeds ({buffer}): forward <dM/dI, Jv> vs stored "
-        f"<g, v> (tolerance {duality_tolerance:g}); central differences of the image at the "
-        f"same seed (tolerance {fd_tolerance:.0%}; n/a: discontinuous parameter)"
+        f"<g, v> (tolerance {rows[0].tolerance:.1e} at this size); central differences of "
+        f"the image at the same seed (tolerance {fd_tolerance:.0%}; n/a: discontinuous parameter)"
     )
     table = [
         ("objective", "key", "v", "trust", "<g,v>", "forward", "err", "central", "err", "verdict")

@@ -6,7 +6,7 @@ seeded Gaussian ones), three numbers at the buffer's gradient seed of that objec
 - reverse  ⟨g, v⟩ from the buffer's stored gradient;
 - forward  ⟨dM/dI, J·v⟩ from ``render_forward`` (same seed, integrator, spp as the backward
   pass): equal to reverse up to float32 rounding, so a larger gap means the stored gradient is
-  not the one this job computes (a corrupt or stale buffer) — DUALITY_TOLERANCE;
+  not the one this job computes (a corrupt or stale buffer) — ``duality_tolerance``;
 - central  ⟨dM/dI, (I(θ+εv) − I(θ−εv)) / 2ε⟩, the images rendered at the same seed: checks
   Mitsuba's derivative itself, within FD_TOLERANCE. Parameters flagged discontinuous (their
   value changes which paths are sampled) are not checkable this way: that cell reads "n/a".
@@ -17,10 +17,11 @@ central difference fails only a parameter the buffer labels verified (docs/verif
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from sensaov_cli.buffer.forward import DUALITY_FLOOR, duality_tolerance
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.render.adjoint import (
     assign,
@@ -35,7 +36,6 @@ from sensaov_cli.render.scene import LoadedScene
 from sensaov_cli.render.trust import gradient_integrator
 from sensaov_cli.vocabulary import Trust
 
-DUALITY_TOLERANCE = 1e-4  # float32 rounding of two sums of the same path contributions
 # Same-seed central differences with ε = 1e-2 · max(1, |θ|): their curvature error is
 # O(ε²) and float32 cancellation O(1e-7/ε); 1e-3 measured on smooth parameters (MITSUBA-NOTES),
 # 2 % leaves room for a path that crosses a light's edge between the two sides.
@@ -54,6 +54,7 @@ class DualityCheck:
     forward: float
     central: float | None  # None: not checkable at one seed (discontinuous)
     seed: int
+    tolerance: float = DUALITY_FLOOR  # of the duality residual, for this image and spp
 
     @property
     def duality_error(self) -> float:
@@ -67,7 +68,7 @@ class DualityCheck:
 
     @property
     def verdict(self) -> str:
-        if self.duality_error > DUALITY_TOLERANCE and abs(self.forward - self.reverse) > _TINY:
+        if self.duality_error > self.tolerance and abs(self.forward - self.reverse) > _TINY:
             return "BUFFER DISAGREES"
         error = self.central_error
         if error is not None and error > FD_TOLERANCE:
@@ -112,31 +113,36 @@ def check_duality(
     primal = np.array(render_primal(loaded, spp, int(buffer.provenance["primal_seed"])))
     adjoints = adjoint_images(loaded, objectives, primal)
     records = {info.key: info for info in loaded.selected}
+    tolerance = duality_tolerance(primal.shape[0] * primal.shape[1] * spp)
     rows: list[DualityCheck] = []
     for objective in objectives:
         name = objective.spec.name
-        seed = buffer.objective(name).grad_seed
         for key in keys or top_keys(buffer, name, top):
-            info = records[key]
-            for label, v in directions(info, random_directions, seed=len(rows)):
-                reverse = float(
-                    np.dot(buffer.grad(name, key).astype(np.float64).ravel(), v.ravel())
-                )
-                pushed = forward_image(loaded, {key: v}, spp=spp, seed=seed, shape=primal.shape)
-                forward = (
-                    _weighted(adjoints[name], pushed.image) if pushed.image is not None else np.nan
-                )
-                central = None
-                if "discontinuous" not in info.flags:
-                    central = _weighted(
-                        adjoints[name], _image_difference(loaded, info, v, spp, seed)
-                    )
-                rows.append(
-                    DualityCheck(
-                        name, key, label, buffer.param(key).trust, reverse, forward, central, seed
-                    )
-                )
-    return rows
+            for label, v in directions(records[key], random_directions, seed=len(rows)):
+                rows.append(_row(loaded, buffer, name, records[key], label, v, adjoints[name]))
+    return [replace(row, tolerance=tolerance) for row in rows]
+
+
+def _row(
+    loaded: LoadedScene,
+    buffer: SensitivityBuffer,
+    objective: str,
+    info: ParamRecord,
+    label: str,
+    v: np.ndarray,
+    adjoint: np.ndarray,
+) -> DualityCheck:
+    spp = int(buffer.provenance["spp"])
+    seed = buffer.objective(objective).grad_seed
+    stored = buffer.grad(objective, info.key).astype(np.float64)
+    reverse = float(np.dot(stored.ravel(), v.ravel()))
+    pushed = forward_image(loaded, {info.key: v}, spp=spp, seed=seed, shape=adjoint.shape)
+    forward = _weighted(adjoint, pushed.image) if pushed.image is not None else float("nan")
+    central = None
+    if "discontinuous" not in info.flags:
+        central = _weighted(adjoint, _image_difference(loaded, info, v, spp, seed))
+    trust = buffer.param(info.key).trust
+    return DualityCheck(objective, info.key, label, trust, reverse, forward, central, seed)
 
 
 def _weighted(adjoint: np.ndarray, image: np.ndarray) -> float:

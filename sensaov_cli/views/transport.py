@@ -4,7 +4,9 @@ A forward channel is J·v: the image's derivative along a pushed group S with di
 The transport layer of S for an objective paints where that influence lands at the objective
 camera: T_p = Σ_c (∂M/∂I)_{p,c} · (J v_S)_{p,c}. Its sum over pixels equals ⟨g, v_S⟩ from the
 buffer when both passes ran at the same seed (forward/reverse duality), so every layer carries
-its own check: the residual |Σ_p T_p − ⟨g, v_S⟩| / |⟨g, v_S⟩| against DUALITY_TOLERANCE.
+its own check: the residual |Σ_p T_p − ⟨g, v_S⟩| / |⟨g, v_S⟩| against
+:func:`~sensaov_cli.buffer.forward.duality_tolerance` (1e-4, more where the buffer's float32
+sums over many samples round more).
 """
 
 from __future__ import annotations
@@ -16,15 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sensaov_cli.buffer.forward import ForwardData, ForwardLayer
+from sensaov_cli.buffer.forward import ForwardData, ForwardLayer, duality_tolerance
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import per_object
 from sensaov_cli.errors import SpecError
 from sensaov_cli.spec.model import ForwardSpec
 
-# Same seed, same integrator, same spp: the two passes sum the same path contributions in
-# another order, so only float32 rounding separates them (≤ 2e-6 measured, docs/verification.md).
-DUALITY_TOLERANCE = 1e-4
 _TINY = 1e-30
 
 
@@ -54,11 +53,12 @@ class TransportView:
     forward_sum: float  # Σ_p T_p
     reverse: float  # ⟨g, v⟩ from the buffer
     residual: float  # |forward_sum − reverse| / |reverse| (absolute when reverse is 0)
+    tolerance: float
     unverified: tuple[str, ...]
 
     @property
     def agrees(self) -> bool:
-        return self.residual <= DUALITY_TOLERANCE
+        return self.residual <= self.tolerance
 
 
 def group_keys(records: Sequence[ParamRecord], spec: ForwardSpec, where: str) -> tuple[str, ...]:
@@ -155,9 +155,11 @@ def transport_view(
     forward_sum = float(per_pixel.sum())
     reverse = reverse_along(buffer, layer.objective, p.keys, p.direction)
     residual = abs(forward_sum - reverse) / (abs(reverse) if abs(reverse) > _TINY else 1.0)
+    height, width = per_pixel.shape
+    tolerance = duality_tolerance(width * height * int(buffer.provenance.get("spp", 1)))
     return TransportView(
         layer.objective, layer.name, per_pixel.astype(np.float32), p.keys, p.direction, p.seed,
-        forward_sum, reverse, residual, unverified_keys(buffer, p.keys),
+        forward_sum, reverse, residual, tolerance, unverified_keys(buffer, p.keys),
     )  # fmt: skip
 
 
