@@ -13,6 +13,7 @@ from pathlib import Path
 
 from bench import (
     fig_buffer,
+    fig_forward,
     fig_objectives,
     fig_passes,
     fig_process,
@@ -99,6 +100,7 @@ def plan(
         (7, lambda: [fig_process.startup(ws, s, log)]),
         (8, lambda: [fig_passes.finite_differences(passes)] if passes else []),
         (9, lambda: [fig_buffer.buffer_io(ws, s, log)]),
+        (10, lambda: [fig_forward.forward_cost(ws, s, log)]),
     ]
 
 
