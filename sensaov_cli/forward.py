@@ -9,6 +9,7 @@ rounding. Identical (keys, direction, seed) passes render once.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import json
 import sys
@@ -33,7 +34,7 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.forward import adjoint_images, forward_image
 from sensaov_cli.render.objectives import Objective
 from sensaov_cli.render.scene import LoadedScene
-from sensaov_cli.spec.model import JobSpec
+from sensaov_cli.spec.model import ChannelSpec, JobSpec
 from sensaov_cli.views.transport import (
     direction_values,
     forward_views,
@@ -91,27 +92,55 @@ def run_forward(
         if group.transport:
             for objective in seeds:
                 index = runner.get(group, seeds[objective])
-                layers.append(ForwardLayer("transport", group.name, objective, index, group.source))
+                name = f"transport_{group.name}"
+                layers.append(ForwardLayer("transport", name, objective, index, group.source))
     for position, channel in enumerate(job.channels):
-        if channel.kind != "transport":
-            continue
-        direction = "value" if channel.weight == "value" else "ones"
-        for objective in seeds:
-            for name in top_objects(buffer, objective, channel.top, channel.weight):
-                keys = tuple(p.key for p in buffer.params if name in p.owners)
-                source = f"channels[{position}] (top {channel.top} of {objective})"
-                group = _Group(name, keys, direction, True, source)
-                index = runner.get(group, seeds[objective])
-                layers.append(ForwardLayer("transport", name, objective, index, source))
+        if channel.kind == "transport":
+            layers += _top_layers(runner, buffer, seeds, channel, position)
     data = ForwardData(
         ties=ties_of(buffer),
         provenance=_provenance(job, runner),
         adjoints=adjoint_images(loaded, objectives, primal),
         passes=tuple(runner.passes),
-        layers=tuple(layers),
+        layers=_unique(layers),
     )
     _warn(data, buffer, progress)
     return data
+
+
+def _unique(layers: list[ForwardLayer]) -> tuple[ForwardLayer, ...]:
+    """One layer per EXR name: a repeat of the same pass is dropped, another pass numbered."""
+    kept: dict[tuple[str, str | None, str], ForwardLayer] = {}
+    for layer in layers:
+        name = layer.name
+        while (layer.kind, layer.objective, name) in kept:
+            if kept[(layer.kind, layer.objective, name)].pass_index == layer.pass_index:
+                break
+            name += "_2"
+        else:
+            kept[(layer.kind, layer.objective, name)] = dataclasses.replace(layer, name=name)
+    return tuple(kept.values())
+
+
+def _top_layers(
+    runner: _Passes,
+    buffer: SensitivityBuffer,
+    seeds: dict[str, int],
+    channel: ChannelSpec,
+    position: int,
+) -> list[ForwardLayer]:
+    """``<objective>.<channel>_<object>`` for the channel's top objects of every objective."""
+    direction = "value" if channel.weight == "value" else "ones"
+    layers = []
+    for objective in seeds:
+        for name in top_objects(buffer, objective, channel.top, channel.weight):
+            keys = tuple(p.key for p in buffer.params if name in p.owners)
+            source = f"channels[{position}] (top {channel.top} of {objective})"
+            group = _Group(name, keys, direction, True, source)
+            index = runner.get(group, seeds[objective])
+            layer_name = f"{channel.name}_{name}"
+            layers.append(ForwardLayer("transport", layer_name, objective, index, source))
+    return layers
 
 
 class _Passes:
@@ -180,7 +209,7 @@ def _warn(data: ForwardData, buffer: SensitivityBuffer, progress: Progress) -> N
     for view in transport_views(buffer, data):
         if not view.agrees:
             progress.note(
-                f"warning: transport layer {view.objective}.transport_{view.name}: duality "
+                f"warning: transport layer {view.objective}.{view.name}: duality "
                 f"residual {view.residual:.2e} exceeds {view.tolerance:.1e} (layer marked)"
             )
 
@@ -216,14 +245,14 @@ def projected_layers(
     for t in transport_views(buffer, data):
         meta = {**common, **_meta(t.keys, t.direction, t.seed, t.unverified), "kind": "transport"}
         meta.update(
-            original_name=f"{t.objective}.transport_{t.name}",
+            original_name=f"{t.objective}.{t.name}",
             forward_sum=repr(t.forward_sum),
             reverse=repr(t.reverse),
             duality_residual=repr(t.residual),
             duality_tolerance=repr(t.tolerance),
             duality="agrees" if t.agrees else "EXCEEDS TOLERANCE: do not trust this layer",
         )
-        layer = SensitivityLayer(t.objective, f"transport_{t.name}", t.data, meta)
+        layer = SensitivityLayer(t.objective, t.name, t.data, meta)
         layers.append((layer, _peak(t.data)))
     return layers
 

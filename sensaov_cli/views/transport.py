@@ -42,10 +42,10 @@ class ForwardView:
 
 @dataclass(frozen=True, eq=False)
 class TransportView:
-    """``<objective>.transport_<name>``: where the group's influence on M lands, per pixel."""
+    """``<objective>.<name>``: where the group's influence on M lands, per pixel."""
 
     objective: str
-    name: str
+    name: str  # the pass: "transport_<forward entry>" or "<transport channel>_<object>"
     data: np.ndarray  # (H, W) float32: T_p
     keys: tuple[str, ...]
     direction: str
