@@ -33,8 +33,8 @@ def forward_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
         t = interleave(
             {
                 "backward": passes.backward,
-                "forward": lambda: _forward(passes, key)[0],
-                "transport": lambda: _transport(passes, key, adjoint),
+                "forward": lambda p=passes, k=key: _forward(p, k)[0],
+                "transport": lambda p=passes, k=key, a=adjoint: _transport(p, k, a),
             },
             s.rounds,
         )
