@@ -23,6 +23,7 @@ import numpy as np
 
 from sensaov_cli.buffer.forward import DUALITY_FLOOR, duality_tolerance
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.errors import SpecError
 from sensaov_cli.render.adjoint import (
     assign,
     chunk_seed,
@@ -113,6 +114,9 @@ def check_duality(
     primal = np.array(render_primal(loaded, spp, int(buffer.provenance["primal_seed"])))
     adjoints = adjoint_images(loaded, objectives, primal)
     records = {info.key: info for info in loaded.selected}
+    for key in keys or ():
+        if key not in records:
+            raise SpecError(f"{key!r} is not a selected parameter", where="--key")
     tolerance = duality_tolerance(primal.shape[0] * primal.shape[1] * spp)
     rows: list[DualityCheck] = []
     for objective in objectives:

@@ -213,14 +213,14 @@ class ChannelSpec:
     select: Annotated[
         Text | None, In("select", required=True), Doc("fnmatch glob over parameter keys.")
     ] = None
-    top: Annotated[
-        int, STRICT, Ge(1), Lt(65), In("transport"), Doc("Objects per objective (top by l2).")
-    ] = 3
     weight: Weight = "value"
     sign: Sign = "signed"
     aggregate: Aggregate = "l2"
     tonemap: Tonemap = "none"
     normalize: Normalize = "none"
+    top: Annotated[
+        int, STRICT, Ge(1), Lt(65), In("transport"), Doc("Objects per objective (top by l2).")
+    ] = 3
 
 
 @dataclass(frozen=True)
