@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -33,8 +34,8 @@ def forward_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
         t = interleave(
             {
                 "backward": passes.backward,
-                "forward": lambda p=passes, k=key: _forward(p, k)[0],
-                "transport": lambda p=passes, k=key, a=adjoint: _transport(p, k, a),
+                "forward": partial(_forward_seconds, passes, key),
+                "transport": partial(_transport, passes, key, adjoint),
             },
             s.rounds,
         )
@@ -59,6 +60,10 @@ def forward_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
         ]
         log(f"figure 10: {scene} done")
     return figure
+
+
+def _forward_seconds(passes: Passes, key: str) -> float:
+    return float(_forward(passes, key)[0])
 
 
 def _forward(passes: Passes, key: str) -> tuple[float, Any]:
