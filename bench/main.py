@@ -14,6 +14,7 @@ from pathlib import Path
 from bench import (
     fig_buffer,
     fig_farm,
+    fig_forward,
     fig_objectives,
     fig_passes,
     fig_process,
@@ -101,6 +102,7 @@ def plan(
         (8, lambda: [fig_passes.finite_differences(passes)] if passes else []),
         (9, lambda: [fig_buffer.buffer_io(ws, s, log)]),
         (10, lambda: [fig_farm.farm(ws, s, log)]),
+        (11, lambda: [fig_forward.forward_cost(ws, s, log)]),
     ]
 
 

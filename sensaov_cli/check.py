@@ -8,14 +8,19 @@ central finite differences; :func:`exit_code` says whether the result is a failu
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
-from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, SpecError
+from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, FingerprintMismatch, SpecError
+from sensaov_cli.render.duality import FD_TOLERANCE, DualityCheck, check_duality  # noqa: F401 - re-exported for the CLI
 from sensaov_cli.render.fdcheck import GradientCheck, check_gradients
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.scene import load_scene
 from sensaov_cli.spec.model import JobSpec, ObjectiveSpec
 
 DEFAULT_SEEDS = 6
+DEFAULT_TOP = 3
+DEFAULT_DIRECTIONS = 2  # random directions per parameter, besides ones
 
 
 def check_job(
@@ -44,10 +49,49 @@ def check_job(
     )
 
 
-def exit_code(checks: Sequence[GradientCheck]) -> int:
-    """A failure when a parameter the verification table trusts disagrees, else success."""
+def duality_job(
+    job: JobSpec,
+    buffer_path: Path,
+    *,
+    keys: Sequence[str] = (),
+    top: int = DEFAULT_TOP,
+    directions: int = DEFAULT_DIRECTIONS,
+    allow_python: bool,
+) -> list[DualityCheck]:
+    """The stored buffer against forward mode and central differences, every objective."""
+    buffer = SensitivityBuffer.load(buffer_path)
+    if buffer.provenance.get("job_hash") != job.job_hash():
+        raise FingerprintMismatch(
+            "the buffer was written by another version of this job (job hash differs)",
+            where=str(buffer_path),
+            hint="re-run 'sensaov run' first: the check replays the buffer's own passes",
+        )
+    if len(buffer.provenance.get("batches", ())) > 1 or buffer.provenance.get("merged_from"):
+        raise FingerprintMismatch(
+            "the duality check replays one backward pass; this buffer is the mean of several "
+            "batches or shards",
+            where=str(buffer_path),
+            hint="check a single-batch run of the job (render.batches: 1, no --shard)",
+        )
+    loaded = load_scene(job)
+    if buffer.provenance.get("scene_fingerprint") != loaded.fingerprint:
+        raise FingerprintMismatch(
+            f"the buffer was made from another version of {job.scene.name}",
+            where=str(buffer_path),
+            hint="re-run 'sensaov run' first",
+        )
+    width, height = loaded.resolution
+    built = build_objectives(loaded.mi, job.objectives, (height, width), allow_python)
+    return check_duality(
+        loaded, built, buffer, keys=list(keys) or None, top=top, random_directions=directions
+    )
+
+
+def exit_code(checks: Sequence[GradientCheck], duality: Sequence[DualityCheck] = ()) -> int:
+    """A failure when a parameter the verification table trusts disagrees, or the buffer
+    disagrees with forward mode at its own seed; else success."""
     contradicted = any(c.claimed_verified and c.verdict == "disagrees" for c in checks)
-    return EXIT_JOB_FAILED if contradicted else EXIT_OK
+    return EXIT_JOB_FAILED if contradicted or any(d.failed for d in duality) else EXIT_OK
 
 
 def _objective(job: JobSpec, name: str | None) -> ObjectiveSpec:

@@ -16,6 +16,7 @@ import numpy as np
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.errors import FingerprintMismatch, SpecError
+from sensaov_cli.forward import projected_layers
 from sensaov_cli.outputs.atomic import check_writable
 from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write_layered_exr
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
@@ -59,6 +60,7 @@ def project_job(
     chosen = _cameras(job, tuple(dict.fromkeys(cameras)))  # a camera named twice renders once
     check_writable(job.output, [f"{camera.name}.exr" for camera in chosen])
     passes = channel_values(buffer, job.channels)  # camera-independent: computed once
+    forward = projected_layers(job, buffer, buffer_path, progress)  # the objective camera's
     with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
         loaded = load_scene(_with_cameras(job, chosen), with_inspection_cameras=True)
     _check_objects(buffer, loaded, buffer_path)
@@ -67,8 +69,9 @@ def project_job(
         stage = f"view_{camera.name}_s"
         with progress.stage(stage, f"view '{camera.name}'"):
             view = _project_camera(
-                job, buffer, buffer_path, loaded, camera, passes, png, beauty_spp
-            )
+                job, buffer, buffer_path, loaded, camera, passes, png, beauty_spp,
+                forward if camera.objective else [],
+            )  # fmt: skip
         views.append(replace(view, seconds=progress.timings[stage]))
     return views
 
@@ -124,6 +127,7 @@ def _project_camera(
     passes: list[ChannelValues],
     png: bool,
     beauty_spp: int,
+    forward: list[tuple[SensitivityLayer, float]],
 ) -> ProjectedView:
     sensor = loaded.inspection_sensors[camera.name]
     visibility = trace(
@@ -131,6 +135,14 @@ def _project_camera(
     )
     beauty = render_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed)
     layers = [_layer(p, visibility, buffer_path, camera) for p in passes]
+    layers += [f for f in forward if f[0].data.shape[:2] == (visibility.height, visibility.width)]
+    if len(layers) < len(passes) + len(forward):
+        raise SpecError(
+            "forward and transport layers are rendered at render.resolution, "
+            "but the objective inspection camera has another resolution",
+            where=f"inspection_cameras: {camera.name}",
+            hint="leave that camera's resolution null",
+        )
     crypto = CryptoLayer(
         "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage
     )

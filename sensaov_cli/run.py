@@ -13,9 +13,11 @@ from pathlib import Path
 from typing import Any
 
 from sensaov_cli import interrupts
+from sensaov_cli.buffer.forward import forward_writer
 from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
 from sensaov_cli.buffer.npz import buffer_writer
 from sensaov_cli.errors import SensaovError, SpecError
+from sensaov_cli.forward import FORWARD_NAME, plan_forward, run_forward, wanted
 from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
 from sensaov_cli.outputs.exr import exr_writer, image_channels
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
@@ -74,7 +76,10 @@ def run_job(
         if done is not None:
             progress.note(f"{buffer_path.name} is complete for this job: skipped (--resume)")
             return RunOutputs(done, buffer_path, primal_path, resumed=True)
-    check_writable(job.output, [buffer_name, primal_name])
+    # Duality needs the forward pass at the backward's samples: one batch, the whole job.
+    single = task.shard is None and not task.objectives and job.render.batches == 1
+    forward_wanted = wanted(job) and single
+    check_writable(job.output, [buffer_name, primal_name] + [FORWARD_NAME] * forward_wanted)
     check_cameras(job)  # an unknown inspection camera fails here, not after the render
     with progress.stage("load_s", f"loading {job.scene.name}"):
         loaded = load_scene(job)
@@ -104,8 +109,18 @@ def run_job(
     objectives = build_objectives(loaded.mi, whole.objectives, (height, width), allow_python)
     # An objective keeps its index in the whole job (its gradient seed) when a task picks it.
     objectives = [o for o in objectives if o.spec in job.objectives]
+    forward_passes = len(plan_forward(job, loaded))  # an entry selecting nothing fails here
+    if wanted(job) and not forward_wanted:
+        progress.note(
+            "forward channels and transport layers are rendered by single-batch runs only, "
+            "not by a shard, an --objective task or render.batches > 1 (docs/farm.md)"
+        )
     passes = len(integrator_plan(loaded)) * len(objectives)
-    progress.plan(min(job.render.batches, job.render.spp) * (1 + passes) + 1)  # + the write
+    progress.plan(
+        min(job.render.batches, job.render.spp) * (1 + passes)
+        + (forward_passes if forward_wanted else 0)
+        + 1  # the write
+    )
     spp, seed = job.render.spp, job.render.seed
     if task.shard is not None:  # shard i of n: batch i-1 of the job's n-batch plan
         spp, seed = batch_plan(spp, seed, task.shard[1])[task.shard[0] - 1]
@@ -121,11 +136,17 @@ def run_job(
     provenance = _provenance(whole, loaded, result, progress.timings, time.perf_counter() - started)
     provenance["task"] = task.describe()
     buffer = _make_buffer(job, loaded, result, provenance)
+    forward = None
+    if forward_wanted:
+        forward = run_forward(job, loaded, objectives, buffer, result.image, progress)
     interrupts.check()  # a stop asked for during a kernel must not end in written files
     with progress.stage("write_s", f"writing {buffer_path.name} and {primal_path.name}"):
         primal = exr_writer(image_channels(result.image), provenance_attributes(provenance))
+        files = [(buffer_path, buffer_writer(buffer)), (primal_path, primal)]
+        if forward is not None:  # the forward sidecar is written with its buffer, or neither
+            files.append((job.output / FORWARD_NAME, forward_writer(forward)))
         try:
-            atomic_write_all([(buffer_path, buffer_writer(buffer)), (primal_path, primal)])
+            atomic_write_all(files)
         except OSError as exc:
             raise SensaovError(
                 f"cannot write outputs: {exc.strerror or exc}", where=str(job.output)

@@ -19,6 +19,7 @@ from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, underlay,
 from sensaov_cli.views.coverage import VisibilityPass
 
 SHEET_COLUMNS = 4
+REC709_LUMA = (0.2126, 0.7152, 0.0722)
 MIN_TILE_WIDTH = 192  # small views are enlarged (nearest neighbour) so labels stay readable
 
 
@@ -33,7 +34,8 @@ def write_previews(
     written = []
     sheets: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
     for layer, scale in layers:
-        rgb = diverging_rgb(layer.data, scale)
+        values = _signed(layer.data)
+        rgb = diverging_rgb(values, scale)
         if beauty is not None:
             rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
         path = folder / camera / f"{layer.objective}.{layer.pass_name}.png"
@@ -43,8 +45,9 @@ def write_previews(
             {"sensaov/scale": repr(scale), "sensaov/encoding": layer.metadata.get("encoding", "")},
         )
         written.append(path)
-        tile = _enlarged(diverging_rgb(layer.data / (scale or 1.0), 1.0))
-        mark = " !" if json.loads(layer.metadata.get("unverified", "[]")) else ""
+        tile = _enlarged(diverging_rgb(values / (scale or 1.0), 1.0))
+        marked = layer.metadata.get("duality", "agrees") != "agrees"  # a transport layer's check
+        mark = " !" if marked or json.loads(layer.metadata.get("unverified", "[]")) else ""
         title = f"{layer.pass_name} +-{scale:.2e}{mark}"
         if not layer.data.any() and json.loads(layer.metadata.get("invisible", "[]")):
             title = f"{layer.pass_name}: unseen{mark}"  # it matters; this camera does not see it
@@ -60,6 +63,11 @@ def write_previews(
         write_png(path, sheet)
         written.append(path)
     return tuple(written)
+
+
+def _signed(data: np.ndarray) -> np.ndarray:
+    """One signed value per pixel: an RGB pass (a forward channel's J·v) by its luminance."""
+    return data if data.ndim == 2 else data[..., :3] @ np.array(REC709_LUMA, data.dtype)
 
 
 def _enlarged(tile: np.ndarray) -> np.ndarray:

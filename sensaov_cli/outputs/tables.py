@@ -17,6 +17,9 @@ from sensaov_cli.views.summary import summary_dict
 from sensaov_cli.vocabulary import Aggregate, Weight
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
+    from sensaov_cli.render.duality import DualityCheck
     from sensaov_cli.render.fdcheck import GradientCheck
 
 # Marks in the mark column of a ranking, one per label that is not "verified"; a parameter
@@ -293,3 +296,33 @@ def checks_text(checks: list[GradientCheck]) -> str:
             )
         )
     return "\n".join(format_table(rows))
+
+
+def duality_text(rows: list[DualityCheck], buffer: Path, fd_tolerance: float) -> str:
+    """The duality column of ``check``: the buffer against forward mode and central differences."""
+    head = (
+        f"duality at the buffer's gradient seeds ({buffer}): forward <dM/dI, Jv> vs stored "
+        f"<g, v> (tolerance {rows[0].tolerance:.1e} at this size); central differences of "
+        f"the image at the same seed (tolerance {fd_tolerance:.0%}; n/a: discontinuous parameter)"
+    )
+    table = [
+        ("objective", "key", "v", "trust", "<g,v>", "forward", "err", "central", "err", "verdict")
+    ]
+    for d in rows:
+        central = "n/a" if d.central is None else f"{d.central:+.4e}"
+        error = "" if d.central_error is None else f"{d.central_error:.1e}"
+        table.append(
+            (
+                d.objective,
+                d.key,
+                d.direction,
+                d.trust,
+                f"{d.reverse:+.4e}",
+                f"{d.forward:+.4e}",
+                f"{d.duality_error:.1e}",
+                central,
+                error,
+                d.verdict,
+            )  # fmt: skip
+        )
+    return "\n".join([head, *format_table(table)])

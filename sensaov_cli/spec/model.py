@@ -68,7 +68,8 @@ Variant = Literal[
     "cuda_ad_spectral",
 ]
 ObjectiveType = Literal["mean_luminance", "region_luminance", "l2_to_target", "python"]
-ChannelKind = Literal["object", "type", "select"]
+ChannelKind = Literal["object", "type", "select", "transport"]
+Direction = Literal["value", "ones"]  # θ-weighted (a proportional change) | one per component
 # The shapes of a camera: an inspection camera's, named by the key that picks its kind, and
 # the mapping that places the objective camera.
 LOOK_AT, SENSOR, OBJECTIVE, PLACED = "look_at", "sensor", "objective", "placed"
@@ -200,6 +201,8 @@ class ObjectiveSpec:
     ] = None
 
     def __post_init__(self) -> None:
+        if self.name == "forward":  # the EXR layer of forward channels: forward.<name>.R/G/B
+            raise Problem("the name 'forward' is reserved for forward channels", at=("name",))
         if self.type == "region_luminance" and (self.region is None) == (self.mask is None):
             both = self.region is not None
             raise Problem(
@@ -232,6 +235,37 @@ class ChannelSpec:
     aggregate: Aggregate = "l2"
     tonemap: Tonemap = "none"
     normalize: Normalize = "none"
+    top: Annotated[
+        int, STRICT, Ge(1), Lt(65), In("transport"), Doc("Objects per objective (top by l2).")
+    ] = 3
+
+
+@dataclass(frozen=True)
+class ForwardSpec:
+    """A forward channel: the image's derivative along one pushed group of parameters (§4).
+
+    The group is a key glob (select), an object's parameters, or a parameter type: one of them.
+    """
+
+    name: Annotated[Name, Doc("Unique among forward channels; the EXR layer forward.<name>.")]
+    select: Annotated[Text | None, Doc("fnmatch glob over parameter keys.")] = None
+    object: Annotated[Text | None, Doc("Every selected parameter of this object.")] = None
+    type: Annotated[Text | None, Doc("Every selected parameter of this type.")] = None
+    direction: Annotated[
+        Direction, Doc("value: push v = θ (a proportional change); ones: v = 1 per component.")
+    ] = "value"
+    transport: Annotated[
+        bool, STRICT, Doc("Also write <objective>.transport_<name>.Y for every objective.")
+    ] = False
+
+    def __post_init__(self) -> None:
+        given = [k for k in ("select", "object", "type") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise Problem(
+                "give exactly one of select, object or type"
+                + (f", not {' and '.join(given)}" if given else ""),
+                at=(given[-1],) if len(given) > 1 else (),
+            )
 
 
 def _inspection_name(camera: CameraSpec) -> CameraSpec:
@@ -300,6 +334,11 @@ class JobSpec(Section):
         ChannelSpec("objects", "object"),
         ChannelSpec("types", "type"),
     )
+    forward: Annotated[
+        tuple[ForwardSpec, ...],
+        unique_names("forward channel", "forward"),
+        Doc("Forward-mode channels: one forward pass each (more with transport)."),
+    ] = ()
     output: Annotated[
         OutputDir, Doc("Output directory, relative to the job; null = out/<job stem>.")
     ]

@@ -1,0 +1,184 @@
+"""Check a stored buffer against forward mode: duality and central differences at one seed.
+
+For the top-k parameters of each objective (or named keys) and a few directions v (ones, then
+seeded Gaussian ones), three numbers at the buffer's gradient seed of that objective:
+
+- reverse  ⟨g, v⟩ from the buffer's stored gradient;
+- forward  ⟨dM/dI, J·v⟩ from ``render_forward`` (same seed, integrator, spp as the backward
+  pass): equal to reverse up to float32 rounding, so a larger gap means the stored gradient is
+  not the one this job computes (a corrupt or stale buffer) — ``duality_tolerance``;
+- central  ⟨dM/dI, (I(θ+εv) − I(θ−εv)) / 2ε⟩, the images rendered at the same seed: checks
+  Mitsuba's derivative itself, within FD_TOLERANCE. Parameters flagged discontinuous (their
+  value changes which paths are sampled) are not checkable this way: that cell reads "n/a".
+
+A failed duality fails whatever the trust label (both sides come from the same AD); a failed
+central difference fails only a parameter the buffer labels verified (docs/verification.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from sensaov_cli.buffer.forward import DUALITY_FLOOR, duality_tolerance
+from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.errors import SpecError
+from sensaov_cli.render.adjoint import (
+    assign,
+    chunk_seed,
+    path_chunks,
+    path_integrator,
+    render_primal,
+)
+from sensaov_cli.render.forward import adjoint_images, forward_image
+from sensaov_cli.render.objectives import Objective
+from sensaov_cli.render.scene import LoadedScene
+from sensaov_cli.render.trust import gradient_integrator
+from sensaov_cli.vocabulary import Trust
+
+# Same-seed central differences with ε = 1e-2 · max(1, |θ|): their curvature error is
+# O(ε²) and float32 cancellation O(1e-7/ε); 1e-3 measured on smooth parameters (MITSUBA-NOTES),
+# 2 % leaves room for a path that crosses a light's edge between the two sides.
+FD_TOLERANCE = 0.02
+FD_STEP = 1e-2
+_TINY = 1e-30
+
+
+@dataclass(frozen=True)
+class DualityCheck:
+    objective: str
+    key: str
+    direction: str  # "ones" or "random <n>"
+    trust: Trust
+    reverse: float
+    forward: float
+    central: float | None  # None: not checkable at one seed (discontinuous)
+    seed: int
+    tolerance: float = DUALITY_FLOOR  # of the duality residual, for this image and spp
+
+    @property
+    def duality_error(self) -> float:
+        return abs(self.forward - self.reverse) / max(abs(self.reverse), _TINY)
+
+    @property
+    def central_error(self) -> float | None:
+        if self.central is None:
+            return None
+        return abs(self.forward - self.central) / max(abs(self.central), _TINY)
+
+    @property
+    def verdict(self) -> str:
+        if self.duality_error > self.tolerance and abs(self.forward - self.reverse) > _TINY:
+            return "BUFFER DISAGREES"
+        error = self.central_error
+        if error is not None and error > FD_TOLERANCE:
+            return "fd disagrees" if self.trust != "verified" else "FD DISAGREES"
+        return "agrees"
+
+    @property
+    def failed(self) -> bool:
+        return self.verdict.isupper()
+
+
+def top_keys(buffer: SensitivityBuffer, objective: str, k: int) -> list[str]:
+    """The ``k`` keys with the largest ‖θ · g‖ (parameters with no gradient left out)."""
+    scores = {
+        p.key: float(np.linalg.norm(buffer.value(p.key) * buffer.grad(objective, p.key)))
+        for p in buffer.params
+        if p.trust != "no_gradient"
+    }
+    return sorted((key for key in scores if scores[key] > 0), key=lambda k_: -scores[k_])[:k]
+
+
+def directions(info: ParamRecord, count: int, seed: int) -> list[tuple[str, np.ndarray]]:
+    """Ones, then ``count`` Gaussian directions (seeded: the same every run)."""
+    rng = np.random.default_rng(seed)
+    found = [("ones", np.ones(info.shape, np.float32))]
+    for n in range(count):
+        found.append((f"random {n + 1}", rng.standard_normal(info.shape).astype(np.float32)))
+    return found
+
+
+def check_duality(
+    loaded: LoadedScene,
+    objectives: list[Objective],
+    buffer: SensitivityBuffer,
+    *,
+    keys: list[str] | None,
+    top: int,
+    random_directions: int,
+) -> list[DualityCheck]:
+    """One row per (objective, key, direction)."""
+    spp = int(buffer.provenance["spp"])
+    primal = np.array(render_primal(loaded, spp, int(buffer.provenance["primal_seed"])))
+    adjoints = adjoint_images(loaded, objectives, primal)
+    records = {info.key: info for info in loaded.selected}
+    for key in keys or ():
+        if key not in records:
+            raise SpecError(f"{key!r} is not a selected parameter", where="--key")
+    tolerance = duality_tolerance(primal.shape[0] * primal.shape[1] * spp)
+    rows: list[DualityCheck] = []
+    for objective in objectives:
+        name = objective.spec.name
+        for key in keys or top_keys(buffer, name, top):
+            for label, v in directions(records[key], random_directions, seed=len(rows)):
+                rows.append(_row(loaded, buffer, name, records[key], label, v, adjoints[name]))
+    return [replace(row, tolerance=tolerance) for row in rows]
+
+
+def _row(
+    loaded: LoadedScene,
+    buffer: SensitivityBuffer,
+    objective: str,
+    info: ParamRecord,
+    label: str,
+    v: np.ndarray,
+    adjoint: np.ndarray,
+) -> DualityCheck:
+    spp = int(buffer.provenance["spp"])
+    seed = buffer.objective(objective).grad_seed
+    stored = buffer.grad(objective, info.key).astype(np.float64)
+    reverse = float(np.dot(stored.ravel(), v.ravel()))
+    pushed = forward_image(loaded, {info.key: v}, spp=spp, seed=seed, shape=adjoint.shape)
+    forward = _weighted(adjoint, pushed.image) if pushed.image is not None else float("nan")
+    central = None
+    if "discontinuous" not in info.flags:
+        central = _weighted(adjoint, _image_difference(loaded, info, v, spp, seed))
+    trust = buffer.param(info.key).trust
+    return DualityCheck(objective, info.key, label, trust, reverse, forward, central, seed)
+
+
+def _weighted(adjoint: np.ndarray, image: np.ndarray) -> float:
+    return float((adjoint.astype(np.float64) * image.astype(np.float64)).sum())
+
+
+def _image_difference(
+    loaded: LoadedScene, info: ParamRecord, v: np.ndarray, spp: int, seed: int
+) -> np.ndarray:
+    """(I(θ + εv) − I(θ − εv)) / 2ε, both sides with the backward pass's samples at ``seed``."""
+    theta = np.array(loaded.params[info.key], dtype=np.float32).reshape(info.shape)
+    eps = FD_STEP * max(1.0, float(np.abs(theta).max()))
+    sides = []
+    try:
+        for sign in (1, -1):
+            assign(loaded, info.key, theta + sign * eps * v)
+            sides.append(image_like_backward(loaded, info, spp, seed).astype(np.float64))
+    finally:
+        assign(loaded, info.key, theta)
+    return (sides[0] - sides[1]) / (2 * eps)
+
+
+def image_like_backward(loaded: LoadedScene, info: ParamRecord, spp: int, seed: int) -> np.ndarray:
+    """The image the backward pass of ``info`` at ``seed`` replays (path: its chunks)."""
+    if gradient_integrator(info.plugin) == "prb":
+        return np.array(render_primal(loaded, spp, seed), np.float32)
+    path = path_integrator(loaded)
+    width, height = loaded.resolution
+    chunks = path_chunks(width * height, spp)
+    parts = [
+        np.array(render_primal(loaded, chunk, chunk_seed(seed, i), path), np.float32)
+        * (chunk / spp)
+        for i, chunk in enumerate(chunks)
+    ]
+    return np.sum(parts, axis=0)
