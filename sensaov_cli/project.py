@@ -21,6 +21,7 @@ from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.beauty import render_beauty
+from sensaov_cli.render.inputs import refuse_unsafe_outputs
 from sensaov_cli.render.scene import LoadedScene, load_scene
 from sensaov_cli.render.scene_xml import scene_fingerprint
 from sensaov_cli.render.visibility import trace
@@ -58,6 +59,12 @@ def project_job(
     _check_fingerprint(job, buffer, buffer_path, force)
     chosen = _cameras(job, tuple(dict.fromkeys(cameras)))  # a camera named twice renders once
     check_writable(job.output, [f"{camera.name}.exr" for camera in chosen])
+    refuse_unsafe_outputs(
+        job,
+        [job.output / f"{camera.name}.exr" for camera in chosen],
+        folders=[job.output / "previews"] if png else [],
+        inputs=[buffer_path],
+    )
     passes = channel_values(buffer, job.channels)  # camera-independent: computed once
     with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
         loaded = load_scene(_with_cameras(job, chosen), with_inspection_cameras=True)

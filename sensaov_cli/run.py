@@ -21,6 +21,7 @@ from sensaov_cli.outputs.exr import exr_writer, image_channels
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, run_adjoint
+from sensaov_cli.render.inputs import refuse_unsafe_outputs
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.scene import LoadedScene, load_scene
 from sensaov_cli.render.scene_xml import check_cameras
@@ -40,6 +41,7 @@ class RunOutputs:
 def run_job(job: JobSpec, *, allow_python: bool, progress: Progress) -> RunOutputs:
     started = time.perf_counter()
     check_writable(job.output, [BUFFER_NAME, PRIMAL_NAME])
+    refuse_unsafe_outputs(job, [job.output / BUFFER_NAME, job.output / PRIMAL_NAME])
     check_cameras(job)  # an unknown inspection camera fails here, not after the render
     with progress.stage("load_s", f"loading {job.scene.name}"):
         loaded = load_scene(job)

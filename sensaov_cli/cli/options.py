@@ -7,6 +7,7 @@ rather than declaring them again, so ``--json`` or the job argument read the sam
 
 from __future__ import annotations
 
+import errno
 import json
 import sys
 import traceback
@@ -18,7 +19,7 @@ from typing import Any
 import click
 
 from sensaov_cli import interrupts
-from sensaov_cli.errors import EXIT_INTERRUPTED, EXIT_JOB_FAILED, EXIT_MEANINGS, SensaovError
+from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_MEANINGS, SensaovError
 from sensaov_cli.vocabulary import AGGREGATES, WEIGHTS
 
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
@@ -28,7 +29,7 @@ EXIT_CODES_EPILOG = "\b\nExit codes:\n" + "".join(
     f"  {code}  {meaning}\n" for code, meaning in EXIT_MEANINGS.items()
 )
 
-job_argument = click.argument("job", type=click.Path(path_type=Path, dir_okay=False))
+job_argument = click.argument("job", type=click.Path(path_type=Path))
 allow_python_option = click.option(
     "--allow-python",
     is_flag=True,
@@ -72,14 +73,57 @@ def echo_json(data: Any, **dumps: Any) -> None:
 
 
 def _fail(message: str, code: int) -> None:
-    click.echo(f"sensaov: error: {message}", err=True)
+    click.echo(f"sensaov: error: {_one_line(message)}{_written()}", err=True)
     sys.exit(code)
+
+
+def _one_line(text: str) -> str:
+    """A message on one line whatever it quotes (a name with a newline from a stranger's file)."""
+    return " ".join(text.split("\n")).replace("\r", " ")
+
+
+def _written() -> str:
+    """What this process replaced before it stopped; everything else is as it was."""
+    from sensaov_cli.outputs.atomic import remove_temporaries, replaced
+
+    remove_temporaries()
+    done = replaced()
+    if not done:
+        return "; no output was replaced"
+    return f"; replaced: {', '.join(map(str, done))}; no other output was touched"
+
+
+# Failures of the machine or the file system that are no bug: errno -> (what, exit code).
+_OS_FAILURES = {
+    errno.ENOSPC: ("disk full", EXIT_JOB_FAILED),
+    errno.EDQUOT: ("disk quota exceeded", EXIT_JOB_FAILED),
+    errno.EFBIG: ("file too large for the file system", EXIT_JOB_FAILED),
+    errno.EIO: ("I/O error", EXIT_JOB_FAILED),
+    errno.EACCES: ("permission denied", EXIT_BAD_INPUT),
+    errno.EPERM: ("operation not permitted", EXIT_BAD_INPUT),
+    errno.EROFS: ("read-only file system", EXIT_BAD_INPUT),
+    errno.EISDIR: ("is a directory", EXIT_BAD_INPUT),
+    errno.ENOTDIR: ("not a directory", EXIT_BAD_INPUT),
+    errno.ENOENT: ("no such file or directory", EXIT_BAD_INPUT),
+    errno.ENAMETOOLONG: ("file name too long", EXIT_BAD_INPUT),
+    errno.EMFILE: ("too many open files", EXIT_JOB_FAILED),
+}
+
+
+def _os_failure(err: OSError) -> tuple[str, int] | None:
+    if err.errno not in _OS_FAILURES:
+        return None
+    what, code = _OS_FAILURES[err.errno]
+    where = f"{err.filename}: " if err.filename else ""
+    hint = " (free space and run again; the previous outputs were kept)" if code == 1 else ""
+    return f"{where}cannot write or read: {what}{hint}", code
 
 
 def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     """Turn any failure into one line on stderr and a documented exit code (traceback at -vv).
 
-    Library errors become an exit code here, and only here.
+    Library errors become an exit code here, and only here. Every line ends saying which
+    outputs this process replaced (none, or which), so a farm's log tells what is on disk.
     """
 
     @wraps(command)
@@ -87,16 +131,28 @@ def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
         verbose = click.get_current_context().find_root().params.get("verbose", 0)
         interrupts.install()
         try:
+            interrupts.check()  # a signal that came while the interpreter was importing
             return command(*args, **kwargs)
+        except KeyboardInterrupt:
+            interrupts.install(raising=False)  # a second signal must not break the report
+            _fail(f"stopped by {interrupts.signal_name()}", interrupts.exit_code())
         except SensaovError as err:
+            interrupts.install(raising=False)
             if verbose >= 2:
                 traceback.print_exc()
             _fail(str(err), err.exit_code)
-        except KeyboardInterrupt:
-            _fail("interrupted; no partial output was written", EXIT_INTERRUPTED)
+        except MemoryError:
+            interrupts.install(raising=False)
+            _fail(
+                "out of memory (a film, spp or buffer too large for this machine)", EXIT_JOB_FAILED
+            )
         except Exception as err:  # noqa: BLE001 - the one place unexpected errors are reported
+            interrupts.install(raising=False)
             if verbose >= 2:
                 traceback.print_exc()
+            known = _os_failure(err) if isinstance(err, OSError) else None
+            if known is not None:
+                _fail(*known)
             detail = str(err).strip().splitlines()
             _fail(
                 f"internal error: {type(err).__name__}: {detail[-1] if detail else ''} "
