@@ -119,6 +119,23 @@ def _os_failure(err: OSError) -> tuple[str, int] | None:
     return f"{where}cannot write or read: {what}{hint}", code
 
 
+def _reported(err: Exception) -> tuple[str, int]:
+    """The one line and the exit code of a failure; "internal error" is left for bugs."""
+    if isinstance(err, SensaovError):
+        return str(err), err.exit_code
+    if isinstance(err, MemoryError):
+        return "out of memory (a film, spp or buffer too large for this machine)", EXIT_JOB_FAILED
+    known = _os_failure(err) if isinstance(err, OSError) else None
+    if known is not None:
+        return known
+    detail = str(err).strip().splitlines()
+    return (
+        f"internal error: {type(err).__name__}: {detail[-1] if detail else ''} "
+        "(run with -vv for the traceback)",
+        EXIT_JOB_FAILED,
+    )
+
+
 def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     """Turn any failure into one line on stderr and a documented exit code (traceback at -vv).
 
@@ -133,31 +150,14 @@ def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
         try:
             interrupts.check()  # a signal that came while the interpreter was importing
             return command(*args, **kwargs)
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, Exception) as err:
             interrupts.install(raising=False)  # a second signal must not break the report
-            _fail(f"stopped by {interrupts.signal_name()}", interrupts.exit_code())
-        except SensaovError as err:
-            interrupts.install(raising=False)
+            # After a stop, whatever it made a library raise (Dr.Jit wraps it in a
+            # RuntimeError, zipfile complains of a cut write) is the stop, not a failure.
+            if isinstance(err, KeyboardInterrupt) or interrupts.requested():
+                _fail(f"stopped by {interrupts.signal_name()}", interrupts.exit_code())
             if verbose >= 2:
                 traceback.print_exc()
-            _fail(str(err), err.exit_code)
-        except MemoryError:
-            interrupts.install(raising=False)
-            _fail(
-                "out of memory (a film, spp or buffer too large for this machine)", EXIT_JOB_FAILED
-            )
-        except Exception as err:  # noqa: BLE001 - the one place unexpected errors are reported
-            interrupts.install(raising=False)
-            if verbose >= 2:
-                traceback.print_exc()
-            known = _os_failure(err) if isinstance(err, OSError) else None
-            if known is not None:
-                _fail(*known)
-            detail = str(err).strip().splitlines()
-            _fail(
-                f"internal error: {type(err).__name__}: {detail[-1] if detail else ''} "
-                "(run with -vv for the traceback)",
-                EXIT_JOB_FAILED,
-            )
+            _fail(*_reported(err))
 
     return wrapper

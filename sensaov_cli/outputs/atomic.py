@@ -118,9 +118,16 @@ def _remove(tmp: Path) -> None:
 
 @contextmanager
 def _signals_held() -> Iterator[None]:
+    """No KeyboardInterrupt inside the block; a stop asked for meanwhile is raised after it.
+
+    The mask alone is not enough: Dr.Jit's and LLVM's worker threads do not block the signals,
+    the kernel hands a process-directed signal to one of them, and Python then runs its
+    handler in the main thread at once. So sensaov's handler is told to only record it too.
+    """
     held = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
     try:
-        yield
+        with interrupts.deferred():
+            yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
