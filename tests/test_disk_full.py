@@ -56,7 +56,9 @@ def previous(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return job.parent / "out"
 
 
-def check_full(result: subprocess.CompletedProcess[str], out: Path, before: dict[str, bytes]) -> str:
+def check_full(
+    result: subprocess.CompletedProcess[str], out: Path, before: dict[str, bytes]
+) -> str:
     assert result.returncode == EXIT_JOB_FAILED, result.stderr
     line = result.stderr.strip()
     assert "\n" not in line and "Traceback" not in line and "internal error" not in line, line

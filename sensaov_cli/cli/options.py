@@ -119,7 +119,7 @@ def _os_failure(err: OSError) -> tuple[str, int] | None:
     return f"{where}cannot write or read: {what}{hint}", code
 
 
-def _reported(err: Exception) -> tuple[str, int]:
+def _reported(err: BaseException) -> tuple[str, int]:
     """The one line and the exit code of a failure; "internal error" is left for bugs."""
     if isinstance(err, SensaovError):
         return str(err), err.exit_code
