@@ -20,6 +20,7 @@ import click
 
 from sensaov_cli import interrupts
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_MEANINGS, SensaovError
+from sensaov_cli.outputs import atomic
 from sensaov_cli.vocabulary import AGGREGATES, WEIGHTS
 
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
@@ -72,8 +73,8 @@ def echo_json(data: Any, **dumps: Any) -> None:
     click.echo(json.dumps(data, indent=2, **dumps))
 
 
-def _fail(message: str, code: int) -> None:
-    click.echo(f"sensaov: error: {_one_line(message)}{_written()}", err=True)
+def _fail(message: str, code: int, earlier: int = 0) -> None:
+    click.echo(f"sensaov: error: {_one_line(message)}{_written(earlier)}", err=True)
     sys.exit(code)
 
 
@@ -82,12 +83,13 @@ def _one_line(text: str) -> str:
     return " ".join(text.split("\n")).replace("\r", " ")
 
 
-def _written() -> str:
-    """What this process replaced before it stopped; everything else is as it was."""
+def _written(earlier: int) -> str:
+    """What this command replaced before it stopped (the process's ledger after its first
+    ``earlier`` entries); everything else is as it was."""
     from sensaov_cli.outputs.atomic import remove_temporaries, replaced
 
     remove_temporaries()
-    done = replaced()
+    done = replaced()[earlier:]
     if not done:
         return "; no output was replaced"
     return f"; replaced: {', '.join(map(str, done))}; no other output was touched"
@@ -147,6 +149,7 @@ def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         verbose = click.get_current_context().find_root().params.get("verbose", 0)
         interrupts.install()
+        earlier = len(atomic.replaced())  # one process may run several commands (tests)
         try:
             interrupts.check()  # a signal that came while the interpreter was importing
             return command(*args, **kwargs)
@@ -155,9 +158,9 @@ def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
             # After a stop, whatever it made a library raise (Dr.Jit wraps it in a
             # RuntimeError, zipfile complains of a cut write) is the stop, not a failure.
             if isinstance(err, KeyboardInterrupt) or interrupts.requested():
-                _fail(f"stopped by {interrupts.signal_name()}", interrupts.exit_code())
+                _fail(f"stopped by {interrupts.signal_name()}", interrupts.exit_code(), earlier)
             if verbose >= 2:
                 traceback.print_exc()
-            _fail(*_reported(err))
+            _fail(*_reported(err), earlier)
 
     return wrapper
