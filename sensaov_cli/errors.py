@@ -15,6 +15,7 @@ EXIT_JOB_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_ENVIRONMENT = 3
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for Ctrl-C
+EXIT_TERMINATED = 143  # 128 + SIGTERM, what a farm's scheduler sends before SIGKILL
 
 # What each exit code means, in the words every --help epilog and the README use.
 EXIT_MEANINGS: dict[int, str] = {
@@ -22,7 +23,8 @@ EXIT_MEANINGS: dict[int, str] = {
     EXIT_JOB_FAILED: "the job failed (rendering, objective, NaN gradients, internal error)",
     EXIT_BAD_INPUT: "bad input (malformed job, unknown key, missing file, corrupt buffer)",
     EXIT_ENVIRONMENT: "the machine cannot render (no usable libLLVM, no CUDA for a cuda variant)",
-    EXIT_INTERRUPTED: "interrupted (Ctrl-C, SIGTERM); earlier outputs are left untouched",
+    EXIT_INTERRUPTED: "interrupted by Ctrl-C (SIGINT); the message names the outputs replaced",
+    EXIT_TERMINATED: "stopped by SIGTERM (a farm); the message names the outputs replaced",
 }
 
 
@@ -104,6 +106,14 @@ class NonFiniteGradientError(BufferContentError):
 
 class BufferWriteError(SensaovError):
     """The buffer file could not be written (no such directory, no permission, disk full)."""
+
+
+class WriteError(SensaovError):
+    """An output could not be written (disk full, I/O error): nothing partial was left."""
+
+
+class OutOfMemoryError(SensaovError):
+    """The machine ran out of memory (a huge film, spp or buffer)."""
 
 
 class UnknownNameError(SensaovError):

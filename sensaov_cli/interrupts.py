@@ -3,24 +3,42 @@
 Python runs signal handlers only between bytecodes; during a long Dr.Jit kernel the resulting
 KeyboardInterrupt can surface inside a callback and be swallowed. So the handler also records the
 request, and every stage that is about to write checks it (:func:`check`).
+
+Where an exception must not be raised at all (while the interpreter imports click, or Mitsuba's
+C++ extension initialises: a KeyboardInterrupt there ends in ``std::terminate``), the handler only
+records the request (:func:`deferred`), and the next :func:`check` acts on it.
 """
 
 from __future__ import annotations
 
 import signal
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from types import FrameType
 
+from sensaov_cli.errors import EXIT_INTERRUPTED, EXIT_TERMINATED
+
 _requested = threading.Event()
+_signal: list[int] = []  # the first stop signal received
+_raising = [False]  # False: record only (start-up, imports); True: also raise
 
 
 def _stop(signum: int, frame: FrameType | None) -> None:
+    if not _signal:
+        _signal.append(signum)
     _requested.set()
-    raise KeyboardInterrupt
+    if _raising[0]:
+        raise KeyboardInterrupt
 
 
-def install() -> None:
-    """Farms stop jobs with SIGTERM, people with Ctrl-C: both unwind as KeyboardInterrupt."""
+def install(*, raising: bool = True) -> None:
+    """Farms stop jobs with SIGTERM, people with Ctrl-C: both unwind as KeyboardInterrupt.
+
+    ``raising=False`` only records the signal: the command line's first act, before any import
+    that a raised exception could break.
+    """
+    _raising[0] = raising
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
 
@@ -29,3 +47,30 @@ def check() -> None:
     """Raise KeyboardInterrupt if a stop was requested, even if its first raise was lost."""
     if _requested.is_set():
         raise KeyboardInterrupt
+
+
+def requested() -> bool:
+    """Whether SIGINT or SIGTERM has arrived (or Ctrl-C raised KeyboardInterrupt directly)."""
+    return _requested.is_set()
+
+
+def exit_code() -> int:
+    """130 after SIGINT (or a KeyboardInterrupt with no signal), 143 after SIGTERM."""
+    return EXIT_TERMINATED if _signal and _signal[0] == signal.SIGTERM else EXIT_INTERRUPTED
+
+
+def signal_name() -> str:
+    return "SIGTERM" if exit_code() == EXIT_TERMINATED else "SIGINT"
+
+
+@contextmanager
+def deferred() -> Iterator[None]:
+    """Within the block a stop is only recorded; it is raised right after the block ends."""
+    before = _raising[0]
+    _raising[0] = False
+    try:
+        yield
+    finally:
+        _raising[0] = before
+    if before:
+        check()

@@ -22,6 +22,7 @@ from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.beauty import render_beauty
+from sensaov_cli.render.inputs import refuse_unsafe_outputs
 from sensaov_cli.render.scene import LoadedScene, load_scene
 from sensaov_cli.render.scene_xml import scene_fingerprint
 from sensaov_cli.render.visibility import trace
@@ -59,6 +60,12 @@ def project_job(
     _check_fingerprint(job, buffer, buffer_path, force)
     chosen = _cameras(job, tuple(dict.fromkeys(cameras)))  # a camera named twice renders once
     check_writable(job.output, [f"{camera.name}.exr" for camera in chosen])
+    refuse_unsafe_outputs(
+        job,
+        [job.output / f"{camera.name}.exr" for camera in chosen],
+        folders=[job.output / "previews"] if png else [],
+        inputs=[buffer_path],
+    )
     passes = channel_values(buffer, job.channels)  # camera-independent: computed once
     forward = projected_layers(job, buffer, buffer_path, progress)  # the objective camera's
     with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):

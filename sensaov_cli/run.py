@@ -23,6 +23,7 @@ from sensaov_cli.outputs.exr import exr_writer, image_channels
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, batch_plan, integrator_plan, run_adjoint
+from sensaov_cli.render.inputs import refuse_unsafe_outputs
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.scene import LoadedScene, load_scene
 from sensaov_cli.render.scene_xml import check_cameras, scene_fingerprint
@@ -80,6 +81,8 @@ def run_job(
     single = task.shard is None and not task.objectives and job.render.batches == 1
     forward_wanted = wanted(job) and single
     check_writable(job.output, [buffer_name, primal_name] + [FORWARD_NAME] * forward_wanted)
+    outputs = [buffer_path, primal_path] + [job.output / FORWARD_NAME] * forward_wanted
+    refuse_unsafe_outputs(job, outputs)
     check_cameras(job)  # an unknown inspection camera fails here, not after the render
     with progress.stage("load_s", f"loading {job.scene.name}"):
         loaded = load_scene(job)

@@ -41,7 +41,7 @@ CLI_MODULES = [f"sensaov_cli.cli.{m.name}" for m in pkgutil.iter_modules(sensaov
 @pytest.fixture
 def runner(monkeypatch: pytest.MonkeyPatch) -> CliRunner:
     # pytest keeps its own Ctrl-C handling: the commands' signal handlers are not installed
-    monkeypatch.setattr(interrupts, "install", lambda: None)
+    monkeypatch.setattr(interrupts, "install", lambda **_: None)
     return CliRunner()
 
 
@@ -158,7 +158,7 @@ def test_check_refuses_an_unknown_objective(runner: CliRunner) -> None:
     assert result.exit_code == EXIT_BAD_INPUT
     assert result.stderr == (
         "sensaov: error: --objective: no objective named 'nope' "
-        "(objectives: mean_luma, back_wall_luma)\n"
+        "(objectives: mean_luma, back_wall_luma); no output was replaced\n"
     )
 
 
@@ -185,5 +185,5 @@ def test_an_unexpected_error_is_an_internal_error(
     assert result.exit_code == EXIT_JOB_FAILED
     assert result.stderr == (
         "sensaov: error: internal error: ZeroDivisionError: last line "
-        "(run with -vv for the traceback)\n"
+        "(run with -vv for the traceback); no output was replaced\n"
     )

@@ -79,7 +79,7 @@ def buffer_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture
 def runner(monkeypatch: pytest.MonkeyPatch) -> CliRunner:
-    monkeypatch.setattr(interrupts, "install", lambda: None)
+    monkeypatch.setattr(interrupts, "install", lambda **_: None)
     return CliRunner()
 
 
@@ -251,5 +251,5 @@ def test_a_missing_camera_exr_is_one_line_of_bad_input(buffer_path: Path) -> Non
     result = sensaov("rank", str(buffer_path), "--by", "object", "--exr", str(missing))
     assert result.returncode == EXIT_BAD_INPUT
     assert result.stderr.strip().splitlines() == [
-        f"sensaov: error: {missing}: no such OpenEXR file"
+        f"sensaov: error: {missing}: no such OpenEXR file; no output was replaced"
     ]

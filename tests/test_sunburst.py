@@ -23,7 +23,7 @@ FLOWING = [p.key for p in BUF.params if p.trust != "no_gradient"]
 
 @pytest.fixture
 def runner(monkeypatch: pytest.MonkeyPatch) -> CliRunner:
-    monkeypatch.setattr(interrupts, "install", lambda: None)
+    monkeypatch.setattr(interrupts, "install", lambda **_: None)
     return CliRunner()
 
 

@@ -10,10 +10,16 @@ imports (Mitsuba, Dr.Jit, pydantic, numpy) happen inside them, so ``sensaov --he
 
 from __future__ import annotations
 
-import click
+from sensaov_cli import interrupts
 
-from sensaov_cli import __version__
-from sensaov_cli.cli import (
+# The ``sensaov`` entry point imports this module first: record signals before click loads
+# (see ``interrupts.install``); each command acts on them when it starts.
+interrupts.install(raising=False)
+
+import click  # noqa: E402 - after the signal handlers, on purpose
+
+from sensaov_cli import __version__  # noqa: E402
+from sensaov_cli.cli import (  # noqa: E402
     check,
     merge,
     params,
@@ -25,7 +31,7 @@ from sensaov_cli.cli import (
     sunburst,
     validate,
 )
-from sensaov_cli.cli.options import EXIT_CODES_EPILOG
+from sensaov_cli.cli.options import EXIT_CODES_EPILOG  # noqa: E402
 
 
 @click.group(epilog=EXIT_CODES_EPILOG, context_settings={"help_option_names": ["-h", "--help"]})

@@ -7,6 +7,7 @@ rather than declaring them again, so ``--json`` or the job argument read the sam
 
 from __future__ import annotations
 
+import errno
 import json
 import sys
 import traceback
@@ -18,7 +19,8 @@ from typing import Any
 import click
 
 from sensaov_cli import interrupts
-from sensaov_cli.errors import EXIT_INTERRUPTED, EXIT_JOB_FAILED, EXIT_MEANINGS, SensaovError
+from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_MEANINGS, SensaovError
+from sensaov_cli.outputs import atomic
 from sensaov_cli.vocabulary import AGGREGATES, WEIGHTS
 
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
@@ -28,7 +30,7 @@ EXIT_CODES_EPILOG = "\b\nExit codes:\n" + "".join(
     f"  {code}  {meaning}\n" for code, meaning in EXIT_MEANINGS.items()
 )
 
-job_argument = click.argument("job", type=click.Path(path_type=Path, dir_okay=False))
+job_argument = click.argument("job", type=click.Path(path_type=Path))
 allow_python_option = click.option(
     "--allow-python",
     is_flag=True,
@@ -80,37 +82,94 @@ def echo_json(data: Any, **dumps: Any) -> None:
     click.echo(json.dumps(data, indent=2, **dumps))
 
 
-def _fail(message: str, code: int) -> None:
-    click.echo(f"sensaov: error: {message}", err=True)
+def _fail(message: str, code: int, earlier: int = 0) -> None:
+    click.echo(f"sensaov: error: {_one_line(message)}{_written(earlier)}", err=True)
     sys.exit(code)
+
+
+def _one_line(text: str) -> str:
+    """A message on one line whatever it quotes (a name with a newline from a stranger's file)."""
+    return " ".join(text.split("\n")).replace("\r", " ")
+
+
+def _written(earlier: int) -> str:
+    """What this command replaced before it stopped (the process's ledger after its first
+    ``earlier`` entries); everything else is as it was."""
+    from sensaov_cli.outputs.atomic import remove_temporaries, replaced
+
+    remove_temporaries()
+    done = replaced()[earlier:]
+    if not done:
+        return "; no output was replaced"
+    return f"; replaced: {', '.join(map(str, done))}; no other output was touched"
+
+
+# Failures of the machine or the file system that are no bug: errno -> (what, exit code).
+_OS_FAILURES = {
+    errno.ENOSPC: ("disk full", EXIT_JOB_FAILED),
+    errno.EDQUOT: ("disk quota exceeded", EXIT_JOB_FAILED),
+    errno.EFBIG: ("file too large for the file system", EXIT_JOB_FAILED),
+    errno.EIO: ("I/O error", EXIT_JOB_FAILED),
+    errno.EACCES: ("permission denied", EXIT_BAD_INPUT),
+    errno.EPERM: ("operation not permitted", EXIT_BAD_INPUT),
+    errno.EROFS: ("read-only file system", EXIT_BAD_INPUT),
+    errno.EISDIR: ("is a directory", EXIT_BAD_INPUT),
+    errno.ENOTDIR: ("not a directory", EXIT_BAD_INPUT),
+    errno.ENOENT: ("no such file or directory", EXIT_BAD_INPUT),
+    errno.ENAMETOOLONG: ("file name too long", EXIT_BAD_INPUT),
+    errno.EMFILE: ("too many open files", EXIT_JOB_FAILED),
+}
+
+
+def _os_failure(err: OSError) -> tuple[str, int] | None:
+    if err.errno not in _OS_FAILURES:
+        return None
+    what, code = _OS_FAILURES[err.errno]
+    where = f"{err.filename}: " if err.filename else ""
+    hint = " (free space and run again; the previous outputs were kept)" if code == 1 else ""
+    return f"{where}cannot write or read: {what}{hint}", code
+
+
+def _reported(err: BaseException) -> tuple[str, int]:
+    """The one line and the exit code of a failure; "internal error" is left for bugs."""
+    if isinstance(err, SensaovError):
+        return str(err), err.exit_code
+    if isinstance(err, MemoryError):
+        return "out of memory (a film, spp or buffer too large for this machine)", EXIT_JOB_FAILED
+    known = _os_failure(err) if isinstance(err, OSError) else None
+    if known is not None:
+        return known
+    detail = str(err).strip().splitlines()
+    return (
+        f"internal error: {type(err).__name__}: {detail[-1] if detail else ''} "
+        "(run with -vv for the traceback)",
+        EXIT_JOB_FAILED,
+    )
 
 
 def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     """Turn any failure into one line on stderr and a documented exit code (traceback at -vv).
 
-    Library errors become an exit code here, and only here.
+    Library errors become an exit code here, and only here. Every line ends saying which
+    outputs this process replaced (none, or which), so a farm's log tells what is on disk.
     """
 
     @wraps(command)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         verbose = click.get_current_context().find_root().params.get("verbose", 0)
         interrupts.install()
+        earlier = len(atomic.replaced())  # one process may run several commands (tests)
         try:
+            interrupts.check()  # a signal that came while the interpreter was importing
             return command(*args, **kwargs)
-        except SensaovError as err:
+        except (KeyboardInterrupt, Exception) as err:
+            interrupts.install(raising=False)  # a second signal must not break the report
+            # After a stop, whatever it made a library raise (Dr.Jit wraps it in a
+            # RuntimeError, zipfile complains of a cut write) is the stop, not a failure.
+            if isinstance(err, KeyboardInterrupt) or interrupts.requested():
+                _fail(f"stopped by {interrupts.signal_name()}", interrupts.exit_code(), earlier)
             if verbose >= 2:
                 traceback.print_exc()
-            _fail(str(err), err.exit_code)
-        except KeyboardInterrupt:
-            _fail("interrupted; no partial output was written", EXIT_INTERRUPTED)
-        except Exception as err:  # noqa: BLE001 - the one place unexpected errors are reported
-            if verbose >= 2:
-                traceback.print_exc()
-            detail = str(err).strip().splitlines()
-            _fail(
-                f"internal error: {type(err).__name__}: {detail[-1] if detail else ''} "
-                "(run with -vv for the traceback)",
-                EXIT_JOB_FAILED,
-            )
+            _fail(*_reported(err), earlier)
 
     return wrapper

@@ -24,7 +24,7 @@ from sensaov_cli.cli.options import (
 @click.option(
     "--buffer",
     "buffer_path",
-    type=click.Path(path_type=Path, dir_okay=False),
+    type=click.Path(path_type=Path),
     help="Buffer to project (default: <output>/buffer.npz of the job).",
 )
 @click.option("--png", is_flag=True, help="Also write PNG previews and a contact sheet per camera.")

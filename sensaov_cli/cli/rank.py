@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
-@click.argument("buffer", type=click.Path(path_type=Path, dir_okay=False))
+@click.argument("buffer", type=click.Path(path_type=Path))
 @click.option(
     "--by",
     type=click.Choice(CUTS),
@@ -37,7 +37,7 @@ if TYPE_CHECKING:
     "--exr",
     "exrs",
     multiple=True,
-    type=click.Path(path_type=Path, dir_okay=False),
+    type=click.Path(path_type=Path),
     help="A camera's EXR from 'sensaov project' (repeatable): label rows off-frame for it.",
 )
 @top_option("Rows per table.")

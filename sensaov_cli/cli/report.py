@@ -14,7 +14,7 @@ from sensaov_cli.cli.options import EXIT_CODES_EPILOG, job_argument, reports_err
 @click.option(
     "-o",
     "--output",
-    type=click.Path(path_type=Path, dir_okay=False),
+    type=click.Path(path_type=Path),
     help="The page to write (default: <output>/report.html of the job).",
 )
 @reports_errors

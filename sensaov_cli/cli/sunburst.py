@@ -18,7 +18,7 @@ from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Weight
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
-@click.argument("buffer", type=click.Path(path_type=Path, dir_okay=False))
+@click.argument("buffer", type=click.Path(path_type=Path))
 @objective_option(
     "Draw only this objective (repeatable; default: one disc per objective).", multiple=True
 )
@@ -34,7 +34,7 @@ from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Weight
 @click.option(
     "-o",
     "--output",
-    type=click.Path(path_type=Path, dir_okay=False),
+    type=click.Path(path_type=Path),
     default=Path("sunburst.svg"),
     show_default=True,
     help="The file to write: .svg or .png.",

@@ -1,12 +1,31 @@
-"""Write files so that a reader (or a farm that kills the job) never sees half of one."""
+"""Write files so that a reader (or a farm that kills the job) never sees half of one.
+
+One discipline for every output (buffers, EXRs, PNGs, HTML, SVG): each file is written to a
+temporary beside it, the write is checked (an empty or failed write is an error, ``fsync``
+reports a full disk the page cache hid), and only then renamed over the old file. SIGINT and
+SIGTERM are held back while a temporary is created and while the renames run, so a stop can
+never leave a temporary nobody knows about, and a set of files is replaced together.
+
+The module keeps a ledger of what this process replaced, so whoever reports a failure or a stop
+can say exactly which outputs are new and which are as they were (:func:`replaced`).
+"""
 
 from __future__ import annotations
 
+import errno
 import os
 import signal
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+
+from sensaov_cli import interrupts
+
+TEMPORARY_SUFFIX = ".partial"
+_HELD = {signal.SIGINT, signal.SIGTERM}
+_live: set[Path] = set()  # temporaries that exist right now (removed on any failure or stop)
+_replaced: list[Path] = []  # every output this process renamed into place, in order
 
 
 def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
@@ -16,45 +35,101 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
 
 def atomic_write_all(files: list[tuple[Path, Callable[[Path], None]]]) -> None:
     """Write every file to a temporary beside it, then rename them all, with SIGINT and SIGTERM
-    held back during the renames: a run's outputs are replaced together or not at all."""
+    held back during the renames: a run's outputs are replaced together or not at all.
+
+    An ``OSError`` names the output it was writing (``filename``); a stop asked for while a
+    writer ran surfaces as ``KeyboardInterrupt`` whatever the writer raised in its wake.
+    """
     temporaries: list[Path] = []
     try:
         for path, write in files:
-            temporaries.append(_written_temporary(path, write))
-        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-        try:
+            temporaries.append(_written_temporary(Path(path), write))
+        with _signals_held():
             for tmp, (path, _) in zip(temporaries, files, strict=True):
                 os.replace(tmp, path)
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, held)
-    except BaseException:
+                _live.discard(tmp)
+                _replaced.append(Path(path))
+    finally:
         for tmp in temporaries:
-            tmp.unlink(missing_ok=True)
-        raise
-    for folder in {path.parent for path, _ in files}:
+            _remove(tmp)
+    for folder in {Path(path).parent for path, _ in files}:
         _fsync_directory(folder)
 
 
-def _written_temporary(path: Path, write: Callable[[Path], None]) -> Path:
-    """``write(tmp)`` on a temporary file beside ``path``; returns it (removed on failure).
+def replaced() -> tuple[Path, ...]:
+    """Every output this process has renamed into place so far (a new file or a new version)."""
+    return tuple(_replaced)
 
-    Renames are atomic on POSIX file systems; on any failure (including KeyboardInterrupt) the
-    temporary files are removed and every existing ``path`` is left untouched.
-    """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
-    os.close(handle)
-    tmp = Path(name)
+
+def remove_temporaries() -> None:
+    """Remove every temporary still on disk: the last thing a stopped process does."""
+    for tmp in list(_live):
+        _remove(tmp)
+
+
+def _written_temporary(path: Path, write: Callable[[Path], None]) -> Path:
+    """``write(tmp)`` on a temporary file beside ``path``; returns it (removed on failure)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with _signals_held():  # a temporary exists only once the ledger knows it
+            handle, name = tempfile.mkstemp(
+                dir=path.parent, prefix=f".{path.name[:200]}.", suffix=TEMPORARY_SUFFIX
+            )
+            os.close(handle)
+            tmp = Path(name)
+            _live.add(tmp)
+    except OSError as exc:
+        raise _named(exc, path) from exc
     try:
         write(tmp)
-        # mkstemp creates the file owner-only; outputs get the permissions any new file would.
-        os.chmod(tmp, 0o666 & ~_umask())
-        with open(tmp, "rb") as stream:
-            os.fsync(stream.fileno())
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+        _check_written(tmp)
+    except BaseException as exc:
+        _remove(tmp)
+        if interrupts.requested():  # e.g. zipfile's error about a write the signal cut short
+            raise KeyboardInterrupt from None
+        if isinstance(exc, OSError):
+            raise _named(exc, path) from exc
         raise
     return tmp
+
+
+def _check_written(tmp: Path) -> None:
+    """A writer that wrote nothing failed; ``fsync`` makes a full disk show here, not later."""
+    if tmp.stat().st_size == 0:
+        raise OSError(errno.EIO, "the writer produced an empty file")
+    # mkstemp creates the file owner-only; outputs get the permissions any new file would.
+    os.chmod(tmp, 0o666 & ~_umask())
+    with open(tmp, "rb") as stream:
+        os.fsync(stream.fileno())
+
+
+def _named(exc: OSError, path: Path) -> OSError:
+    """``exc`` naming the output it was writing, not the temporary beside it."""
+    return OSError(exc.errno, exc.strerror or str(exc), str(path))
+
+
+def _remove(tmp: Path) -> None:
+    try:
+        tmp.unlink(missing_ok=True)
+    except OSError:
+        pass  # the folder vanished or became read-only: nothing more can be done
+    _live.discard(tmp)
+
+
+@contextmanager
+def _signals_held() -> Iterator[None]:
+    """No KeyboardInterrupt inside the block; a stop asked for meanwhile is raised after it.
+
+    The mask alone is not enough: Dr.Jit's and LLVM's worker threads do not block the signals,
+    the kernel hands a process-directed signal to one of them, and Python then runs its
+    handler in the main thread at once. So sensaov's handler is told to only record it too.
+    """
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+    try:
+        with interrupts.deferred():
+            yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
 def _umask() -> int:
@@ -78,12 +153,23 @@ def _fsync_directory(folder: Path) -> None:
 
 
 def check_writable(folder: Path, names: list[str]) -> None:
-    """Fail before any work if ``folder/<name>`` cannot be written (nothing is created here)."""
+    """Fail before any work if ``folder/<name>`` cannot be written (nothing is created here).
+
+    A name may be a sub-folder (``previews``): an existing file in its place is refused too.
+    """
     from sensaov_cli.errors import OutputError
 
     for name in names:
-        if (folder / name).is_dir():
-            raise OutputError(f"{folder / name} is a directory", hint="move it out of the way")
+        target = folder / name
+        if name.endswith("/"):
+            if target.exists() and not target.is_dir():
+                raise OutputError(
+                    f"{target} is not a directory", hint="move it out of the way: it holds outputs"
+                )
+        elif target.is_dir():
+            raise OutputError(f"{target} is a directory", hint="move it out of the way")
+        elif target.exists() and not target.is_file():
+            raise OutputError(f"{target} is not a regular file", hint="move it out of the way")
     existing = folder
     while not existing.exists():  # the folder will be created: its nearest existing parent
         existing = existing.parent

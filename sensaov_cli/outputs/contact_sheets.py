@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
+from sensaov_cli.outputs.names import file_token
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, underlay, write_png
 from sensaov_cli.views.coverage import VisibilityPass
 
@@ -30,7 +31,11 @@ def write_previews(
     beauty: np.ndarray | None,
     visibility: VisibilityPass,
 ) -> tuple[Path, ...]:
-    """Write ``folder/<camera>/<objective>.<pass>.png`` and ``folder/<camera>_<objective>.png``."""
+    """Write ``folder/<camera>/<objective>.<pass>.png`` and ``folder/<camera>_<objective>.png``.
+
+    Every name in a path is a :func:`~.names.file_token` (a buffer's objective names come from
+    whoever wrote it); the names as they were are kept in each PNG's text chunks.
+    """
     written = []
     sheets: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
     for layer, scale in layers:
@@ -38,11 +43,21 @@ def write_previews(
         rgb = diverging_rgb(values, scale)
         if beauty is not None:
             rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
-        path = folder / camera / f"{layer.objective}.{layer.pass_name}.png"
+        path = (
+            folder
+            / file_token(camera)
+            / f"{file_token(layer.objective)}.{file_token(layer.pass_name)}.png"
+        )
+        names = {"sensaov/camera": camera, "sensaov/objective": layer.objective}
         write_png(
             path,
             rgb,
-            {"sensaov/scale": repr(scale), "sensaov/encoding": layer.metadata.get("encoding", "")},
+            {
+                **names,
+                "sensaov/pass": layer.pass_name,
+                "sensaov/scale": repr(scale),
+                "sensaov/encoding": layer.metadata.get("encoding", ""),
+            },
         )
         written.append(path)
         tile = _enlarged(diverging_rgb(values / (scale or 1.0), 1.0))
@@ -59,8 +74,8 @@ def write_previews(
             scale=1.0,
             title=f"{camera} / {objective}: each tile at its own +-scale; ! = unverified gradients",
         )
-        path = folder / f"{camera}_{objective}.png"
-        write_png(path, sheet)
+        path = folder / f"{file_token(camera)}_{file_token(objective)}.png"
+        write_png(path, sheet, {"sensaov/camera": camera, "sensaov/objective": objective})
         written.append(path)
     return tuple(written)
 

@@ -6,6 +6,8 @@ The multilayer layout for compositors (beauty, Cryptomatte, sensitivity passes) 
 
 from __future__ import annotations
 
+import errno
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -36,10 +38,21 @@ def exr_writer(
     header.update(attributes)
 
     def write(tmp: Path) -> None:
-        with OpenEXR.File(header, pixels) as exr:
-            exr.write(str(tmp))
+        try:
+            with OpenEXR.File(header, pixels) as exr:
+                exr.write(str(tmp))
+        except RuntimeError as error:  # the binding's only exception type, even for ENOSPC
+            raise _os_error(str(error)) from error
 
     return write
+
+
+def _os_error(message: str) -> OSError:
+    """OpenEXR's message as the OSError it reports ("... No space left on device.")."""
+    for code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EROFS):
+        if os.strerror(code) in message:
+            return OSError(code, os.strerror(code))
+    return OSError(errno.EIO, message)
 
 
 def image_channels(image: np.ndarray) -> dict[str, np.ndarray]:

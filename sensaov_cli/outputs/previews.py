@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from sensaov_cli.errors import NonFiniteError, PreviewError
-from sensaov_cli.outputs.atomic import atomic_write
+from sensaov_cli.outputs.png import write_png_file
 
 # ColorBrewer RdBu, 11 classes (Brewer 2002), ordered from -scale (blue) to +scale (red).
 # It is diverging and symmetric in lightness, so |value| reads as darkness whatever the sign.
@@ -110,26 +110,8 @@ def write_png(
     """Write an (H, W, 3) uint8 image as a PNG, atomically; ``attributes`` become text chunks
     (the channel's encoding and scale, so a preview can be traced back to its data).
     """
-    import OpenImageIO as oiio
-
     _check_rgb(rgb_uint8)
-    height, width = rgb_uint8.shape[:2]
-    spec = oiio.ImageSpec(width, height, 3, "uint8")
-    for name, value in (attributes or {}).items():
-        spec.attribute(name, value)
-
-    def write(tmp: Path) -> None:
-        # The format is named, not guessed: the temporary file's name ends in ".partial".
-        out = oiio.ImageOutput.create("png")
-        if out is None or not out.open(str(tmp), spec):
-            raise PreviewError(f"cannot write PNG {path}: {oiio.geterror()}")
-        try:
-            if not out.write_image(np.ascontiguousarray(rgb_uint8)):
-                raise PreviewError(f"cannot write PNG {path}: {out.geterror()}")
-        finally:
-            out.close()
-
-    atomic_write(Path(path), write)
+    write_png_file(Path(path), rgb_uint8, attributes)
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ Plain text only: no colour, no box drawing, so logs and farm consoles read it as
 
 from __future__ import annotations
 
+import unicodedata
 from collections import defaultdict
 from collections.abc import Collection, Sequence
 from dataclasses import asdict
@@ -39,7 +40,11 @@ _OWNERS_SHOWN = 3
 def format_table(
     rows: Sequence[Sequence[str]], *, numeric: Collection[int] = (), indent: str = ""
 ) -> list[str]:
-    """Columns separated by two spaces, the first row the header; ``numeric`` right-aligned."""
+    """Columns separated by two spaces, the first row the header; ``numeric`` right-aligned.
+
+    Cells pass through :func:`printable`: a key with a newline must not break the table.
+    """
+    rows = [[printable(cell) for cell in row] for row in rows]
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     return [
         (
@@ -51,6 +56,16 @@ def format_table(
         ).rstrip()
         for row in rows
     ]
+
+
+def printable(text: str) -> str:
+    """``text`` with control characters escaped (``\\n``): names from a buffer are data."""
+    if text.isprintable():
+        return text
+    return "".join(
+        ch.encode("unicode_escape").decode("ascii") if unicodedata.category(ch)[0] == "C" else ch
+        for ch in text
+    )
 
 
 class ParameterInventory(Protocol):
@@ -173,7 +188,7 @@ def render_text(summary: dict[str, Any]) -> str:
     )
     prov = summary["provenance"]
     shown = [
-        f"{label} {prov[key]}"
+        f"{label} {printable(str(prov[key]))}"
         for key, label in _PROVENANCE_SHOWN.items()
         if isinstance(prov.get(key), str | int | float)
     ]
@@ -248,7 +263,7 @@ def _legend(objective: dict[str, Any]) -> list[str]:
     if objective["no_gradient"]:
         lines.append(f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:")
         lines += [
-            f"      {p['key']} ({', '.join(p['owners']) or '-'}): {p['note']}"
+            printable(f"      {p['key']} ({', '.join(p['owners']) or '-'}): {p['note']}")
             for p in objective["no_gradient"]
         ]
     return lines
@@ -262,7 +277,7 @@ def _mark_legend(objective: dict[str, Any], mark: str, word: str, meaning: str) 
     if not marked:
         return [f"  {mark} = includes a parameter whose gradient is {word}"] * groups_marked
     lines = [f"  {mark} = {meaning}:"]
-    lines += [f"      {p['key']}: {p['note'] or 'not verified'}" for p in marked]
+    lines += [printable(f"      {p['key']}: {p['note'] or 'not verified'}") for p in marked]
     if groups_marked:
         lines.append(f"    objects and types marked {mark} include such a parameter")
     return lines

@@ -149,7 +149,12 @@ def _read_image(path: Path | None, where: str) -> np.ndarray:
         image.close()
     if pixels is None:
         raise SpecError(f"cannot decode image {path}", where=where)
-    return np.asarray(pixels, dtype=np.float32).reshape(pixels.shape[0], pixels.shape[1], -1)
+    pixels = np.asarray(pixels, dtype=np.float32).reshape(pixels.shape[0], pixels.shape[1], -1)
+    if not np.isfinite(pixels).all():
+        raise SpecError(
+            f"{path} holds NaN or infinite pixels", where=where, hint="write finite values"
+        )
+    return pixels
 
 
 def _check_size(pixels: np.ndarray, size: tuple[int, int], path: Path | None, where: str) -> None:
@@ -165,6 +170,12 @@ def _check_size(pixels: np.ndarray, size: tuple[int, int], path: Path | None, wh
 def _read_mask(path: Path | None, size: tuple[int, int], where: str) -> np.ndarray:
     pixels = _read_image(path, where)
     _check_size(pixels, size, path, where)
+    if (pixels[..., 0] < 0).any():  # M would weigh some pixels negatively: not a mean any more
+        raise SpecError(
+            f"{path} holds negative weights (least {pixels[..., 0].min():g})",
+            where=where,
+            hint="a mask weighs pixels by 0 (ignored) to 1 (counted); write values >= 0",
+        )
     return np.ascontiguousarray(pixels[..., 0])  # first channel; grey masks have one
 
 

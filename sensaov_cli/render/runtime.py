@@ -15,6 +15,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from sensaov_cli import interrupts
 from sensaov_cli.errors import EnvironmentProblem
 
 MIN_LLVM_MAJOR = 19
@@ -87,7 +88,16 @@ def cuda_available(dr: ModuleType) -> bool:
 
 
 def import_mitsuba(variant: str) -> ModuleType:
-    """Import Mitsuba with ``variant`` set (``auto`` picks CUDA when usable, else LLVM)."""
+    """Import Mitsuba with ``variant`` set (``auto`` picks CUDA when usable, else LLVM).
+
+    A KeyboardInterrupt raised inside the extensions' initialisation ends in ``std::terminate``
+    (an abort and a C++ message): signals are only recorded meanwhile, and acted on after.
+    """
+    with interrupts.deferred():
+        return _import_mitsuba(variant)
+
+
+def _import_mitsuba(variant: str) -> ModuleType:
     llvm_problem = None
     if not variant.startswith("cuda"):
         try:

@@ -1,0 +1,165 @@
+"""The bad-input corpus (tests/data/bad/): every case exits with its documented code, says so in
+one line, prints no traceback and writes nothing. Jobs and scenes go to ``validate`` or ``run``,
+masks and targets to ``run`` (refused before rendering), buffers to ``rank`` and ``project``.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED
+
+from .bad_buffers import MAKERS, STRICT_READER, good_buffer
+from .conftest import ROOT, SCENES
+
+CORPUS = Path(__file__).parent / "data" / "bad"
+SCENE = SCENES / "cbox" / "scene.xml"
+
+
+@dataclass(frozen=True)
+class Case:
+    id: str
+    command: str
+    file: str  # a corpus file, or a kind made at test time ("fifo", "dev", "dir", "buffer:...")
+    extra: str = ""  # the scene, mask or target the corpus job names
+    codes: tuple[int, ...] = (EXIT_BAD_INPUT,)
+    timeout: float = 30  # a hang is a failure (the longest case, a Mitsuba load, takes ~2 s)
+
+
+JOBS = [
+    Case(name.stem, "validate", name.name)
+    for name in sorted(CORPUS.glob("job_*.yaml"))
+    if name.stem not in {"job_mask_missing", "job_python_not_allowed"}
+] + [
+    Case("job_mask_missing", "run", "job_mask_missing.yaml"),
+    Case("job_python_not_allowed", "run", "job_python_not_allowed.yaml"),
+    Case("job is a FIFO", "run", "fifo"),
+    Case("job is a device", "run", "dev"),
+    Case("job is a directory", "run", "dir"),
+]
+SCENE_CASES = [
+    Case(name.stem, "run", "scene_job.yaml", extra=name.name)
+    for name in sorted(CORPUS.glob("scene_*.xml"))
+] + [Case("scene is a FIFO", "run", "scene_job.yaml", extra="fifo")]
+IMAGES = [
+    Case(name.stem, "run", "mask_job.yaml", extra=name.name)
+    for name in sorted(CORPUS.glob("mask_*.exr"))
+] + [
+    Case(name.stem, "run", "target_job.yaml", extra=name.name)
+    for name in sorted(CORPUS.glob("target_*.exr"))
+]
+BUFFERS = [
+    Case(f"buffer {name}", "rank", f"buffer:{name}", codes=(EXIT_BAD_INPUT, EXIT_JOB_FAILED))
+    if name == "zip bomb"
+    else Case(f"buffer {name}", "rank", f"buffer:{name}")
+    for name in MAKERS
+] + [
+    Case("buffer.npz is a directory", "rank", "buffer:dir"),
+    Case("project: buffer.npz is a directory", "project", "buffer:dir"),
+]
+STRICT = [
+    pytest.param(
+        Case(f"buffer {name}", "rank", f"buffer:{name}"),
+        marks=pytest.mark.xfail(strict=True, reason="the format-3 reader (lead) refuses it"),
+        id=f"buffer {name}",
+    )
+    for name in STRICT_READER
+] + [
+    pytest.param(  # the format-2 reader opens it and waits for a writer forever
+        Case("buffer.npz is a FIFO", "rank", "buffer:fifo", timeout=5),
+        marks=pytest.mark.xfail(strict=True, reason="the format-3 reader (lead) checks S_ISREG"),
+        id="buffer.npz is a FIFO",
+    )
+]
+ALL = JOBS + SCENE_CASES + IMAGES + BUFFERS
+
+
+def test_the_corpus_has_at_least_40_cases() -> None:
+    assert len(ALL) + len(STRICT) >= 40
+
+
+def listing(root: Path) -> dict[str, int]:
+    return {str(p.relative_to(root)): p.lstat().st_size for p in sorted(root.rglob("*"))}
+
+
+def prepare(case: Case, tmp: Path) -> list[str]:
+    """The case's files in ``tmp``; returns the command's arguments."""
+    if case.file.startswith("buffer:"):
+        kind = case.file.split(":", 1)[1]
+        buffer = tmp / "buffer.npz"
+        if kind == "dir":
+            buffer.mkdir()
+        elif kind == "fifo":
+            os.mkfifo(buffer)
+        else:
+            good = tmp / "good.npz"
+            good_buffer().save(good)
+            (MAKERS | STRICT_READER)[kind](good, buffer)
+            good.unlink()
+        if case.command == "project":
+            job = _job(tmp, "scene_job.yaml", str(SCENE))
+            return ["project", str(job), "--buffer", str(buffer)]
+        return ["rank", str(buffer)]
+    if case.file in ("fifo", "dev", "dir"):
+        job = tmp / "job.yaml"
+        {"fifo": os.mkfifo, "dev": lambda p: os.symlink("/dev/zero", p), "dir": os.mkdir}[
+            case.file
+        ](job)
+        return [case.command, str(job)]
+    extra = ""
+    if case.extra == "fifo":
+        extra = str(tmp / "scene.xml")
+        os.mkfifo(extra)
+    elif case.extra:
+        extra = str(shutil.copy(CORPUS / case.extra, tmp / case.extra))
+    return [case.command, str(_job(tmp, case.file, extra))]
+
+
+def _job(tmp: Path, name: str, extra: str) -> Path:
+    text = (CORPUS / name).read_text(errors="surrogateescape")
+    for word, value in (
+        ("SCENEFILE", extra), ("MASKFILE", extra), ("SCENE", str(SCENE)),
+        ("HERE", str(CORPUS)), ("OUT", str(tmp / "out")),
+    ):  # fmt: skip
+        text = text.replace(word, value)
+    job = tmp / "job.yaml"
+    job.write_text(text, errors="surrogateescape")
+    return job
+
+
+def check(case: Case, tmp: Path) -> None:
+    args = prepare(case, tmp)
+    if args[0] in ("run", "project"):
+        args.insert(1, "-q")  # progress lines are not the error
+    before, corpus_before = listing(tmp), listing(CORPUS)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    result = subprocess.run(
+        [sys.executable, "-m", "sensaov_cli", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=case.timeout,
+        cwd=tmp,
+    )
+    assert result.returncode in case.codes, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("sensaov: error: "), result.stderr
+    assert "Traceback" not in result.stderr and "internal error" not in result.stderr
+    assert listing(tmp) == before and listing(CORPUS) == corpus_before
+
+
+@pytest.mark.parametrize("case", ALL, ids=lambda c: c.id)
+def test_bad_input_is_refused(tmp_path: Path, case: Case) -> None:
+    check(case, tmp_path)
+
+
+@pytest.mark.parametrize("case", STRICT)
+def test_bad_buffer_the_strict_reader_refuses(tmp_path: Path, case: Case) -> None:
+    check(case, tmp_path)
