@@ -122,12 +122,6 @@ def test_any_header_is_a_buffer_or_a_format_error(
     load(path)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AttributeError,
-    reason="found here: the format-2 reader fails on an empty header member (AttributeError); "
-    "the format-3 reader (lead, issue 13) must refuse it: then remove this mark",
-)
 @BOUNDED
 @given(arrays=st.lists(st.binary(max_size=64), max_size=3))
 @example(arrays=[b""])

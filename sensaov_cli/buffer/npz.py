@@ -8,6 +8,8 @@ version 1 files (a boolean ``verified`` per parameter instead of the ``trust`` l
 from __future__ import annotations
 
 import json
+import os
+import stat
 import struct
 import zipfile
 import zlib
@@ -156,6 +158,8 @@ _READ_ERRORS = (
 
 def _load(path: Path) -> tuple[SensitivityBuffer, int]:
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):  # a FIFO would block, a device never end
+            raise _Malformed("not a regular file", _FOREIGN)
         _require_zip(path)
         with np.load(path, allow_pickle=False) as npz:
             return _read_npz(npz)
@@ -194,6 +198,7 @@ def _read_npz(npz: Any) -> tuple[SensitivityBuffer, int]:
     members = set(npz.files)
     if HEADER_MEMBER not in members:
         raise _Malformed(f"not a sensaov buffer: the archive has no {HEADER_MEMBER!r}", _FOREIGN)
+    _declared(npz, HEADER_MEMBER, None)  # a header claiming gigabytes is not read
     header = _read_header(npz[HEADER_MEMBER])
     version = header["format_version"]
     params = [_param_from_json(entry, i, version) for i, entry in enumerate(header["params"])]
@@ -244,6 +249,7 @@ def _read_statistics(
         raise _Malformed("malformed header: statistics.objective_values must map to number lists")
     sums = {}
     for j, o in enumerate(objectives):
+        _declared(npz, batch_sums_member(j), (len(params), len(entry["spp"]), 4))
         arr = npz[batch_sums_member(j)]
         if arr.dtype != np.float64:
             raise _Malformed(f"inconsistent buffer: {batch_sums_member(j)!r} is not float64")
@@ -337,7 +343,31 @@ def _objective_from_json(entry: Any, index: int) -> ObjectiveRecord:
     return ObjectiveRecord(**_entry(entry, _OBJECTIVE_FIELDS, index, "objectives"))
 
 
+# The header is a few kB per parameter; a member declaring more is refused before it is read.
+_MAX_HEADER_BYTES = 1 << 28
+
+
+def _declared(npz: Any, name: str, shape: tuple[int, ...] | None) -> None:
+    """Check a member's npy header before reading it: its declared shape (for an array) or
+    its declared size (for the header), so a forged size cannot allocate memory."""
+    with npz.zip.open(f"{name}.npy") as stream:
+        version = np.lib.format.read_magic(stream)
+        if version == (1, 0):
+            declared, _, dtype = np.lib.format.read_array_header_1_0(stream)
+        else:
+            declared, _, dtype = np.lib.format.read_array_header_2_0(stream)
+    if shape is None:
+        if dtype.itemsize * int(np.prod(declared)) > _MAX_HEADER_BYTES:
+            raise _Malformed(f"inconsistent buffer: {name!r} declares {dtype.itemsize} bytes")
+    elif tuple(declared) != shape:
+        raise _Malformed(
+            f"inconsistent buffer: array {name!r} has shape {tuple(declared)}, its record "
+            f"declares {shape}"
+        )
+
+
 def _read_array(npz: Any, name: str, record: ParamRecord) -> np.ndarray:
+    _declared(npz, name, record.shape)
     arr = npz[name]
     if not isinstance(arr, np.ndarray) or arr.dtype.kind != "f" or arr.dtype.itemsize != 4:
         found = getattr(arr, "dtype", type(arr).__name__)
