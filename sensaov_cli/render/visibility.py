@@ -66,12 +66,13 @@ def trace(
         uv = np.stack([np.array(si.uv.x), np.array(si.uv.y)], axis=-1) if with_uv else None
     coverage = histogram(samples.reshape(height * width, spp))
     rank_index, rank_coverage = ranked(coverage, (height, width), spp)
-    sample_uv = None
+    sample_uv = sample_object = None
     if uv is not None:
         uv[samples == BACKGROUND] = 0.0
         sample_uv = uv.astype(np.float32).reshape(height, width, spp, 2)
+        sample_object = samples.reshape(height, width, spp)
     return VisibilityPass(
-        width, height, spp, objects, sample_uv, coverage, rank_index, rank_coverage
+        width, height, spp, objects, sample_uv, coverage, rank_index, rank_coverage, sample_object
     )
 
 
