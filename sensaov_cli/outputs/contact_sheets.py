@@ -33,7 +33,10 @@ def write_previews(
     written = []
     sheets: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
     for layer, scale in layers:
-        rgb = diverging_rgb(layer.data, scale)
+        # An RGB pass (a texel field) is previewed as the sum of its components: the effect
+        # of scaling all three together.
+        data = layer.data if layer.data.ndim == 2 else layer.data.sum(axis=2)
+        rgb = diverging_rgb(data, scale)
         if beauty is not None:
             rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
         path = folder / camera / f"{layer.objective}.{layer.pass_name}.png"
@@ -43,10 +46,10 @@ def write_previews(
             {"sensaov/scale": repr(scale), "sensaov/encoding": layer.metadata.get("encoding", "")},
         )
         written.append(path)
-        tile = _enlarged(diverging_rgb(layer.data / (scale or 1.0), 1.0))
+        tile = _enlarged(diverging_rgb(data / (scale or 1.0), 1.0))
         mark = " !" if json.loads(layer.metadata.get("unverified", "[]")) else ""
         title = f"{layer.pass_name} +-{scale:.2e}{mark}"
-        if not layer.data.any() and json.loads(layer.metadata.get("invisible", "[]")):
+        if not data.any() and json.loads(layer.metadata.get("invisible", "[]")):
             title = f"{layer.pass_name}: unseen{mark}"  # it matters; this camera does not see it
         sheets[layer.objective].append((title, tile))
     for objective, tiles in sheets.items():

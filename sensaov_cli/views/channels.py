@@ -41,6 +41,8 @@ def channel_values(
     passes = []
     for objective in buf.objectives:
         for index, channel in enumerate(channels):
+            if channel.kind == "texel":  # painted through UVs: views/texel_fields.py
+                continue
             for pass_name, selection, keys in _selections(buf, channel, index):
                 passes.append(_values(buf, objective.name, channel, pass_name, selection, keys))
     return passes
