@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -17,12 +18,14 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.texture_files import safe_file_stem, write_fig4_sheet, write_texture_files
 from sensaov_cli.render.scene import LoadedScene
-from sensaov_cli.render.texture_modes import objects_without_uv, texture_sampling
+from sensaov_cli.render.texture_modes import objects_without_uv, texture_probes
 from sensaov_cli.spec.model import JobSpec
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.texel_fields import TexelField, texel_fields, texture_keys
 from sensaov_cli.views.texel_passes import TexelPass, texel_passes
-from sensaov_cli.views.texels import TextureSampling
+from sensaov_cli.views.texels import FILTERS, WRAPS, TextureSampling, lookup
+
+PROBE_TOLERANCE = 1e-4  # relative to the texture's largest value; float32 lookups agree to ~1e-6
 
 
 def check_texel_channels(job: JobSpec, buffer: SensitivityBuffer) -> None:
@@ -38,14 +41,36 @@ def prepare(job: JobSpec, buffer: SensitivityBuffer, loaded: LoadedScene) -> lis
     if not channels:
         return []
     keys = tuple(dict.fromkeys(k for i, c in channels for k in texture_keys(buffer, c, i)))
-    found = texture_sampling(loaded.mi, loaded.params, keys, loaded.bitmap_options)
-    samplings = {
-        key: TextureSampling(s["filter"], s["wrap"], np.array(s["to_uv"]), s["note"])
-        for key, s in found.items()
-    }
+    probes = texture_probes(loaded.mi, loaded.params, keys, loaded.bitmap_options)
+    samplings = {key: sampling_of(probe) for key, probe in probes.items()}
     no_uv = set(objects_without_uv(loaded.mi, loaded.scene, buffer.objects))
     fields = [f for i, c in channels for f in texel_fields(buffer, c, i, samplings)]
     return [_with_uv_note(f, no_uv) for f in fields]
+
+
+def sampling_of(probe: dict[str, Any]) -> TextureSampling:
+    """The filter and wrap whose lookup reproduces the texture's own values at the probes.
+
+    The scene XML's settings are preferred when they match; a texture whose values cannot tell
+    the modes apart (a uniform one) keeps the XML's; one no mode reproduces (a spectral
+    variant's upsampled colours) keeps them too, with a note saying the lookup is unconfirmed.
+    """
+    matrix = np.array(probe["to_uv"], np.float64)
+    stated = (probe["filter"], probe["wrap"])
+    peak = float(np.abs(probe["values"]).max()) or 1.0
+    errors = {}
+    for mode in [(f, w) for f in FILTERS for w in WRAPS]:
+        got = lookup(probe["texels"], probe["uv"], TextureSampling(*mode, to_uv=matrix))
+        errors[mode] = float(np.abs(got - probe["values"]).max()) / peak
+    matching = [mode for mode, error in errors.items() if error <= PROBE_TOLERANCE]
+    if stated in matching:  # confirmed: any doubt the XML match left is settled
+        return TextureSampling(*stated, to_uv=matrix)
+    if not matching:
+        error = min(errors.values())
+        note = f"lookup not confirmed against Mitsuba (error {error:.1e}); {probe['note']}"
+        return TextureSampling(*stated, to_uv=matrix, note=note.rstrip("; "))
+    chosen = matching[0]
+    return TextureSampling(*chosen, to_uv=matrix, note="filter and wrap read from Mitsuba's lookup")
 
 
 def _with_uv_note(field: TexelField, no_uv: set[str]) -> TexelField:

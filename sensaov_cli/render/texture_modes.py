@@ -19,6 +19,7 @@ from typing import Any
 from sensaov_cli.render import scene_names
 
 DEFAULT_FILTER, DEFAULT_WRAP = "bilinear", "repeat"
+PROBES, PROBE_SEED = 256, 9
 
 
 def bitmap_options(xml_text: str) -> dict[str, tuple[str, str, str]]:
@@ -42,25 +43,45 @@ def bitmap_options(xml_text: str) -> dict[str, tuple[str, str, str]]:
     return options
 
 
-def texture_sampling(
+def texture_probes(
     mi: ModuleType, params: Any, keys: tuple[str, ...], options: dict[str, tuple[str, str, str]]
 ) -> dict[str, dict[str, Any]]:
-    """Per texture ``data`` key: filter, wrap, to_uv (3x3 rows), note; plain data only."""
+    """Per texture ``data`` key, plain data to pin its lookup down: the scene XML's settings
+    (``filter``, ``wrap``, ``note``), ``to_uv`` (3x3 rows), the texels, and the texture's own
+    values at ``PROBES`` random UVs (``uv``, ``values``), which the caller matches against
+    every filter and wrap mode: a file used with several settings cannot fool that."""
+    import drjit as dr
     import numpy as np
 
+    rng = np.random.default_rng(PROBE_SEED)
     result = {}
     for key in keys:
         node = params.properties[key][2]
         match = re.search(r'name = "([^"]*)"', str(node))
         found = options.get(match.group(1) if match else "", None)
         filter_type, wrap, note = found or (DEFAULT_FILTER, DEFAULT_WRAP, "")
-        if found is None:
-            note = "settings not found in the scene XML (an inline bitmap?): Mitsuba's defaults"
         to_uv_key = key[: -len("data")] + "to_uv"
         matrix = np.eye(3)
         if to_uv_key in params.keys():
             matrix = np.array(params[to_uv_key].matrix, dtype=np.float64).reshape(3, 3)
-        result[key] = {"filter": filter_type, "wrap": wrap, "to_uv": matrix.tolist(), "note": note}
+        texels = np.array(params[key], dtype=np.float64)
+        uv = rng.uniform(-1.5, 2.5, (PROBES, 2))
+        with dr.suspend_grad():
+            si = dr.zeros(mi.SurfaceInteraction3f, PROBES)
+            si.uv = mi.Point2f(uv[:, 0], uv[:, 1])
+            if texels.shape[2] == 1:
+                values = np.array(node.eval_1(si), dtype=np.float64)[:, None]
+            else:
+                values = np.array(node.eval(si), dtype=np.float64).T
+        result[key] = {
+            "filter": filter_type,
+            "wrap": wrap,
+            "note": note,
+            "to_uv": matrix.tolist(),
+            "texels": texels,
+            "uv": uv,
+            "values": values,
+        }
     return result
 
 
