@@ -77,7 +77,10 @@ def _with_uv_note(field: TexelField, no_uv: set[str]) -> TexelField:
     missing = sorted(no_uv.intersection(field.record.owners))
     if not missing:
         return field
-    note = f"{', '.join(missing)} has no UV coordinates: Mitsuba reads texel (0, 0) wherever hit"
+    note = (
+        f"{', '.join(missing)} has no UV coordinates: Mitsuba looks the texture up at each "
+        "triangle's barycentric (b1, b2), so the field repeats per triangle"
+    )
     return replace(field, notes=(*field.notes, note))
 
 

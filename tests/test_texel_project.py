@@ -22,7 +22,7 @@ from sensaov_cli.spec.model import ChannelSpec, PoolSpec
 from sensaov_cli.views.texel_fields import texel_fields
 from sensaov_cli.views.texels import TextureSampling
 
-from .conftest import write_job
+from .conftest import use_scene, write_job
 
 QUAD = Path(__file__).parent / "scenes" / "texel_quad.xml"
 BLOCK = [0.25, 0.25, 0.75, 0.625]  # texels 2..5 across, 2..4 down: pixels 8..24 x 8..20
@@ -61,8 +61,8 @@ def _run(folder: Path, mi: ModuleType, filter_type: str, wrap: str, angle: int) 
         ],
         channels=[{"name": "tex", "kind": "texel", "pool": {"kind": "none"}}],
     )
+    use_scene(job, QUAD)
     spec = load_job(job)
-    spec = type(spec)(**{**spec.__dict__, "scene": QUAD})
     progress = Progress(quiet=True)
     run_job(spec, allow_python=False, progress=progress)
     project_job(spec, buffer_path=spec.output / "buffer.npz", progress=progress)

@@ -24,7 +24,7 @@ from sensaov_cli.spec.model import ChannelSpec
 from sensaov_cli.views.pooling import Pool, default_pool, pool_field
 from sensaov_cli.views.texels import TextureSampling
 
-COLOUR_TYPES = ("reflectance", "radiance", "transmittance")
+COLOUR_TYPES = ("reflectance", "radiance", "transmittance", "specular")
 
 
 @dataclass(frozen=True)
@@ -138,11 +138,13 @@ def _job_radius(channel: ChannelSpec, samples: int, size: tuple[int, int]) -> fl
 
 def _notes(record: ParamRecord, sampling: TextureSampling) -> tuple[str, ...]:
     notes = [sampling.note] if sampling.note else []
+    if record.trust == "no_gradient":
+        notes.append(f"no gradient reached this texture: {record.note}")
     if record.type not in COLOUR_TYPES:
         notes.append(
             f"this bitmap drives '{record.type}', not a colour: its texels are "
             f"{record.type} values and the layer has {record.shape[2]} channel(s)"
         )
-    if record.trust != "verified":
+    if record.trust not in ("verified", "no_gradient"):
         notes.append(f"gradient {record.trust}: {record.note}")
     return tuple(notes)

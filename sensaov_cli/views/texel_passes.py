@@ -82,7 +82,9 @@ def _common_metadata(tf: TexelField, seen: np.ndarray, notes: list[str]) -> dict
         "texels_seen": str(int(seen.sum())),
         "seen_empty_before_pool": str(int(np.count_nonzero(raw_seen == 0))),
         "seen_empty_after_pool": str(int(np.count_nonzero(pooled_seen == 0))),
-        "unverified": json.dumps([tf.record.key] if tf.record.trust != "verified" else []),
+        "unverified": json.dumps(
+            [tf.record.key] if tf.record.trust not in ("verified", "no_gradient") else []
+        ),
         "notes": " | ".join(notes),
     }
 
