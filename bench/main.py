@@ -17,6 +17,7 @@ from bench import (
     fig_passes,
     fig_process,
     fig_project,
+    fig_texels,
     machine,
     settings,
 )
@@ -99,6 +100,7 @@ def plan(
         (7, lambda: [fig_process.startup(ws, s, log)]),
         (8, lambda: [fig_passes.finite_differences(passes)] if passes else []),
         (9, lambda: [fig_buffer.buffer_io(ws, s, log)]),
+        (10, lambda: [fig_texels.texel_cost(ws, s, log)]),
     ]
 
 

@@ -64,8 +64,7 @@ def project_job(
     with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
         loaded = load_scene(_with_cameras(job, chosen), with_inspection_cameras=True)
     _check_objects(buffer, loaded, buffer_path)
-    texels = project_texels.prepare(job, buffer, loaded)  # camera-independent too
-    project_texels.write_domain_files(job.output, texels, buffer_path)
+    texels = project_texels.project_fields(job, buffer, loaded, buffer_path, progress)
     views = []
     for camera in chosen:
         stage = f"view_{camera.name}_s"

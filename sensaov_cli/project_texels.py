@@ -17,13 +17,14 @@ import numpy as np
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.texture_files import safe_file_stem, write_fig4_sheet, write_texture_files
+from sensaov_cli.progress import Progress
 from sensaov_cli.render.scene import LoadedScene
 from sensaov_cli.render.texture_modes import objects_without_uv, texture_probes
 from sensaov_cli.spec.model import JobSpec
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.texel_fields import TexelField, texel_fields, texture_keys
-from sensaov_cli.views.texel_passes import TexelPass, texel_passes
-from sensaov_cli.views.texels import FILTERS, WRAPS, TextureSampling, lookup
+from sensaov_cli.views.texel_passes import TexelPass, texel_passes, texture_footprint
+from sensaov_cli.views.texels import FILTERS, WRAPS, Footprint, TextureSampling, lookup
 
 PROBE_TOLERANCE = 1e-4  # relative to the texture's largest value; float32 lookups agree to ~1e-6
 
@@ -33,6 +34,22 @@ def check_texel_channels(job: JobSpec, buffer: SensitivityBuffer) -> None:
     for index, channel in enumerate(job.channels):
         if channel.kind == "texel":
             texture_keys(buffer, channel, index)
+
+
+def project_fields(
+    job: JobSpec,
+    buffer: SensitivityBuffer,
+    loaded: LoadedScene,
+    buffer_path: Path,
+    progress: Progress,
+) -> list[TexelField]:
+    """The texel fields (camera-independent) and their texture-domain files, timed."""
+    if not any(channel.kind == "texel" for channel in job.channels):
+        return []
+    with progress.stage("texels_s", "texel fields and <output>/textures"):
+        fields = prepare(job, buffer, loaded)
+        write_domain_files(job.output, fields, buffer_path)
+    return fields
 
 
 def prepare(job: JobSpec, buffer: SensitivityBuffer, loaded: LoadedScene) -> list[TexelField]:
@@ -97,8 +114,12 @@ def camera_layers(
 ) -> list[tuple[list[TexelPass], list[tuple[SensitivityLayer, float]]]]:
     """Per field, its three panels and the layers (with preview scales) they become."""
     result = []
+    footprints: dict[tuple[str, str], Footprint] = {}  # one per texture and lookup, not per field
     for field in fields:
-        passes = texel_passes(field, visibility)
+        look = (field.record.key, field.sampling.describe())
+        if look not in footprints:
+            footprints[look] = texture_footprint(field, visibility)
+        passes = texel_passes(field, visibility, footprints[look])
         layers = []
         for texel_pass in passes:
             metadata = {

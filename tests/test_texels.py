@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from sensaov_cli.views.pooling import Pool, default_pool, pool_field, seed_noise
-from sensaov_cli.views.texels import TextureSampling, lookup, paint_field, texels_seen
+from sensaov_cli.views.texels import TextureSampling, footprint, lookup
 
 
 def _rotation(degrees: float, scale: tuple[float, float], shift: tuple[float, float]) -> np.ndarray:
@@ -83,7 +83,24 @@ def test_painting_averages_owner_samples_only() -> None:
     sample_uv = uv.reshape(1, 1, 4, 2)
     sample_object = np.array([0, 1, 0, -1]).reshape(1, 1, 4)
     sampling = TextureSampling("nearest", "clamp")
-    painted = paint_field(texels, sampling, sample_uv, sample_object, np.array([1.0, 0.0]))
+    seen_by = footprint((2, 2), sampling, sample_uv, sample_object, np.array([0]))
+    painted = seen_by.paint(texels.reshape(4, 1), np.array([1.0]))
     assert painted[0, 0, 0] == pytest.approx(1.0)  # one owner sample of four reads 4
-    seen = texels_seen((2, 2), sampling, sample_uv, sample_object, np.array([0]))
-    assert seen.tolist() == [[False, True], [True, False]]
+    assert seen_by.seen((2, 2)).tolist() == [[False, True], [True, False]]
+    both = footprint((2, 2), sampling, sample_uv, sample_object, np.array([0, 1]))
+    assert both.paint(texels.reshape(4, 1), np.array([1.0, 0.5]))[0, 0, 0] == pytest.approx(1.5)
+
+
+def test_footprint_painting_equals_per_sample_lookups() -> None:
+    rng = np.random.default_rng(11)
+    texels = rng.normal(size=(5, 6, 3))
+    sample_uv = rng.uniform(-0.5, 1.5, (3, 4, 8, 2))
+    sample_object = rng.integers(-1, 3, (3, 4, 8))
+    sampling = TextureSampling("bilinear", "mirror", _rotation(20.0, (1.3, 0.9), (0.1, 0.0)))
+    factor = np.array([2.0, 0.0, -1.0])
+    seen_by = footprint((5, 6), sampling, sample_uv, sample_object, np.array([0, 1, 2]))
+    painted = seen_by.paint(texels.reshape(30, 3), factor)
+    per_sample = lookup(texels, sample_uv.reshape(-1, 2), sampling).reshape(3, 4, 8, 3)
+    weight = np.where(sample_object >= 0, factor[np.maximum(sample_object, 0)], 0.0)
+    expected = (per_sample * weight[..., None]).mean(axis=2)
+    assert np.allclose(painted, expected, atol=1e-5)

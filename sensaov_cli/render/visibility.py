@@ -62,6 +62,8 @@ def trace(
         table = mi.Int32(_object_of_registry_id(mi, scene, objects))
         hit = si.is_valid() & (registry < dr.width(table))
         index = dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)
+        if with_uv:  # one kernel for both: converting them apart would trace every ray twice
+            dr.eval(index, si.uv)
         samples = np.array(index, dtype=np.int32)
         uv = np.stack([np.array(si.uv.x), np.array(si.uv.y)], axis=-1) if with_uv else None
     coverage = histogram(samples.reshape(height * width, spp))

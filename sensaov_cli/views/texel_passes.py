@@ -22,7 +22,7 @@ import numpy as np
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.encoding import Encoding, Scale, choose_scale, encode_image
 from sensaov_cli.views.texel_fields import TexelField
-from sensaov_cli.views.texels import paint_field, texels_seen
+from sensaov_cli.views.texels import Footprint, footprint
 
 PANELS = ("object", "texel", "joint")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_]")
@@ -44,25 +44,34 @@ def texture_token(key: str) -> str:
     return _UNSAFE.sub("_", stem)
 
 
-def texel_passes(tf: TexelField, visibility: VisibilityPass) -> list[TexelPass]:
-    """The three panels of ``tf`` in this camera, with what each one means in its metadata."""
+def owners_in(tf: TexelField, visibility: VisibilityPass) -> list[str]:
+    """The texture's owners among this view's objects, in the order its footprint uses."""
+    return [o for o in tf.record.owners if o in visibility.objects]
+
+
+def texture_footprint(tf: TexelField, visibility: VisibilityPass) -> Footprint:
+    """How ``visibility``'s camera sees ``tf``'s texture (shared by objectives and panels)."""
     if visibility.sample_uv is None or visibility.sample_object is None:
         raise ValueError("texel passes need a visibility pass traced with UVs")
-    objects = visibility.objects
-    owners = np.array([objects.index(o) for o in tf.record.owners if o in objects], np.int64)
-    is_owner = np.zeros(len(objects))
-    is_owner[owners] = 1.0
-    seen = texels_seen(
+    owners = np.array([visibility.objects.index(o) for o in owners_in(tf, visibility)], np.int64)
+    return footprint(
         tf.raw.shape[:2], tf.sampling, visibility.sample_uv, visibility.sample_object, owners
     )
+
+
+def texel_passes(tf: TexelField, visibility: VisibilityPass, seen_by: Footprint) -> list[TexelPass]:
+    """The three panels of ``tf`` in this camera, with what each one means in its metadata."""
+    names = owners_in(tf, visibility)
+    is_owner = np.array([1.0 if o in names else 0.0 for o in visibility.objects])
+    seen = seen_by.seen(tf.raw.shape[:2])
     notes = list(tf.notes)
     if not seen.any():
         notes.append("no sample of this camera sees this texture (painted 0)")
     common = _common_metadata(tf, seen, notes)
     return [
         _object_panel(tf, visibility, is_owner, common),
-        _texel_panel(tf, visibility, is_owner, seen, common),
-        _joint_panel(tf, visibility, common),
+        _texel_panel(tf, seen_by, seen, common),
+        _joint_panel(tf, seen_by, names, common),
     ]
 
 
@@ -114,18 +123,11 @@ def _object_panel(
 
 
 def _texel_panel(
-    tf: TexelField,
-    visibility: VisibilityPass,
-    is_owner: np.ndarray,
-    seen: np.ndarray,
-    common: dict[str, str],
+    tf: TexelField, seen_by: Footprint, seen: np.ndarray, common: dict[str, str]
 ) -> TexelPass:
-    assert visibility.sample_uv is not None and visibility.sample_object is not None
     encoding = replace(Encoding.from_channel(tf.channel), aggregate="sum")
     field = np.abs(tf.pooled) if encoding.sign == "magnitude" else tf.pooled
-    painted = paint_field(
-        field, tf.sampling, visibility.sample_uv, visibility.sample_object, is_owner
-    )
+    painted = seen_by.paint(field, np.ones(max(len(tf.record.owners), 1)))
     peak = float(np.abs(field).max()) if field.size else 0.0
     scale = choose_scale(encoding, {"texel_peak": peak}, painted)
     data = encode_image(_as_layer_data(painted), encoding, scale.threshold, scale.scale)
@@ -145,21 +147,18 @@ def _texel_panel(
     return TexelPass(_name(tf, "texel"), "texel", data, scale, preview or 1.0, meta)
 
 
-def _joint_panel(tf: TexelField, visibility: VisibilityPass, common: dict[str, str]) -> TexelPass:
-    assert visibility.sample_uv is not None and visibility.sample_object is not None
-    share = tf.pooled / tf.unit_factor / tf.texel_area  # per unit UV area, whatever the units
-    inverse = np.zeros(len(visibility.objects))
-    for index, name in enumerate(visibility.objects):
-        value = tf.object_values.get(name, 0.0)
-        inverse[index] = 1.0 / value if value else 0.0
-    painted = paint_field(
-        share, tf.sampling, visibility.sample_uv, visibility.sample_object, inverse
-    )
+def _joint_panel(
+    tf: TexelField, seen_by: Footprint, names: list[str], common: dict[str, str]
+) -> TexelPass:
+    # A texel's share sums its components (scaling the whole texel), so the panel is one Y.
+    share = tf.pooled.sum(axis=2, keepdims=True) / tf.unit_factor / tf.texel_area
+    inverse = [1.0 / tf.object_values[n] if tf.object_values[n] else 0.0 for n in names]
+    painted = seen_by.paint(share, np.array(inverse))
     zero = [name for name, value in tf.object_values.items() if not value]
     meta = {
         **common,
         "panel": "joint",
-        "meaning": "each texel's share of its object's value, per unit UV area: c·H·W / V_object",
+        "meaning": "each texel's share of its object's value per unit UV area: Σ_rgb c·H·W / V",
         "encoding": "linear;signed;normalize=joint",
         "scale": Scale(0.0, 1.0).describe(),
         "panel_scale": "1.0 (the object's whole value spread evenly over the texture)",

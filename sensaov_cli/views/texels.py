@@ -58,8 +58,10 @@ def texel_weights(
     """
     height, width = size
     uv = np.asarray(uv, np.float64).reshape(-1, 2)
-    mapped = uv @ sampling.to_uv[:2, :2].T + sampling.to_uv[:2, 2]
-    x, y = mapped[:, 0] * width, mapped[:, 1] * height
+    (a, b, c), (d, e, f) = sampling.to_uv[:2]
+    u, v = uv[:, 0], uv[:, 1]
+    # Written out: numpy's matmul with an inner size of 2 is ~100x slower on millions of rows.
+    x, y = (a * u + b * v + c) * width, (d * u + e * v + f) * height
     if sampling.filter == "nearest":
         col = wrap_index(np.floor(x).astype(np.int64), width, sampling.wrap)
         row = wrap_index(np.floor(y).astype(np.int64), height, sampling.wrap)
@@ -67,11 +69,17 @@ def texel_weights(
     x, y = x - 0.5, y - 0.5
     x0, y0 = np.floor(x), np.floor(y)
     fx, fy = x - x0, y - y0
-    cols = [wrap_index(x0.astype(np.int64) + d, width, sampling.wrap) for d in (0, 1)]
-    rows = [wrap_index(y0.astype(np.int64) + d, height, sampling.wrap) for d in (0, 1)]
-    index = np.stack([rows[j] * width + cols[i] for j in (0, 1) for i in (0, 1)], axis=1)
-    wx, wy = [1 - fx, fx], [1 - fy, fy]
-    weight = np.stack([wy[j] * wx[i] for j in (0, 1) for i in (0, 1)], axis=1)
+    col0, row0 = x0.astype(np.int64), y0.astype(np.int64)
+    cols = np.stack(
+        [wrap_index(col0, width, sampling.wrap), wrap_index(col0 + 1, width, sampling.wrap)], 1
+    )
+    rows = np.stack(
+        [wrap_index(row0, height, sampling.wrap), wrap_index(row0 + 1, height, sampling.wrap)], 1
+    )
+    index = (rows[:, :, None] * width + cols[:, None, :]).reshape(-1, 4)
+    wx = np.stack([1 - fx, fx], axis=1)
+    wy = np.stack([1 - fy, fy], axis=1)
+    weight = (wy[:, :, None] * wx[:, None, :]).reshape(-1, 4)
     return index, weight
 
 
@@ -83,41 +91,84 @@ def lookup(texels: np.ndarray, uv: np.ndarray, sampling: TextureSampling) -> np.
     return np.einsum("nk,nkc->nc", weight, flat[index])
 
 
-def paint_field(
-    texels: np.ndarray,
-    sampling: TextureSampling,
-    sample_uv: np.ndarray,
-    sample_object: np.ndarray,
-    owner_scale: np.ndarray,
-) -> np.ndarray:
-    """(H, W, C) per-pixel mean over samples of the field at each sample's UV.
+@dataclass(frozen=True)
+class Footprint:
+    """How one camera sees one texture: per (pixel, texel, owner) the lookup weight summed over
+    the pixel's samples, divided by spp. Built once per texture and camera; every panel and
+    objective then paints with a gather and a bincount over these pairs, not over samples."""
 
-    ``owner_scale[object]`` multiplies a sample that hit ``object`` (0 where the object does not
-    own the texture): 1 paints the field, 1/V paints each texel's share of its object's value.
-    Background and non-owners contribute 0, so a pixel is averaged with its coverage.
-    """
-    height, width, spp = sample_object.shape
-    out = np.zeros((height * width * spp, texels.shape[2]), np.float64)
-    obj = sample_object.reshape(-1)
-    factor = np.where(obj >= 0, np.asarray(owner_scale, np.float64)[np.maximum(obj, 0)], 0.0)
-    hit = np.flatnonzero(factor != 0)
-    if hit.size:
-        values = lookup(texels, sample_uv.reshape(-1, 2)[hit], sampling)
-        out[hit] = values * factor[hit, None]
-    return out.reshape(height, width, spp, -1).mean(axis=2).astype(np.float32)
+    size: tuple[int, int]  # (height, width) of the image
+    texels: int  # H x W of the texture
+    pixel: np.ndarray  # (P,) int64 flat pixel index
+    texel: np.ndarray  # (P,) int64 flat texel index
+    owner: np.ndarray  # (P,) int64 position in the owners the footprint was built for
+    weight: np.ndarray  # (P,) float64: Σ lookup weights / spp
+
+    def paint(self, field: np.ndarray, owner_factor: np.ndarray) -> np.ndarray:
+        """(H, W, C): each pixel's coverage-weighted mean of ``field`` (T, C) at its samples,
+        a sample that hit owner ``o`` multiplied by ``owner_factor[o]``."""
+        flat = np.asarray(field, np.float64).reshape(self.texels, -1)
+        weight = self.weight * np.asarray(owner_factor, np.float64)[self.owner]
+        pixels = self.size[0] * self.size[1]
+        out = np.empty((pixels, flat.shape[1]), np.float64)
+        for channel in range(flat.shape[1]):
+            values = weight * flat[self.texel, channel]
+            out[:, channel] = np.bincount(self.pixel, weights=values, minlength=pixels)
+        return out.reshape(*self.size, -1).astype(np.float32)
+
+    def seen(self, size: tuple[int, int]) -> np.ndarray:
+        """(H, W) bool over the texture: texels some owner sample reads with non-zero weight."""
+        seen = np.zeros(self.texels, bool)
+        seen[self.texel[self.weight > 0]] = True
+        return seen.reshape(size)
 
 
-def texels_seen(
+def footprint(
     size: tuple[int, int],
     sampling: TextureSampling,
     sample_uv: np.ndarray,
     sample_object: np.ndarray,
     owners: np.ndarray,
-) -> np.ndarray:
-    """(H, W) bool: texels a lookup of some sample of an owner reads with non-zero weight."""
-    hit = np.isin(sample_object.reshape(-1), owners)
-    seen = np.zeros(size[0] * size[1], bool)
-    if hit.any():
-        index, weight = texel_weights(sample_uv.reshape(-1, 2)[hit], size, sampling)
-        seen[index[weight > 0]] = True
-    return seen.reshape(size)
+) -> Footprint:
+    """The :class:`Footprint` of a texture of ``size`` texels owned by object indices ``owners``."""
+    height, width, spp = sample_object.shape
+    objects = sample_object.reshape(-1)
+    position = np.full(max(int(objects.max(initial=0)), int(np.max(owners, initial=0))) + 2, -1)
+    position[np.asarray(owners, np.int64)] = np.arange(len(owners))
+    hits = np.flatnonzero(position[objects] >= 0)  # background (-1) reads the last entry: -1
+    texels = size[0] * size[1]
+    if not hits.size:
+        empty = np.zeros(0, np.int64)
+        return Footprint((height, width), texels, empty, empty, empty, np.zeros(0))
+    index, weight = texel_weights(sample_uv.reshape(-1, 2)[hits], size, sampling)
+    owner = position[objects[hits]]
+    # Group the samples of a pixel that read the same texels (the common case: a pixel is
+    # smaller than a texel), summing their corner weights; keys are already sorted by pixel,
+    # so a stable sort only merges short runs. A group is keyed by its first texel, how its
+    # second row and column follow from it (``_step``) and its owner.
+    corners = index.shape[1]
+    key = (hits // spp) * texels + index[:, 0]
+    if corners == 4:
+        row, col = np.divmod(index[:, [0, 3]], size[1])  # first and last texel's row, column
+        key = (key * 3 + _step(row[:, 0], row[:, 1])) * 3 + _step(col[:, 0], col[:, 1])
+    key = key * len(owners) + owner
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    starts = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1])))
+    summed = np.add.reduceat(weight[order], starts, axis=0) / spp  # (G, corners)
+    first = order[starts]
+    pixel = np.repeat(hits[first] // spp, corners)
+    return Footprint(
+        (height, width),
+        texels,
+        pixel,
+        index[first].reshape(-1),
+        np.repeat(owner[first], corners),
+        summed.reshape(-1),
+    )
+
+
+def _step(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """0 when ``second`` is the row (column) after ``first``, 1 when the same one (clamp and
+    mirror at an edge, or a texture one texel wide), 2 when it wrapped round to 0 (repeat)."""
+    return np.where(second == first + 1, 0, np.where(second == first, 1, 2))
