@@ -22,6 +22,7 @@ from sensaov_cli.outputs.atomic import atomic_write_all
 from sensaov_cli.outputs.exr import exr_writer
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, write_png
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
+from sensaov_cli.views.pooling import white_noise_factor
 from sensaov_cli.views.texel_fields import TexelField
 from sensaov_cli.views.texel_passes import TexelPass
 
@@ -78,6 +79,7 @@ def _attributes(field: TexelField, buffer_path: Path) -> dict[str, str]:
         "weight": field.channel.weight,
         "units": field.channel.units,
         "pool": field.pool.describe(),
+        "pool_white_noise_factor": white_noise_factor(field.pool),
         "lookup": field.sampling.describe(),
         "signed_sum": field.signed_sum,
         "raw_peak": float(np.abs(field.raw).max()),

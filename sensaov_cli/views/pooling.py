@@ -44,6 +44,22 @@ def default_pool(spp: int, pixels: int, size: tuple[int, int]) -> Pool:
     return Pool("gaussian", sigma, f"auto: sqrt({TARGET_SAMPLES:g} / (spp*pixels/texels))")
 
 
+def white_noise_factor(pool: Pool) -> float:
+    """How much pooling divides the standard deviation of independent per-texel noise away
+    from edges: sqrt(Σ w²) of the 2-D kernel. Texel noise is correlated (a bilinear lookup
+    spreads each gradient sample over four texels), so the measured reduction is smaller:
+    docs/texels.md and bench figure 10 give it."""
+    if pool.kind == "none" or pool.radius <= 0:
+        return 1.0
+    if pool.kind == "mip":
+        return 1.0 / 2 ** int(round(pool.radius))
+    impulse = np.zeros((1, 8 * int(math.ceil(3 * pool.radius)) + 9, 1))
+    impulse[0, impulse.shape[1] // 2, 0] = 1.0
+    row = pool_field(np.repeat(impulse, 1, axis=0), Pool(pool.kind, pool.radius, ""), "repeat")
+    one_axis = float(np.sum(row[0, :, 0] ** 2))  # pooling a 1-row field spreads along x only
+    return math.sqrt(one_axis * one_axis)
+
+
 def pool_field(field: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
     """``field`` (H, W, C) pooled; float64, same shape, same sum (to rounding)."""
     data = np.asarray(field, np.float64)
