@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import ModuleType
 
 import numpy as np
@@ -15,6 +16,8 @@ def _rotation(degrees: float, scale: tuple[float, float], shift: tuple[float, fl
     c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
     rotate = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
     return np.array([[scale[0], 0, shift[0]], [0, scale[1], shift[1]], [0, 0, 1.0]]) @ rotate
+
+SCENE = Path(__file__).parents[1] / "scenes" / "cbox" / "scene.xml"
 
 
 @pytest.mark.parametrize("filter_type", ["bilinear", "nearest"])
@@ -104,3 +107,28 @@ def test_footprint_painting_equals_per_sample_lookups() -> None:
     weight = np.where(sample_object >= 0, factor[np.maximum(sample_object, 0)], 0.0)
     expected = (per_sample * weight[..., None]).mean(axis=2)
     assert np.allclose(painted, expected, atol=1e-5)
+
+
+def test_the_job_knows_texel_channels_and_refuses_their_keys_elsewhere(tmp_path: Path) -> None:
+    from sensaov_cli.errors import SpecError
+    from sensaov_cli.spec.load import load_job
+
+    def job(channel: str) -> Path:
+        path = tmp_path / "job.yaml"
+        path.write_text(
+            f"version: 1\nscene: {SCENE}\nobjectives: [{{name: m, type: mean_luminance}}]\n"
+            f"channels:\n  - {channel}\n"
+        )
+        return path
+
+    spec = load_job(job("{name: t, kind: texel, pool: {kind: box, radius: 2}, units: uv_area}"))
+    (channel,) = spec.channels
+    assert (channel.pool.kind, channel.pool.radius, channel.units) == ("box", 2.0, "uv_area")
+    for bad, where in [
+        ("{name: t, kind: texel, pool: {kind: blur}}", "channels[0].pool.kind"),
+        ("{name: t, kind: select, select: '*', pool: {kind: box}}", "channels[0]"),
+        ("{name: t, kind: texel, units: pixels}", "channels[0].units"),
+    ]:
+        with pytest.raises(SpecError) as error:
+            load_job(job(bad))
+        assert where in str(error.value) + str(getattr(error.value, "where", ""))

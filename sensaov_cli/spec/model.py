@@ -228,6 +228,11 @@ class ChannelSpec:
         In("select", required=True, doc="fnmatch glob over parameter keys."),
         In("texel", doc="fnmatch glob over texture keys; null = every texture in the buffer."),
     ] = None
+    weight: Weight = "value"
+    sign: Sign = "signed"
+    aggregate: Aggregate = "l2"
+    tonemap: Tonemap = "none"
+    normalize: Normalize = "none"
     pool: Annotated[
         PoolSpec | None,
         In("texel"),
@@ -238,11 +243,6 @@ class ChannelSpec:
         In("texel"),
         Doc("texel: θ·∂M/∂θ of each texel; uv_area: per unit UV area (resolution-free)."),
     ] = "texel"
-    weight: Weight = "value"
-    sign: Sign = "signed"
-    aggregate: Aggregate = "l2"
-    tonemap: Tonemap = "none"
-    normalize: Normalize = "none"
 
 
 def _inspection_name(camera: CameraSpec) -> CameraSpec:
