@@ -57,8 +57,11 @@ def texel_weights(
     k = 4 for bilinear, 1 for nearest; the weights of each hit sum to 1.
     """
     height, width = size
-    uv = np.asarray(uv, np.float64).reshape(-1, 2)
-    (a, b, c), (d, e, f) = sampling.to_uv[:2]
+    # float32 UVs stay float32 (Mitsuba computes its lookup in float32 too): half the traffic.
+    uv = np.asarray(uv).reshape(-1, 2)
+    if uv.dtype != np.float32:
+        uv = uv.astype(np.float64)
+    (a, b, c), (d, e, f) = (map(float, row) for row in sampling.to_uv[:2])
     u, v = uv[:, 0], uv[:, 1]
     # Written out: numpy's matmul with an inner size of 2 is ~100x slower on millions of rows.
     x, y = (a * u + b * v + c) * width, (d * u + e * v + f) * height
@@ -70,16 +73,14 @@ def texel_weights(
     x0, y0 = np.floor(x), np.floor(y)
     fx, fy = x - x0, y - y0
     col0, row0 = x0.astype(np.int64), y0.astype(np.int64)
-    cols = np.stack(
-        [wrap_index(col0, width, sampling.wrap), wrap_index(col0 + 1, width, sampling.wrap)], 1
-    )
-    rows = np.stack(
-        [wrap_index(row0, height, sampling.wrap), wrap_index(row0 + 1, height, sampling.wrap)], 1
-    )
-    index = (rows[:, :, None] * width + cols[:, None, :]).reshape(-1, 4)
-    wx = np.stack([1 - fx, fx], axis=1)
-    wy = np.stack([1 - fy, fy], axis=1)
-    weight = (wy[:, :, None] * wx[:, None, :]).reshape(-1, 4)
+    c0, c1 = wrap_index(col0, width, sampling.wrap), wrap_index(col0 + 1, width, sampling.wrap)
+    r0, r1 = wrap_index(row0, height, sampling.wrap), wrap_index(row0 + 1, height, sampling.wrap)
+    r0, r1 = r0 * width, r1 * width
+    index = np.empty((len(uv), 4), np.int64)  # corners (r0,c0), (r0,c1), (r1,c0), (r1,c1)
+    index[:, 0], index[:, 1], index[:, 2], index[:, 3] = r0 + c0, r0 + c1, r1 + c0, r1 + c1
+    gx, gy = 1 - fx, 1 - fy
+    weight = np.empty((len(uv), 4), fx.dtype)
+    weight[:, 0], weight[:, 1], weight[:, 2], weight[:, 3] = gy * gx, gy * fx, fy * gx, fy * fx
     return index, weight
 
 
