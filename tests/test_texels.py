@@ -17,6 +17,7 @@ def _rotation(degrees: float, scale: tuple[float, float], shift: tuple[float, fl
     rotate = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
     return np.array([[scale[0], 0, shift[0]], [0, scale[1], shift[1]], [0, 0, 1.0]]) @ rotate
 
+
 SCENE = Path(__file__).parents[1] / "scenes" / "cbox" / "scene.xml"
 
 
