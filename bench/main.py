@@ -19,6 +19,7 @@ from bench import (
     fig_passes,
     fig_process,
     fig_project,
+    fig_texels,
     machine,
     settings,
 )
@@ -103,6 +104,7 @@ def plan(
         (9, lambda: [fig_buffer.buffer_io(ws, s, log)]),
         (10, lambda: [fig_farm.farm(ws, s, log)]),
         (11, lambda: [fig_forward.forward_cost(ws, s, log)]),
+        (12, lambda: [fig_texels.texel_cost(ws, s, log)]),
     ]
 
 

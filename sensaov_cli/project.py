@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sensaov_cli import interrupts
+from sensaov_cli import interrupts, project_texels
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.errors import FingerprintMismatch, SpecError
 from sensaov_cli.forward import projected_layers
@@ -30,6 +30,7 @@ from sensaov_cli.spec.model import CameraSpec, JobSpec
 from sensaov_cli.views.channels import ChannelValues, channel_values
 from sensaov_cli.views.coverage import VisibilityPass, ranked
 from sensaov_cli.views.painting import paint_pass
+from sensaov_cli.views.texel_fields import TexelField
 
 DEFAULT_BEAUTY_SPP = 4  # a quick reference for the compositor; it is a full path trace
 OBJECTIVE_CAMERA = CameraSpec("objective", objective=True)
@@ -68,16 +69,18 @@ def project_job(
     )
     passes = channel_values(buffer, job.channels)  # camera-independent: computed once
     forward = projected_layers(job, buffer, buffer_path, progress)  # the objective camera's
+    project_texels.check_texel_channels(job, buffer)
     with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
         loaded = load_scene(_with_cameras(job, chosen), with_inspection_cameras=True)
     _check_objects(buffer, loaded, buffer_path)
+    texels = project_texels.project_fields(job, buffer, loaded, buffer_path, progress)
     views = []
     for camera in chosen:
         stage = f"view_{camera.name}_s"
         with progress.stage(stage, f"view '{camera.name}'"):
             view = _project_camera(
                 job, buffer, buffer_path, loaded, camera, passes, png, beauty_spp,
-                forward if camera.objective else [],
+                forward if camera.objective else [], texels,
             )  # fmt: skip
         views.append(replace(view, seconds=progress.timings[stage]))
     return views
@@ -135,10 +138,17 @@ def _project_camera(
     png: bool,
     beauty_spp: int,
     forward: list[tuple[SensitivityLayer, float]],
+    texels: list[TexelField],
 ) -> ProjectedView:
     sensor = loaded.inspection_sensors[camera.name]
     visibility = trace(
-        loaded.mi, loaded.scene, sensor, buffer.objects, camera.vis_spp, seed=job.render.seed
+        loaded.mi,
+        loaded.scene,
+        sensor,
+        buffer.objects,
+        camera.vis_spp,
+        seed=job.render.seed,
+        with_uv=bool(texels),
     )
     beauty = render_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed)
     layers = [_layer(p, visibility, buffer_path, camera) for p in passes]
@@ -150,6 +160,8 @@ def _project_camera(
             where=f"inspection_cameras: {camera.name}",
             hint="leave that camera's resolution null",
         )
+    panels = project_texels.camera_layers(texels, visibility, buffer_path, camera.name)
+    layers += [layer for _, texel_layers in panels for layer in texel_layers]
     crypto = CryptoLayer(
         "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage
     )
@@ -171,6 +183,9 @@ def _project_camera(
         from sensaov_cli.outputs.contact_sheets import write_previews
 
         previews = write_previews(job.output / "previews", camera.name, layers, beauty, visibility)
+        previews += project_texels.write_fig4_sheets(
+            job.output / "previews", camera.name, texels, panels
+        )
     return ProjectedView(
         camera.name, path, visibility.width, visibility.height, visibility.spp, 0.0, previews
     )

@@ -52,3 +52,10 @@ def sensaov(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[
     return subprocess.run(
         [sys.executable, "-m", "sensaov_cli", *args], cwd=cwd, capture_output=True, text=True
     )
+
+
+def use_scene(job: Path, scene: Path) -> None:
+    """Point a job ``write_job`` wrote at a scene outside ``scenes/`` (a test's own)."""
+    data = yaml.safe_load(job.read_text())
+    data["scene"] = str(scene)
+    job.write_text(yaml.safe_dump(data, sort_keys=False))

@@ -55,9 +55,7 @@ IMAGES = [
     Case(name.stem, "run", "target_job.yaml", extra=name.name)
     for name in sorted(CORPUS.glob("target_*.exr"))
 ]
-BUFFERS = [
-    Case(f"buffer {name}", "rank", f"buffer:{name}") for name in MAKERS
-] + [
+BUFFERS = [Case(f"buffer {name}", "rank", f"buffer:{name}") for name in MAKERS] + [
     Case("buffer.npz is a directory", "rank", "buffer:dir"),
     Case("project: buffer.npz is a directory", "project", "buffer:dir"),
 ]

@@ -73,8 +73,9 @@ def row_of(text: str, key: str) -> str:
     return row
 
 
-# The text of make_buffer() before trust labels existed: a buffer with no suspect and no
-# zero-gradient parameter must still print exactly this.
+# The text of make_buffer() before trust labels existed (with the signed sum and its rank
+# beside each object's and type's score since texel channels): a buffer with no suspect and
+# no zero-gradient parameter must still print exactly this.
 BEFORE_LABELS = """\
 sensitivity buffer: 3 parameters, 4 objects, 1 objective · scene scenes/cbox.xml · variant llvm_ad_rgb · spp 16
 scores: l2 of theta * dM/dtheta over each group's components
@@ -87,16 +88,16 @@ objective 'brightness'   M = 0.125
     2     4.00e-02  +4.00e-02  radiance     lamp.emitter.radiance.value  lamp
     3     3.00e-03  +5.00e-03  reflectance  wall.bsdf.reflectance.value  wall
   objects (top 4 of 4)
-    #        score  object
-    1  !  5.00e-01  floor
-    2     4.00e-02  lamp
-    3     3.00e-03  wall
-    4     0.00e+00  ceiling
+    #        score     signed  #sum  object
+    1  !  5.00e-01  -5.00e-01     1  floor
+    2     4.00e-02  +4.00e-02     2  lamp
+    3     3.00e-03  +5.00e-03     3  wall
+    4     0.00e+00  +0.00e+00     4  ceiling
   types
-    #        score  type
-    1  !  5.00e-01  roughness
-    2     4.00e-02  radiance
-    3     3.00e-03  reflectance
+    #        score     signed  #sum  type
+    1  !  5.00e-01  -5.00e-01     1  roughness
+    2     4.00e-02  +4.00e-02     2  radiance
+    3     3.00e-03  +5.00e-03     3  reflectance
   ! = unverified gradient, do not trust the number:
       floor.bsdf.alpha.value: known biased: roughplastic alpha gradient ~5x too small
     objects and types marked ! include such a parameter

@@ -39,7 +39,7 @@ def write_previews(
     written = []
     sheets: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
     for layer, scale in layers:
-        values = _signed(layer.data)
+        values = _signed(layer)
         rgb = diverging_rgb(values, scale)
         if beauty is not None:
             rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
@@ -64,7 +64,7 @@ def write_previews(
         marked = layer.metadata.get("duality", "agrees") != "agrees"  # a transport layer's check
         mark = " !" if marked or json.loads(layer.metadata.get("unverified", "[]")) else ""
         title = f"{layer.pass_name} +-{scale:.2e}{mark}"
-        if not layer.data.any() and json.loads(layer.metadata.get("invisible", "[]")):
+        if not values.any() and json.loads(layer.metadata.get("invisible", "[]")):
             title = f"{layer.pass_name}: unseen{mark}"  # it matters; this camera does not see it
         sheets[layer.objective].append((title, tile))
     for objective, tiles in sheets.items():
@@ -80,9 +80,15 @@ def write_previews(
     return tuple(written)
 
 
-def _signed(data: np.ndarray) -> np.ndarray:
-    """One signed value per pixel: an RGB pass (a forward channel's J·v) by its luminance."""
-    return data if data.ndim == 2 else data[..., :3] @ np.array(REC709_LUMA, data.dtype)
+def _signed(layer: SensitivityLayer) -> np.ndarray:
+    """One signed value per pixel. An RGB image (a forward channel's J·v) by its luminance; an
+    RGB texel field by the sum of its components, the effect of scaling all three together."""
+    data = layer.data
+    if data.ndim == 2:
+        return data
+    if layer.metadata.get("kind") in ("forward", "transport"):
+        return data[..., :3] @ np.array(REC709_LUMA, data.dtype)
+    return data.sum(axis=2)
 
 
 def _enlarged(tile: np.ndarray) -> np.ndarray:

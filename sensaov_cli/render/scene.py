@@ -10,7 +10,7 @@ from __future__ import annotations
 import fnmatch
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -19,6 +19,7 @@ from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
 from sensaov_cli.errors import SceneError
 from sensaov_cli.render.runtime import import_mitsuba
 from sensaov_cli.render.scene_xml import files_fingerprint, prepare_scene_xml
+from sensaov_cli.render.texture_modes import bitmap_options
 from sensaov_cli.render.trust import verification_status
 from sensaov_cli.spec.model import JobSpec
 
@@ -88,6 +89,8 @@ class LoadedScene:
     scene_args: dict[str, str]  # every $name the scene used and the value it got
     scene_sample_count: int | None  # the scene's own spp (a default: the job's spp renders)
     replaced_integrator: str | None  # the scene's integrator when it renders other transport
+    # bitmap file base name -> (filter_type, wrap_mode, note), for texel fields
+    bitmap_options: dict[str, tuple[str, str, str]] = field(default_factory=dict)
 
     @property
     def integrator_type(self) -> str:
@@ -139,6 +142,7 @@ def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> Loaded
         scene_args={name: arg.value for name, arg in prepared.scene_args.items()},
         scene_sample_count=prepared.sample_count,
         replaced_integrator=prepared.replaced_integrator,
+        bitmap_options=bitmap_options(prepared.text),
     )
 
 

@@ -62,16 +62,22 @@ def trace(
         table = mi.Int32(_object_of_registry_id(mi, scene, objects))
         hit = si.is_valid() & (registry < dr.width(table))
         index = dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)
+        if with_uv:  # one kernel for both: converting them apart would trace every ray twice
+            dr.eval(index, si.uv)
         samples = np.array(index, dtype=np.int32)
-        uv = np.stack([np.array(si.uv.x), np.array(si.uv.y)], axis=-1) if with_uv else None
+        uv = None
+        if with_uv:
+            uv = np.empty((samples.size, 2), np.float32)
+            uv[:, 0], uv[:, 1] = np.array(si.uv.x), np.array(si.uv.y)
     coverage = histogram(samples.reshape(height * width, spp))
     rank_index, rank_coverage = ranked(coverage, (height, width), spp)
-    sample_uv = None
+    sample_uv = sample_object = None
     if uv is not None:
         uv[samples == BACKGROUND] = 0.0
-        sample_uv = uv.astype(np.float32).reshape(height, width, spp, 2)
+        sample_uv = uv.reshape(height, width, spp, 2)
+        sample_object = samples.reshape(height, width, spp)
     return VisibilityPass(
-        width, height, spp, objects, sample_uv, coverage, rank_index, rank_coverage
+        width, height, spp, objects, sample_uv, coverage, rank_index, rank_coverage, sample_object
     )
 
 

@@ -68,8 +68,10 @@ Variant = Literal[
     "cuda_ad_spectral",
 ]
 ObjectiveType = Literal["mean_luminance", "region_luminance", "l2_to_target", "python"]
-ChannelKind = Literal["object", "type", "select", "transport"]
+ChannelKind = Literal["object", "type", "select", "transport", "texel"]
 Direction = Literal["value", "ones"]  # θ-weighted (a proportional change) | one per component
+PoolKind = Literal["gaussian", "box", "mip", "none"]
+TexelUnits = Literal["texel", "uv_area"]
 # The shapes of a camera: an inspection camera's, named by the key that picks its kind, and
 # the mapping that places the objective camera.
 LOOK_AT, SENSOR, OBJECTIVE, PLACED = "look_at", "sensor", "objective", "placed"
@@ -217,6 +219,20 @@ class ObjectiveSpec:
 
 
 @dataclass(frozen=True)
+class PoolSpec(Section):
+    """Sum-conserving pooling of a texel field (paper §6): texel gradients are sparse."""
+
+    kind: Annotated[PoolKind, Doc("gaussian, box, mip (block sums) or none.")] = "gaussian"
+    radius: Annotated[
+        float | None,
+        STRICT,
+        Ge(0),
+        Lt(4096),
+        Doc("In texels (gaussian: sigma; box: half-width; mip: log2 of the block); null = auto."),
+    ] = None
+
+
+@dataclass(frozen=True)
 class ChannelSpec:
     """A sensitivity image layer: a selection of parameters, aggregated and encoded."""
 
@@ -228,7 +244,9 @@ class ChannelSpec:
         Doc("Parameter types to show; null = all present."),
     ] = None
     select: Annotated[
-        Text | None, In("select", required=True), Doc("fnmatch glob over parameter keys.")
+        Text | None,
+        In("select", required=True, doc="fnmatch glob over parameter keys."),
+        In("texel", doc="fnmatch glob over texture keys; null = every texture in the buffer."),
     ] = None
     weight: Weight = "value"
     sign: Sign = "signed"
@@ -238,6 +256,16 @@ class ChannelSpec:
     top: Annotated[
         int, STRICT, Ge(1), Lt(65), In("transport"), Doc("Objects per objective (top by l2).")
     ] = 3
+    pool: Annotated[
+        PoolSpec | None,
+        In("texel"),
+        Doc("How the texel field is pooled before projection; null = chosen from spp and size."),
+    ] = None
+    units: Annotated[
+        TexelUnits,
+        In("texel"),
+        Doc("texel: θ·∂M/∂θ of each texel; uv_area: per unit UV area (resolution-free)."),
+    ] = "texel"
 
 
 @dataclass(frozen=True)

@@ -41,7 +41,7 @@ def channel_values(
     passes = []
     for objective in buf.objectives:
         for index, channel in enumerate(channels):
-            if channel.kind == "transport":  # rendered by 'run' (views.transport), not painted
+            if channel.kind in ("transport", "texel"):  # rendered by run / painted through UVs
                 continue
             for pass_name, selection, keys in _selections(buf, channel, index):
                 passes.append(_values(buf, objective.name, channel, pass_name, selection, keys))

@@ -48,6 +48,7 @@ class VisibilityPass:
     coverage: Coverage
     rank_index: np.ndarray  # (H, W, RANKS) int32, objects by decreasing coverage, -1 = empty
     rank_coverage: np.ndarray  # (H, W, RANKS) float32
+    sample_object: np.ndarray | None = None  # (H, W, S) int32 object index per sample, with UVs
 
     @property
     def coverage_hit(self) -> np.ndarray:

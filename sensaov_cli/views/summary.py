@@ -139,9 +139,14 @@ def _group_entries(
     method: Aggregate,
     top: int | None,
 ) -> list[dict[str, Any]]:
+    # The signed sum beside every score, with its own rank: a texture's l2 is about
+    # 1/sqrt(texels) of its sum, so l2 and sum can rank one group far apart (docs/encoding.md).
+    sums = scores(stats, grouped, "sum")
+    sum_rank = {name: i for i, (name, _) in enumerate(rank(sums), 1)}
     entries = []
     for name, score in rank(scores(stats, grouped, method), top):
         trust = weakest_trust(buf, grouped[name])
-        entries.append({field: name, "score": score, "verified": trust == "verified",
+        entries.append({field: name, "score": score, "signed": sums[name],
+                        "signed_rank": sum_rank[name], "verified": trust == "verified",
                         "trust": trust})  # fmt: skip
     return entries

@@ -1,0 +1,129 @@
+"""Texel fields in the texture's own domain, and Fig. 4's three-panel contact sheet.
+
+``<output>/textures/<texture>.<objective>.exr`` holds the field at the texture's resolution and
+in its UV layout (row 0 = the bitmap's first row, v = 0), what a texture artist opens beside
+the texture itself: ``raw`` (unpooled contributions) and ``pooled`` (the channel's units), as
+``Y`` or ``R, G, B``. A PNG preview of the pooled field sits beside it. File names come from the
+texture key with everything outside ``[A-Za-z0-9_-]`` replaced, plus a short hash of the key
+when that changed it, so two keys never share a file. Layout: ``docs/exr-layout.md``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from sensaov_cli.outputs.atomic import atomic_write_all
+from sensaov_cli.outputs.exr import exr_writer
+from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, write_png
+from sensaov_cli.outputs.provenance import made_by, provenance_attributes
+from sensaov_cli.views.pooling import white_noise_factor
+from sensaov_cli.views.texel_fields import TexelField
+from sensaov_cli.views.texel_passes import TexelPass
+
+FORMAT_NAME = "sensaov-texel-exr"
+FORMAT_VERSION = 1
+_UNSAFE = re.compile(r"[^A-Za-z0-9_-]")
+TILE_WIDTH = 256
+
+
+def safe_file_stem(key: str) -> str:
+    """``a/b.c`` -> ``a_b_c-<6 hex>``: safe on every file system, unique per key."""
+    stem = _UNSAFE.sub("_", key[: -len(".data")] if key.endswith(".data") else key)
+    if stem != key:
+        stem += "-" + hashlib.sha256(key.encode()).hexdigest()[:6]
+    return stem
+
+
+def texture_paths(folder: Path, fields: Sequence[TexelField]) -> list[Path]:
+    return [folder / f"{safe_file_stem(f.record.key)}.{f.objective}.exr" for f in fields]
+
+
+def write_texture_files(
+    folder: Path, fields: Sequence[TexelField], buffer_path: Path
+) -> tuple[Path, ...]:
+    """One EXR and one PNG per (texture, objective), all replaced together."""
+    files: list[tuple[Path, Callable[[Path], None]]] = []
+    for field, path in zip(fields, texture_paths(folder, fields), strict=True):
+        files.append((path, exr_writer(_channels(field), _attributes(field, buffer_path))))
+        files.append((path.with_suffix(".png"), _png_writer(field)))
+    folder.mkdir(parents=True, exist_ok=True)
+    atomic_write_all(files)
+    return tuple(path for path, _ in files)
+
+
+def _channels(field: TexelField) -> dict[str, np.ndarray]:
+    names = ("R", "G", "B") if field.raw.shape[2] == 3 else tuple(f"C{i}" for i in range(9))
+    if field.raw.shape[2] == 1:
+        names = ("Y",)
+    out = {}
+    for part, data in (("raw", field.raw), ("pooled", field.pooled)):
+        for index in range(data.shape[2]):
+            out[f"{part}.{names[index]}"] = data[..., index].astype(np.float32)
+    return out
+
+
+def _attributes(field: TexelField, buffer_path: Path) -> dict[str, str]:
+    made = {**made_by("project"), "buffer": str(buffer_path)}
+    info = {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "texture": field.record.key,
+        "objective": field.objective,
+        "channel": field.channel.name,
+        "weight": field.channel.weight,
+        "units": field.channel.units,
+        "pool": field.pool.describe(),
+        "pool_white_noise_factor": white_noise_factor(field.pool),
+        "lookup": field.sampling.describe(),
+        "signed_sum": field.signed_sum,
+        "raw_peak": float(np.abs(field.raw).max()),
+        "pooled_peak": float(np.abs(field.pooled).max()),
+        "owners": list(field.record.owners),
+        "trust": field.record.trust,
+        "notes": list(field.notes),
+    }
+    return {
+        **provenance_attributes(made),
+        "sensaov/texel": json.dumps(info, sort_keys=True),
+    }
+
+
+def _png_writer(field: TexelField) -> Callable[[Path], None]:
+    values = field.pooled.sum(axis=2)
+    peak = float(np.abs(values).max())
+    rgb = _enlarged(diverging_rgb(values, peak))
+
+    def write(tmp: Path) -> None:
+        # write_png renames into ``tmp`` itself; atomic_write_all then renames the whole set.
+        write_png(tmp, rgb, {"sensaov/scale": repr(peak), "sensaov/texture": field.record.key})
+
+    return write
+
+
+def write_fig4_sheet(path: Path, camera: str, passes: Sequence[TexelPass]) -> Path:
+    """Fig. 4: the object, per-texel and joint panels of one texture side by side, each
+    titled with the value at which it saturates (its scale, also in the layer's metadata)."""
+    tiles = []
+    for texel_pass in passes:
+        tile = _enlarged(diverging_rgb(_luminance(texel_pass.data), texel_pass.preview_scale))
+        mark = " !" if json.loads(texel_pass.metadata.get("unverified", "[]")) else ""
+        tiles.append((f"{texel_pass.panel} +-{texel_pass.preview_scale:.2e}{mark}", tile))
+    meta = passes[0].metadata
+    title = f"{camera}: {meta['texture']} (object | per texel | joint share; ! = unverified)"
+    write_png(path, contact_sheet(tiles, len(tiles), scale=1.0, title=title))
+    return path
+
+
+def _luminance(data: np.ndarray) -> np.ndarray:
+    return data if data.ndim == 2 else data.sum(axis=2)
+
+
+def _enlarged(tile: np.ndarray) -> np.ndarray:
+    factor = -(-TILE_WIDTH // tile.shape[1])
+    return np.repeat(np.repeat(tile, factor, axis=0), factor, axis=1) if factor > 1 else tile

@@ -1,0 +1,125 @@
+"""Sum-conserving pooling of texel fields (paper §6).
+
+The gradient and the visible texel are sampled independently, so at low spp a texel field is
+sparse and spiky. Pooling spreads each texel's value over its neighbours before projection.
+Every kind conserves the field's sum exactly: each source texel's mass is divided among the
+texels it reaches inside the texture (wrapping around for ``repeat``, renormalised at the edges
+otherwise), so the pooled field still sums to the buffer's signed sum of the parameter.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+POOL_KINDS = ("gaussian", "box", "mip", "none")
+# The default pools over about this many expected gradient samples per texel (see default_pool).
+TARGET_SAMPLES = 64.0
+MAX_RADIUS_FRACTION = 1 / 8  # never blur over more than an eighth of the texture by default
+
+
+@dataclass(frozen=True)
+class Pool:
+    kind: str  # gaussian (radius = sigma), box (half-width), mip (log2 of the block), none
+    radius: float
+    chosen_by: str  # "job" or the rule that picked it
+
+    def describe(self) -> str:
+        return f"kind={self.kind};radius={self.radius:g};chosen_by={self.chosen_by}"
+
+
+def default_pool(spp: int, pixels: int, size: tuple[int, int]) -> Pool:
+    """A gaussian whose footprint holds ~TARGET_SAMPLES gradient samples.
+
+    ``spp · pixels / texels`` bounds the samples that land per texel (the texture filling the
+    whole objective frame); sigma grows as the square root of the shortfall, at least 1 texel.
+    """
+    texels = size[0] * size[1]
+    per_texel = max(spp * pixels / max(texels, 1), 1e-9)
+    sigma = math.sqrt(TARGET_SAMPLES / per_texel)
+    top = max(1.0, min(size) * MAX_RADIUS_FRACTION)
+    sigma = float(min(max(1.0, round(sigma, 2)), top))
+    return Pool("gaussian", sigma, f"auto: sqrt({TARGET_SAMPLES:g} / (spp*pixels/texels))")
+
+
+def white_noise_factor(pool: Pool) -> float:
+    """How much pooling divides the standard deviation of independent per-texel noise away
+    from edges: sqrt(Σ w²) of the 2-D kernel. Texel noise is correlated (a bilinear lookup
+    spreads each gradient sample over four texels), so the measured reduction is smaller:
+    docs/texels.md and bench figure 10 give it."""
+    if pool.kind == "none" or pool.radius <= 0:
+        return 1.0
+    if pool.kind == "mip":
+        return 1.0 / 2 ** int(round(pool.radius))
+    impulse = np.zeros((1, 8 * int(math.ceil(3 * pool.radius)) + 9, 1))
+    impulse[0, impulse.shape[1] // 2, 0] = 1.0
+    row = pool_field(np.repeat(impulse, 1, axis=0), Pool(pool.kind, pool.radius, ""), "repeat")
+    one_axis = float(np.sum(row[0, :, 0] ** 2))  # pooling a 1-row field spreads along x only
+    return math.sqrt(one_axis * one_axis)
+
+
+def pool_field(field: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
+    """``field`` (H, W, C) pooled; float64, same shape, same sum (to rounding)."""
+    data = np.asarray(field, np.float64)
+    if pool.kind == "none" or pool.radius <= 0:
+        return data.copy()
+    if pool.kind == "mip":
+        return _mip(data, 2 ** int(round(pool.radius)))
+    if pool.kind == "gaussian":
+        half = max(1, int(math.ceil(3 * pool.radius)))
+        offsets = np.arange(-half, half + 1)
+        kernel = np.exp(-0.5 * (offsets / pool.radius) ** 2)
+    elif pool.kind == "box":
+        half = int(round(pool.radius))
+        kernel = np.ones(2 * half + 1)
+    else:
+        raise ValueError(f"unknown pool kind {pool.kind!r}; use one of {POOL_KINDS}")
+    kernel /= kernel.sum()
+    return _spread(_spread(data, kernel, 0, wrap), kernel, 1, wrap)
+
+
+def _spread(data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str) -> np.ndarray:
+    """Scatter every texel's value along ``axis`` with ``kernel``, conserving its mass."""
+    n, half = data.shape[axis], len(kernel) // 2
+    moved = np.moveaxis(data, axis, 0)
+    out = np.zeros_like(moved)
+    if wrap == "repeat":
+        for offset, w in zip(range(-half, half + 1), kernel, strict=True):
+            out += w * np.roll(moved, offset, axis=0)
+        return np.moveaxis(out, 0, axis)
+    source = np.arange(n)
+    reach = np.zeros(n)  # the kernel weight of each source that lands inside the texture
+    for offset, w in zip(range(-half, half + 1), kernel, strict=True):
+        reach += w * ((source + offset >= 0) & (source + offset < n))
+    scaled = moved / reach.reshape((-1,) + (1,) * (moved.ndim - 1))
+    for offset, w in zip(range(-half, half + 1), kernel, strict=True):
+        lo, hi = max(0, -offset), min(n, n - offset)
+        if lo < hi:
+            out[lo + offset : hi + offset] += w * scaled[lo:hi]
+    return np.moveaxis(out, 0, axis)
+
+
+def _mip(data: np.ndarray, block: int) -> np.ndarray:
+    """Sum over block x block tiles (smaller at the edges), spread evenly inside each tile."""
+    height, width = data.shape[:2]
+    tall, wide = -(-height // block) * block, -(-width // block) * block
+    padded = np.zeros((tall, wide) + data.shape[2:])
+    padded[:height, :width] = data
+    counts = np.zeros((tall, wide))
+    counts[:height, :width] = 1.0
+    shape = (tall // block, block, wide // block, block)
+    sums = padded.reshape(shape + data.shape[2:]).sum(axis=(1, 3))
+    area = counts.reshape(shape).sum(axis=(1, 3))
+    mean = sums / area.reshape(area.shape + (1,) * (data.ndim - 2))
+    rows, cols = np.arange(height) // block, np.arange(width) // block
+    return mean[rows[:, None], cols[None, :]]
+
+
+def seed_noise(first: np.ndarray, second: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Standard deviation of one field's seed-to-seed noise: std((a - b) / sqrt 2) over ``mask``."""
+    diff = (np.asarray(first, np.float64) - np.asarray(second, np.float64)) / math.sqrt(2)
+    if mask is not None:
+        diff = diff[mask]
+    return float(np.sqrt(np.mean(diff**2))) if diff.size else 0.0
