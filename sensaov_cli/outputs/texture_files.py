@@ -62,7 +62,10 @@ def _channels(field: TexelField) -> dict[str, np.ndarray]:
     if field.raw.shape[2] == 1:
         names = ("Y",)
     out = {}
-    for part, data in (("raw", field.raw), ("pooled", field.pooled)):
+    parts = [("raw", field.raw), ("pooled", field.pooled)]
+    if field.stderr is not None and field.stderr_pooled is not None:
+        parts += [("stderr_raw", field.stderr), ("stderr_pooled", field.stderr_pooled)]
+    for part, data in parts:
         for index in range(data.shape[2]):
             out[f"{part}.{names[index]}"] = data[..., index].astype(np.float32)
     return out
@@ -82,6 +85,7 @@ def _attributes(field: TexelField, buffer_path: Path) -> dict[str, str]:
         "pool_white_noise_factor": white_noise_factor(field.pool),
         "lookup": field.sampling.describe(),
         "signed_sum": field.signed_sum,
+        "stderr_reduction": field.stderr_reduction,
         "raw_peak": float(np.abs(field.raw).max()),
         "pooled_peak": float(np.abs(field.pooled).max()),
         "owners": list(field.record.owners),

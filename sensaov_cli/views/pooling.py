@@ -80,8 +80,42 @@ def pool_field(field: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
     return _spread(_spread(data, kernel, 0, wrap), kernel, 1, wrap)
 
 
-def _spread(data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str) -> np.ndarray:
-    """Scatter every texel's value along ``axis`` with ``kernel``, conserving its mass."""
+def pool_variance(variance: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
+    """The variance of :func:`pool_field`'s output for texels with independent errors of the
+    given ``variance`` (H, W, C): the same linear map with its weights squared."""
+    data = np.asarray(variance, np.float64)
+    if pool.kind == "none" or pool.radius <= 0:
+        return data.copy()
+    if pool.kind == "mip":  # a tile's mean: the variance of its sum over its area squared
+        block = 2 ** int(round(pool.radius))
+        return _mip(data, block) / _tile_sizes(data.shape[:2], block)
+    if pool.kind == "gaussian":
+        half = max(1, int(math.ceil(3 * pool.radius)))
+        kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / pool.radius) ** 2)
+    else:
+        kernel = np.ones(2 * int(round(pool.radius)) + 1)
+    kernel /= kernel.sum()
+    once = _spread(data, kernel, 0, wrap, squared=True)
+    return _spread(once, kernel, 1, wrap, squared=True)
+
+
+def _tile_sizes(size: tuple[int, int], block: int) -> np.ndarray:
+    """(H, W, 1): how many texels the mip tile of each texel holds (fewer at the edges)."""
+    height, width = size
+    rows = np.minimum(block, height - (np.arange(height) // block) * block)
+    cols = np.minimum(block, width - (np.arange(width) // block) * block)
+    return (rows[:, None] * cols[None, :])[..., None].astype(np.float64)
+
+
+def _spread(
+    data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str, squared: bool = False
+) -> np.ndarray:
+    """Scatter every texel's value along ``axis`` with ``kernel``, conserving its mass.
+
+    ``squared``: propagate variances instead (every weight, and the edge normalisation, squared).
+    """
+    if squared:
+        return _spread_squared(data, kernel, axis, wrap)
     n, half = data.shape[axis], len(kernel) // 2
     moved = np.moveaxis(data, axis, 0)
     out = np.zeros_like(moved)
@@ -98,6 +132,27 @@ def _spread(data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str) -> np.nd
         lo, hi = max(0, -offset), min(n, n - offset)
         if lo < hi:
             out[lo + offset : hi + offset] += w * scaled[lo:hi]
+    return np.moveaxis(out, 0, axis)
+
+
+def _spread_squared(data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str) -> np.ndarray:
+    n, half = data.shape[axis], len(kernel) // 2
+    moved = np.moveaxis(data, axis, 0)
+    out = np.zeros_like(moved)
+    source = np.arange(n)
+    reach = np.ones(n)
+    if wrap != "repeat":
+        reach = np.zeros(n)
+        for offset, w in zip(range(-half, half + 1), kernel, strict=True):
+            reach += w * ((source + offset >= 0) & (source + offset < n))
+    scaled = moved / (reach**2).reshape((-1,) + (1,) * (moved.ndim - 1))
+    for offset, w in zip(range(-half, half + 1), kernel, strict=True):
+        if wrap == "repeat":
+            out += w * w * np.roll(scaled, offset, axis=0)
+            continue
+        lo, hi = max(0, -offset), min(n, n - offset)
+        if lo < hi:
+            out[lo + offset : hi + offset] += w * w * scaled[lo:hi]
     return np.moveaxis(out, 0, axis)
 
 

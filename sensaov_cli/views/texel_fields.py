@@ -21,7 +21,7 @@ from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import per_object
 from sensaov_cli.errors import SpecError
 from sensaov_cli.spec.model import ChannelSpec
-from sensaov_cli.views.pooling import Pool, default_pool, pool_field
+from sensaov_cli.views.pooling import Pool, default_pool, pool_field, pool_variance
 from sensaov_cli.views.texels import TextureSampling
 
 COLOUR_TYPES = ("reflectance", "radiance", "transmittance", "specular")
@@ -41,6 +41,19 @@ class TexelField:
     signed_sum: float  # the buffer's Σ c for this parameter (what both fields sum to)
     object_values: Mapping[str, float]  # Σ c over all parameters of each owner (Fig. 4, left)
     notes: tuple[str, ...]
+    # Standard errors (buffers with statistics): of each texel's c, and of the pooled field
+    # for independent texel errors (docs/texels.md, "Standard errors"); None without.
+    stderr: np.ndarray | None = None
+    stderr_pooled: np.ndarray | None = None
+
+    @property
+    def stderr_reduction(self) -> float | None:
+        """Median over texels with an error of pooled error / unpooled error (same units)."""
+        if self.stderr is None or self.stderr_pooled is None:
+            return None
+        unpooled = self.stderr * self.unit_factor
+        has = unpooled > 0
+        return float(np.median(self.stderr_pooled[has] / unpooled[has])) if has.any() else None
 
     @property
     def texel_area(self) -> float:
@@ -115,6 +128,12 @@ def _field(
     factor = raw.shape[0] * raw.shape[1] if channel.units == "uv_area" else 1
     pooled = pool_field(raw, pool, sampling.wrap) * factor
     owners = {name: float(object_values[name]) for name in record.owners}
+    stderr = stderr_pooled = None
+    if buf.statistics is not None:
+        stderr = buf.statistics.stderr[objective][key].astype(np.float64)
+        if channel.weight == "value":
+            stderr = stderr * np.abs(buf.value(key))
+        stderr_pooled = np.sqrt(pool_variance(stderr**2, pool, sampling.wrap)) * factor
     return TexelField(
         objective,
         channel,
@@ -126,6 +145,8 @@ def _field(
         math.fsum(raw.ravel()),
         owners,
         _notes(record, sampling),
+        stderr,
+        stderr_pooled,
     )
 
 

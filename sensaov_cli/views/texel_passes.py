@@ -90,6 +90,9 @@ def _common_metadata(tf: TexelField, seen: np.ndarray, notes: list[str]) -> dict
         # the demo scene (correlated noise): 0.39 at 64 spp, 0.35 at 4 spp (docs/texels.md).
         "pool_white_noise_factor": repr(white_noise_factor(tf.pool)),
         "units": tf.channel.units,
+        # Pooled / unpooled standard error (median over texels), from the buffer's batches;
+        # "none" for a buffer without statistics (render.batches: 1, no shards).
+        "stderr_reduction": "none" if tf.stderr_reduction is None else repr(tf.stderr_reduction),
         "signed_sum": repr(tf.signed_sum),
         "pooled_sum": repr(math.fsum(tf.pooled.ravel()) / tf.unit_factor),
         "texels_seen": str(int(seen.sum())),
