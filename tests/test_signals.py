@@ -197,3 +197,31 @@ def test_sigterm_while_the_interpreter_imports(
     assert "Traceback" not in stderr and "terminate" not in stderr
     assert stderr in ("", "sensaov: error: stopped by SIGTERM; no output was replaced\n")
     assert snapshot(tmp_path / "out") == snapshot(previous)
+
+
+def test_sigterm_during_a_long_backward_pass_ends_within_one_sub_pass(tmp_path: Path) -> None:
+    """A 256² x 256 spp backward pass (2^24 samples) takes ~12 s on 2 cores; split into
+    sub-passes of 2^20 samples it stops within one of them: measured 0.5-0.7 s after SIGTERM
+    (11-13 s with the split disabled, docs/exit-codes.md). The bound leaves room for a slow CI."""
+    render = {"spp": 256, "max_depth": 6, "seed": 0, "resolution": [256, 256]}
+    job = write_job(tmp_path, render=render)
+    process = subprocess.Popen(
+        [sys.executable, "-m", "sensaov_cli", "run", str(job), "--progress", "plain"],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert process.stderr is not None
+    seen = ""
+    while "backward pass" not in seen:
+        char = process.stderr.read(1)
+        assert char, seen  # the run ended before its backward pass
+        seen += char
+    time.sleep(0.5)
+    sent = time.perf_counter()
+    process.send_signal(signal.SIGTERM)
+    rest = process.stderr.read()
+    process.wait(timeout=60)
+    waited = time.perf_counter() - sent
+    assert process.returncode == EXIT_TERMINATED, rest
+    assert waited < TERM_BOUND_S, f"{waited:.2f} s from SIGTERM to exit"
+    assert not (job.parent / "out").exists() or not list((job.parent / "out").iterdir())

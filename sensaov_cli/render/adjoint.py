@@ -36,9 +36,12 @@ SEED_STRIDE = 0x9E3779B1  # golden-ratio stride: distinct, reproducible seeds pe
 # this many samples (pixels x spp) keep it near 200 MB, for 24 % more time.
 PATH_SAMPLES_PER_PASS = 1 << 18
 # A stop (a farm's SIGTERM, Ctrl-C) can only be acted on between kernel launches: every primal
-# and prb pass is split into sub-passes of at most this many samples (pixels x spp), with a
-# check between them. The wait it bounds is measured in docs/exit-codes.md.
-SAMPLES_PER_SUBPASS = 1 << 22
+# and prb pass is split into sub-passes of at most this many samples (pixels x spp; at least
+# 1 spp), with a check between them; prb's gradients are summed over sub-passes in float64.
+# Measured, run_adjoint at 128² x 64 spp (2^20 samples) on 2 cores: 1.21 s in one sub-pass,
+# 1.31 s in 4, 1.63 s in 16 (about 28 ms a sub-pass). 2^20 keeps that under 3 % at 512²
+# and bounds the wait for a stop to one sub-pass: docs/exit-codes.md.
+SAMPLES_PER_SUBPASS = 1 << 20
 
 
 def gradient_seed(primal_seed: int, objective_index: int) -> int:
@@ -110,10 +113,10 @@ def render_primal(loaded: LoadedScene, spp: int, seed: int, integrator: Any = No
     return image
 
 
-def subpasses(pixels: int, spp: int, limit: int = SAMPLES_PER_SUBPASS) -> Iterator[tuple[int, int]]:
-    """(index, spp) of each sub-pass, at most ``limit`` samples each; a pending stop is raised
-    (as KeyboardInterrupt) before every sub-pass after the first."""
-    for index, chunk in enumerate(sample_chunks(pixels, spp, limit)):
+def subpasses(pixels: int, spp: int) -> Iterator[tuple[int, int]]:
+    """(index, spp) of each sub-pass, at most SAMPLES_PER_SUBPASS samples each (read at call
+    time); a pending stop is raised (as KeyboardInterrupt) before every sub-pass after the first."""
+    for index, chunk in enumerate(sample_chunks(pixels, spp, SAMPLES_PER_SUBPASS)):
         if index:
             interrupts.check()
         yield index, chunk
@@ -142,12 +145,13 @@ def backward_pass(
     import drjit as dr
 
     leaves = enable_gradients(loaded, keys)
+    shapes = {info.key: info.shape for info in loaded.selected}
     if name == "prb":
-        _prb_backward(loaded, adjoint_image, spp, seed)
+        sums = _prb_backward(loaded, adjoint_image, spp, seed, {k: leaves[k] for k in keys})
+        grads = {key: sums[key].astype(np.float32).reshape(shapes[key]) for key in keys}
     else:
         _path_backward(loaded, adjoint_image, spp, seed)
-    shapes = {info.key: info.shape for info in loaded.selected}
-    grads = {key: to_numpy(dr.grad(leaves[key]), shapes[key]) for key in keys}
+        grads = {key: to_numpy(dr.grad(leaves[key]), shapes[key]) for key in keys}
     enable_gradients(loaded, set())  # leave no gradient-enabled leaf behind for the next pass
     return grads
 
@@ -167,9 +171,16 @@ def _nothing_attached_is_zero() -> Iterator[None]:
             raise
 
 
-def _prb_backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int) -> None:
-    """prb's backward pass in the primal's sub-passes (same seeds, same shares of spp)."""
+def _prb_backward(
+    loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int, leaves: dict[str, Any]
+) -> dict[str, np.ndarray]:
+    """prb's backward pass in the primal's sub-passes (same seeds, same shares of spp); each
+    sub-pass's gradient is read, added in float64 and cleared before the next."""
+    import drjit as dr
+
     width, height = loaded.resolution
+    sums = {key: np.zeros(0) for key in leaves}
+    chunks = sample_chunks(width * height, spp, SAMPLES_PER_SUBPASS)
     for index, chunk in subpasses(width * height, spp):
         grad_in = adjoint_image if chunk == spp else adjoint_image * (chunk / spp)
         with _nothing_attached_is_zero():
@@ -177,6 +188,15 @@ def _prb_backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int) 
                 loaded.scene, loaded.params, grad_in=grad_in, sensor=loaded.sensor,
                 seed=chunk_seed(seed, index), spp=chunk,
             )  # fmt: skip
+        grads = [dr.grad(leaf) for leaf in leaves.values()]
+        dr.eval(*grads)  # one launch for all of them
+        for key, grad in zip(leaves, grads, strict=True):
+            part = np.array(grad, dtype=np.float32).astype(np.float64).ravel()  # zero-copy read
+            sums[key] = part if index == 0 else sums[key] + part
+        if index + 1 < len(chunks):
+            for leaf in leaves.values():
+                dr.clear_grad(leaf)
+    return sums
 
 
 def sample_chunks(pixels: int, spp: int, limit: int) -> list[int]:

@@ -111,15 +111,15 @@ def _push(
         finally:
             enable_gradients(loaded, set())
     width, height = loaded.resolution
-    total = np.zeros(shape, np.float32)
+    total = np.zeros(shape, np.float64)  # summed in float64 over sub-passes, as the backward
     for index, chunk in subpasses(width * height, spp):
         _pushed_leaves(loaded, direction)
         try:
             part = _prb_forward(loaded, chunk, chunk_seed(seed, index), shape)
         finally:
             enable_gradients(loaded, set())
-        total += part if chunk == spp else part * np.float32(chunk / spp)
-    return total
+        total += part if chunk == spp else part * (chunk / spp)
+    return total.astype(np.float32)
 
 
 def _pushed_leaves(loaded: LoadedScene, direction: dict[str, np.ndarray]) -> dict[str, Any]:
