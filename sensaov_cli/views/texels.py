@@ -143,21 +143,21 @@ def footprint(
         return Footprint((height, width), texels, empty, empty, empty, np.zeros(0))
     index, weight = texel_weights(sample_uv.reshape(-1, 2)[hits], size, sampling)
     owner = position[objects[hits]]
-    # Group the samples of a pixel that read the same texels (the common case: a pixel is
-    # smaller than a texel), summing their corner weights; keys are already sorted by pixel,
-    # so a stable sort only merges short runs. A group is keyed by its first texel, how its
-    # second row and column follow from it (``_step``) and its owner.
+    # Merge runs of samples of a pixel that read the same texels (the common case: a pixel is
+    # smaller than a texel), summing their corner weights. Samples come in pixel order, so a
+    # run never spans two pixels; no sort is needed, and a pair that repeats after another
+    # group stays a second entry (paint sums entries, so the result is the same). A group is
+    # keyed by its first texel, how its second row and column follow from it (``_step``) and
+    # its owner.
     corners = index.shape[1]
     key = (hits // spp) * texels + index[:, 0]
     if corners == 4:
         row, col = np.divmod(index[:, [0, 3]], size[1])  # first and last texel's row, column
         key = (key * 3 + _step(row[:, 0], row[:, 1])) * 3 + _step(col[:, 0], col[:, 1])
     key = key * len(owners) + owner
-    order = np.argsort(key, kind="stable")
-    key = key[order]
     starts = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1])))
-    summed = np.add.reduceat(weight[order], starts, axis=0) / spp  # (G, corners)
-    first = order[starts]
+    summed = np.add.reduceat(weight, starts, axis=0) / spp  # (G, corners)
+    first = starts
     pixel = np.repeat(hits[first] // spp, corners)
     return Footprint(
         (height, width),
