@@ -55,6 +55,12 @@ def texel_cost(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figure
             f"with {fmt(t['texel'].median, 's')} vs without {fmt(t['base'].median, 's')}",
         )
     )
+    figure.why_missed = (
+        "The extra time is the texture's footprint in the view (lookup weights for every "
+        "visibility sample on the texture's owners, in numpy), the layered EXR's extra "
+        "channels and the UVs out of the visibility kernel (docs/texels.md, 'Cost'). Computing "
+        "the texel indices and weights inside the visibility kernel would remove the first."
+    )
     log("figure 12: cost done")
     for spp, resolution in NOISE_CASES if not s.quick else ((4, 32),):
         figure.rows += _noise_rows(ws, spp, resolution)
