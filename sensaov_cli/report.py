@@ -25,8 +25,6 @@ from sensaov_cli.views.sunburst import panels
 
 REPORT_NAME = "report.html"
 TOP = 12  # rows per ranking table: a page, not a spreadsheet
-# Views the paper names that this version of sensaov does not compute; the page says so.
-ABSENT = ("texel, forward-mode and transport views: not computed by this version of sensaov",)
 
 
 def make_report(job: JobSpec, path: Path | None = None) -> Path:
@@ -55,13 +53,30 @@ def make_report(job: JobSpec, path: Path | None = None) -> Path:
         ),
         params=buf.params,
         provenance=buf.provenance,
-        absent=ABSENT,
+        absent=_absent(job, job.output / "previews"),
     )
     target = path or job.output / REPORT_NAME
     if target.is_dir():
         raise OutputError("is a folder", where=str(target), hint="name a .html file")
     write_report(target, content)
     return target
+
+
+def _absent(job: JobSpec, previews: Path) -> tuple[str, ...]:
+    """The views of the paper this page does not show, and why, said plainly."""
+    names = [p.name for p in previews.rglob("*.png")] if previews.is_dir() else []
+    lines = []
+    kinds = {
+        "texel (per-texel fields through UVs)": any(c.kind == "texel" for c in job.channels),
+        "forward-mode and transport": bool(job.forward)
+        or any(c.kind == "transport" for c in job.channels),
+    }
+    for view, asked in kinds.items():
+        if not asked:
+            lines.append(f"{view} views: this job asks for none (docs/job-spec.md)")
+    if not names:
+        lines.append("no channel previews: run 'sensaov project JOB --png' first")
+    return tuple(lines)
 
 
 def _primal(path: Path) -> Picture | None:
