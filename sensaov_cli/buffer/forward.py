@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import archive_writer
 from sensaov_cli.errors import BufferFormatError, FingerprintMismatch
 
 FORMAT_NAME = "sensaov-forward"
@@ -107,14 +108,7 @@ def forward_writer(data: ForwardData) -> Callable[[Path], None]:
     for i, p in enumerate(data.passes):
         if p.image is not None:
             members[f"image_{i}"] = np.ascontiguousarray(p.image, np.float32)
-
-    def write(tmp: Path) -> None:
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
-            for name, arr in members.items():
-                with zf.open(f"{name}.npy", "w", force_zip64=True) as out:
-                    np.lib.format.write_array(out, arr, allow_pickle=False)
-
-    return write
+    return archive_writer(members)
 
 
 def _pass_json(p: ForwardPass) -> dict[str, Any]:

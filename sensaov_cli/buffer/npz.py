@@ -48,7 +48,11 @@ def write_buffer(path: Path, buffer: SensitivityBuffer) -> None:
 
 def buffer_writer(buffer: SensitivityBuffer) -> Callable[[Path], None]:
     """A function writing ``buffer`` to a given (temporary) path, for paired atomic writes."""
-    members = _members(buffer)
+    return archive_writer(_members(buffer))
+
+
+def archive_writer(members: dict[str, np.ndarray]) -> Callable[[Path], None]:
+    """A function writing named arrays as an .npz (the buffer's and its sidecars' container)."""
 
     def write(tmp: Path) -> None:
         # What np.savez does, spelled out: stored (uncompressed) members, no pickles, zip64.
