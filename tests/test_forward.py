@@ -52,8 +52,8 @@ def test_run_reports_the_cost_of_every_forward_pass(cbox_forward: tuple) -> None
 
 def test_forward_channel_matches_same_seed_central_differences(cbox_forward: tuple) -> None:
     """J·v of the green wall's reflectance against (I(θ+εv) − I(θ−εv)) / 2ε at its seed."""
-    from sensaov_cli.render.adjoint import assign, render_primal
-    from sensaov_cli.render.scene import load_scene
+    from sensaov_cli.render.adjoint import render_primal
+    from sensaov_cli.render.scene import assign, load_scene
     from sensaov_cli.render.visibility import trace
     from sensaov_cli.spec.load import load_job
 

@@ -388,19 +388,3 @@ def _run_passes(
     return AdjointResult(
         np.array(image, dtype=np.float32), values, objective_values, grad_seeds, grads, spp=spp
     )
-
-
-def assign(loaded: LoadedScene, key: str, array: np.ndarray) -> None:
-    """Set a selected parameter to ``array`` (in its recorded shape), for finite differences."""
-    import drjit as dr
-
-    current = loaded.params[key]
-    flat = np.ascontiguousarray(array, dtype=np.float32)
-    if dr.is_tensor_v(current):
-        replacement = type(current)(flat)
-    elif dr.size_v(current) == 3:  # a colour: one value per channel
-        replacement = type(current)(*[float(v) for v in flat.reshape(-1)])
-    else:
-        replacement = type(current)(flat.reshape(-1))
-    loaded.params[key] = replacement
-    loaded.params.update()

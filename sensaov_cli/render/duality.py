@@ -25,7 +25,6 @@ from sensaov_cli.buffer.forward import DUALITY_FLOOR, duality_tolerance
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.errors import SpecError
 from sensaov_cli.render.adjoint import (
-    assign,
     chunk_seed,
     path_chunks,
     path_integrator,
@@ -33,7 +32,7 @@ from sensaov_cli.render.adjoint import (
 )
 from sensaov_cli.render.forward import adjoint_images, forward_image
 from sensaov_cli.render.objectives import Objective
-from sensaov_cli.render.scene import LoadedScene
+from sensaov_cli.render.scene import LoadedScene, assign
 from sensaov_cli.render.trust import gradient_integrator
 from sensaov_cli.vocabulary import Trust
 

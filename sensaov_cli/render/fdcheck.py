@@ -22,7 +22,6 @@ import numpy as np
 from sensaov_cli.buffer.model import ParamRecord
 from sensaov_cli.errors import SpecError
 from sensaov_cli.render.adjoint import (
-    assign,
     backward_pass,
     chunk_seed,
     path_chunks,
@@ -30,7 +29,7 @@ from sensaov_cli.render.adjoint import (
     render_primal,
 )
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-from sensaov_cli.render.scene import LoadedScene
+from sensaov_cli.render.scene import LoadedScene, assign
 from sensaov_cli.render.trust import gradient_integrator
 from sensaov_cli.vocabulary import Trust
 

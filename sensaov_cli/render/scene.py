@@ -15,6 +15,8 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+import numpy as np
+
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
 from sensaov_cli.errors import SceneError
 from sensaov_cli.render.runtime import import_mitsuba
@@ -272,8 +274,6 @@ def _exclusion_reason(
 
 
 def _describe(mi: ModuleType, key: str, params: Any, owners: tuple[str, ...]) -> ParamRecord:
-    import numpy as np
-
     _, _, node, flags = params.properties[key]
     parts = key.split(".")
     is_texture_node = isinstance(node, mi.Texture)
@@ -344,3 +344,19 @@ def _texture_source(mi: ModuleType, node: Any, sources: dict[str, Path]) -> Text
         return TextureSource(match.group(1) if match else None, converted=False)
     converted = mi.Bitmap(str(path)).component_format() == mi.Struct.Type.UInt8
     return TextureSource(str(path), converted)
+
+
+def assign(loaded: LoadedScene, key: str, array: np.ndarray) -> None:
+    """Set a selected parameter to ``array`` (in its recorded shape), for finite differences."""
+    import drjit as dr
+
+    current = loaded.params[key]
+    flat = np.ascontiguousarray(array, dtype=np.float32)
+    if dr.is_tensor_v(current):
+        replacement = type(current)(flat)
+    elif dr.size_v(current) == 3:  # a colour: one value per channel
+        replacement = type(current)(*[float(v) for v in flat.reshape(-1)])
+    else:
+        replacement = type(current)(flat.reshape(-1))
+    loaded.params[key] = replacement
+    loaded.params.update()
