@@ -71,9 +71,9 @@ def pipeline_overhead(ws: Workspace, s: Settings, variant: str, log: Log) -> Fig
         "objective, mean luminance; writes buffer.npz and primal.exr) against "
         "`bench/plain_mitsuba.py` (load the same scene text, one primal, one `render_backward` "
         f"with dM/dI of the mean luminance, gradients to numpy), same {s.spp} spp and "
-        "parameters. sensaov runs with `deterministic: false` (all threads, as the script); "
-        "the default `deterministic: true` is its own line. The three are interleaved after "
-        "one warm-up round.",
+        "parameters. sensaov runs with `deterministic: false` (all threads, as the script, and "
+        "the default since issue 12); `deterministic: true` is its own line. The three are "
+        "interleaved after one warm-up round.",
     )
     for scene in SCENES:
         for res in s.resolutions:
@@ -116,7 +116,7 @@ def _overhead_rows(case: str, t: dict[str, Stats], params: int) -> list[Row]:
             why_missed=notes.overhead_case(delta.median, plain),
         ),
         Row(
-            f"{case}, deterministic: true (default)",
+            f"{case}, deterministic: true",
             t["deterministic"].ratio_to(t["plain"]),
             "x",
             None,

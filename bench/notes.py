@@ -27,11 +27,10 @@ def overhead_case(delta: float, script: float) -> str:
 
 
 DETERMINISTIC = (
-    "'deterministic: true (default)' rows: the default runs the backward pass on one thread "
-    "so that buffers are byte-identical (docs/job-spec.md); each row's detail gives what that "
-    "costs against `deterministic: false` in the same rounds. It has no goal of its own: it "
-    "is the price of reproducibility, not pipeline overhead. Set `deterministic: false` where "
-    "the last bit does not matter."
+    "'deterministic: true' rows: that setting runs the backward pass on one thread so that "
+    "buffers are byte-identical (docs/job-spec.md); each row's detail gives what that costs "
+    "against `deterministic: false` (the default) in the same rounds. It has no goal of its "
+    "own: it is the price of reproducibility, not pipeline overhead."
 )
 
 

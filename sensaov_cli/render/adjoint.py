@@ -37,12 +37,14 @@ SEED_STRIDE = 0x9E3779B1  # golden-ratio stride: distinct, reproducible seeds pe
 PATH_SAMPLES_PER_PASS = 1 << 18
 # A stop (a farm's SIGTERM, Ctrl-C) can only be acted on between kernel launches: every primal
 # and prb pass is split into sub-passes of at most this many samples (pixels x spp; at least
-# 1 spp), with a check between them; prb's gradients are summed over sub-passes in float64
-# (Dr.Jit's float32 atomics sum within one). Measured, run_adjoint at 128² x 64 spp (2^20
-# samples) on 2 cores: 1.21 s in one sub-pass, 1.31 s in 4, 1.63 s in 16; forward/reverse
-# duality on the demo's transport layers: worst 1.7e-4 in one sub-pass, 1.8e-5 in 4. 2^18
-# buys that accuracy and a short wait for a stop (docs/exit-codes.md) for about 8 %.
-SAMPLES_PER_SUBPASS = 1 << 18
+# 1 spp), with a check between them; small parameters' gradients are summed over sub-passes in
+# float64 (Dr.Jit's float32 atomics sum within one). Measured on 2 cores: a sub-pass costs
+# about 28 ms of launch overhead (run_adjoint at 128² x 64 spp: 1.21 s in one, 1.31 s in 4,
+# 1.63 s in 16); the demo's forward/reverse duality residuals are at most 1.7e-4 in one pass,
+# 4.4e-5 in 2 (2^19) and 1.8e-5 in 4 (2^18). 2^19 keeps them under 1e-4 and the wait for a
+# stop short (docs/exit-codes.md) for at most a few per cent (bench figures 1 and 10).
+SAMPLES_PER_SUBPASS = 1 << 19
+SMALL = 4096  # components up to which a gradient is summed over sub-passes in float64
 
 
 def gradient_seed(primal_seed: int, objective_index: int) -> int:
@@ -189,13 +191,18 @@ def _prb_backward(
                 loaded.scene, loaded.params, grad_in=grad_in, sensor=loaded.sensor,
                 seed=chunk_seed(seed, index), spp=chunk,
             )  # fmt: skip
-        grads = [dr.grad(leaf) for leaf in leaves.values()]
+        last = index + 1 == len(chunks)
+        # Small parameters (a colour, a roughness) gather every sample of the image into a few
+        # float32 sums: those are read and added in float64 after each sub-pass. A texture's
+        # texels gather few samples each; they keep accumulating in Dr.Jit and are read once.
+        small = {k: leaf for k, leaf in leaves.items() if last or dr.width(leaf) <= SMALL}
+        grads = [dr.grad(leaf) for leaf in small.values()]
         dr.eval(*grads)  # one launch for all of them
-        for key, grad in zip(leaves, grads, strict=True):
+        for key, grad in zip(small, grads, strict=True):
             part = np.array(grad, dtype=np.float32).astype(np.float64).ravel()  # zero-copy read
-            sums[key] = part if index == 0 else sums[key] + part
-        if index + 1 < len(chunks):
-            for leaf in leaves.values():
+            sums[key] = part if sums[key].size == 0 else sums[key] + part
+        if not last:
+            for leaf in small.values():
                 dr.clear_grad(leaf)
     return sums
 
