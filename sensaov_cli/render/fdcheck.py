@@ -35,6 +35,20 @@ from sensaov_cli.vocabulary import Trust
 
 RELATIVE_TOLERANCE = 0.05  # agreement of the means, relative to the finite difference
 NOISE_SIGMAS = 3.0  # a difference within 3 standard errors is consistent with noise
+# "disagrees" needs more: the standard error comes from few seeds (6 by default), so the gap
+# over it follows Student's t with seeds - 1 degrees of freedom, and a check runs one test per
+# parameter kind. The threshold is t's two-sided 99.9 % point: at 6 seeds 6.87, not 3 (with 3,
+# about one demo check in five failed a parameter that 12 seeds at 256 spp then confirmed).
+_T_999 = {1: 636.6, 2: 31.6, 3: 12.9, 4: 8.61, 5: 6.87, 6: 5.96, 7: 5.41, 8: 5.04, 9: 4.78,
+          10: 4.59, 11: 4.44, 12: 4.32, 15: 4.07, 20: 3.85, 30: 3.65}  # fmt: skip
+
+
+def disagreement_sigmas(seeds: int) -> float:
+    """The t threshold for ``seeds`` seeds (the next tabulated degrees of freedom below)."""
+    dof = max(seeds - 1, 1)
+    return _T_999[max(d for d in _T_999 if d <= dof)] if dof <= 30 else 3.29
+
+
 MAX_RELATIVE_NOISE = 0.25  # above this standard error (relative) a check is inconclusive
 # Step of independent-seed differences, relative to max(1, |θ|): their noise grows as 1/ε,
 # their curvature bias as ε² (a rough dielectric's eta: 7 % at 0.05, 1 % at 0.02, measured).
@@ -170,7 +184,10 @@ def _judge(info: ParamRecord, adjoints: np.ndarray, differences: np.ndarray) -> 
         and error <= MAX_RELATIVE_NOISE * scale
     ):
         verdict = "agrees"
-    elif abs(ad - fd) > NOISE_SIGMAS * error and abs(ad - fd) > RELATIVE_TOLERANCE * scale:
+    elif (
+        abs(ad - fd) > disagreement_sigmas(len(gap)) * error
+        and abs(ad - fd) > RELATIVE_TOLERANCE * scale
+    ):
         verdict = "disagrees"
     else:
         verdict = "inconclusive"
