@@ -224,6 +224,12 @@ def projected_layers(
     """
     if not wanted(job):
         return []
+    if len(buffer.provenance.get("batches", ())) > 1 or buffer.provenance.get("merged_from"):
+        progress.note(
+            "no forward or transport layers: this buffer is the mean of several batches or "
+            "shards, and those are rendered by single-batch runs only (docs/farm.md)"
+        )
+        return []
     path = buffer_path.with_name(FORWARD_NAME)
     if not path.is_file():
         raise SpecError(

@@ -331,3 +331,22 @@ def test_texel_fields_carry_standard_errors_and_what_pooling_cut(
     assert 0 < info["stderr_reduction"] < 1  # pooling averages texels: their error shrinks
     raw = channels_["stderr_raw.R"]
     assert raw.max() > 0 and np.all(raw >= 0)
+
+
+def test_forward_channels_are_skipped_with_a_note_for_batched_buffers(
+    job_writer: Callable[..., Path],
+) -> None:
+    """Duality needs the backward pass's own samples: a batched run renders no forward pass,
+    says so, and project writes the other layers, naming what it left out."""
+    forward = [{"name": "light", "object": "light"}]
+    job = job_writer(
+        "forward_batches", objectives=OBJECTIVES[:1], render={**RENDER, "batches": 2},
+        forward=forward,
+    )  # fmt: skip
+    done = sensaov("run", str(job))
+    assert done.returncode == 0, done.stderr
+    assert "rendered by single-batch runs only" in done.stderr
+    assert not (job.parent / "out" / "forward.npz").exists()
+    done = sensaov("project", str(job))
+    assert done.returncode == 0, done.stderr
+    assert "no forward or transport layers" in done.stderr
