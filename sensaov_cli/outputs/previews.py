@@ -151,7 +151,7 @@ def contact_sheet(
 
     ``scale`` is the value at which the tiles' colours saturate, in the units the caller wants
     read (the sheet states it, it cannot check it). Tiles of different sizes are centred in
-    cells of the largest; labels too long for a cell are cut short with "...".
+    cells of the largest; labels too long for a cell are cut short in the middle with "...".
     """
     if not tiles:
         raise ValueError("a contact sheet needs at least one tile")
@@ -194,18 +194,23 @@ def _legend(
 
 
 def _fit(text: str, width: int) -> str:
-    """``text``, cut short with "..." if wider than ``width`` pixels at FONT_SIZE."""
+    """``text``, cut short in the middle with "..." if wider than ``width`` pixels at
+    FONT_SIZE: the end of a label (a panel's kind, its ± scale, a mark) tells tiles apart."""
     from OpenImageIO import ImageBufAlgo
 
     def fits(candidate: str) -> bool:
         return ImageBufAlgo.text_size(candidate, FONT_SIZE, FONT).width <= width
 
+    def cut(keep: int) -> str:
+        head = keep - keep // 2
+        return text[:head] + "..." + text[len(text) - keep // 2 :]
+
     if fits(text):
         return text
-    keep = len(text)
-    while keep > 0 and not fits(text[:keep] + "..."):
+    keep = len(text) - 1
+    while keep > 0 and not fits(cut(keep)):
         keep -= 1
-    return text[:keep] + "..." if keep else ""
+    return cut(keep) if keep else ""
 
 
 def _draw_text(canvas: np.ndarray, texts: Sequence[tuple[int, int, str, str]]) -> None:
