@@ -196,6 +196,11 @@ def render_text(summary: dict[str, Any]) -> str:
     lines.append(f"scores: {agg['method']} of {agg['contribution']} over each group's components")
     if agg["method"] != "sum":
         lines.append("signed: their plain sum; > 0 means increasing the parameter raises M")
+    if counts.get("batches"):
+        lines.append(
+            f"standard errors from {counts['batches']} batches: 'sensaov rank BUFFER --by "
+            "object' (or key, type) shows them beside every score"
+        )
     for objective in summary["objectives"]:
         lines.append("")
         lines.extend(_objective_lines(objective, agg["method"], counts))

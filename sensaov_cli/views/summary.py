@@ -48,6 +48,9 @@ def summary_dict(
             "objectives": len(buf.objectives),
             "ranked_parameters": len(ranked["param"]),
             "ranked_objects": len(ranked["object"]),
+            # batches behind the buffer's standard errors (None: no statistics); the summary
+            # points at `rank --by`, which shows them
+            "batches": None if buf.statistics is None else buf.statistics.batches,
         },
         "provenance": copy.deepcopy(buf.provenance),
         "objectives": [
