@@ -49,7 +49,7 @@ def main(first: str, second: str) -> int:
             f"{b.objective(objective).value:.5f}; "
             f"{len(zs)} components: {100 * np.mean(zs > 2):.1f} % beyond 2 SE, "
             f"{100 * beyond3:.1f} % beyond 3 SE (normal: 4.6 %, 0.3 %); "
-            f"object signed sums: max {max(zo):.2f} SE over {len(zo)} objects"
+            f"object signed sums: max {max(zo, default=0.0):.2f} SE over {len(zo)} objects"
         )
     print("compare: agree within the standard errors" if worst <= 0.10 else "compare: DISAGREE")
     return 0 if worst <= 0.10 else 1

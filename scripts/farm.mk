@@ -9,8 +9,8 @@
 
 JOB     ?= configs/cbox.yaml
 N       ?= 4
-SENSAOV ?= sensaov
-PYTHON  ?= $(dir $(SENSAOV))python
+SENSAOV ?= sensaov  # with PYTHON: the interpreter that has sensaov installed
+PYTHON  ?= python3
 
 # The job's output folder and inspection cameras, as sensaov reads them.
 OUT     := $(shell $(PYTHON) -c "from sensaov_cli.spec.load import load_job; print(load_job('$(JOB)').output)")

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.statistics import single_pass
 from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, FingerprintMismatch, SpecError
 from sensaov_cli.render.duality import FD_TOLERANCE, DualityCheck, check_duality  # noqa: F401 - re-exported for the CLI
 from sensaov_cli.render.fdcheck import GradientCheck, check_gradients
@@ -66,10 +67,10 @@ def duality_job(
             where=str(buffer_path),
             hint="re-run 'sensaov run' first: the check replays the buffer's own passes",
         )
-    if len(buffer.provenance.get("batches", ())) > 1 or buffer.provenance.get("merged_from"):
+    if not single_pass(buffer.provenance):
         raise FingerprintMismatch(
-            "the duality check replays one backward pass; this buffer is the mean of several "
-            "batches or shards",
+            "the duality check replays one backward pass; this buffer is a shard, an objective "
+            "task or the mean of several batches or shards",
             where=str(buffer_path),
             hint="check a single-batch run of the job (render.batches: 1, no --shard)",
         )

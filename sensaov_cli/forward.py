@@ -27,6 +27,7 @@ from sensaov_cli.buffer.forward import (
     ties_of,
 )
 from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.statistics import single_pass
 from sensaov_cli.errors import SpecError
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.provenance import made_by
@@ -224,10 +225,11 @@ def projected_layers(
     """
     if not wanted(job):
         return []
-    if len(buffer.provenance.get("batches", ())) > 1 or buffer.provenance.get("merged_from"):
+    if not single_pass(buffer.provenance):
         progress.note(
-            "no forward or transport layers: this buffer is the mean of several batches or "
-            "shards, and those are rendered by single-batch runs only (docs/farm.md)"
+            "no forward or transport layers: this buffer is a shard, an objective task or the "
+            "mean of several batches or shards; those are rendered by single-batch runs only "
+            "(docs/farm.md)"
         )
         return []
     path = buffer_path.with_name(FORWARD_NAME)

@@ -89,6 +89,8 @@ def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:
         images.append(channels)
         spp.append(int(shard.buffer.provenance["spp"]))
     names = list(images[0])
-    if any(list(image) != names for image in images):
-        raise MergeError("the shards' primals have different channels", where=str(path))
+    for image, (_, first) in zip(images, sorted(first_of_index.items()), strict=True):
+        if list(image) != names:
+            where = str(primal_beside(first.path))
+            raise MergeError("this primal has other channels than the first shard's", where=where)
     return {name: weighted_mean([image[name] for image in images], spp) for name in names}

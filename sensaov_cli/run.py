@@ -118,15 +118,14 @@ def run_job(
             "forward channels and transport layers are rendered by single-batch runs only, "
             "not by a shard, an --objective task or render.batches > 1 (docs/farm.md)"
         )
-    passes = len(integrator_plan(loaded)) * len(objectives)
-    progress.plan(
-        min(job.render.batches, job.render.spp) * (1 + passes)
-        + (forward_passes if forward_wanted else 0)
-        + 1  # the write
-    )
-    spp, seed = job.render.spp, job.render.seed
-    if task.shard is not None:  # shard i of n: batch i-1 of the job's n-batch plan
+    spp, seed, batches = job.render.spp, job.render.seed, min(job.render.batches, job.render.spp)
+    if task.shard is not None:  # shard i of n: batch i-1 of the job's n-batch plan, one batch
         spp, seed = batch_plan(spp, seed, task.shard[1])[task.shard[0] - 1]
+        batches = 1
+    passes = len(integrator_plan(loaded)) * len(objectives)
+    # Forward entries with transport layers push once more per objective; a transport
+    # channel's top objects are only known after the backward passes: not counted.
+    progress.plan(batches * (1 + passes) + (forward_passes if forward_wanted else 0) + 1)
     result = run_adjoint(
         loaded,
         objectives,
@@ -134,7 +133,7 @@ def run_job(
         seed=seed,
         deterministic=job.render.deterministic,
         progress=progress,
-        batches=min(job.render.batches, spp),
+        batches=batches,
     )
     provenance = _provenance(whole, loaded, result, progress.timings, time.perf_counter() - started)
     provenance["task"] = task.describe()

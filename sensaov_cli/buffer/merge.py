@@ -177,8 +177,16 @@ def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:
     base = dict(shards[0].buffer.provenance)
     base.update(
         spp=spp,
-        primal_seed=int(base.get("primal_seed", 0)),
         task={"shard": None, "objectives": None},
+        # what each shard (one batch of the merge) rendered; per-shard timings do not add up
+        batches=[
+            {
+                "spp": int(s.buffer.provenance["spp"]),
+                "seed": int(s.buffer.provenance["primal_seed"]),
+            }
+            for s in {s.index[0]: s for s in shards}.values()
+        ],
+        timings_s={},
         merged_from=[
             {
                 "file": s.path.name,

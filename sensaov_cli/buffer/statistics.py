@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -59,6 +60,19 @@ class Statistics:
                 raise BufferContentError(f"objective {name!r} has {len(values)} batch values")
 
 
+def single_pass(provenance: Mapping[str, Any]) -> bool:
+    """Whether a buffer holds one backward pass per objective over the whole job's samples:
+    not a mean of batches, not a merge, not a shard or an objective task. Only such a buffer
+    can be replayed seed for seed (forward channels, transport duality, ``check``)."""
+    task = provenance.get("task") or {}
+    return (
+        len(provenance.get("batches", ())) <= 1
+        and not provenance.get("merged_from")
+        and task.get("shard") is None
+        and not task.get("objectives")
+    )
+
+
 def pooled_stderr(means: np.ndarray, spp: Sequence[int]) -> np.ndarray:
     """Standard error of the spp-weighted mean of batch ``means`` (axis 0), see module doc."""
     n = np.asarray(spp, dtype=np.float64).reshape((-1,) + (1,) * (means.ndim - 1))
@@ -87,6 +101,9 @@ def combine_batches(
     source: str,
 ) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, float], Statistics | None]:
     """Mean gradients, mean objective values and (for >= 2 batches) their statistics."""
+    if len(batch_grads) == 1:  # one batch is its own mean: no copy of every array
+        only = batch_grads[0]
+        return {o: dict(g) for o, g in only.items()}, dict(batch_values[0]), None
     objectives = list(batch_grads[0])
     grads = {
         name: {key: weighted_mean([b[name][key] for b in batch_grads], spp) for key in keys}

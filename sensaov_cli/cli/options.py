@@ -145,7 +145,8 @@ def _os_failure(err: OSError) -> tuple[str, int] | None:
         return None
     what, code = _OS_FAILURES[err.errno]
     where = f"{err.filename}: " if err.filename else ""
-    hint = " (free space and run again; the previous outputs were kept)" if code == 1 else ""
+    full = err.errno in (errno.ENOSPC, errno.EDQUOT)
+    hint = " (free space and run again; the previous outputs were kept)" if full else ""
     return f"{where}cannot write or read: {what}{hint}", code
 
 

@@ -302,15 +302,9 @@ def run_adjoint(
     deterministic: bool,
     progress: Progress,
     batches: int = 1,
-    only_batch: int | None = None,
 ) -> AdjointResult:
-    """Every batch's primal and backward passes, their mean, its statistics and self-checks.
-
-    ``only_batch``: render that batch of the plan alone (a farm shard); its spp is the result's.
-    """
+    """Every batch's primal and backward passes, their mean, its statistics and self-checks."""
     plan = batch_plan(spp, seed, batches)
-    if only_batch is not None:
-        plan = [plan[only_batch]]
     results = []
     with reproducible(loaded, deterministic) as exact:
         for index, (batch_spp, batch_seed) in enumerate(plan):
@@ -336,7 +330,9 @@ def run_adjoint(
         [s for _, s in plan],
         "batches",
     )
-    image = weighted_mean([r.image for r in results], spps)
+    image = (
+        results[0].image if len(results) == 1 else weighted_mean([r.image for r in results], spps)
+    )
     result = replace(
         results[0], image=image, grads=grads, objective_values=objective_values,
         statistics=statistics, spp=sum(spps),

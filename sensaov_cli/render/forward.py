@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from sensaov_cli import interrupts
 from sensaov_cli.render.adjoint import (
     chunk_seed,
     enable_gradients,
@@ -174,6 +175,8 @@ def _path_forward(
     path = path_integrator(loaded)
     total = np.zeros(shape, np.float32)
     for index, chunk in enumerate(path_chunks(width * height, spp)):
+        if index:
+            interrupts.check()
         for leaf, tangent in tangents.items():
             dr.set_grad(leaf, tangent)  # each chunk pushes v afresh
         try:

@@ -18,6 +18,7 @@ import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.statistics import (
+    COLUMNS,
     PROJ_RAW,
     PROJ_VALUE,
     SUM_RAW,
@@ -66,7 +67,11 @@ class Uncertainty:
 
     def batch_values(self, keys: Sequence[str], score: float) -> tuple[np.ndarray, np.ndarray]:
         """Per batch, the group's score and signed sum (their spp-weighted means: the group's)."""
-        rows = self.sums[[self.index[k] for k in keys]] if keys else np.zeros((0, self.batches, 4))
+        rows = (
+            self.sums[[self.index[k] for k in keys]]
+            if keys
+            else np.zeros((0, self.batches, len(COLUMNS)))
+        )
         value = self.weight == "value"
         signed = rows[:, :, SUM_VALUE if value else SUM_RAW].sum(axis=0)
         if self.method == "sum":
