@@ -67,17 +67,20 @@ def pool_field(field: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
         return data.copy()
     if pool.kind == "mip":
         return _mip(data, 2 ** int(round(pool.radius)))
+    kernel = _kernel(pool)
+    return _spread(_spread(data, kernel, 0, wrap), kernel, 1, wrap)
+
+
+def _kernel(pool: Pool) -> np.ndarray:
+    """The normalised 1-D weights of a gaussian or box pool."""
     if pool.kind == "gaussian":
         half = max(1, int(math.ceil(3 * pool.radius)))
-        offsets = np.arange(-half, half + 1)
-        kernel = np.exp(-0.5 * (offsets / pool.radius) ** 2)
+        kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / pool.radius) ** 2)
     elif pool.kind == "box":
-        half = int(round(pool.radius))
-        kernel = np.ones(2 * half + 1)
+        kernel = np.ones(2 * int(round(pool.radius)) + 1)
     else:
         raise ValueError(f"unknown pool kind {pool.kind!r}; use one of {POOL_KINDS}")
-    kernel /= kernel.sum()
-    return _spread(_spread(data, kernel, 0, wrap), kernel, 1, wrap)
+    return kernel / kernel.sum()
 
 
 def pool_variance(variance: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
@@ -89,14 +92,8 @@ def pool_variance(variance: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
     if pool.kind == "mip":  # a tile's mean: the variance of its sum over its area squared
         block = 2 ** int(round(pool.radius))
         return _mip(data, block) / _tile_sizes(data.shape[:2], block)
-    if pool.kind == "gaussian":
-        half = max(1, int(math.ceil(3 * pool.radius)))
-        kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / pool.radius) ** 2)
-    else:
-        kernel = np.ones(2 * int(round(pool.radius)) + 1)
-    kernel /= kernel.sum()
-    once = _spread(data, kernel, 0, wrap, squared=True)
-    return _spread(once, kernel, 1, wrap, squared=True)
+    kernel = _kernel(pool)
+    return _spread_squared(_spread_squared(data, kernel, 0, wrap), kernel, 1, wrap)
 
 
 def _tile_sizes(size: tuple[int, int], block: int) -> np.ndarray:
@@ -107,15 +104,8 @@ def _tile_sizes(size: tuple[int, int], block: int) -> np.ndarray:
     return (rows[:, None] * cols[None, :])[..., None].astype(np.float64)
 
 
-def _spread(
-    data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str, squared: bool = False
-) -> np.ndarray:
-    """Scatter every texel's value along ``axis`` with ``kernel``, conserving its mass.
-
-    ``squared``: propagate variances instead (every weight, and the edge normalisation, squared).
-    """
-    if squared:
-        return _spread_squared(data, kernel, axis, wrap)
+def _spread(data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str) -> np.ndarray:
+    """Scatter every texel's value along ``axis`` with ``kernel``, conserving its mass."""
     n, half = data.shape[axis], len(kernel) // 2
     moved = np.moveaxis(data, axis, 0)
     out = np.zeros_like(moved)
@@ -136,6 +126,7 @@ def _spread(
 
 
 def _spread_squared(data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str) -> np.ndarray:
+    """:func:`_spread` for variances: every weight, and the edge normalisation, squared."""
     n, half = data.shape[axis], len(kernel) // 2
     moved = np.moveaxis(data, axis, 0)
     out = np.zeros_like(moved)
