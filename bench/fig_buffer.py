@@ -13,6 +13,8 @@ from bench.jobs import Workspace
 from bench.results import Figure, Row, fmt
 from bench.settings import Settings
 from bench.timing import Stats, interleave
+from sensaov_cli.buffer.npz import read_buffer
+from sensaov_cli.outputs.buffer_file import write_buffer
 
 if TYPE_CHECKING:
     from sensaov_cli.buffer.model import SensitivityBuffer
@@ -73,18 +75,17 @@ def buffer_io(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figure:
 def _save(buffer: SensitivityBuffer, path: Path) -> Callable[[], float]:
     def measure() -> float:
         start = time.perf_counter()
-        buffer.save(path)
+        write_buffer(path, buffer)
         return time.perf_counter() - start
 
     return measure
 
 
 def _load(path: Path) -> Callable[[], float]:
-    from sensaov_cli.buffer.model import SensitivityBuffer
 
     def measure() -> float:
         start = time.perf_counter()
-        SensitivityBuffer.load(path)
+        read_buffer(path)
         return time.perf_counter() - start
 
     return measure

@@ -14,6 +14,7 @@ from bench.jobs import SCENES, Workspace
 from bench.results import Figure, Row, fmt
 from bench.settings import Settings
 from bench.timing import interleave, synced
+from sensaov_cli.outputs.buffer_file import write_buffer
 
 
 def farm(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figure:
@@ -123,8 +124,8 @@ def _adjoint(
 
 
 def _merge(ws: Workspace, s: Settings) -> Row:
-    from sensaov_cli.merge import merge_files
     from sensaov_cli.outputs.exr import write_exr
+    from sensaov_cli.pipeline.merge import merge_files
     from sensaov_cli.progress import Progress
 
     folder = ws.root / "merge"
@@ -142,7 +143,7 @@ def _merge(ws: Workspace, s: Settings) -> Row:
             provenance, shard.objects, shard.params, shard.objectives, dict(shard.values), grads
         )
         path = folder / f"buffer.shard-{i}-of-4.npz"
-        shard.save(path)
+        write_buffer(path, shard)
         write_exr(path.with_name(f"primal.shard-{i}-of-4.exr"), {"Y": np.zeros((8, 8))}, {})
         paths.append(path)
     size = paths[0].stat().st_size / MB

@@ -38,12 +38,12 @@ class Passes:
     @staticmethod
     def load(job: Path) -> Passes:
         from sensaov_cli.render.adjoint import enable_gradients, render_primal
+        from sensaov_cli.render.loading import load_job_scene
         from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
-        from sensaov_cli.render.scene import load_scene
         from sensaov_cli.spec.load import load_job
 
         spec = load_job(job)
-        loaded = load_scene(spec)
+        loaded = load_job_scene(spec)
         width, height = loaded.resolution
         objectives = build_objectives(loaded.mi, spec.objectives, (height, width), False)
         enable_gradients(loaded)

@@ -12,7 +12,7 @@ from bench.jobs import EXTRA_OBJECTIVES, MEAN_LUMA, OVERHEAD, SCENES, Workspace
 from bench.results import Figure, Goal, Row, fmt
 from bench.settings import Settings
 from bench.timing import Stats, interleave, synced
-from sensaov_cli.project import DEFAULT_BEAUTY_SPP
+from sensaov_cli.pipeline.project import DEFAULT_BEAUTY_SPP
 
 BUFFER_SPP = 8  # the buffer's own quality does not change what projecting it costs
 CAMERA = "inspect"
@@ -107,16 +107,16 @@ def _rows(case: str, t: dict[str, Stats], s: Settings) -> list[Row]:
 
 
 def _make_buffer(job: Path) -> Path:
+    from sensaov_cli.pipeline.run import run_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.run import run_job
     from sensaov_cli.spec.load import load_job
 
     return run_job(load_job(job), allow_python=False, progress=Progress(quiet=True)).buffer_path
 
 
 def _view(job: Path, buffer_path: Path, beauty_spp: int) -> Callable[[], float]:
+    from sensaov_cli.pipeline.project import project_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.project import project_job
     from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
@@ -136,11 +136,13 @@ def _view(job: Path, buffer_path: Path, beauty_spp: int) -> Callable[[], float]:
 
 def _trace(job: Path, vis_spp: int) -> Callable[[], float]:
     """``visibility.trace`` alone on the inspection camera, the pass a view is built on."""
-    from sensaov_cli.render.scene import load_scene
+    from sensaov_cli.render.loading import load_job_scene
     from sensaov_cli.render.visibility import trace
     from sensaov_cli.spec.load import load_job
 
-    loaded = load_scene(load_job(job), with_inspection_cameras=True)
+    spec = load_job(job)
+
+    loaded = load_job_scene(spec, spec.inspection_cameras)
     sensor = loaded.inspection_sensors[CAMERA]
     return lambda: synced(
         lambda: trace(loaded.mi, loaded.scene, sensor, loaded.objects, vis_spp, seed=0)

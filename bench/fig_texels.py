@@ -14,7 +14,8 @@ from bench.jobs import EXTRA_OBJECTIVES, MEAN_LUMA, SCENES, Workspace
 from bench.results import Figure, Goal, Row, fmt
 from bench.settings import Settings
 from bench.timing import Stats, interleave
-from sensaov_cli.project import DEFAULT_BEAUTY_SPP
+from sensaov_cli.buffer.npz import read_buffer
+from sensaov_cli.pipeline.project import DEFAULT_BEAUTY_SPP
 
 TEXEL_CHANNEL = {"name": "texels", "kind": "texel"}
 BUFFER_SPP = 8
@@ -70,8 +71,8 @@ def texel_cost(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figure
 
 def _view(job: Path, buffer_path: Path, beauty_spp: int) -> Callable[[], float]:
     """Figure 4's view time plus the camera-independent texel work (fields, texture files)."""
+    from sensaov_cli.pipeline.project import project_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.project import project_job
     from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
@@ -107,8 +108,7 @@ def _job(ws: Workspace, s: Settings, name: str, *, with_texels: bool) -> Path:
 
 
 def _noise_rows(ws: Workspace, spp: int, resolution: int) -> list[Row]:
-    from sensaov_cli.buffer.model import SensitivityBuffer
-    from sensaov_cli.spec.model import ChannelSpec
+    from sensaov_cli.spec.job import ChannelSpec
     from sensaov_cli.views.pooling import seed_noise
     from sensaov_cli.views.texel_fields import texel_fields
 
@@ -118,7 +118,7 @@ def _noise_rows(ws: Workspace, spp: int, resolution: int) -> list[Row]:
         data = yaml.safe_load(job.read_text())
         data["render"]["seed"] = seed
         job.write_text(yaml.safe_dump(data, sort_keys=False))
-        buf = SensitivityBuffer.load(_make_buffer(job))
+        buf = read_buffer(_make_buffer(job))
         fields.append(texel_fields(buf, ChannelSpec("t", "texel"), 0, {})[0])
     first, second = fields
     before = seed_noise(first.raw, second.raw)

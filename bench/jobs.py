@@ -114,21 +114,16 @@ class Workspace:
         Both sides of figure 1 then do the same work on the same scene; preparing the XML is
         text processing (milliseconds) and is left out of the hand-written side.
         """
-        from sensaov_cli.render.scene import load_scene
-        from sensaov_cli.render.scene_xml import prepare_scene_xml
+        from sensaov_cli.render.loading import load_scene
+        from sensaov_cli.render.scene import prepare_scene
         from sensaov_cli.spec.load import load_job
 
         spec = load_job(job_path)
-        prepared = prepare_scene_xml(
-            spec.scene,
-            max_depth=spec.render.max_depth,
-            camera=spec.objective_camera,
-            resolution=spec.render.resolution,
-            shared=spec.parameters.shared,
-        )
+        prepared = prepare_scene(spec)
         xml = job_path.with_suffix(".prepared.xml")
         xml.write_text(prepared.text)
-        keys = [info.key for info in load_scene(spec).selected]
+        loaded = load_scene(prepared, variant=spec.variant, parameters=spec.parameters)
+        keys = [info.key for info in loaded.selected]
         keys_path = job_path.with_suffix(".keys.json")
         keys_path.write_text(json.dumps(keys))
         return PlainInputs(xml, spec.scene.parent, prepared.sensor_id, keys_path, len(keys))

@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.views.summary import ranked_groups
 from sensaov_cli.views.uncertainty import Uncertainty
 
 
 def main(first: str, second: str) -> int:
-    a, b = SensitivityBuffer.load(Path(first)), SensitivityBuffer.load(Path(second))
+    a, b = read_buffer(Path(first)), read_buffer(Path(second))
     if a.statistics is None or b.statistics is None:
         print("compare: both buffers need statistics (shards or render.batches >= 2)")
         return 2

@@ -35,8 +35,8 @@ from sensaov_cli.render.fdcheck import (
     check_parameter,
     check_parameter_independent,
 )
+from sensaov_cli.render.loading import load_job_scene
 from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.scene import load_scene
 from sensaov_cli.spec.load import load_job
 
 RES, SPP, SEEDS = 32, 32, 8  # same-seed checks
@@ -275,7 +275,7 @@ def label(check: GradientCheck) -> str:
 def measure(case: Case) -> list[tuple[Case, GradientCheck, bool]]:
     with tempfile.TemporaryDirectory(prefix="sensaov-trust-") as tmp:
         job = load_job(write_case(case, Path(tmp)))
-        loaded = load_scene(job)
+        loaded = load_job_scene(job)
         (objective,) = build_objectives(loaded.mi, job.objectives, (RES, RES), False)
         rows = []
         for info in loaded.selected:

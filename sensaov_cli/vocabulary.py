@@ -17,6 +17,22 @@ Normalize = Literal["none", "channel", "shared"]
 Grouping = Literal["param", "object", "type"]
 Cut = Literal["key", "object", "type"]  # what `rank --by` names a grouping (key = param)
 Order = Literal["object,type", "type,object"]  # the sunburst's rings, innermost first
+# The job's own words (spec/job.py): a Mitsuba variant, an objective's type, a channel's kind,
+# a forward pass's direction, a texel channel's pooling and units.
+Variant = Literal[
+    "auto",
+    "llvm_ad_rgb",
+    "cuda_ad_rgb",
+    "llvm_ad_mono",
+    "cuda_ad_mono",
+    "llvm_ad_spectral",
+    "cuda_ad_spectral",
+]
+ObjectiveType = Literal["mean_luminance", "region_luminance", "l2_to_target", "python"]
+ChannelKind = Literal["object", "type", "select", "transport", "texel"]
+Direction = Literal["value", "ones"]  # θ-weighted (a proportional change) | one per component
+PoolKind = Literal["gaussian", "box", "mip", "none"]
+TexelUnits = Literal["texel", "uv_area"]
 # How far a stored gradient can be trusted (docs/verification.md): checked against finite
 # differences | not checked | known to be wrong | identically 0 (never ranked) | failed a
 # run-time self-check.

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from sensaov_cli.errors import EXIT_BAD_INPUT
+from sensaov_cli.outputs.buffer_file import write_buffer
 
 from .bad_buffers import MAKERS, STRICT_READER, good_buffer
 from .conftest import ROOT, SCENES
@@ -90,7 +91,7 @@ def prepare(case: Case, tmp: Path) -> list[str]:
             os.mkfifo(buffer)
         else:
             good = tmp / "good.npz"
-            good_buffer().save(good)
+            write_buffer(good, good_buffer())
             (MAKERS | STRICT_READER)[kind](good, buffer)
             good.unlink()
         if case.command == "project":

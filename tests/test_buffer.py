@@ -20,6 +20,7 @@ from sensaov_cli.buffer.model import (
     ParamRecord,
     SensitivityBuffer,
 )
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import (
     BufferContentError,
     BufferFormatError,
@@ -27,6 +28,7 @@ from sensaov_cli.errors import (
     NonFiniteGradientError,
     UnknownNameError,
 )
+from sensaov_cli.outputs.buffer_file import write_buffer
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -67,7 +69,7 @@ def buf() -> SensitivityBuffer:
 @pytest.fixture
 def saved(buf: SensitivityBuffer, tmp_path: Path) -> Path:
     path = tmp_path / "buffer.npz"
-    buf.save(path)
+    write_buffer(path, buf)
     return path
 
 
@@ -82,7 +84,7 @@ def assert_same(a: SensitivityBuffer, b: SensitivityBuffer) -> None:
 
 
 def test_round_trip_is_exact(buf: SensitivityBuffer, saved: Path) -> None:
-    loaded = SensitivityBuffer.load(saved)
+    loaded = read_buffer(saved)
     assert_same(buf, loaded)
     arr = loaded.grad("contrast", "mat.reflectance.data")
     assert arr.dtype == np.float32 and arr.flags.c_contiguous and not arr.flags.writeable
@@ -206,7 +208,7 @@ def test_failed_write_keeps_the_existing_file(
     monkeypatch.setattr(np.lib.format, "write_array", half_write)
     expected = BufferWriteError if isinstance(error, OSError) else KeyboardInterrupt
     with pytest.raises(expected):
-        buf.save(saved)
+        write_buffer(saved, buf)
     assert saved.read_bytes() == before
     assert os.listdir(saved.parent) == [saved.name]
 
@@ -214,7 +216,7 @@ def test_failed_write_keeps_the_existing_file(
 def test_unwritable_location_is_a_write_error(buf: SensitivityBuffer, tmp_path: Path) -> None:
     (tmp_path / "a-file").write_text("")
     with pytest.raises(BufferWriteError) as info:
-        buf.save(tmp_path / "a-file" / "buffer.npz")
+        write_buffer(tmp_path / "a-file" / "buffer.npz", buf)
     assert "a-file" in str(info.value)
 
 
@@ -357,7 +359,7 @@ def _nonexistent(p: Path) -> None:
 def test_unreadable_file_is_a_buffer_format_error(saved: Path, spoil) -> None:
     spoil(saved)
     with pytest.raises(BufferFormatError) as info:
-        SensitivityBuffer.load(saved)
+        read_buffer(saved)
     message = str(info.value)
     assert str(saved) in message and "\n" not in message
 
@@ -365,7 +367,7 @@ def test_unreadable_file_is_a_buffer_format_error(saved: Path, spoil) -> None:
 def test_unknown_version_says_so(saved: Path) -> None:
     _unknown_version(saved)
     with pytest.raises(BufferFormatError, match=f"version {FORMAT_VERSION + 1} is not supported"):
-        SensitivityBuffer.load(saved)
+        read_buffer(saved)
 
 
 # --- the format itself: a change to it must show up here ------------------------------------
@@ -427,7 +429,7 @@ def test_reads_a_file_written_from_the_spec(tmp_path: Path, version: int) -> Non
     """docs/buffer-format.md is enough to write a buffer without sensaov's writer."""
     path = tmp_path / "by-hand.npz"
     _write_by_hand(path, version, {"trust": "suspect"})
-    loaded = SensitivityBuffer.load(path)
+    loaded = read_buffer(path)
     assert loaded.value("lamp.emitter.radiance.value").tolist() == [1, 2, 3]
     assert loaded.grad("m", "lamp.emitter.radiance.value").tolist() == [0.5, 0, -1]
     assert loaded.param("lamp.emitter.radiance.value").trust == "suspect"
@@ -438,7 +440,7 @@ def test_reads_a_version_1_file(tmp_path: Path, verified: bool, trust: str) -> N
     """Version 1 stored a boolean "verified"; it reads as the label it meant."""
     path = tmp_path / "v1.npz"
     _write_by_hand(path, 1, {"verified": verified})
-    record = SensitivityBuffer.load(path).param("lamp.emitter.radiance.value")
+    record = read_buffer(path).param("lamp.emitter.radiance.value")
     assert (record.trust, record.verified) == (trust, verified)
 
 
@@ -447,7 +449,7 @@ def test_version_1_file_with_a_version_2_record_is_refused(tmp_path: Path, label
     path = tmp_path / "v1.npz"
     _write_by_hand(path, 1, label)
     with pytest.raises(BufferFormatError, match="params\\[0\\]"):
-        SensitivityBuffer.load(path)
+        read_buffer(path)
 
 
 def test_plain_numpy_example_in_the_docs_runs(saved: Path, capsys) -> None:

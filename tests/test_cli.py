@@ -122,7 +122,7 @@ def _gradient_check(verified: bool, verdict: str) -> SimpleNamespace:
     ],
 )
 def test_check_exit_code(verified: bool, verdict: str, code: int) -> None:
-    from sensaov_cli.check import exit_code
+    from sensaov_cli.pipeline.check import exit_code
 
     checks = [_gradient_check(True, "agrees"), _gradient_check(verified, verdict)]
     assert exit_code(checks) == code  # type: ignore[arg-type]
@@ -132,25 +132,22 @@ def test_check_exit_code(verified: bool, verdict: str, code: int) -> None:
 def test_check_command_exits_1_when_the_table_is_contradicted(
     runner: CliRunner, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import sensaov_cli.check
+    import sensaov_cli.pipeline.check
 
     calls: list[dict[str, object]] = []
 
-    def fake_check_job(job: object, **options: object) -> list[SimpleNamespace]:
+    def fake_check_gradients(loaded: object, built: object, **options: object) -> list:
         calls.append(options)
         return [_gradient_check(True, "disagrees")]
 
-    monkeypatch.setattr(sensaov_cli.check, "check_job", fake_check_job)
-    # The duality column (tests/test_forward.py) would render if a demo buffer lies in out/.
-    monkeypatch.setattr(sensaov_cli.check, "duality_job", lambda *args, **kwargs: [])
-    result = runner.invoke(
-        main, ["check", str(REPO / "configs/cbox.yaml"), "--seeds", "3", "--key", "a", "--key", "b"]
-    )
+    # The scene is prepared and loaded for real; the renders of the check are faked.
+    monkeypatch.setattr(sensaov_cli.pipeline.check, "check_gradients", fake_check_gradients)
+    args = ["--seeds", "3", "--key", "a", "--key", "b", "--buffer", "/nonexistent/buffer.npz"]
+    result = runner.invoke(main, ["check", str(REPO / "configs/cbox.yaml"), *args])
     assert result.exit_code == EXIT_JOB_FAILED, result.output
     assert "CONTRADICTS THE TABLE" in result.stdout
-    assert calls == [
-        {"objective": None, "spp": None, "seeds": 3, "keys": ("a", "b"), "allow_python": False}
-    ]
+    assert "no buffer at /nonexistent/buffer.npz: duality column skipped" in result.stderr
+    assert calls == [{"spp": 64, "seeds": [0, 1, 2], "keys": ["a", "b"]}]
 
 
 def test_check_refuses_an_unknown_objective(runner: CliRunner) -> None:

@@ -2,7 +2,7 @@
 
 Every corpus scene, with the arguments it needs, is loaded twice: by Mitsuba from the user's
 files (``mi.load_file(path, optimize=False, **args)``) and by Mitsuba from the text
-``prepare_scene_xml`` writes. Both are rendered by one ``prb`` integrator object at the same
+``prepare_xml`` writes. Both are rendered by one ``prb`` integrator object at the same
 seed and spp, so the scenes' own integrators (``$integrator``) take no part and the sample
 paths are the same. The images are compared with a tolerance, not bit for bit, for two
 measured reasons: 8-bit bitmaps are loaded as float by the rewrite (sRGB decoded at load
@@ -22,10 +22,10 @@ import pytest
 import yaml
 
 from sensaov_cli.errors import SceneError
-from sensaov_cli.render.scene import LoadedScene, load_scene
-from sensaov_cli.render.scene_xml import PreparedXml, prepare_scene_xml
+from sensaov_cli.render.loading import LoadedScene, load_job_scene
+from sensaov_cli.render.scene.prepare import PreparedScene, prepare_xml
+from sensaov_cli.spec.job import CameraSpec
 from sensaov_cli.spec.load import load_job
-from sensaov_cli.spec.model import CameraSpec
 
 CORPUS = Path(__file__).resolve().parents[1] / "scenes" / "corpus"
 # (scene folder, the scene arguments it is loaded with)
@@ -41,10 +41,10 @@ JOBS = [
 MAX_DEPTH, SPP, SEED = 5, 4, 7
 
 
-def prepared_corpus(name: str, args: dict[str, str], **options: Any) -> PreparedXml:
+def prepared_corpus(name: str, args: dict[str, str], **options: Any) -> PreparedScene:
     settings: dict[str, Any] = {"camera": CameraSpec(name="objective"), "resolution": None}
     settings.update(options)
-    return prepare_scene_xml(
+    return prepare_xml(
         CORPUS / name / "scene.xml",
         max_depth=MAX_DEPTH,
         shared="split",
@@ -103,7 +103,8 @@ def shelf(mi: ModuleType, tmp_path_factory: pytest.TempPathFactory) -> LoadedSce
     ]
     scene = CORPUS / "instanced_shelf" / "scene.xml"
     path = write_job(tmp_path_factory.mktemp("shelf"), scene, inspection_cameras=cameras)
-    return load_scene(load_job(path), with_inspection_cameras=True)
+    spec = load_job(path)
+    return load_job_scene(spec, spec.inspection_cameras)
 
 
 def test_sensors_with_film_sampler_and_filter_ids_can_be_copied(shelf: LoadedScene) -> None:
@@ -133,7 +134,7 @@ def test_mitsubas_load_error_points_at_the_users_file(mi: ModuleType, tmp_path: 
     )
     ball.write_text(ball.read_text() + "</shape>\n</scene>\n")
     with pytest.raises(SceneError, match='could not parse floating point value "x"') as info:
-        load_scene(load_job(write_job(tmp_path, scene)))
+        load_job_scene(load_job(write_job(tmp_path, scene)))
     assert info.value.where == f"{ball}:3"
 
 
@@ -160,7 +161,8 @@ def test_a_refd_film_and_a_crop_window_load_at_every_cameras_size(
         {"name": "look", "look_at": look, "resolution": [3, 3]},
     ]
     job = write_job(tmp_path, scene, inspection_cameras=cameras, render={"resolution": [20, 10]})
-    loaded = load_scene(load_job(job), with_inspection_cameras=True)
+    spec = load_job(job)
+    loaded = load_job_scene(spec, spec.inspection_cameras)
     sizes = {n: tuple(s.film().crop_size()) for n, s in loaded.inspection_sensors.items()}
     assert sizes == {"objective": (20, 10), "other": (6, 2), "look": (3, 3)}
     assert loaded.resolution == (20, 10)
@@ -170,7 +172,7 @@ def shelf_gradients(mi: ModuleType, shared: str) -> dict[str, float]:
     """d(mean image)/d(base colour) of every pot_glaze copy, instanced_shelf at 16x12."""
     import drjit as dr
 
-    prepared = prepare_scene_xml(
+    prepared = prepare_xml(
         CORPUS / "instanced_shelf" / "scene.xml",
         max_depth=3,
         shared=shared,

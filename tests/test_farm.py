@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.statistics import pooled_stderr
 
 from .conftest import sensaov
@@ -50,14 +50,14 @@ def test_shards_write_their_own_files_and_a_quarter_of_the_samples(farm: Path) -
     names = sorted(p.name for p in out.iterdir())
     for i in range(1, SHARDS + 1):
         assert f"buffer.shard-{i}-of-4.npz" in names and f"primal.shard-{i}-of-4.exr" in names
-    shard = SensitivityBuffer.load(shard_paths(farm)[1])
+    shard = read_buffer(shard_paths(farm)[1])
     assert shard.provenance["spp"] == 4 and shard.provenance["job_spp"] == 16
     assert shard.provenance["task"] == {"shard": {"index": 2, "count": 4}, "objectives": None}
 
 
 def test_merge_is_the_spp_weighted_mean_exactly(farm: Path, merged: Path) -> None:
-    shards = [SensitivityBuffer.load(p) for p in shard_paths(farm)]
-    result = SensitivityBuffer.load(merged)
+    shards = [read_buffer(p) for p in shard_paths(farm)]
+    result = read_buffer(merged)
     spp = np.array([s.provenance["spp"] for s in shards], dtype=np.float64)
     assert result.provenance["spp"] == spp.sum() == 16
     for objective in ("mean_luma", "centre"):
@@ -81,8 +81,8 @@ def test_merge_equals_one_run_with_as_many_batches(
     job = job_writer("batches", objectives=OBJECTIVES, render={**RENDER, "batches": SHARDS})
     done = sensaov("run", str(job), "-q")
     assert done.returncode == 0, done.stderr
-    single = SensitivityBuffer.load(job.parent / "out" / "buffer.npz")
-    result = SensitivityBuffer.load(merged)
+    single = read_buffer(job.parent / "out" / "buffer.npz")
+    result = read_buffer(merged)
     assert single.statistics is not None and single.statistics.seeds == result.statistics.seeds
     for objective in ("mean_luma", "centre"):
         for key in result.keys:
@@ -98,8 +98,8 @@ def test_merged_and_an_independent_run_agree_within_the_standard_errors(
     other = {**RENDER, "seed": 7, "batches": 4}
     job = job_writer("independent", objectives=OBJECTIVES, render=other)
     assert sensaov("run", str(job), "-q").returncode == 0
-    a = SensitivityBuffer.load(merged)
-    b = SensitivityBuffer.load(job.parent / "out" / "buffer.npz")
+    a = read_buffer(merged)
+    b = read_buffer(job.parent / "out" / "buffer.npz")
     z = []
     for objective in ("mean_luma", "centre"):
         for key in a.keys:
@@ -214,7 +214,7 @@ def test_objective_split_shards_merge_like_whole_ones(farm: Path, merged: Path) 
     target = out / "split" / "buffer.npz"
     done = sensaov("merge", *map(str, files), "-o", str(target))
     assert done.returncode == 0, done.stderr
-    a, b = SensitivityBuffer.load(target), SensitivityBuffer.load(merged)
+    a, b = read_buffer(target), read_buffer(merged)
     for key in a.keys:
         assert np.array_equal(a.grad("centre", key), b.grad("centre", key))
 
@@ -261,13 +261,13 @@ def test_standard_errors_are_calibrated(job_writer: Callable[..., Path]) -> None
     from sensaov_cli.buffer.statistics import SUM_VALUE
     from sensaov_cli.progress import Progress
     from sensaov_cli.render.adjoint import run_adjoint
+    from sensaov_cli.render.loading import load_job_scene
     from sensaov_cli.render.objectives import build_objectives
-    from sensaov_cli.render.scene import load_scene
     from sensaov_cli.spec.load import load_job
 
     render = {"spp": 32, "max_depth": 3, "seed": 0, "resolution": [16, 16], "batches": 4}
     job = load_job(job_writer("calibration", render=render))
-    loaded = load_scene(job)
+    loaded = load_job_scene(job)
     objectives = build_objectives(loaded.mi, job.objectives, (16, 16), False)
     estimates, errors, element_estimates, element_errors = [], [], [], []
     for seed in range(10):

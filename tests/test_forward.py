@@ -12,9 +12,11 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from sensaov_cli.buffer.forward import read_forward
+from sensaov_cli.buffer.forward_sidecar import read_forward
 from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import SpecError
+from sensaov_cli.outputs.buffer_file import write_buffer
 from sensaov_cli.views.transport import forward_views, transport_views
 
 from .conftest import sensaov, write_job
@@ -41,7 +43,7 @@ def cbox_forward(job_writer: Callable[..., Path]) -> tuple[Path, subprocess.Comp
 
 def _load(job: Path) -> tuple[SensitivityBuffer, object]:
     out = job.parent / "out"
-    return SensitivityBuffer.load(out / "buffer.npz"), read_forward(out / "forward.npz")
+    return read_buffer(out / "buffer.npz"), read_forward(out / "forward.npz")
 
 
 def test_run_reports_the_cost_of_every_forward_pass(cbox_forward: tuple) -> None:
@@ -53,7 +55,7 @@ def test_run_reports_the_cost_of_every_forward_pass(cbox_forward: tuple) -> None
 def test_forward_channel_matches_same_seed_central_differences(cbox_forward: tuple) -> None:
     """J·v of the green wall's reflectance against (I(θ+εv) − I(θ−εv)) / 2ε at its seed."""
     from sensaov_cli.render.adjoint import render_primal
-    from sensaov_cli.render.scene import assign, load_scene
+    from sensaov_cli.render.loading import assign, load_job_scene
     from sensaov_cli.render.visibility import trace
     from sensaov_cli.spec.load import load_job
 
@@ -61,7 +63,7 @@ def test_forward_channel_matches_same_seed_central_differences(cbox_forward: tup
     buffer, data = _load(job)
     view = next(v for v in forward_views(buffer, data) if v.name == "green_wall")
     assert view.keys == (GREEN,) and view.data is not None
-    loaded = load_scene(load_job(job))
+    loaded = load_job_scene(load_job(job))
     theta = buffer.value(GREEN)
     eps = 1e-2
     sides = []
@@ -118,9 +120,10 @@ def test_project_writes_forward_and_transport_layers(cbox_forward: tuple) -> Non
 def test_a_sidecar_of_another_buffer_is_refused(cbox_forward: tuple, tmp_path: Path) -> None:
     job, _ = cbox_forward
     shutil.copytree(job.parent / "out", tmp_path / "out")
-    buffer = SensitivityBuffer.load(tmp_path / "out" / "buffer.npz")
+    buffer = read_buffer(tmp_path / "out" / "buffer.npz")
     provenance = {**buffer.provenance, "created_utc": "2000-01-01T00:00:00+00:00"}
-    dataclasses.replace(buffer, provenance=provenance).save(tmp_path / "out" / "buffer.npz")
+    stale = dataclasses.replace(buffer, provenance=provenance)
+    write_buffer(tmp_path / "out" / "buffer.npz", stale)
     done = sensaov("project", str(job), "--buffer", str(tmp_path / "out" / "buffer.npz"))
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and "belongs to another buffer" in done.stderr
@@ -135,10 +138,10 @@ def test_check_passes_and_fails_loudly_on_a_corrupted_gradient(
     assert done.returncode == 0, done.stdout + done.stderr
     assert "duality at the buffer's gradient seeds" in done.stdout
     assert done.stdout.count(" agrees") >= 2 + 2 * 2 * 2
-    buffer = SensitivityBuffer.load(job.parent / "out" / "buffer.npz")
+    buffer = read_buffer(job.parent / "out" / "buffer.npz")
     grads = {o: dict(g) for o, g in buffer.grads.items()}
     grads["region"][GREEN] = grads["region"][GREEN] * np.float32(1.5)  # corrupted on purpose
-    dataclasses.replace(buffer, grads=grads).save(tmp_path / "buffer.npz")
+    write_buffer(tmp_path / "buffer.npz", dataclasses.replace(buffer, grads=grads))
     done = sensaov("check", str(job), "--seeds", "2", "--directions", "1", *keys,
                    "--buffer", str(tmp_path / "buffer.npz"))  # fmt: skip
     assert done.returncode == 1
@@ -148,7 +151,7 @@ def test_check_passes_and_fails_loudly_on_a_corrupted_gradient(
 
 def test_indirect_only_wall_paints_the_objects_it_lights(tmp_path: Path) -> None:
     """scenes/interior's front wall is behind the camera: seen nowhere, felt everywhere."""
-    from sensaov_cli.render.scene import load_scene
+    from sensaov_cli.render.loading import load_job_scene
     from sensaov_cli.render.visibility import trace
     from sensaov_cli.spec.load import load_job
 
@@ -159,7 +162,7 @@ def test_indirect_only_wall_paints_the_objects_it_lights(tmp_path: Path) -> None
     buffer, data = _load(job)
     (view,) = transport_views(buffer, data)
     assert view.residual <= 1e-4 and view.forward_sum > 0
-    loaded = load_scene(load_job(job))
+    loaded = load_job_scene(load_job(job))
     seen = trace(loaded.mi, loaded.scene, loaded.sensor, buffer.objects, 4, seed=0)
     assert "front_wall" not in seen.visible_objects
     first = seen.rank_index[..., 0]

@@ -15,8 +15,10 @@ import yaml
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from sensaov_cli.buffer.model import HEADER_MEMBER, SensitivityBuffer
+from sensaov_cli.buffer.model import HEADER_MEMBER
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import SensaovError
+from sensaov_cli.outputs.buffer_file import write_buffer
 from sensaov_cli.spec.load import load_job
 
 from .bad_buffers import good_buffer, members, write_members
@@ -74,13 +76,13 @@ def test_any_values_under_the_known_keys(tmp_path: Path, changes: dict) -> None:
 @pytest.fixture(scope="module")
 def good(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("fuzz") / "good.npz"
-    good_buffer().save(path)
+    write_buffer(path, good_buffer())
     return path
 
 
 def load(path: Path) -> None:
     try:
-        SensitivityBuffer.load(path)
+        read_buffer(path)
     except SensaovError:
         pass
 

@@ -20,8 +20,8 @@ import pytest
 
 from sensaov_cli.render import adjoint
 from sensaov_cli.render.fdcheck import check_gradients, check_parameter
+from sensaov_cli.render.loading import LoadedScene, load_job_scene
 from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
-from sensaov_cli.render.scene import LoadedScene, load_scene
 from sensaov_cli.spec.load import load_job
 
 SAME_SEED_TOLERANCE = 2e-3
@@ -39,7 +39,7 @@ def loaded_with_objective(job: Path, spp: int | None = None):  # noqa: ANN201
     spec = load_job(job)
     if spp is not None:
         spec = dataclasses.replace(spec, render=dataclasses.replace(spec.render, spp=spp))
-    loaded = load_scene(spec)
+    loaded = load_job_scene(spec)
     (objective,) = build_objectives(loaded.mi, spec.objectives, loaded.resolution[::-1], False)
     return spec, loaded, objective
 

@@ -11,7 +11,7 @@ import pytest
 
 from sensaov_cli.errors import ObjectiveError, SpecError
 from sensaov_cli.render.objectives import REC709_LUMA, build_objectives, value_and_adjoint
-from sensaov_cli.spec.model import ObjectiveSpec
+from sensaov_cli.spec.job import ObjectiveSpec
 
 H, W = 6, 8
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import per_object
 from sensaov_cli.outputs.exr import read_exr
 
@@ -61,7 +61,7 @@ def test_cryptomatte_decodes_to_manifest_names_and_coverage_sums_to_one(
     projected: Path, camera: str
 ) -> None:
     names, coverages, manifest = decode_file(projected / f"{camera}.exr", "CryptoObject")
-    buffer = SensitivityBuffer.load(projected / "buffer.npz")
+    buffer = read_buffer(projected / "buffer.npz")
     assert set(manifest) == set(buffer.objects)
     total = np.sum(coverages, axis=0)
     channels, _ = exr(projected, camera)
@@ -76,7 +76,7 @@ def test_cryptomatte_decodes_to_manifest_names_and_coverage_sums_to_one(
 
 
 def test_object_channel_equals_buffer_aggregate_from_two_cameras(projected: Path) -> None:
-    buffer = SensitivityBuffer.load(projected / "buffer.npz")
+    buffer = read_buffer(projected / "buffer.npz")
     expected = per_object(buffer, "mean_luma", method="l2", weight="value")
     checked = 0
     for camera in ("objective", "high"):
@@ -156,8 +156,8 @@ def test_project_computes_no_derivatives(
 ) -> None:
     import drjit as dr
 
+    from sensaov_cli.pipeline.project import project_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.project import project_job
     from sensaov_cli.spec.load import load_job
 
     job = job_writer("no_ad", inspection_cameras=CAMERAS[1:])

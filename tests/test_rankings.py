@@ -15,8 +15,10 @@ from click.testing import CliRunner
 
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.cli import main
 from sensaov_cli.errors import EXIT_BAD_INPUT
+from sensaov_cli.outputs.buffer_file import write_buffer
 from sensaov_cli.outputs.cryptomatte import metadata, rank_channels
 from sensaov_cli.outputs.frames import seen_names
 from sensaov_cli.outputs.rankings import COLUMNS
@@ -73,7 +75,7 @@ def make_buffer() -> SensitivityBuffer:
 @pytest.fixture(scope="module")
 def buffer_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("rankings") / "buffer.npz"
-    make_buffer().save(path)
+    write_buffer(path, make_buffer())
     return path
 
 
@@ -179,7 +181,7 @@ def test_text_marks_trust_and_lists_no_gradient(runner: CliRunner, buffer_path: 
 
 def test_default_output_is_the_summary(runner: CliRunner, buffer_path: Path) -> None:
     result = runner.invoke(main, ["rank", str(buffer_path), "--top", "3"])
-    assert result.output == summary_text(SensitivityBuffer.load(buffer_path), top=3) + "\n"
+    assert result.output == summary_text(read_buffer(buffer_path), top=3) + "\n"
 
 
 @pytest.mark.parametrize(

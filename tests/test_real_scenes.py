@@ -20,14 +20,14 @@ import numpy as np
 import pytest
 import yaml
 
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_OK
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.render.scene import LoadedScene, load_scene
-from sensaov_cli.render.scene_xml import prepare_scene_xml
+from sensaov_cli.render.loading import LoadedScene, load_job_scene
+from sensaov_cli.render.scene.prepare import prepare_xml
 from sensaov_cli.render.visibility import trace
+from sensaov_cli.spec.job import CameraSpec, ChannelSpec
 from sensaov_cli.spec.load import load_job
-from sensaov_cli.spec.model import CameraSpec, ChannelSpec
 from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass, histogram, ranked
 from sensaov_cli.views.painting import paint_pass
@@ -62,7 +62,7 @@ def corpus_scene(
     def load(scene: str) -> LoadedScene:
         if scene not in loaded:
             job = corpus_job(tmp_path_factory.mktemp(scene), scene)
-            loaded[scene] = load_scene(load_job(job))
+            loaded[scene] = load_job_scene(load_job(job))
         return loaded[scene]
 
     return load
@@ -153,7 +153,7 @@ def test_run_and_project_go_through_on_every_corpus_scene(tmp_path: Path, scene:
     for command in (("run", str(job)), ("project", str(job), "--png")):
         result = sensaov(*command)
         assert result.returncode == EXIT_OK, result.stderr
-    buffer = SensitivityBuffer.load(tmp_path / "out" / "buffer.npz")
+    buffer = read_buffer(tmp_path / "out" / "buffer.npz")
     recorded = buffer.provenance["scene_args"]  # every $name used, the scene's defaults too
     assert {k: str(v) for k, v in ARGS.get(scene, {}).items()}.items() <= recorded.items()
     channels, header = read_exr(tmp_path / "out" / "objective.exr")
@@ -194,7 +194,7 @@ def integrator_of(tmp_path: Path, integrator: str) -> tuple[ET.Element, str | No
         '<sensor type="perspective"><film type="hdrfilm"/></sensor>'
         '<shape type="sphere" id="ball"/></scene>'
     )
-    prepared = prepare_scene_xml(
+    prepared = prepare_xml(
         scene, max_depth=4, camera=CameraSpec("objective"), resolution=None, shared="split"
     )
     return ET.fromstring(prepared.text).find("integrator"), prepared.replaced_integrator

@@ -225,6 +225,7 @@ class Inventory:
     excluded = ()
     split: dict[str, tuple[str, ...]] = {}
     textures: dict[str, object] = {}
+    changes: tuple[tuple[str, str, str], ...] = ()
 
     def __init__(self, records: tuple[ParamRecord, ...]) -> None:
         self.selected = records
@@ -246,7 +247,7 @@ def row_of_params(text: str, key: str) -> str:
 
 def test_a_pass_is_not_marked_for_a_parameter_no_gradient_flows_through() -> None:
     """The gold ball's eta adds exactly 0 to every picture: only the biased alpha marks it."""
-    from sensaov_cli.spec.model import ChannelSpec
+    from sensaov_cli.spec.job import ChannelSpec
     from sensaov_cli.views.channels import channel_values
 
     (objects,) = channel_values(with_gold_ball(), (ChannelSpec("objects", "object"),))

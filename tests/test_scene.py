@@ -8,9 +8,9 @@ from types import ModuleType
 
 import pytest
 
-from sensaov_cli.errors import SceneError
-from sensaov_cli.render.scene import LoadedScene, load_scene
-from sensaov_cli.render.scene_xml import prepare_scene_xml
+from sensaov_cli.errors import SceneError, SpecError
+from sensaov_cli.render.loading import LoadedScene, load_job_scene
+from sensaov_cli.render.scene.prepare import prepare_xml
 from sensaov_cli.spec.load import load_job
 
 SPLIT_WHITE = ("back_wall", "ceiling", "floor", "light")
@@ -18,7 +18,7 @@ SPLIT_WHITE = ("back_wall", "ceiling", "floor", "light")
 
 @pytest.fixture(scope="session")
 def cbox(mi: ModuleType, job_writer: Callable[..., Path]) -> LoadedScene:
-    return load_scene(load_job(job_writer("cbox_scene")))
+    return load_job_scene(load_job(job_writer("cbox_scene")))
 
 
 def by_key(loaded: LoadedScene) -> dict[str, object]:
@@ -64,7 +64,7 @@ def test_known_biased_parameters_are_marked_unverified(cbox: LoadedScene) -> Non
 
 
 def test_shared_bsdf_is_split_into_one_key_per_object(cbox: LoadedScene) -> None:
-    assert sorted(cbox.split["white"]) == list(SPLIT_WHITE)
+    assert sorted(cbox.prepared.split["white"]) == list(SPLIT_WHITE)
     for shape in SPLIT_WHITE:
         assert by_key(cbox)[f"{shape}.bsdf.reflectance.value"].owners == (shape,)  # type: ignore[attr-defined]
 
@@ -72,20 +72,20 @@ def test_shared_bsdf_is_split_into_one_key_per_object(cbox: LoadedScene) -> None
 def test_keep_mode_gives_one_key_owned_by_every_user(
     mi: ModuleType, job_writer: Callable[..., Path]
 ) -> None:
-    loaded = load_scene(load_job(job_writer("keep", parameters={"shared": "keep"})))
+    loaded = load_job_scene(load_job(job_writer("keep", parameters={"shared": "keep"})))
     assert by_key(loaded)["white.reflectance.value"].owners == SPLIT_WHITE  # type: ignore[attr-defined]
-    assert loaded.split == {}
+    assert loaded.prepared.split == {}
 
 
 def test_geometry_enters_only_when_named(mi: ModuleType, job_writer: Callable[..., Path]) -> None:
     job = job_writer("geometry", parameters={"include": ["*", "tall_box.vertex_positions"]})
-    selected = by_key(load_scene(load_job(job)))
+    selected = by_key(load_job_scene(load_job(job)))
     assert "tall_box.vertex_positions" in selected
     assert "short_box.vertex_positions" not in selected
 
 
 def test_exclude_globs_remove_and_say_so(mi: ModuleType, job_writer: Callable[..., Path]) -> None:
-    loaded = load_scene(load_job(job_writer("exclude", parameters={"exclude": ["*.eta"]})))
+    loaded = load_job_scene(load_job(job_writer("exclude", parameters={"exclude": ["*.eta"]})))
     assert not any(info.type == "eta" for info in loaded.selected)
     reasons = {item.key: item.reason for item in loaded.excluded}
     assert reasons["glass.eta"] == "excluded by parameters.exclude '*.eta'"
@@ -94,7 +94,7 @@ def test_exclude_globs_remove_and_say_so(mi: ModuleType, job_writer: Callable[..
 def test_hidden_light_and_indirect_wall_are_selected(
     mi: ModuleType, job_writer: Callable[..., Path]
 ) -> None:
-    loaded = load_scene(load_job(job_writer("interior", scene="interior")))
+    loaded = load_job_scene(load_job(job_writer("interior", scene="interior")))
     owners = {owner for info in loaded.selected for owner in info.owners}
     assert {"ceiling_light", "front_wall"} <= owners
     assert len(loaded.objects) >= 8
@@ -103,9 +103,10 @@ def test_hidden_light_and_indirect_wall_are_selected(
 def test_unknown_sensor_names_the_ones_there(
     mi: ModuleType, job_writer: Callable[..., Path]
 ) -> None:
-    with pytest.raises(SceneError, match="no sensor with id 'nope'") as info:
-        load_scene(load_job(job_writer("sensor", objective_camera="nope")))
-    assert "sensor" in str(info.value.hint)
+    # The job's key is named, as run and validate name it (the scene is prepared once).
+    with pytest.raises(SpecError, match="no sensor with id 'nope'") as info:
+        load_job_scene(load_job(job_writer("sensor", objective_camera="nope")))
+    assert "sensor" in str(info.value.hint) and str(info.value.where).endswith("objective_camera")
 
 
 def test_inline_look_at_camera_and_resolution(
@@ -113,7 +114,7 @@ def test_inline_look_at_camera_and_resolution(
 ) -> None:
     camera = {"look_at": {"origin": [0, 0, 3], "target": [0, 0, 0], "up": [0, 1, 0]}, "fov": 30}
     render = {"spp": 4, "resolution": [20, 10]}
-    loaded = load_scene(load_job(job_writer("lookat", objective_camera=camera, render=render)))
+    loaded = load_job_scene(load_job(job_writer("lookat", objective_camera=camera, render=render)))
     assert loaded.sensor.id() == "sensaov_objective"
     assert loaded.resolution == (20, 10)
 
@@ -123,7 +124,7 @@ def test_malformed_scene_xml_names_file_and_line(tmp_path: Path) -> None:
     scene.write_text('<scene version="3.0.0">\n  <shape type="sphere">\n</scene>\n')
     job = load_job(_job_for(tmp_path, scene))
     with pytest.raises(SceneError, match="malformed XML") as info:
-        prepare_scene_xml(
+        prepare_xml(
             scene, max_depth=4, camera=job.objective_camera, resolution=None, shared="split"
         )
     assert f"{scene}:3" in str(info.value)
@@ -143,8 +144,8 @@ def test_inspection_cameras_get_sensors_of_their_own(
         {"name": "objective", "objective": True},
     ]
     job = load_job(job_writer("inspect", scene="interior", inspection_cameras=cameras))
-    loaded = load_scene(job, with_inspection_cameras=True)
+    loaded = load_job_scene(job, job.inspection_cameras)
     corner = loaded.inspection_sensors["corner"]
     assert tuple(corner.film().crop_size()) == (30, 20)  # resized copy; the scene's is untouched
     assert tuple(loaded.inspection_sensors["objective"].film().crop_size()) == (24, 24)
-    assert loaded.materials["front_wall"] == "front_paint"
+    assert loaded.prepared.materials["front_wall"] == "front_paint"

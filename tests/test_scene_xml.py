@@ -14,18 +14,13 @@ from pathlib import Path
 import pytest
 
 from sensaov_cli.errors import SceneError
-from sensaov_cli.render.scene_expand import expand_scene
-from sensaov_cli.render.scene_names import name_objects
-from sensaov_cli.render.scene_source import locate_load_error, write_xml
-from sensaov_cli.render.scene_xml import (
-    PreparedXml,
-    check_cameras,
-    prepare_scene_xml,
-    scene_fingerprint,
-    scene_sensor_ids,
-)
+from sensaov_cli.pipeline.validate import validate_job
+from sensaov_cli.render.scene.expand import expand_scene
+from sensaov_cli.render.scene.naming import name_objects
+from sensaov_cli.render.scene.prepare import PreparedScene, prepare_xml
+from sensaov_cli.render.scene.source import locate_load_error, write_xml
+from sensaov_cli.spec.cameras import CameraSpec, LookAt
 from sensaov_cli.spec.load import load_job
-from sensaov_cli.spec.model import CameraSpec, LookAt
 
 CORPUS = Path(__file__).resolve().parents[1] / "scenes" / "corpus"
 SENSOR = (
@@ -41,13 +36,13 @@ def write(folder: Path, name: str, body: str, version: str = "3.0.0") -> Path:
     return path
 
 
-def prepare(path: Path, shared: str = "split", **kwargs: object) -> PreparedXml:
+def prepare(path: Path, shared: str = "split", **kwargs: object) -> PreparedScene:
     options: dict = {"max_depth": 4, "camera": CameraSpec(name="objective"), "resolution": None}
     options.update(kwargs)
-    return prepare_scene_xml(path, shared=shared, **options)
+    return prepare_xml(path, shared=shared, **options)
 
 
-def parsed(prepared: PreparedXml) -> ET.Element:
+def parsed(prepared: PreparedScene) -> ET.Element:
     return ET.fromstring(prepared.text)
 
 
@@ -379,8 +374,8 @@ def test_elements_mitsuba_does_not_read_are_refused_at_their_line(tmp_path: Path
         prepare(write(tmp_path, "c.xml", f'{SENSOR}<bsdf type="diffuse"><colour/></bsdf>'))
 
 
-def test_check_cameras_refuses_what_the_preparation_refuses(tmp_path: Path) -> None:
-    # validate and the start of run call check_cameras: they refuse what run would.
+def test_validate_refuses_what_the_preparation_refuses(tmp_path: Path) -> None:
+    # validate prepares the scene as run does, every camera placed: it refuses what run would.
     film = '<film type="hdrfilm"><integer name="width" value="$res"/></film>'
     main = write(tmp_path, "main.xml", f'<sensor type="perspective" id="cam">{film}</sensor>')
     job = tmp_path / "job.yaml"
@@ -389,9 +384,9 @@ def test_check_cameras_refuses_what_the_preparation_refuses(tmp_path: Path) -> N
         "objectives: [{name: luma, type: mean_luminance}]\noutput: out\n"
     )
     with pytest.raises(SceneError, match="larger than 16384"):
-        check_cameras(load_job(job))
+        validate_job(load_job(job))
     job.write_text(job.read_text().replace("99999", "16"))
-    assert check_cameras(load_job(job)) == ("cam",)
+    assert validate_job(load_job(job)).sensor_ids == ("cam",)
 
 
 def test_split_gives_each_instance_its_own_shapegroup() -> None:
@@ -525,34 +520,40 @@ def test_nested_bitmaps_load_as_float_and_envmaps_are_left_alone() -> None:
 
 
 def test_sensor_ids_follow_includes_without_mitsuba() -> None:
-    assert scene_sensor_ids(CORPUS / "shaderball" / "scene.xml") == ("Camera-camera",)
-    assert scene_sensor_ids(CORPUS / "glass_table" / "scene.xml", {"ior": "1.5"}) == ("camera",)
+    assert prepare(CORPUS / "shaderball" / "scene.xml").sensor_ids == ("Camera-camera",)
+    glass = prepare(CORPUS / "glass_table" / "scene.xml", scene_args={"ior": "1.5"})
+    assert glass.sensor_ids == ("camera",)
 
 
 def test_fingerprint_covers_included_files_meshes_and_arguments(tmp_path: Path) -> None:
     (tmp_path / "m.obj").write_text("v 0 0 0\n")
-    main = write(tmp_path, "main.xml", '<default name="r" value="1"/><include filename="i.xml"/>')
+    main = write(
+        tmp_path, "main.xml", f'<default name="r" value="1"/><include filename="i.xml"/>{SENSOR}'
+    )
     inc = write(
         tmp_path,
         "i.xml",
         '<shape type="obj"><string name="filename" value="m.obj"/>'
         '<float name="x" value="$r"/></shape>',
     )
-    first = scene_fingerprint(main)
-    assert scene_fingerprint(main) == first
+    first = prepare(main).fingerprint
+    assert prepare(main).fingerprint == first
     inc.write_text(inc.read_text().replace('obj">', 'obj"> '))
-    second = scene_fingerprint(main)
+    second = prepare(main).fingerprint
     (tmp_path / "m.obj").write_text("v 0 0 1\n")
-    third = scene_fingerprint(main)
-    assert len({first, second, third, scene_fingerprint(main, {"r": "2"})}) == 4
+    third = prepare(main).fingerprint
+    argued = prepare(main, scene_args={"r": "2"}).fingerprint
+    assert len({first, second, third, argued}) == 4
 
 
-def test_sensor_ids_need_no_renderer() -> None:
-    """``validate`` checks camera ids with scene_sensor_ids: it must not load Mitsuba."""
+def test_validate_needs_no_renderer() -> None:
+    """``validate`` prepares the scene and checks every camera: it must not load Mitsuba."""
+    job = CORPUS.parents[1] / "configs" / "cbox.yaml"
     code = (
         "import sys; from pathlib import Path\n"
-        "from sensaov_cli.render.scene_xml import scene_sensor_ids\n"
-        f"assert scene_sensor_ids(Path({str(CORPUS / 'shaderball' / 'scene.xml')!r}))\n"
+        "from sensaov_cli.pipeline.validate import validate_job\n"
+        "from sensaov_cli.spec.load import load_job\n"
+        f"assert validate_job(load_job(Path({str(job)!r}))).sensor_ids\n"
         "print(sorted({m.split('.')[0] for m in sys.modules} & {'mitsuba', 'drjit'}))"
     )
     result = subprocess.run(

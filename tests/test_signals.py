@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import EXIT_INTERRUPTED, EXIT_TERMINATED
 from sensaov_cli.outputs.atomic import TEMPORARY_SUFFIX
 from sensaov_cli.outputs.exr import read_exr
@@ -54,7 +54,7 @@ def snapshot(folder: Path) -> dict[str, bytes]:
 def loadable(path: Path) -> None:
     """Raise unless ``path`` is a complete file of its kind."""
     if path.suffix == ".npz":
-        SensitivityBuffer.load(path)
+        read_buffer(path)
     elif path.suffix == ".exr":
         read_exr(path)
     elif path.suffix == ".png":

@@ -13,7 +13,8 @@ from sensaov_cli import interrupts
 from sensaov_cli.buffer.queries import aggregate, ranking
 from sensaov_cli.cli import main
 from sensaov_cli.errors import EXIT_BAD_INPUT
-from sensaov_cli.views.sunburst import SCENE_WIDE, Wedge, panels, sunburst_wedges
+from sensaov_cli.outputs.buffer_file import write_buffer
+from sensaov_cli.views.sunburst_geometry import SCENE_WIDE, Wedge, panels, sunburst_wedges
 
 from .test_rankings import OBJECTIVES, make_buffer
 
@@ -99,7 +100,7 @@ def test_panels_list_what_is_not_drawn() -> None:
 @pytest.mark.parametrize("suffix", ["svg", "png"])
 def test_cli_writes_the_file(runner: CliRunner, tmp_path: Path, suffix: str) -> None:
     buffer = tmp_path / "buffer.npz"
-    BUF.save(buffer)
+    write_buffer(buffer, BUF)
     out = tmp_path / f"sunburst.{suffix}"
     result = runner.invoke(main, ["sunburst", str(buffer), "-o", str(out)])
     assert result.exit_code == 0, result.output
@@ -116,7 +117,7 @@ def test_cli_writes_the_file(runner: CliRunner, tmp_path: Path, suffix: str) -> 
 
 def test_cli_refuses_an_unknown_format(runner: CliRunner, tmp_path: Path) -> None:
     buffer = tmp_path / "buffer.npz"
-    BUF.save(buffer)
+    write_buffer(buffer, BUF)
     result = runner.invoke(main, ["sunburst", str(buffer), "-o", str(tmp_path / "s.jpg")])
     assert result.exit_code == EXIT_BAD_INPUT
     assert not (tmp_path / "s.jpg").exists()

@@ -15,10 +15,10 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import key_stats
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.spec.model import ChannelSpec, PoolSpec
+from sensaov_cli.spec.job import ChannelSpec, PoolSpec
 from sensaov_cli.views.texel_fields import texel_fields
 from sensaov_cli.views.texels import TextureSampling
 
@@ -37,9 +37,9 @@ CASES = {
 
 
 def _run(folder: Path, mi: ModuleType, filter_type: str, wrap: str, angle: int) -> Path:
+    from sensaov_cli.pipeline.project import project_job
+    from sensaov_cli.pipeline.run import run_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.project import project_job
-    from sensaov_cli.run import run_job
     from sensaov_cli.spec.load import load_job
 
     folder.mkdir(parents=True)
@@ -118,7 +118,7 @@ def test_repeat_wraps_the_filter_to_the_far_edge_and_clamp_does_not(
 def test_field_sums_equal_the_buffers_signed_sum(
     outputs: dict[str, Path], case: str, pool: str
 ) -> None:
-    buf = SensitivityBuffer.load(outputs[case] / "buffer.npz")
+    buf = read_buffer(outputs[case] / "buffer.npz")
     channel = ChannelSpec("tex", "texel", pool=PoolSpec(pool, 2.0))
     sampling = TextureSampling(wrap="clamp" if "clamp" in case else "repeat")
     for field in texel_fields(buf, channel, 0, {"quad.bsdf.reflectance.data": sampling}):

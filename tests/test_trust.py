@@ -17,8 +17,8 @@ from sensaov_cli.buffer.model import ParamRecord
 from sensaov_cli.progress import Progress
 from sensaov_cli.render import adjoint
 from sensaov_cli.render.fdcheck import check_parameter
+from sensaov_cli.render.loading import load_job_scene
 from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.scene import load_scene
 from sensaov_cli.render.selfcheck import (
     MIN_TOLERANCE,
     PAIR_TOLERANCE,
@@ -216,7 +216,7 @@ def mixed_job(mi: ModuleType, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def run(job_path: Path) -> tuple[Any, adjoint.AdjointResult]:
     job = load_job(job_path)
-    loaded = load_scene(job)
+    loaded = load_job_scene(job)
     objectives = build_objectives(loaded.mi, job.objectives, (16, 16), False)
     result = adjoint.run_adjoint(
         loaded, objectives, spp=16, seed=0, deterministic=True, progress=Progress(quiet=True)
@@ -264,7 +264,7 @@ def test_envmap_data_gets_a_gradient_and_its_halo_none(mixed) -> None:  # noqa: 
 
 def test_envmap_data_agrees_with_finite_differences(mixed_job: Path) -> None:
     job = load_job(mixed_job)
-    loaded = load_scene(job)
+    loaded = load_job_scene(job)
     (objective,) = build_objectives(loaded.mi, job.objectives, (16, 16), False)
     info = next(r for r in loaded.selected if r.key == "sky.data")
     result = check_parameter(loaded, objective, info, spp=16, seeds=[1, 2, 3])

@@ -66,11 +66,11 @@ def test_regroup_merges_objects_into_their_groups() -> None:
 
 
 def test_traced_uvs_lie_on_hit_surfaces(mi: ModuleType, job_writer) -> None:  # noqa: ANN001
-    from sensaov_cli.render.scene import load_scene
+    from sensaov_cli.render.loading import load_job_scene
     from sensaov_cli.render.visibility import trace
     from sensaov_cli.spec.load import load_job
 
-    loaded = load_scene(load_job(job_writer("uv")))
+    loaded = load_job_scene(load_job(job_writer("uv")))
     vis = trace(mi, loaded.scene, loaded.sensor, loaded.objects, 4, with_uv=True)
     assert vis.sample_uv is not None and vis.sample_uv.shape == (24, 24, 4, 2)
     covered = vis.coverage_hit == 1.0

@@ -13,7 +13,6 @@ import math
 import operator
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import InitVar, dataclass, field
-from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
@@ -318,16 +317,3 @@ class SensitivityBuffer:
             else:
                 node[leaf] = record
         return root
-
-    def save(self, path: Path | str) -> None:
-        """Write the buffer to ``path`` atomically: the file is complete or untouched."""
-        from sensaov_cli.buffer.npz import write_buffer
-
-        write_buffer(Path(path), self)
-
-    @classmethod
-    def load(cls, path: Path | str) -> SensitivityBuffer:
-        """Read a buffer; any unreadable or inconsistent file raises BufferFormatError."""
-        from sensaov_cli.buffer.npz import read_buffer
-
-        return read_buffer(Path(path))

@@ -29,21 +29,11 @@ from sensaov_cli.buffer.model import (
     SensitivityBuffer,
 )
 from sensaov_cli.buffer.statistics import Statistics
-from sensaov_cli.errors import BufferFormatError, BufferWriteError, SensaovError
-from sensaov_cli.outputs.atomic import atomic_write
+from sensaov_cli.errors import BufferFormatError, SensaovError
 
 _ZIP_MAGICS = (b"PK\x03\x04", b"PK\x05\x06")  # a zip with members, an empty zip
 _REGENERATE = "re-run the job to write it again"
 _FOREIGN = "expected a buffer.npz written by sensaov"
-
-
-def write_buffer(path: Path, buffer: SensitivityBuffer) -> None:
-    try:
-        atomic_write(path, buffer_writer(buffer))
-    except OSError as exc:
-        raise BufferWriteError(
-            f"cannot write buffer: {exc.strerror or exc}", where=str(path)
-        ) from exc
 
 
 def buffer_writer(buffer: SensitivityBuffer) -> Callable[[Path], None]:
@@ -64,8 +54,9 @@ def archive_writer(members: dict[str, np.ndarray]) -> Callable[[Path], None]:
     return write
 
 
-def read_buffer(path: Path) -> SensitivityBuffer:
-    return _load(path)[0]
+def read_buffer(path: Path | str) -> SensitivityBuffer:
+    """Read a buffer; any unreadable or inconsistent file raises BufferFormatError."""
+    return _load(Path(path))[0]
 
 
 def read_buffer_versioned(path: Path) -> tuple[SensitivityBuffer, int]:

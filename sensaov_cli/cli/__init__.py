@@ -1,9 +1,9 @@
 """The ``sensaov`` command line: the click group and its commands, with no logic of their own.
 
 One module per command, named after its verb (``cli/run.py`` holds ``sensaov run``); what the
-commands share is in :mod:`sensaov_cli.cli.options`. The commands call the orchestration
-modules (``sensaov_cli.run``, ``project``, ``check``) and the renderers of ``outputs``; heavy
-imports (Mitsuba, Dr.Jit, pydantic, numpy) happen inside them, so ``sensaov --help`` and
+commands share is in :mod:`sensaov_cli.cli.options`. Each command calls its wiring in
+:mod:`sensaov_cli.pipeline` (``pipeline/run.py`` for ``sensaov run``) and prints what it
+returns; heavy imports (Mitsuba, Dr.Jit, pydantic, numpy) happen inside, so ``sensaov --help`` and
 ``sensaov rank`` start instantly. Library errors become one line on stderr and an exit code in
 :func:`~sensaov_cli.cli.options.reports_errors`, and only there.
 """

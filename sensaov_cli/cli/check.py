@@ -83,27 +83,22 @@ def check(
     """
     from dataclasses import asdict
 
-    from sensaov_cli.check import FD_TOLERANCE, check_job, duality_job, exit_code
-    from sensaov_cli.outputs.tables import checks_text, duality_text
+    from sensaov_cli.outputs.check_tables import checks_text, duality_text
+    from sensaov_cli.pipeline.check import FD_TOLERANCE, check_job, exit_code
     from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
-    results = check_job(
-        spec, objective=objective, spp=spp, seeds=seeds, keys=keys, allow_python=allow_python
-    )
-    buffer_path = buffer_path or spec.output / "buffer.npz"
-    duality = []
-    if buffer_path.is_file():
-        duality = duality_job(
-            spec, buffer_path, keys=keys, top=top, directions=directions,
-            allow_python=allow_python,
-        )  # fmt: skip
-    else:
-        click.echo(f"sensaov: no buffer at {buffer_path}: duality column skipped", err=True)
+    report = check_job(
+        spec, objective=objective, spp=spp, seeds=seeds, keys=keys, buffer_path=buffer_path,
+        top=top, directions=directions, allow_python=allow_python,
+    )  # fmt: skip
+    if report.buffer_path is None:
+        missing = buffer_path or spec.output / "buffer.npz"
+        click.echo(f"sensaov: no buffer at {missing}: duality column skipped", err=True)
     if as_json:
         echo_json(
             {
-                "finite_differences": [asdict(r) for r in results],
+                "finite_differences": [asdict(r) for r in report.gradients],
                 "duality": [
                     {
                         **asdict(d),
@@ -111,13 +106,13 @@ def check(
                         "central_error": d.central_error,
                         "verdict": d.verdict,
                     }
-                    for d in duality
+                    for d in report.duality
                 ],  # fmt: skip
             }
         )
     else:
-        click.echo(checks_text(results))
-        if duality:
+        click.echo(checks_text(report.gradients))
+        if report.duality and report.buffer_path is not None:
             click.echo("")
-            click.echo(duality_text(duality, buffer_path, FD_TOLERANCE))
-    sys.exit(exit_code(results, duality))
+            click.echo(duality_text(report.duality, report.buffer_path, FD_TOLERANCE))
+    sys.exit(exit_code(report.gradients, report.duality))

@@ -34,7 +34,7 @@ def merge(shards: tuple[Path, ...], output: Path, quiet: bool, progress_style: s
       sensaov merge out/cbox/buffer.shard-*-of-4.npz -o out/cbox/buffer.npz
       sensaov rank out/cbox/buffer.npz --top 5      # with standard errors
     """
-    from sensaov_cli.merge import merge_files
+    from sensaov_cli.pipeline.merge import merge_files
     from sensaov_cli.progress import Progress
 
     result = merge_files(list(shards), output, progress=Progress(quiet, style=progress_style))

@@ -34,11 +34,11 @@ def params(job: Path, as_json: bool, show_all: bool) -> None:
       sensaov params configs/cbox.yaml --json | jq '.selected[].key'
     """
     from sensaov_cli.outputs.tables import params_dict, params_text
-    from sensaov_cli.render.scene import load_scene
+    from sensaov_cli.pipeline.params import parameter_inventory
     from sensaov_cli.spec.load import load_job
 
-    loaded = load_scene(load_job(job))
+    inventory = parameter_inventory(load_job(job))
     if as_json:
-        echo_json(params_dict(loaded))
+        echo_json(params_dict(inventory))
     else:
-        click.echo(params_text(loaded, show_all=show_all))
+        click.echo(params_text(inventory, show_all=show_all))

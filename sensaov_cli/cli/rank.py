@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, cast
+from typing import cast
 
 import click
 
@@ -18,9 +18,6 @@ from sensaov_cli.cli.options import (
     weight_option,
 )
 from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Weight
-
-if TYPE_CHECKING:
-    from sensaov_cli.buffer.model import SensitivityBuffer
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
@@ -71,65 +68,19 @@ def rank(
       sensaov rank out/cbox/buffer.npz --by object --exr out/cbox/overhead.exr
       sensaov rank out/cbox/buffer.npz --by key --objective mean_luma --csv > keys.csv
     """
-    from sensaov_cli.buffer.model import SensitivityBuffer
-    from sensaov_cli.errors import QueryError
+    from sensaov_cli.pipeline.rank import rank_by_cut, rank_summary, refuse_options
 
-    if as_json and as_csv:
-        raise QueryError("--json and --csv exclude each other", hint="choose one")
-    if by is None and (objective or as_csv or exrs):
-        raise QueryError("--objective, --csv and --exr need --by", hint="add --by key|object|type")
-    loaded = SensitivityBuffer.load(buffer)
+    refuse_options(by=by, objective=bool(objective), as_json=as_json, as_csv=as_csv, exr=bool(exrs))
     method, weighting = cast(Aggregate, aggregate), cast(Weight, weight)
     if by is None:
-        _summary(loaded, as_json, top, method, weighting)
-        return
-    _by_cut(loaded, cast(Cut, by), objective, as_json, as_csv, exrs, top, method, weighting)
-
-
-def _summary(
-    buf: SensitivityBuffer, as_json: bool, top: int, method: Aggregate, weight: Weight
-) -> None:
-    from sensaov_cli.outputs.tables import summary_text
-    from sensaov_cli.views.summary import summary_dict
-
-    if as_json:
-        echo_json(summary_dict(buf, top=top, method=method, weight=weight))
+        result = rank_summary(buffer, as_json=as_json, top=top, method=method, weight=weighting)
     else:
-        click.echo(summary_text(buf, top=top, method=method, weight=weight))
-
-
-def _by_cut(
-    buf: SensitivityBuffer,
-    by: Cut,
-    objective: tuple[str, ...],
-    as_json: bool,
-    as_csv: bool,
-    exrs: tuple[Path, ...],
-    top: int,
-    method: Aggregate,
-    weight: Weight,
-) -> None:
-    from sensaov_cli.outputs.frames import visible_objects
-    from sensaov_cli.outputs.rankings import ranking_csv, ranking_dict, ranking_text
-    from sensaov_cli.views.hierarchy import check_cut, rankings
-
-    check_cut(by, cameras=bool(exrs))
-    for name in objective:
-        buf.objective(name)  # an unknown name is an error that lists the known ones
-    visible = visible_objects(list(exrs)) if exrs else None
-    found = rankings(
-        buf,
-        by=by,
-        objectives=objective or None,
-        top=top,
-        method=method,
-        weight=weight,
-        visible=visible,
-    )
-    if as_json:
-        cameras = None if visible is None else list(visible)
-        echo_json(ranking_dict(buf, found, method=method, weight=weight, cameras=cameras))
-    elif as_csv:
-        click.echo(ranking_csv(found), nl=False)
-    else:
-        click.echo(ranking_text(found, method=method, weight=weight), nl=False)
+        style = "json" if as_json else "csv" if as_csv else "text"
+        result = rank_by_cut(
+            buffer, by=cast(Cut, by), objectives=objective, style=style, exrs=exrs, top=top,
+            method=method, weight=weighting,
+        )  # fmt: skip
+    if isinstance(result, dict):
+        echo_json(result)
+    else:  # the summary is a block of lines; a table or CSV ends with its own newline
+        click.echo(result, nl=by is None)

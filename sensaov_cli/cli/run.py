@@ -76,11 +76,10 @@ def run(
       sensaov run configs/cbox.yaml --shard 3/8 --resume    # one farm task
       sensaov run configs/cbox.yaml --objective mean_luma   # one adjoint pass
     """
-    from sensaov_cli.outputs.tables import summary_text
+    from sensaov_cli.pipeline.rank import summary_of
+    from sensaov_cli.pipeline.run import Task, run_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.run import Task, run_job
     from sensaov_cli.spec.load import load_job
-    from sensaov_cli.views.summary import summary_dict
 
     spec = load_job(job)
     outputs = run_job(
@@ -90,10 +89,10 @@ def run(
         task=Task(shard, tuple(dict.fromkeys(objective))),
         resume=resume,
     )
-    if as_json:
-        summary = summary_dict(outputs.buffer, top=top)
+    summary = summary_of(outputs.buffer, as_json=as_json, top=top)
+    if isinstance(summary, dict):
         summary["files"] = {"buffer": str(outputs.buffer_path), "primal": str(outputs.primal_path)}
         echo_json(summary)
     else:
-        click.echo(summary_text(outputs.buffer, top=top))
+        click.echo(summary)
         click.echo(f"wrote {outputs.buffer_path} and {outputs.primal_path}")

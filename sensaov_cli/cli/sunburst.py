@@ -57,26 +57,14 @@ def sunburst(
       sensaov sunburst out/cbox/buffer.npz -o out/cbox/sunburst.svg
       sensaov sunburst out/cbox/buffer.npz --objective mean_luma --order type,object -o s.png
     """
-    from sensaov_cli.buffer.model import SensitivityBuffer
-    from sensaov_cli.outputs.provenance import made_by
-    from sensaov_cli.outputs.sunburst import write_sunburst
-    from sensaov_cli.views.sunburst import panels
+    from sensaov_cli.pipeline.sunburst import draw_sunburst
 
-    loaded = SensitivityBuffer.load(buffer)
-    method, weighting = cast(Aggregate, aggregate), cast(Weight, weight)
-    drawn = panels(
-        loaded, objective or None, order=cast(Order, order), method=method, weight=weighting
+    written = draw_sunburst(
+        buffer,
+        output,
+        objectives=objective,
+        order=cast(Order, order),
+        method=cast(Aggregate, aggregate),
+        weight=cast(Weight, weight),
     )
-    contribution = "θ·∂M/∂θ" if weighting == "value" else "∂M/∂θ"
-    provenance = {
-        **made_by("sunburst"),
-        "buffer": str(buffer),
-        "order": order,
-        "aggregate": method,
-        "weight": weighting,
-        "buffer_provenance": loaded.provenance,
-    }
-    write_sunburst(
-        output, drawn, order=order, encoding=f"{method} of {contribution}", provenance=provenance
-    )
-    click.echo(str(output))
+    click.echo(str(written))

@@ -22,11 +22,11 @@ def validate(job: Path) -> None:
     Example:
       sensaov validate configs/cbox.yaml
     """
-    from sensaov_cli.render.scene_xml import check_cameras
+    from sensaov_cli.pipeline.validate import validate_job
     from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
-    sensors = check_cameras(spec)
+    sensors = validate_job(spec).sensor_ids
     names = ", ".join(o.name for o in spec.objectives)
     click.echo(
         f"{job}: ok (scene {spec.scene.name}, {len(sensors)} sensor(s), objectives: {names}, "

@@ -2,7 +2,8 @@
 
 The page is one file a browser opens straight from disk: images are PNG ``data:`` URIs, the
 style sheet is inline, and there is no script and no external link. It is assembled from plain
-data (:class:`ReportContent`); :mod:`sensaov_cli.report` gathers that data from a job's output.
+data (:class:`ReportContent`); :mod:`sensaov_cli.pipeline.report` gathers that data from a
+job's output.
 """
 
 from __future__ import annotations

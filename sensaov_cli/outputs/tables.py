@@ -1,7 +1,8 @@
-"""The text tables a terminal shows: ``params``, ``rank``/``run``'s summary, ``check``.
+"""The text tables a terminal shows: ``params`` and ``rank``/``run``'s summary.
 
-One aligned-table function serves all three; JSON output comes from the same data (the dicts
-of :mod:`sensaov_cli.views.summary` and ``params_dict``), so text and JSON always agree.
+One aligned-table function serves them and ``check``'s tables (check_tables.py); JSON output
+comes from the same data (the dicts of :mod:`sensaov_cli.views.summary` and ``params_dict``),
+so text and JSON always agree.
 Plain text only: no colour, no box drawing, so logs and farm consoles read it as it is.
 """
 
@@ -10,18 +11,15 @@ from __future__ import annotations
 import unicodedata
 from collections import defaultdict
 from collections.abc import Collection, Sequence
-from dataclasses import asdict
-from typing import TYPE_CHECKING, Any, Protocol
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, SensitivityBuffer, TextureSource
 from sensaov_cli.views.summary import summary_dict
 from sensaov_cli.vocabulary import Aggregate, Weight
 
 if TYPE_CHECKING:
-    from pathlib import Path
-
-    from sensaov_cli.render.duality import DualityCheck
-    from sensaov_cli.render.fdcheck import GradientCheck
+    pass
 
 # Marks in the mark column of a ranking, one per label that is not "verified"; a parameter
 # with no gradient is never ranked: it is listed under its objective behind NO_GRADIENT_MARK.
@@ -68,8 +66,9 @@ def printable(text: str) -> str:
     )
 
 
-class ParameterInventory(Protocol):
-    """What ``sensaov params`` reports of a loaded scene (the render stage's LoadedScene)."""
+@dataclass(frozen=True)
+class ParameterInventory:
+    """What ``sensaov params`` reports of a loaded scene, as plain data."""
 
     variant: str
     objects: tuple[str, ...]
@@ -77,6 +76,7 @@ class ParameterInventory(Protocol):
     excluded: tuple[ExcludedParam, ...]
     split: dict[str, tuple[str, ...]]
     textures: dict[str, TextureSource]
+    changes: tuple[tuple[str, str, str], ...]  # what sensaov changed in the scene: what, why, where
 
 
 def params_dict(loaded: ParameterInventory) -> dict[str, Any]:
@@ -89,6 +89,9 @@ def params_dict(loaded: ParameterInventory) -> dict[str, Any]:
         ],
         "excluded": [asdict(item) for item in loaded.excluded],
         "split_bsdfs": {name: list(shapes) for name, shapes in loaded.split.items()},
+        "scene_changes": [
+            {"what": what, "why": why, "where": where} for what, why, where in loaded.changes
+        ],
     }
 
 
@@ -124,6 +127,7 @@ def params_text(loaded: ParameterInventory, *, show_all: bool = False) -> str:
     lines += _unverified_legend(loaded)
     lines += _textures(loaded)
     lines += _split(loaded)
+    lines += _changes(loaded)
     lines += _excluded(loaded, show_all)
     return "\n".join(lines)
 
@@ -157,6 +161,15 @@ def _split(loaded: ParameterInventory) -> list[str]:
         return []
     lines = ["", "shared BSDFs split into one copy per object (parameters.shared: split):"]
     lines += [f"  {name} -> {', '.join(shapes)}" for name, shapes in loaded.split.items()]
+    return lines
+
+
+def _changes(loaded: ParameterInventory) -> list[str]:
+    if not loaded.changes:
+        return []
+    lines = ["", "what sensaov changed in the scene before loading it (your files are untouched):"]
+    for what, why, where in loaded.changes:
+        lines.append(f"  - {what}{f' ({where})' if where else ''}: {why}")
     return lines
 
 
@@ -300,56 +313,3 @@ def _indented(headers: list[str], rows: list[list[str]], numeric: set[int]) -> l
     if not rows:
         return ["    (none)"]
     return format_table([headers, *rows], numeric=numeric, indent="    ")
-
-
-def checks_text(checks: list[GradientCheck]) -> str:
-    rows = [("key", "plugin", "type", "table", "adjoint", "finite diff", "std err", "verdict")]
-    for c in checks:
-        rows.append(
-            (
-                c.key,
-                c.plugin,
-                c.type,
-                "verified" if c.claimed_verified else "unverified",
-                f"{c.adjoint:+.3e}",
-                f"{c.finite_difference:+.3e}",
-                f"{c.standard_error:.1e}",
-                c.verdict
-                + (
-                    "  <-- CONTRADICTS THE TABLE"
-                    if c.claimed_verified and c.verdict == "disagrees"
-                    else ""
-                ),
-            )
-        )
-    return "\n".join(format_table(rows))
-
-
-def duality_text(rows: list[DualityCheck], buffer: Path, fd_tolerance: float) -> str:
-    """The duality column of ``check``: the buffer against forward mode and central differences."""
-    head = (
-        f"duality at the buffer's gradient seeds ({buffer}): forward <dM/dI, Jv> vs stored "
-        f"<g, v> (tolerance {rows[0].tolerance:.1e} at this size); central differences of "
-        f"the image at the same seed (tolerance {fd_tolerance:.0%}; n/a: discontinuous parameter)"
-    )
-    table = [
-        ("objective", "key", "v", "trust", "<g,v>", "forward", "err", "central", "err", "verdict")
-    ]
-    for d in rows:
-        central = "n/a" if d.central is None else f"{d.central:+.4e}"
-        error = "" if d.central_error is None else f"{d.central_error:.1e}"
-        table.append(
-            (
-                d.objective,
-                d.key,
-                d.direction,
-                d.trust,
-                f"{d.reverse:+.4e}",
-                f"{d.forward:+.4e}",
-                f"{d.duality_error:.1e}",
-                central,
-                error,
-                d.verdict,
-            )  # fmt: skip
-        )
-    return "\n".join([head, *format_table(table)])

@@ -25,8 +25,8 @@ from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import ParamRecord
 from sensaov_cli.buffer.statistics import Statistics, combine_batches, weighted_mean
 from sensaov_cli.progress import Progress
+from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-from sensaov_cli.render.scene import LoadedScene
 from sensaov_cli.render.selfcheck import self_check
 from sensaov_cli.render.trust import gradient_integrator
 

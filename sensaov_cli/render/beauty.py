@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli.render.scene import LoadedScene
+from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.views.coverage import VisibilityPass
 
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from sensaov_cli.buffer.forward import DUALITY_FLOOR, duality_tolerance
+from sensaov_cli.buffer.forward_sidecar import DUALITY_FLOOR, duality_tolerance
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.errors import SpecError
 from sensaov_cli.render.adjoint import (
@@ -31,8 +31,8 @@ from sensaov_cli.render.adjoint import (
     render_primal,
 )
 from sensaov_cli.render.forward import adjoint_images, forward_image
+from sensaov_cli.render.loading import LoadedScene, assign
 from sensaov_cli.render.objectives import Objective
-from sensaov_cli.render.scene import LoadedScene, assign
 from sensaov_cli.render.trust import gradient_integrator
 from sensaov_cli.vocabulary import Trust
 

@@ -28,8 +28,8 @@ from sensaov_cli.render.adjoint import (
     path_integrator,
     render_primal,
 )
+from sensaov_cli.render.loading import LoadedScene, assign
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-from sensaov_cli.render.scene import LoadedScene, assign
 from sensaov_cli.render.trust import gradient_integrator
 from sensaov_cli.vocabulary import Trust
 

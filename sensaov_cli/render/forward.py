@@ -26,8 +26,8 @@ from sensaov_cli.render.adjoint import (
     reproducible,
     subpasses,
 )
+from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-from sensaov_cli.render.scene import LoadedScene
 
 # What prb says when none of the pushed parameters reaches the image: J·v is 0, not an error.
 _NOTHING_ATTACHED = ("not attached to the AD graph", "does not depend on the input variable")

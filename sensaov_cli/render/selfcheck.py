@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.buffer.model import ParamRecord
+from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-from sensaov_cli.render.scene import LoadedScene
 from sensaov_cli.render.trust import NO_FLOW_REASON, known_zero_reason
 
 LINEAR_OBJECTIVES = frozenset({"mean_luminance", "region_luminance"})

@@ -3,44 +3,19 @@
 A texel field is painted through the same lookup Mitsuba's ``bitmap`` plugin performs, so the
 project stage needs the lookup's settings as plain data. ``to_uv`` is a traversed parameter;
 ``filter_type`` and ``wrap_mode`` are not exposed by the plugin's Python binding, so they are
-read from the scene XML Mitsuba loaded, matched to a texture by its file's base name (the name
-the plugin prints). Where one file is used with two different settings the first is taken and
-a note says so.
+read from the prepared scene (``PreparedScene.bitmap_options``) and confirmed by probing the
+texture's own lookup.
 """
 
 from __future__ import annotations
 
 import re
-import xml.etree.ElementTree as ET
-from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from sensaov_cli.render import scene_names
+from sensaov_cli.render.scene.rewrite import DEFAULT_FILTER, DEFAULT_WRAP
 
-DEFAULT_FILTER, DEFAULT_WRAP = "bilinear", "repeat"
 PROBES, PROBE_SEED = 256, 9
-
-
-def bitmap_options(xml_text: str) -> dict[str, tuple[str, str, str]]:
-    """File base name -> (filter_type, wrap_mode, note) of every bitmap in the loaded XML."""
-    options: dict[str, tuple[str, str, str]] = {}
-    for texture in ET.fromstring(xml_text).iter("texture"):
-        filename = scene_names.child_value(texture, "filename")
-        if texture.get("type") != "bitmap" or filename is None:
-            continue
-        found = (
-            scene_names.child_value(texture, "filter_type") or DEFAULT_FILTER,
-            scene_names.child_value(texture, "wrap_mode") or DEFAULT_WRAP,
-        )
-        name = Path(filename).name
-        if name in options and options[name][:2] != found:
-            first = options[name]
-            note = f"{name} is used with several filter/wrap settings; the first is shown"
-            options[name] = (first[0], first[1], note)
-        else:
-            options.setdefault(name, (*found, ""))
-    return options
 
 
 def texture_probes(

@@ -1,6 +1,6 @@
 """The field types of a job file: strict scalars, fixed-length lists, checked paths.
 
-Shared by the dataclasses of :mod:`.model`; no pydantic here (the markers of
+Shared by the dataclasses of :mod:`.job`; no pydantic here (the markers of
 :mod:`.markers` speak to pydantic when it asks). Types are strict where YAML makes mistakes
 easy: ``"64"`` is not an integer and ``true`` is not a number, but ``40`` is accepted where a
 float is expected. Our own checks raise :class:`Problem`, which carries the key path below the
@@ -9,13 +9,13 @@ failing value (``at``) and a hint; :mod:`.load` reads them back.
 
 from __future__ import annotations
 
-import difflib
 from pathlib import Path
 from typing import Annotated, Any
 
 from annotated_types import Ge, Gt, Le, Lt, MinLen
 
 from sensaov_cli.spec.markers import After, Before, Doc, JobPath, Json, Setting
+from sensaov_cli.spec.problems import Problem, describe
 
 NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,31}$"
 FUNCTION_PATTERN = r"^[A-Za-z_][A-Za-z0-9_.]*:[A-Za-z_][A-Za-z0-9_]*$"
@@ -25,50 +25,6 @@ PATTERN_MEANINGS = {
     FUNCTION_PATTERN: "'module:function', e.g. 'mymodule:objective'",
     SCENE_ARG_PATTERN: "a scene argument name (letters, digits, _), as in $name",
 }
-
-
-class Problem(ValueError):
-    """A mistake in a job file, in our own words; ``at`` extends the key path of the value.
-
-    ``at`` holds YAML keys, which may be any scalar, and list indices. pydantic reports a
-    ValueError raised while validating as a ``value_error`` that carries it, so raising one
-    needs no pydantic.
-    """
-
-    def __init__(self, message: str, *, at: tuple[Any, ...] = (), hint: str | None = None):
-        super().__init__(message)
-        self.message, self.at, self.hint = message, at, hint
-
-
-def describe(value: Any) -> str:
-    """A short YAML-flavoured rendering of a user's value for an error message."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if value is None:
-        return "null"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        return repr(value if len(value) <= 40 else value[:37] + "...")
-    if isinstance(value, list):
-        return "a list"
-    if isinstance(value, dict):
-        return "a mapping"
-    return f"a {type(value).__name__}"
-
-
-def close_match(word: object, choices: list[str] | tuple[str, ...]) -> str | None:
-    """The choice ``word`` was most likely a typo of, if any."""
-    close = difflib.get_close_matches(str(word), choices, n=1, cutoff=0.6)
-    return close[0] if close else None
-
-
-def did_you_mean(word: object, choices: list[str] | tuple[str, ...], what: str) -> str:
-    """'did you mean X?' when a choice is close to ``word``, else the list of valid choices."""
-    close = close_match(word, choices)
-    if close is not None:
-        return f"did you mean '{close}'?"
-    return f"valid {what}: " + ", ".join(choices)
 
 
 def unique_names(what: str, key: str) -> After:

@@ -1,7 +1,7 @@
-"""Read a job file into a :class:`~.model.JobSpec`, or say where it is wrong; its JSON Schema.
+"""Read a job file into a :class:`~.job.JobSpec`, or say where it is wrong; its JSON Schema.
 
 :func:`load_job` reads the file (``yaml.safe_load`` semantics, see :mod:`.yaml_source`),
-validates it straight into the dataclasses of :mod:`.model` (pydantic reads their fields, see
+validates it straight into the dataclasses of :mod:`.job` (pydantic reads their fields, see
 :mod:`.shapes`), and returns the :class:`JobSpec` with every path resolved against the job
 file's directory. Anything wrong raises one :class:`~sensaov_cli.errors.SpecError` located as
 ``<job>:<line>: <key path>``: the first problem in the file, by line. :func:`job_schema` is the
@@ -25,8 +25,9 @@ from pydantic.json_schema import GenerateJsonSchema
 from pydantic_core import ErrorDetails
 
 from sensaov_cli.errors import SpecError
-from sensaov_cli.spec.fields import PATTERN_MEANINGS, Problem, close_match, describe
-from sensaov_cli.spec.model import JobSpec
+from sensaov_cli.spec.fields import PATTERN_MEANINGS
+from sensaov_cli.spec.job import JobSpec
+from sensaov_cli.spec.problems import Problem, close_match, describe
 from sensaov_cli.spec.shapes import UNION
 from sensaov_cli.spec.yaml_source import KeyPath, YamlDocument, read_yaml, spec_error
 

@@ -1,6 +1,6 @@
 """``Annotated`` markers that say how a job file writes a field, without importing pydantic.
 
-The dataclasses of :mod:`.model` are the one definition of every field; these markers add
+The dataclasses of :mod:`.job` are the one definition of every field; these markers add
 what a job file needs besides the type: checks, descriptions, which shapes of a class take
 the field. pydantic ignores metadata it does not know, so a marker is inert until pydantic
 asks it (``__get_pydantic_core_schema__``, ``__get_pydantic_json_schema__``): pydantic is
@@ -8,35 +8,20 @@ loaded by then, and anything longer than a line is done in :mod:`.shapes`.
 
 Each marker is a plain class, hashable by identity, because typing hashes an ``Annotated``
 that stands in ``X | None``. ``annotated_types`` constraints (``Ge``, ``MinLen``) sit beside
-these; pydantic reads those itself (but see :class:`MinItems`).
+these; pydantic reads those itself (but see :class:`MinItems`). The markers that need no help
+from :mod:`.shapes` (:class:`Doc`, :class:`Given`, :class:`In`, :class:`Setting`) live in
+:mod:`.plain_markers`, which :mod:`.shapes` reads without importing this module back.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import MISSING
 from pathlib import Path
 from typing import Any
 
+from sensaov_cli.spec.plain_markers import Doc, Given, In, Setting
 
-class Doc:
-    """A field's description in the JSON Schema."""
-
-    def __init__(self, text: str) -> None:
-        self.text = text
-
-    def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> dict[str, Any]:
-        return {**handler(schema), "description": self.text}
-
-
-class Setting:
-    """Keys of pydantic's core schema of a scalar: ``strict``, ``pattern``, ``allow_inf_nan``."""
-
-    def __init__(self, **settings: Any) -> None:
-        self.settings = settings
-
-    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
-        return {**handler(source), **self.settings}
+__all__ = ["Doc", "Given", "In", "Setting"]  # re-exported: every marker is taken from here
 
 
 class Before:
@@ -113,25 +98,6 @@ class JobPath:
         from sensaov_cli.spec import shapes
 
         return shapes.job_path_schema(self, handler)
-
-
-class Given:
-    """Not a key of the job file: the loader gives the value, in its context as ``key``."""
-
-    def __init__(self, key: str) -> None:
-        self.key = key
-
-
-class In:
-    """The field is a key of these shapes of its class only (objective types, camera kinds).
-
-    There it may be ``required``, or have a ``default`` and a ``doc`` of its own.
-    """
-
-    def __init__(
-        self, *shapes: str, required: bool = False, default: Any = MISSING, doc: str | None = None
-    ) -> None:
-        self.shapes, self.required, self.default, self.doc = shapes, required, default, doc
 
 
 class Section:

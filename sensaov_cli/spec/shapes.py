@@ -1,4 +1,4 @@
-"""How a job file writes the classes of :mod:`.model`: pydantic schemas built from their fields.
+"""How a job file writes the classes of :mod:`.job`: pydantic schemas built from their fields.
 
 A section (render, parameters, look_at, the job) is one mapping whose keys are its fields,
 bar those the loader gives. A class written in several shapes is a tagged union of such
@@ -8,7 +8,8 @@ kind, and ``objective_camera`` as a sensor id, a mapping or null. Every mapping 
 unknown key before it looks at any value, and its values become the dataclass through the
 class's own ``__init__``, so ``__post_init__`` checks hold for a job file too.
 
-Only the markers of :mod:`.markers` import this module, when pydantic builds a schema.
+Only the markers of :mod:`.markers` import this module, when pydantic builds a schema; it
+imports them back for type checking only.
 """
 
 from __future__ import annotations
@@ -21,14 +22,28 @@ from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field
 from functools import cache, reduce
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union, get_args, get_origin, get_type_hints
+from typing import (
+    TYPE_CHECKING,
+    Annotated,
+    Any,
+    Literal,
+    Union,
+    get_args,
+    get_origin,
+    get_type_hints,
+)
 
+from annotated_types import MinLen
 from pydantic import GetCoreSchemaHandler
 from pydantic_core import CoreSchema, core_schema
 
-from sensaov_cli.spec.fields import Problem, Text, describe, did_you_mean
-from sensaov_cli.spec.markers import Doc, Given, In, JobPath, SensorOrPlaced, Tagged, TaggedByKey
+from sensaov_cli.spec.plain_markers import Doc, Given, In, Setting
+from sensaov_cli.spec.problems import Problem, describe, did_you_mean
 
+if TYPE_CHECKING:  # the markers call this module; it only reads their attributes
+    from sensaov_cli.spec.markers import JobPath, SensorOrPlaced, Tagged, TaggedByKey
+
+_TEXT = Annotated[str, Setting(strict=True), MinLen(1)]  # a tag or a sensor id: fields.Text
 # The error type of a value that picks no member of a union; its context says why.
 UNION = "sensaov_union"
 
@@ -109,7 +124,7 @@ def sensor_or_placed_schema(
     placed = _Form(cls, _keys(cls, marker.placed), "ObjectiveLookAt", fixed={"name": name})
     members = {
         "sensor id": core_schema.no_info_after_validator_function(
-            lambda sensor: cls(name=name, sensor=sensor), handler.generate_schema(Text)
+            lambda sensor: cls(name=name, sensor=sensor), handler.generate_schema(_TEXT)
         ),
         "look_at mapping": _mapping(placed, handler),
         "first sensor": core_schema.no_info_after_validator_function(
@@ -140,7 +155,7 @@ def job_path_schema(marker: JobPath, handler: GetCoreSchemaHandler) -> CoreSchem
         marker.check(path, job.parent)
         return path
 
-    text = handler.generate_schema(Text)
+    text = handler.generate_schema(_TEXT)
     if marker.null_means is None:
         return core_schema.with_info_after_validator_function(read, text)
     nullable = core_schema.with_info_after_validator_function(

@@ -5,7 +5,7 @@ The transport layer of S for an objective paints where that influence lands at t
 camera: T_p = Σ_c (∂M/∂I)_{p,c} · (J v_S)_{p,c}. Its sum over pixels equals ⟨g, v_S⟩ from the
 buffer when both passes ran at the same seed (forward/reverse duality), so every layer carries
 its own check: the residual |Σ_p T_p − ⟨g, v_S⟩| / |⟨g, v_S⟩| against
-:func:`~sensaov_cli.buffer.forward.duality_tolerance` (1e-4, more where the buffer's float32
+:func:`~sensaov_cli.buffer.forward_sidecar.duality_tolerance` (1e-4, more where the buffer's float32
 sums over many samples round more).
 """
 
@@ -18,11 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sensaov_cli.buffer.forward import ForwardData, ForwardLayer, duality_tolerance
+from sensaov_cli.buffer.forward_sidecar import ForwardData, ForwardLayer, duality_tolerance
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import per_object
 from sensaov_cli.errors import SpecError
-from sensaov_cli.spec.model import ForwardSpec
+from sensaov_cli.spec.job import ForwardSpec
 
 _TINY = 1e-30
 

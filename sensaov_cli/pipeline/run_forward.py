@@ -11,40 +11,30 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import json
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from sensaov_cli.buffer.forward import (
+from sensaov_cli.buffer.forward_sidecar import (
     ForwardData,
     ForwardLayer,
     ForwardPass,
-    check_belongs,
-    read_forward,
     ties_of,
 )
 from sensaov_cli.buffer.model import SensitivityBuffer
-from sensaov_cli.buffer.statistics import single_pass
-from sensaov_cli.errors import SpecError
-from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.forward import adjoint_images, forward_image
+from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective
-from sensaov_cli.render.scene import LoadedScene
-from sensaov_cli.spec.model import ChannelSpec, JobSpec
+from sensaov_cli.spec.job import ChannelSpec, JobSpec
 from sensaov_cli.views.transport import (
     direction_values,
-    forward_views,
     group_keys,
     top_objects,
     transport_views,
 )
-
-FORWARD_NAME = "forward.npz"
 
 
 @dataclass(frozen=True)
@@ -54,11 +44,6 @@ class _Group:
     direction: str
     transport: bool
     source: str
-
-
-def wanted(job: JobSpec) -> bool:
-    """Whether the job asks for any forward pass at all."""
-    return bool(job.forward) or any(c.kind == "transport" for c in job.channels)
 
 
 def plan_forward(job: JobSpec, loaded: LoadedScene) -> list[_Group]:
@@ -80,7 +65,7 @@ def run_forward(
     progress: Progress,
 ) -> ForwardData | None:
     """Render every forward pass the job asks for; None when it asks for none."""
-    if not wanted(job):
+    if not job.wants_forward:
         return None
     seeds = {o.name: o.grad_seed for o in buffer.objectives}
     first = buffer.objectives[0].name
@@ -213,68 +198,3 @@ def _warn(data: ForwardData, buffer: SensitivityBuffer, progress: Progress) -> N
                 f"warning: transport layer {view.objective}.{view.name}: duality "
                 f"residual {view.residual:.2e} exceeds {view.tolerance:.1e} (layer marked)"
             )
-
-
-def projected_layers(
-    job: JobSpec, buffer: SensitivityBuffer, buffer_path: Path, progress: Progress
-) -> list[tuple[SensitivityLayer, float]]:
-    """The objective camera's forward and transport layers, each with its preview scale.
-
-    Empty when the job asks for no forward pass. A pass Mitsuba could not push is reported,
-    never written as a black image.
-    """
-    if not wanted(job):
-        return []
-    if not single_pass(buffer.provenance):
-        progress.note(
-            "no forward or transport layers: this buffer is a shard, an objective task or the "
-            "mean of several batches or shards; those are rendered by single-batch runs only "
-            "(docs/farm.md)"
-        )
-        return []
-    path = buffer_path.with_name(FORWARD_NAME)
-    if not path.is_file():
-        raise SpecError(
-            f"the job asks for forward channels but {path.name} is missing",
-            where=str(path),
-            hint="re-run 'sensaov run' (it writes the buffer and its forward images together)",
-        )
-    data = read_forward(path)
-    check_belongs(data, buffer, path)
-    common = {"buffer": str(buffer_path), "forward_file": str(path), "camera": "objective"}
-    layers = []
-    for f in forward_views(buffer, data):
-        if f.data is None:
-            progress.note(f"warning: no layer forward.{f.name}: Mitsuba failed: {f.failure}")
-            continue
-        meta = {**common, **_meta(f.keys, f.direction, f.seed, f.unverified), "kind": "forward"}
-        meta["original_name"] = f"forward.{f.name}"
-        layers.append((SensitivityLayer("forward", f.name, f.data, meta), _peak(f.data)))
-    for t in transport_views(buffer, data):
-        meta = {**common, **_meta(t.keys, t.direction, t.seed, t.unverified), "kind": "transport"}
-        meta.update(
-            original_name=f"{t.objective}.{t.name}",
-            forward_sum=repr(t.forward_sum),
-            reverse=repr(t.reverse),
-            duality_residual=repr(t.residual),
-            duality_tolerance=repr(t.tolerance),
-            duality="agrees" if t.agrees else "EXCEEDS TOLERANCE: do not trust this layer",
-        )
-        layer = SensitivityLayer(t.objective, t.name, t.data, meta)
-        layers.append((layer, _peak(t.data)))
-    return layers
-
-
-def _meta(keys: tuple[str, ...], direction: str, seed: int, unverified: tuple[str, ...]) -> dict:
-    return {
-        "keys": json.dumps(list(keys)),
-        "direction": direction,
-        "seed": str(seed),
-        "encoding": "none (linear)",
-        "unverified": json.dumps(list(unverified)),
-    }
-
-
-def _peak(data: np.ndarray) -> float:
-    peak = float(np.abs(data).max()) if data.size else 0.0
-    return peak if peak > 0 else 1.0

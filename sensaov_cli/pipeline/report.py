@@ -12,16 +12,17 @@ from pathlib import Path
 import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import OutputError
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.outputs.frames import visible_objects
 from sensaov_cli.outputs.previews import srgb_uint8
 from sensaov_cli.outputs.report_html import Picture, ReportContent, png_bytes, write_report
-from sensaov_cli.outputs.sunburst import sunburst_bytes
-from sensaov_cli.run import BUFFER_NAME, PRIMAL_NAME
-from sensaov_cli.spec.model import JobSpec
+from sensaov_cli.outputs.sunburst_drawing import sunburst_bytes
+from sensaov_cli.pipeline.run import BUFFER_NAME, PRIMAL_NAME
+from sensaov_cli.spec.job import JobSpec
 from sensaov_cli.views.hierarchy import rankings
-from sensaov_cli.views.sunburst import panels
+from sensaov_cli.views.sunburst_geometry import panels
 
 REPORT_NAME = "report.html"
 TOP = 12  # rows per ranking table: a page, not a spreadsheet
@@ -36,7 +37,7 @@ def make_report(job: JobSpec, path: Path | None = None) -> Path:
             where=str(buffer_path),
             hint=f"run 'sensaov run {job.path}' first",
         )
-    buf = SensitivityBuffer.load(buffer_path)
+    buf = read_buffer(buffer_path)
     cameras = [job.output / f"{c.name}.exr" for c in job.inspection_cameras]
     visible = visible_objects([p for p in cameras if p.is_file()]) or None
     content = ReportContent(

@@ -13,20 +13,22 @@ from pathlib import Path
 
 import numpy as np
 
-from sensaov_cli import interrupts, project_texels
+from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import FingerprintMismatch, SpecError
-from sensaov_cli.forward import projected_layers
 from sensaov_cli.outputs.atomic import check_writable
 from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write_layered_exr
+from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
+from sensaov_cli.pipeline import project_texels
+from sensaov_cli.pipeline.project_forward import projected_layers
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.beauty import render_beauty
-from sensaov_cli.render.inputs import refuse_unsafe_outputs
-from sensaov_cli.render.scene import LoadedScene, load_scene
-from sensaov_cli.render.scene_xml import scene_fingerprint
+from sensaov_cli.render.loading import LoadedScene, load_scene
+from sensaov_cli.render.scene import prepare_scene
 from sensaov_cli.render.visibility import trace
-from sensaov_cli.spec.model import CameraSpec, JobSpec
+from sensaov_cli.spec.job import CameraSpec, JobSpec
 from sensaov_cli.views.channels import ChannelValues, channel_values
 from sensaov_cli.views.coverage import VisibilityPass, ranked
 from sensaov_cli.views.painting import paint_pass
@@ -57,21 +59,22 @@ def project_job(
     beauty_spp: int = DEFAULT_BEAUTY_SPP,
     progress: Progress,
 ) -> list[ProjectedView]:
-    buffer = SensitivityBuffer.load(buffer_path)
-    _check_fingerprint(job, buffer, buffer_path, force)
+    buffer = read_buffer(buffer_path)
     chosen = _cameras(job, tuple(dict.fromkeys(cameras)))  # a camera named twice renders once
+    prepared = prepare_scene(job, tuple(chosen))
+    _check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
     check_writable(job.output, [f"{camera.name}.exr" for camera in chosen])
     refuse_unsafe_outputs(
-        job,
+        (*job.input_files(), *prepared.files, buffer_path),
         [job.output / f"{camera.name}.exr" for camera in chosen],
         folders=[job.output / "previews"] if png else [],
-        inputs=[buffer_path],
+        where=str(job.path),
     )
     passes = channel_values(buffer, job.channels)  # camera-independent: computed once
     forward = projected_layers(job, buffer, buffer_path, progress)  # the objective camera's
     project_texels.check_texel_channels(job, buffer)
     with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
-        loaded = load_scene(_with_cameras(job, chosen), with_inspection_cameras=True)
+        loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     _check_objects(buffer, loaded, buffer_path)
     texels = project_texels.project_fields(job, buffer, loaded, buffer_path, progress)
     views = []
@@ -86,9 +89,10 @@ def project_job(
     return views
 
 
-def _check_fingerprint(job: JobSpec, buffer: SensitivityBuffer, path: Path, force: bool) -> None:
-    recorded = buffer.provenance.get("scene_fingerprint")
-    if recorded != scene_fingerprint(job.scene, job.scene_args) and not force:
+def _check_fingerprint(
+    job: JobSpec, buffer: SensitivityBuffer, path: Path, fingerprint: str, force: bool
+) -> None:
+    if buffer.provenance.get("scene_fingerprint") != fingerprint and not force:
         raise FingerprintMismatch(
             f"the buffer was made from another version of {job.scene.name} (fingerprint differs)",
             where=str(path),
@@ -122,10 +126,6 @@ def _cameras(job: JobSpec, names: tuple[str, ...]) -> list[CameraSpec]:
             hint=f"cameras of this job: {', '.join(known)}",
         )
     return [known[name] for name in names]
-
-
-def _with_cameras(job: JobSpec, cameras: list[CameraSpec]) -> JobSpec:
-    return replace(job, inspection_cameras=tuple(cameras))
 
 
 def _project_camera(
@@ -165,7 +165,7 @@ def _project_camera(
     crypto = CryptoLayer(
         "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage
     )
-    material = _material_cryptomatte(visibility, loaded.materials)
+    material = _material_cryptomatte(visibility, loaded.prepared.materials)
     path = job.output / f"{camera.name}.exr"
     attributes = _attributes(buffer, buffer_path, camera, beauty_spp)
     interrupts.check()

@@ -1,16 +1,17 @@
-"""Load a job's scene and decide which parameters enter the sensitivity buffer.
+"""Which scene parameters enter the sensitivity buffer, what slot each fills, who owns it.
 
-Mitsuba types stay inside this stage and the adjoint stage; what leaves is the buffer's own
-:class:`~sensaov_cli.buffer.model.ParamRecord` for each selected parameter (plain data) next to
-the live scene objects the adjoint needs.
+Owners are found by node identity (never by key strings: key names depend on declaration
+order); a parameter's type is the slot it fills, whatever its storage (the paper's horizontal
+cut). What leaves is the buffer's own :class:`~sensaov_cli.buffer.model.ParamRecord` for each
+selected parameter, and the reason for each one left out.
 """
 
 from __future__ import annotations
 
 import fnmatch
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
-from dataclasses import dataclass, field
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -18,12 +19,8 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
-from sensaov_cli.errors import SceneError
-from sensaov_cli.render.runtime import import_mitsuba
-from sensaov_cli.render.scene_xml import files_fingerprint, prepare_scene_xml
-from sensaov_cli.render.texture_modes import bitmap_options
 from sensaov_cli.render.trust import verification_status
-from sensaov_cli.spec.model import JobSpec
+from sensaov_cli.spec.job import ParameterSpec
 
 # The slot a parameter fills, whatever its storage ("white.reflectance.value" and
 # "wall.bsdf.reflectance.data" are both reflectance): the paper's horizontal cut.
@@ -69,104 +66,8 @@ PLUGIN_NAMES = {
 GEOMETRY_FIELDS = ("to_world", "position", "direction", "faces")
 
 
-@dataclass
-class LoadedScene:
-    """The live scene plus the plain-data description of its selected parameters."""
-
-    mi: ModuleType
-    scene: Any
-    params: Any  # mi.SceneParameters of the whole scene; only `selected` get gradients
-    sensor: Any
-    integrator: Any
-    variant: str
-    selected: tuple[ParamRecord, ...]  # exactly the records the buffer stores
-    excluded: tuple[ExcludedParam, ...]
-    textures: dict[str, TextureSource]  # texture parameter key -> its bitmap file
-    objects: tuple[str, ...]
-    fingerprint: str
-    resolution: tuple[int, int]
-    split: dict[str, tuple[str, ...]]
-    inspection_sensors: dict[str, Any]  # inspection camera name -> its own sensor
-    materials: dict[str, str]  # object -> material (BSDF id) name, for the material Cryptomatte
-    scene_args: dict[str, str]  # every $name the scene used and the value it got
-    scene_sample_count: int | None  # the scene's own spp (a default: the job's spp renders)
-    replaced_integrator: str | None  # the scene's integrator when it renders other transport
-    # bitmap file base name -> (filter_type, wrap_mode, note), for texel fields
-    bitmap_options: dict[str, tuple[str, str, str]] = field(default_factory=dict)
-
-    @property
-    def integrator_type(self) -> str:
-        """The plugin name of the replay integrator: "prb", or "prbvolpath" for media."""
-        return "prbvolpath" if type(self.integrator).__name__ == "PRBVolpathIntegrator" else "prb"
-
-
-def load_scene(job: JobSpec, *, with_inspection_cameras: bool = False) -> LoadedScene:
-    """Load the job's scene; with ``with_inspection_cameras`` every inspection camera too."""
-    mi = import_mitsuba(job.variant)
-    prepared = prepare_scene_xml(
-        job.scene,
-        max_depth=job.render.max_depth,
-        camera=job.objective_camera,
-        resolution=job.render.resolution,
-        shared=job.parameters.shared,
-        inspection=job.inspection_cameras if with_inspection_cameras else (),
-        scene_args=job.scene_args,
-    )
-    try:
-        with _resolving_from(mi, prepared.search_path):
-            scene = mi.load_string(prepared.text, optimize=False)
-    except Exception as exc:  # Mitsuba raises plain RuntimeError with a long message
-        message, where = prepared.locate(str(exc))
-        raise SceneError(message, where=where or str(job.scene)) from exc
-    sensors = {sensor.id(): sensor for sensor in scene.sensors()}
-    sensor = sensors[prepared.sensor_id]
-    ownership = _ownership(mi, scene, prepared.instances)
-    params = mi.traverse(scene)
-    sources = {Path(name).name: job.scene.parent / name for name in prepared.bitmap_files}
-    selected, excluded, textures = _select(mi, job, params, ownership, sources)
-    size = sensor.film().crop_size()
-    return LoadedScene(
-        mi=mi,
-        scene=scene,
-        params=params,
-        sensor=sensor,
-        integrator=scene.integrator(),
-        variant=mi.variant(),
-        selected=selected,
-        excluded=excluded,
-        textures=textures,
-        objects=ownership.objects,
-        fingerprint=files_fingerprint(prepared.files, job.scene_args, job.scene.parent),
-        resolution=(int(size[0]), int(size[1])),
-        split=prepared.split,
-        inspection_sensors={name: sensors[sid] for name, sid in prepared.inspection_ids.items()},
-        materials=prepared.materials,
-        scene_args={name: arg.value for name, arg in prepared.scene_args.items()},
-        scene_sample_count=prepared.sample_count,
-        replaced_integrator=prepared.replaced_integrator,
-        bitmap_options=bitmap_options(prepared.text),
-    )
-
-
-@contextmanager
-def _resolving_from(mi: ModuleType, folders: tuple[Path, ...]) -> Iterator[None]:
-    """Resolve names still relative in the prepared text against ``folders`` first (the main
-    file's ``<path>`` folders and its own folder, as load_file would), then restore the
-    process-wide resolver (tests and the bench load many scenes in one process)."""
-    resolver = mi.file_resolver()
-    saved = [str(resolver[i]) for i in range(len(resolver))]
-    for folder in reversed(folders):
-        resolver.prepend(str(folder))
-    try:
-        yield
-    finally:
-        resolver.clear()
-        for entry in saved:
-            resolver.append(entry)
-
-
 @dataclass(frozen=True)
-class _Ownership:
+class Ownership:
     """Which objects own each scene node, by node identity (never by key strings: key names
     depend on declaration order). ``nodes`` keeps the nodes alive, so their ids stay valid."""
 
@@ -178,7 +79,7 @@ class _Ownership:
         return self.owners.get(id(node), ())
 
 
-def _ownership(mi: ModuleType, scene: Any, instances: Mapping[str, str]) -> _Ownership:
+def ownership_of(mi: ModuleType, scene: Any, instances: Mapping[str, str]) -> Ownership:
     """Every object (shape, instance, or emitter not attached to a shape) and the nodes it owns.
 
     An instance owns its shapegroup's shapes, BSDFs and textures (``instances`` maps instance
@@ -201,7 +102,7 @@ def _ownership(mi: ModuleType, scene: Any, instances: Mapping[str, str]) -> _Own
         for node in nodes:
             owners.setdefault(id(node), set()).add(name)
     alive = tuple(node for nodes in owned.values() for node in nodes)
-    return _Ownership(
+    return Ownership(
         tuple(sorted(owned)), {key: tuple(sorted(v)) for key, v in owners.items()}, alive
     )
 
@@ -216,17 +117,17 @@ def _shapegroups(mi: ModuleType, scene: Any) -> dict[str, Any]:
     }
 
 
-def _select(
+def select(
     mi: ModuleType,
-    job: JobSpec,
+    parameters: ParameterSpec,
     params: Any,
-    ownership: _Ownership,
+    ownership: Ownership,
     sources: dict[str, Path],
 ) -> tuple[tuple[ParamRecord, ...], tuple[ExcludedParam, ...], dict[str, TextureSource]]:
     selected, excluded, textures = [], [], {}
     for key in params.keys():
         _, _, node, flags = params.properties[key]
-        reason = _exclusion_reason(mi, job, key, params[key], node, flags)
+        reason = _exclusion_reason(mi, parameters, key, params[key], node, flags)
         owners = ownership.of(node) if reason is None else ()
         if reason is None and not owners:
             reason = "owned by no object in the scene"
@@ -249,7 +150,7 @@ def _explicitly_included(key: str, include: tuple[str, ...]) -> bool:
 
 
 def _exclusion_reason(
-    mi: ModuleType, job: JobSpec, key: str, value: Any, node: Any, flags: int
+    mi: ModuleType, parameters: ParameterSpec, key: str, value: Any, node: Any, flags: int
 ) -> str | None:
     import drjit as dr
 
@@ -263,11 +164,11 @@ def _exclusion_reason(
     is_geometry = (
         isinstance(node, mi.Shape) or field in GEOMETRY_FIELDS or field.startswith("vertex_")
     )
-    if is_geometry and not _explicitly_included(key, job.parameters.include):
+    if is_geometry and not _explicitly_included(key, parameters.include):
         return "geometry (excluded by default; include it by naming the field, e.g. '*.to_world')"
-    if not any(fnmatch.fnmatchcase(key, glob) for glob in job.parameters.include):
+    if not any(fnmatch.fnmatchcase(key, glob) for glob in parameters.include):
         return "not matched by parameters.include"
-    for glob in job.parameters.exclude:
+    for glob in parameters.exclude:
         if fnmatch.fnmatchcase(key, glob):
             return f"excluded by parameters.exclude {glob!r}"
     return None
@@ -335,8 +236,6 @@ def _plugin_name(node: Any) -> str:
 
 def _texture_source(mi: ModuleType, node: Any, sources: dict[str, Path]) -> TextureSource:
     """The file behind a bitmap texture, and whether it was stored as 8-bit integers."""
-    import re
-
     # A bitmap texture prints the base name of its file; the XML pass knows the full paths.
     match = re.search(r'name = "([^"]*)"', str(node))
     path = sources.get(match.group(1)) if match else None
@@ -344,19 +243,3 @@ def _texture_source(mi: ModuleType, node: Any, sources: dict[str, Path]) -> Text
         return TextureSource(match.group(1) if match else None, converted=False)
     converted = mi.Bitmap(str(path)).component_format() == mi.Struct.Type.UInt8
     return TextureSource(str(path), converted)
-
-
-def assign(loaded: LoadedScene, key: str, array: np.ndarray) -> None:
-    """Set a selected parameter to ``array`` (in its recorded shape), for finite differences."""
-    import drjit as dr
-
-    current = loaded.params[key]
-    flat = np.ascontiguousarray(array, dtype=np.float32)
-    if dr.is_tensor_v(current):
-        replacement = type(current)(flat)
-    elif dr.size_v(current) == 3:  # a colour: one value per channel
-        replacement = type(current)(*[float(v) for v in flat.reshape(-1)])
-    else:
-        replacement = type(current)(flat.reshape(-1))
-    loaded.params[key] = replacement
-    loaded.params.update()

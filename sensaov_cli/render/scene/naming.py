@@ -18,7 +18,7 @@ import re
 import xml.etree.ElementTree as ET
 from pathlib import PurePath
 
-from sensaov_cli.render.scene_source import is_object
+from sensaov_cli.render.scene.source import is_object
 
 _NAMED_TAGS = ("shape", "emitter", "bsdf", "texture", "sensor", "medium", "volume")
 _MESH_TYPES = ("obj", "ply", "serialized")
@@ -45,8 +45,10 @@ def refs_to(element: ET.Element, tag: str, ids: dict[str, ET.Element]) -> list[E
     return found
 
 
-def name_objects(root: ET.Element) -> None:
-    """Give every unnamed top-level object and shapegroup member an id (document order)."""
+def name_objects(root: ET.Element) -> dict[str, ET.Element]:
+    """Give every unnamed top-level object and shapegroup member an id (document order);
+    returns each id given and its element."""
+    named: dict[str, ET.Element] = {}
     ids = objects_by_id(root)
     referenced = {ref.get("id") for ref in root.iter("ref")}
     taken = set(ids)
@@ -60,6 +62,8 @@ def name_objects(root: ET.Element) -> None:
         base = f"{group}_{position[group]}" if group is not None else _base_name(element, ids)
         element.set("id", _unique(_sanitize(base), taken))
         taken.add(element.get("id", ""))
+        named[element.get("id", "")] = element
+    return named
 
 
 def _nameable(root: ET.Element) -> list[ET.Element]:

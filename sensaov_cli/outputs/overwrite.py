@@ -1,10 +1,10 @@
-"""Every file a job reads, and the refusal to write an output over any of them (pure Python).
+"""The refusal to write an output over any file a command reads (pure Python).
 
 With ``output`` set to the scene's folder, an inspection camera named like a texture would
 replace the texture, and the scene would no longer load. So before anything renders, the
-outputs a command will write are compared with the inputs (the job file, every file the scene
-reads as the fingerprint lists them, masks, targets, a buffer being projected): same path after
-resolving links, or the same file under another name (a hard link), is refused.
+outputs a command will write are compared with its inputs (the job file, every file the scene
+reads as the prepared scene lists them, masks, targets, a buffer being projected): same path
+after resolving links, or the same file under another name (a hard link), is refused.
 """
 
 from __future__ import annotations
@@ -14,41 +14,31 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from sensaov_cli.errors import OutputError
-from sensaov_cli.render.scene_expand import expand_scene
-from sensaov_cli.spec.model import JobSpec
-
-
-def job_inputs(job: JobSpec) -> tuple[Path, ...]:
-    """The job file, the scene's files (includes, meshes, textures, spectra), masks, targets."""
-    files = [job.path, *expand_scene(job.scene, job.scene_args).files]
-    for objective in job.objectives:
-        files += [p for p in (objective.mask, objective.target) if p is not None]
-    return tuple(files)
 
 
 def refuse_unsafe_outputs(
-    job: JobSpec, files: Iterable[Path], folders: Iterable[Path] = (), inputs: Iterable[Path] = ()
+    inputs: Iterable[Path], files: Iterable[Path], folders: Iterable[Path] = (), *, where: str
 ) -> None:
     """Refuse, before any work, outputs that would replace an input or a folder that is a file.
 
-    ``files`` are the outputs' paths, ``folders`` the folders whose contents a command writes
-    (``previews/``), ``inputs`` files read besides the job's own (a buffer being projected).
+    ``inputs`` are every file the command reads, ``files`` the outputs' paths, ``folders`` the
+    folders whose contents it writes (``previews/``); ``where`` names the job in messages.
     """
     folders = list(folders)
     for folder in folders:
         if folder.exists() and not folder.is_dir():
             raise OutputError(
                 f"{folder} exists and is not a directory",
-                where=str(job.path),
+                where=where,
                 hint="move it out of the way: outputs are written into it",
             )
-    read = {_real(path): path for path in (*job_inputs(job), *inputs)}
+    read = {_real(path): path for path in inputs}
     for output in files:
         clash = read.get(_real(output)) or _same_file(output, read.values())
         if clash is not None:
             raise OutputError(
                 f"the output {output} would replace {clash}, which this job reads",
-                where=str(job.path),
+                where=where,
                 hint="set output to a folder of its own, or rename the camera",
             )
     for folder in folders:
@@ -56,7 +46,7 @@ def refuse_unsafe_outputs(
         if inside:
             raise OutputError(
                 f"outputs go into {folder}, which holds {inside[0]}, a file this job reads",
-                where=str(job.path),
+                where=where,
                 hint="set output to a folder of its own",
             )
 

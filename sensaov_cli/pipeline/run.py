@@ -7,30 +7,31 @@ import os
 import platform
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
 from sensaov_cli import interrupts
-from sensaov_cli.buffer.forward import forward_writer
+from sensaov_cli.buffer.forward_sidecar import forward_writer
 from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
-from sensaov_cli.buffer.npz import buffer_writer
+from sensaov_cli.buffer.npz import buffer_writer, read_buffer
 from sensaov_cli.errors import SensaovError, SpecError
-from sensaov_cli.forward import FORWARD_NAME, plan_forward, run_forward, wanted
 from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
 from sensaov_cli.outputs.exr import exr_writer, image_channels
+from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
+from sensaov_cli.pipeline.run_forward import plan_forward, run_forward
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, batch_plan, integrator_plan, run_adjoint
-from sensaov_cli.render.inputs import refuse_unsafe_outputs
+from sensaov_cli.render.loading import LoadedScene, load_scene
 from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.scene import LoadedScene, load_scene
-from sensaov_cli.render.scene_xml import check_cameras, scene_fingerprint
-from sensaov_cli.spec.model import JobSpec
+from sensaov_cli.render.scene import prepare_scene
+from sensaov_cli.spec.job import JobSpec
 
 BUFFER_NAME = "buffer.npz"
 PRIMAL_NAME = "primal.exr"
+FORWARD_NAME = "forward.npz"  # the forward sidecar, written with its buffer or not at all
 
 
 @dataclass(frozen=True)
@@ -72,33 +73,34 @@ def run_job(
     whole, job = job, _task_job(job, task)  # provenance records the whole job: shards compare
     buffer_name, primal_name = task.file_names()
     buffer_path, primal_path = job.output / buffer_name, job.output / primal_name
+    prepared = prepare_scene(job)  # every camera checked: a bad one fails before the render
     if resume:
-        done = completed(whole, task, buffer_path, primal_path)
+        done = completed(whole, task, buffer_path, primal_path, prepared.fingerprint)
         if done is not None:
             progress.note(f"{buffer_path.name} is complete for this job: skipped (--resume)")
             return RunOutputs(done, buffer_path, primal_path, resumed=True)
     # Duality needs the forward pass at the backward's samples: one batch, the whole job.
     single = task.shard is None and not task.objectives and job.render.batches == 1
-    forward_wanted = wanted(job) and single
+    forward_wanted = job.wants_forward and single
     check_writable(job.output, [buffer_name, primal_name] + [FORWARD_NAME] * forward_wanted)
     outputs = [buffer_path, primal_path] + [job.output / FORWARD_NAME] * forward_wanted
-    refuse_unsafe_outputs(job, outputs)
-    check_cameras(job)  # an unknown inspection camera fails here, not after the render
+    inputs = (*job.input_files(), *prepared.files)
+    refuse_unsafe_outputs(inputs, outputs, where=str(job.path))
     with progress.stage("load_s", f"loading {job.scene.name}"):
-        loaded = load_scene(job)
+        loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     if not loaded.selected:
         raise SpecError(
             "no scene parameter is selected: there is nothing to differentiate",
             where=f"{job.path}: parameters",
             hint="'sensaov params JOB' lists every key and why it was left out",
         )
-    if loaded.replaced_integrator is not None:
+    if prepared.replaced_integrator is not None:
         progress.note(
-            f"the scene's '{loaded.replaced_integrator}' integrator renders other light "
+            f"the scene's '{prepared.replaced_integrator}' integrator renders other light "
             f"transport than the path replay sensaov differentiates (full paths up to "
             f"max_depth {job.render.max_depth}): M is measured on that image"
         )
-    scene_spp = loaded.scene_sample_count
+    scene_spp = prepared.sample_count
     if scene_spp is not None and scene_spp != job.render.spp:
         progress.note(
             f"the scene's sampler asks for {scene_spp} spp; rendering with the job's "
@@ -113,7 +115,7 @@ def run_job(
     # An objective keeps its index in the whole job (its gradient seed) when a task picks it.
     objectives = [o for o in objectives if o.spec in job.objectives]
     forward_passes = len(plan_forward(job, loaded))  # an entry selecting nothing fails here
-    if wanted(job) and not forward_wanted:
+    if job.wants_forward and not forward_wanted:
         progress.note(
             "forward channels and transport layers are rendered by single-batch runs only, "
             "not by a shard, an --objective task or render.batches > 1 (docs/farm.md)"
@@ -205,18 +207,19 @@ def _task_job(job: JobSpec, task: Task) -> JobSpec:
 
 
 def completed(
-    job: JobSpec, task: Task, buffer_path: Path, primal_path: Path
+    job: JobSpec, task: Task, buffer_path: Path, primal_path: Path, fingerprint: str
 ) -> SensitivityBuffer | None:
-    """The task's buffer if it and its primal are complete and made by this very job."""
+    """The task's buffer if it and its primal are complete and made by this very job from the
+    scene whose ``fingerprint`` is given."""
     if not (buffer_path.is_file() and primal_path.is_file()):
         return None
     try:
-        buffer = SensitivityBuffer.load(buffer_path)
+        buffer = read_buffer(buffer_path)
     except SensaovError:
         return None  # unreadable: render it again
     made = buffer.provenance
     same = made.get("job_hash") == job.job_hash() and made.get("task") == task.describe()
-    same = same and made.get("scene_fingerprint") == scene_fingerprint(job.scene, job.scene_args)
+    same = same and made.get("scene_fingerprint") == fingerprint
     return buffer if same and primal_path.stat().st_size > 0 else None
 
 
@@ -236,11 +239,12 @@ def _provenance(
         "job_hash": job.job_hash(),
         "job": job.to_dict(),
         "scene_path": str(job.scene),
-        "scene_fingerprint": loaded.fingerprint,
-        "scene_args": dict(loaded.scene_args),  # every $name the scene used, as substituted
-        "scene_sample_count": loaded.scene_sample_count,  # the scene's spp; the job's renders
+        "scene_fingerprint": loaded.prepared.fingerprint,
+        "scene_args": loaded.prepared.argument_values,  # every $name the scene used
+        "scene_sample_count": loaded.prepared.sample_count,  # the scene's spp; the job's renders
         "integrator": loaded.integrator_type,  # the replay integrator that ran
-        "scene_integrator_replaced": loaded.replaced_integrator,
+        "scene_integrator_replaced": loaded.prepared.replaced_integrator,
+        "scene_changes": [asdict(change) for change in loaded.prepared.changes],
         **result.provenance,  # which integrator differentiated what; the self-checks' figures
         "max_depth": job.render.max_depth,
         "spp": result.spp,  # this task's: a shard renders its share of render.spp
@@ -251,7 +255,7 @@ def _provenance(
         "resolution": [width, height],
         "objective_sensor": loaded.sensor.id(),
         "shared_bsdfs": job.parameters.shared,
-        "split_bsdfs": {name: list(shapes) for name, shapes in loaded.split.items()},
+        "split_bsdfs": {name: list(shapes) for name, shapes in loaded.prepared.split.items()},
         "textures": [
             {"key": key, "file": source.file, "converted_from_8bit": source.converted}
             for key, source in loaded.textures.items()

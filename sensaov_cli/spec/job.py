@@ -17,7 +17,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,9 +24,9 @@ from typing import Annotated, Any, Literal
 
 from annotated_types import Ge, Le, Lt
 
+from sensaov_cli.spec.cameras import PLACED, CameraSpec, InspectionCamera
 from sensaov_cli.spec.fields import (
     STRICT,
-    Fov,
     Function,
     Globs,
     JobDir,
@@ -35,18 +34,13 @@ from sensaov_cli.spec.fields import (
     MaxDepth,
     Name,
     OutputDir,
-    Problem,
     Region,
     Resolution,
     SceneArgs,
     Text,
-    TrueFlag,
-    Vector,
-    VisSpp,
     unique_names,
 )
 from sensaov_cli.spec.markers import (
-    After,
     Doc,
     Given,
     In,
@@ -54,28 +48,21 @@ from sensaov_cli.spec.markers import (
     Section,
     SensorOrPlaced,
     Tagged,
-    TaggedByKey,
 )
-from sensaov_cli.vocabulary import Aggregate, Normalize, Sign, Tonemap, Weight
-
-Variant = Literal[
-    "auto",
-    "llvm_ad_rgb",
-    "cuda_ad_rgb",
-    "llvm_ad_mono",
-    "cuda_ad_mono",
-    "llvm_ad_spectral",
-    "cuda_ad_spectral",
-]
-ObjectiveType = Literal["mean_luminance", "region_luminance", "l2_to_target", "python"]
-ChannelKind = Literal["object", "type", "select", "transport", "texel"]
-Direction = Literal["value", "ones"]  # θ-weighted (a proportional change) | one per component
-PoolKind = Literal["gaussian", "box", "mip", "none"]
-TexelUnits = Literal["texel", "uv_area"]
-# The shapes of a camera: an inspection camera's, named by the key that picks its kind, and
-# the mapping that places the objective camera.
-LOOK_AT, SENSOR, OBJECTIVE, PLACED = "look_at", "sensor", "objective", "placed"
-INSPECTION = (LOOK_AT, SENSOR, OBJECTIVE)
+from sensaov_cli.spec.problems import Problem
+from sensaov_cli.vocabulary import (
+    Aggregate,
+    ChannelKind,
+    Direction,
+    Normalize,
+    ObjectiveType,
+    PoolKind,
+    Sign,
+    TexelUnits,
+    Tonemap,
+    Variant,
+    Weight,
+)
 
 
 @dataclass(frozen=True)
@@ -131,53 +118,6 @@ class ParameterSpec(Section):
             "object gets its own gradient; keep: leave shared BSDFs shared."
         ),
     ] = "split"
-
-
-@dataclass(frozen=True)
-class LookAt(Section):
-    """A camera placed at origin, looking at target, with up pointing up."""
-
-    origin: Vector
-    target: Vector
-    up: Vector
-
-    def __post_init__(self) -> None:
-        view = [t - o for t, o in zip(self.target, self.origin, strict=True)]
-        if not any(view):
-            raise Problem("target must differ from origin", at=("target",))
-        # The camera frame is built from up x (target - origin); parallel vectors give NaNs.
-        ux, uy, uz = self.up
-        vx, vy, vz = view
-        cross = (uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
-        if math.hypot(*cross) <= 1e-9 * math.hypot(*view) * max(math.hypot(*self.up), 1e-300):
-            raise Problem("up must not be zero or parallel to target - origin", at=("up",))
-
-
-@dataclass(frozen=True)
-class CameraSpec:
-    """A camera: a scene sensor, a look_at camera, or (inspection only) the objective camera.
-
-    The objective camera is named "objective"; with neither sensor nor look_at it is the
-    scene's first sensor.
-    """
-
-    name: Annotated[Name, In(*INSPECTION), Doc("Unique among inspection cameras; the EXR name.")]
-    sensor: Annotated[
-        Text | None, In(SENSOR, required=True), Doc("Id of a sensor in the scene.")
-    ] = None
-    look_at: Annotated[LookAt | None, In(LOOK_AT, PLACED, required=True)] = None
-    fov: Annotated[Fov, In(LOOK_AT, PLACED)] = 40.0
-    resolution: Annotated[
-        Resolution | None,
-        In(LOOK_AT, default=(256, 256), doc="[width, height]."),
-        In(SENSOR, doc="null = the sensor's film."),
-        In(OBJECTIVE, doc="null = the objective camera's resolution."),
-        In(PLACED, doc="[width, height]; null = 256 x 256. render.resolution overrides it."),
-    ] = None
-    objective: Annotated[TrueFlag, In(OBJECTIVE, required=True), Doc("The objective camera.")] = (
-        False
-    )
-    vis_spp: Annotated[VisSpp, In(*INSPECTION)] = 16
 
 
 @dataclass(frozen=True)
@@ -296,39 +236,10 @@ class ForwardSpec:
             )
 
 
-def _inspection_name(camera: CameraSpec) -> CameraSpec:
-    if camera.name in ("primal", "buffer"):  # <output>/<camera>.exr must not clobber run's files
-        raise Problem(
-            f"the name {camera.name!r} is reserved: 'sensaov run' writes {camera.name} files",
-            at=("name",),
-            hint="choose another name",
-        )
-    if camera.name == "objective" and not camera.objective:
-        raise Problem(
-            "the name 'objective' is reserved for the objective camera",
-            at=("name",),
-            hint="use 'objective: true' to mean that camera, or choose another name",
-        )
-    return camera
-
-
 Objective = Annotated[
     ObjectiveSpec, Tagged("type", "a mapping with name and type", noun="Objective")
 ]
 Channel = Annotated[ChannelSpec, Tagged("kind", "a mapping with name and kind", noun="Channel")]
-InspectionCamera = Annotated[
-    CameraSpec,
-    TaggedByKey(
-        INSPECTION,
-        owners=(" for a look_at camera", " for a sensor camera", " for the objective camera"),
-        expects="a mapping with name and one of look_at, sensor or objective",
-        missing="an inspection camera needs one of look_at, sensor or objective: true",
-        clash="an inspection camera takes only one of look_at, sensor or objective; "
-        "this one also has {}",
-        noun="Inspection",
-    ),
-    After(_inspection_name),
-]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -370,6 +281,17 @@ class JobSpec(Section):
     output: Annotated[
         OutputDir, Doc("Output directory, relative to the job; null = out/<job stem>.")
     ]
+
+    @property
+    def wants_forward(self) -> bool:
+        """Whether the job asks for any forward pass: a forward channel or a transport one."""
+        return bool(self.forward) or any(c.kind == "transport" for c in self.channels)
+
+    def input_files(self) -> tuple[Path, ...]:
+        """The files the job itself names: the job file, objectives' masks and targets (the
+        scene's files are the prepared scene's ``files``)."""
+        named = [(o.mask, o.target) for o in self.objectives]
+        return (self.path, *(path for pair in named for path in pair if path is not None))
 
     def to_dict(self) -> dict[str, Any]:
         """The whole spec as a canonical JSON-able dict (absolute paths as strings)."""

@@ -1,6 +1,6 @@
 """Wire ``sensaov merge``: shard buffers (and their primals) -> one buffer and one primal.
 
-The arithmetic and every refusal are in :mod:`sensaov_cli.buffer.merge`; this module reads the
+The arithmetic and every refusal are in :mod:`sensaov_cli.buffer.shards`; this module reads the
 files, finds each shard's primal beside it, and writes both results atomically together.
 """
 
@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from sensaov_cli import interrupts
-from sensaov_cli.buffer.merge import Shard, merge_shards
 from sensaov_cli.buffer.model import FORMAT_VERSION, SensitivityBuffer
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer_versioned
+from sensaov_cli.buffer.shards import Shard, merge_shards
 from sensaov_cli.buffer.statistics import weighted_mean
 from sensaov_cli.errors import MergeError, SensaovError
 from sensaov_cli.outputs.atomic import atomic_write_all, check_writable

@@ -14,9 +14,9 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from sensaov_cli.errors import SceneError
-from sensaov_cli.render.scene_names import child_value, objects_by_id
-from sensaov_cli.render.scene_source import detached_copy, where
-from sensaov_cli.spec.model import CameraSpec
+from sensaov_cli.render.scene.naming import child_value, objects_by_id
+from sensaov_cli.render.scene.source import detached_copy, where
+from sensaov_cli.spec.job import CameraSpec
 
 OBJECTIVE_SENSOR_ID = "sensaov_objective"
 MAX_FILM_SIZE = 16384  # the largest width or height a job's resolution may ask for

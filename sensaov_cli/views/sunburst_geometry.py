@@ -6,7 +6,7 @@ rings 1 and 2. Every wedge is a group of keys scored with the chosen aggregate, 
 siblings under one parent split the parent's angle in proportion to their scores' magnitudes:
 with l2 (or rms) a parent's score is not the sum of its children's, so "proportional" holds
 among siblings, which is what a reader compares. Angles are fractions of a turn, clockwise
-from the top, and numpy-free of drawing: :mod:`sensaov_cli.outputs.sunburst` draws them.
+from the top, and numpy-free of drawing: :mod:`sensaov_cli.outputs.sunburst_drawing` draws them.
 
 As in the rankings, only parameters a gradient flows to are drawn (``no_gradient`` ones are
 listed apart), a parameter shared by several objects sits under each of its owners, one that

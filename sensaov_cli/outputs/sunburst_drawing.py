@@ -1,10 +1,10 @@
 """The sunburst as an SVG or PNG (paper Fig. 1), drawn with matplotlib from views' wedges.
 
-:mod:`sensaov_cli.views.sunburst` computes every angle; this module only draws. Colour is the
-wedge's signed sum Σc on the previews' RdBu (blue: increasing the group lowers M, red: raises
-it), relative to the largest |Σc| in its ring, so a pale wedge is a small one or one whose
-parameters pull both ways. Wedges with a gradient that is not verified are hatched. Labels go
-on the wedges wide enough to hold a line of text, along the radius, shortened to fit.
+:mod:`sensaov_cli.views.sunburst_geometry` computes every angle; this module only draws.
+Colour is the wedge's signed sum Σc on the previews' RdBu (blue: increasing the group lowers M,
+red: raises it), relative to the largest |Σc| in its ring, so a pale wedge is a small one or one
+whose parameters pull both ways. Wedges with a gradient that is not verified are hatched. Labels
+go on the wedges wide enough to hold a line of text, along the radius, shortened to fit.
 matplotlib is imported inside the functions, with the Agg backend: no display is needed, and
 importing this module costs nothing.
 """
@@ -24,7 +24,7 @@ import numpy as np
 from sensaov_cli.errors import OutputError
 from sensaov_cli.outputs.atomic import atomic_write
 from sensaov_cli.outputs.previews import RDBU, diverging_rgb
-from sensaov_cli.views.sunburst import Panel, Wedge
+from sensaov_cli.views.sunburst_geometry import Panel, Wedge
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
-from sensaov_cli.render.scene_source import is_object, new_element, source_file
+from sensaov_cli.render.scene.source import is_object, new_element, source_file
 
 _UV_NAMES = ("uoffset", "voffset", "uscale", "vscale")
 

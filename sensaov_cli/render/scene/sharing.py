@@ -8,7 +8,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from collections import Counter
 
-from sensaov_cli.render.scene_source import detached_copy
+from sensaov_cli.render.scene.source import detached_copy
 
 
 def place_textures(root: ET.Element, copies: bool) -> dict[str, tuple[str, ...]]:

@@ -18,9 +18,9 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.texture_files import safe_file_stem, write_fig4_sheet, write_texture_files
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.scene import LoadedScene
+from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.texture_modes import objects_without_uv, texture_probes
-from sensaov_cli.spec.model import JobSpec
+from sensaov_cli.spec.job import JobSpec
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.texel_fields import TexelField, texel_fields, texture_keys
 from sensaov_cli.views.texel_passes import TexelPass, texel_passes, texture_footprint
@@ -58,7 +58,7 @@ def prepare(job: JobSpec, buffer: SensitivityBuffer, loaded: LoadedScene) -> lis
     if not channels:
         return []
     keys = tuple(dict.fromkeys(k for i, c in channels for k in texture_keys(buffer, c, i)))
-    probes = texture_probes(loaded.mi, loaded.params, keys, loaded.bitmap_options)
+    probes = texture_probes(loaded.mi, loaded.params, keys, loaded.prepared.bitmap_options)
     samplings = {key: sampling_of(probe) for key, probe in probes.items()}
     no_uv = set(objects_without_uv(loaded.mi, loaded.scene, buffer.objects))
     fields = [f for i, c in channels for f in texel_fields(buffer, c, i, samplings)]

@@ -33,14 +33,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sensaov_cli.errors import SceneError
-from sensaov_cli.render.scene_source import (
+from sensaov_cli.render.scene.source import (
     OBJECT_TAGS,
     is_object,
     read_xml,
     user_attributes,
     where,
 )
-from sensaov_cli.render.scene_upgrade import upgrade_legacy
+from sensaov_cli.render.scene.upgrade import upgrade_legacy
 
 MAX_INCLUDE_DEPTH = 15  # Mitsuba's ParserConfig.max_include_depth
 # Every tag Mitsuba 3.9.1's parser knows (interpret_tag); any other is "an unsupported XML

@@ -1,0 +1,117 @@
+"""Wire the stages of ``sensaov check``: spec -> scene -> finite differences and duality.
+
+The job's objective (the first, or the one named) is built for the objective camera and
+:func:`~sensaov_cli.render.fdcheck.check_gradients` compares its reverse-mode gradients with
+central finite differences; the stored buffer, when there is one, is replayed against forward
+mode (:func:`~sensaov_cli.render.duality.check_duality`); :func:`exit_code` says whether the
+result is a failure.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
+from sensaov_cli.buffer.statistics import single_pass
+from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, FingerprintMismatch, SpecError
+from sensaov_cli.pipeline.run import BUFFER_NAME
+from sensaov_cli.render.duality import FD_TOLERANCE, DualityCheck, check_duality
+from sensaov_cli.render.fdcheck import GradientCheck, check_gradients
+from sensaov_cli.render.loading import load_scene
+from sensaov_cli.render.objectives import build_objectives
+from sensaov_cli.render.scene import prepare_scene
+from sensaov_cli.spec.job import JobSpec, ObjectiveSpec
+
+__all__ = ["FD_TOLERANCE", "CheckReport", "check_job", "exit_code"]
+
+DEFAULT_SEEDS = 6
+DEFAULT_TOP = 3
+DEFAULT_DIRECTIONS = 2  # random directions per parameter, besides ones
+
+
+@dataclass(frozen=True)
+class CheckReport:
+    gradients: list[GradientCheck]  # reverse mode against finite differences, per kind
+    duality: list[DualityCheck]  # the stored buffer against forward mode; [] without one
+    buffer_path: Path | None  # the buffer the duality column checked; None: there is none
+
+
+def check_job(
+    job: JobSpec,
+    *,
+    objective: str | None = None,
+    spp: int | None = None,
+    seeds: int = DEFAULT_SEEDS,
+    keys: Sequence[str] = (),
+    buffer_path: Path | None = None,
+    top: int = DEFAULT_TOP,
+    directions: int = DEFAULT_DIRECTIONS,
+    allow_python: bool,
+) -> CheckReport:
+    """Check one objective's gradients over seeds ``0 .. seeds-1`` at ``spp`` (default: the
+    job's), one parameter of each kind or the ``keys`` named; then, when the job's buffer (or
+    ``buffer_path``) exists, its ``top`` parameters per objective against forward mode along
+    ones and ``directions`` random directions. The scene is prepared and loaded once."""
+    chosen = _objective(job, objective)  # the command's own options are checked first
+    path = buffer_path or job.output / BUFFER_NAME
+    buffer = _checkable_buffer(job, path) if path.is_file() else None
+    prepared = prepare_scene(job)
+    if buffer is not None and buffer.provenance.get("scene_fingerprint") != prepared.fingerprint:
+        raise FingerprintMismatch(
+            f"the buffer was made from another version of {job.scene.name}",
+            where=str(path),
+            hint="re-run 'sensaov run' first",
+        )
+    loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
+    width, height = loaded.resolution
+    (built,) = build_objectives(loaded.mi, (chosen,), (height, width), allow_python)
+    gradients = check_gradients(
+        loaded, built, spp=spp or job.render.spp, seeds=list(range(seeds)), keys=list(keys) or None
+    )
+    if buffer is None:
+        return CheckReport(gradients, [], None)
+    every = build_objectives(loaded.mi, job.objectives, (height, width), allow_python)
+    duality = check_duality(
+        loaded, every, buffer, keys=list(keys) or None, top=top, random_directions=directions
+    )
+    return CheckReport(gradients, duality, path)
+
+
+def _checkable_buffer(job: JobSpec, path: Path) -> SensitivityBuffer:
+    """The buffer, if the duality check can replay its passes; refused before any render."""
+    buffer = read_buffer(path)
+    if buffer.provenance.get("job_hash") != job.job_hash():
+        raise FingerprintMismatch(
+            "the buffer was written by another version of this job (job hash differs)",
+            where=str(path),
+            hint="re-run 'sensaov run' first: the check replays the buffer's own passes",
+        )
+    if not single_pass(buffer.provenance):
+        raise FingerprintMismatch(
+            "the duality check replays one backward pass; this buffer is a shard, an objective "
+            "task or the mean of several batches or shards",
+            where=str(path),
+            hint="check a single-batch run of the job (render.batches: 1, no --shard)",
+        )
+    return buffer
+
+
+def exit_code(checks: Sequence[GradientCheck], duality: Sequence[DualityCheck] = ()) -> int:
+    """A failure when a parameter the verification table trusts disagrees, or the buffer
+    disagrees with forward mode at its own seed; else success."""
+    contradicted = any(c.claimed_verified and c.verdict == "disagrees" for c in checks)
+    return EXIT_JOB_FAILED if contradicted or any(d.failed for d in duality) else EXIT_OK
+
+
+def _objective(job: JobSpec, name: str | None) -> ObjectiveSpec:
+    """The job's first objective, or the one called ``name``."""
+    for spec in job.objectives:
+        if name in (None, spec.name):
+            return spec
+    names = ", ".join(o.name for o in job.objectives)
+    raise SpecError(
+        f"no objective named {name!r}", where="--objective", hint=f"objectives: {names}"
+    )

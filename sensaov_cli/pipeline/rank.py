@@ -1,0 +1,81 @@
+"""Wire ``sensaov rank``: a stored buffer (and cameras' EXRs) -> rankings; numpy only."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.npz import read_buffer
+from sensaov_cli.errors import QueryError
+from sensaov_cli.outputs.frames import visible_objects
+from sensaov_cli.outputs.rankings import ranking_csv, ranking_dict, ranking_text
+from sensaov_cli.outputs.tables import summary_text
+from sensaov_cli.views.hierarchy import check_cut, rankings
+from sensaov_cli.views.summary import summary_dict
+from sensaov_cli.vocabulary import Aggregate, Cut, Weight
+
+
+def rank_summary(
+    buffer: Path, *, as_json: bool, top: int, method: Aggregate, weight: Weight
+) -> str | dict[str, Any]:
+    """The summary ``sensaov run`` prints (top keys, objects, types), as text or JSON data."""
+    return summary_of(read_buffer(buffer), as_json=as_json, top=top, method=method, weight=weight)
+
+
+def summary_of(
+    buffer: SensitivityBuffer,
+    *,
+    as_json: bool,
+    top: int,
+    method: Aggregate = "l2",
+    weight: Weight = "value",
+) -> str | dict[str, Any]:
+    """A buffer's ranked summary, as text or JSON data (``run`` prints it for its buffer)."""
+    if as_json:
+        return summary_dict(buffer, top=top, method=method, weight=weight)
+    return summary_text(buffer, top=top, method=method, weight=weight)
+
+
+def rank_by_cut(
+    buffer: Path,
+    *,
+    by: Cut,
+    objectives: tuple[str, ...],
+    style: str,
+    exrs: tuple[Path, ...],
+    top: int,
+    method: Aggregate,
+    weight: Weight,
+) -> str | dict[str, Any]:
+    """One table per objective at one cut: ``style`` "json" (data), "csv" or "text"."""
+    loaded = read_buffer(buffer)
+    check_cut(by, cameras=bool(exrs))
+    for name in objectives:
+        loaded.objective(name)  # an unknown name is an error that lists the known ones
+    visible = visible_objects(list(exrs)) if exrs else None
+    found = rankings(
+        loaded,
+        by=by,
+        objectives=objectives or None,
+        top=top,
+        method=method,
+        weight=weight,
+        visible=visible,
+    )
+    if style == "json":
+        cameras = None if visible is None else list(visible)
+        return ranking_dict(loaded, found, method=method, weight=weight, cameras=cameras)
+    if style == "csv":
+        return ranking_csv(found)
+    return ranking_text(found, method=method, weight=weight)
+
+
+def refuse_options(
+    *, by: str | None, objective: bool, as_json: bool, as_csv: bool, exr: bool
+) -> None:
+    """Options that exclude each other, refused before the buffer is read."""
+    if as_json and as_csv:
+        raise QueryError("--json and --csv exclude each other", hint="choose one")
+    if by is None and (objective or as_csv or exr):
+        raise QueryError("--objective, --csv and --exr need --by", hint="add --by key|object|type")

@@ -1,0 +1,38 @@
+"""Wire ``sensaov sunburst``: a stored buffer -> the hierarchy as rings (SVG or PNG)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from sensaov_cli.buffer.npz import read_buffer
+from sensaov_cli.outputs.provenance import made_by
+from sensaov_cli.outputs.sunburst_drawing import write_sunburst
+from sensaov_cli.views.sunburst_geometry import panels
+from sensaov_cli.vocabulary import Aggregate, Order, Weight
+
+
+def draw_sunburst(
+    buffer: Path,
+    output: Path,
+    *,
+    objectives: tuple[str, ...],
+    order: Order,
+    method: Aggregate,
+    weight: Weight,
+) -> Path:
+    """Write one disc per objective (or per named objective) to ``output``."""
+    loaded = read_buffer(buffer)
+    drawn = panels(loaded, objectives or None, order=order, method=method, weight=weight)
+    contribution = "θ·∂M/∂θ" if weight == "value" else "∂M/∂θ"
+    provenance = {
+        **made_by("sunburst"),
+        "buffer": str(buffer),
+        "order": order,
+        "aggregate": method,
+        "weight": weight,
+        "buffer_provenance": loaded.provenance,
+    }
+    write_sunburst(
+        output, drawn, order=order, encoding=f"{method} of {contribution}", provenance=provenance
+    )
+    return output

@@ -1,0 +1,12 @@
+"""Wire ``sensaov validate``: spec -> prepared scene, every camera checked; Mitsuba not loaded."""
+
+from __future__ import annotations
+
+from sensaov_cli.render.scene import PreparedScene, prepare_scene
+from sensaov_cli.spec.job import JobSpec
+
+
+def validate_job(job: JobSpec) -> PreparedScene:
+    """The job's scene prepared as ``run`` and ``project`` prepare it, with every inspection
+    camera placed: what they would refuse before rendering is refused here."""
+    return prepare_scene(job, job.inspection_cameras)

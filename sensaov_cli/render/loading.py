@@ -1,0 +1,122 @@
+"""Load a prepared scene into Mitsuba and select the parameters the buffer stores.
+
+Mitsuba types stay inside the render stage; what leaves is the buffer's own
+:class:`~sensaov_cli.buffer.model.ParamRecord` for each selected parameter (plain data) next to
+the live scene objects the adjoint needs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
+from sensaov_cli.errors import SceneError
+from sensaov_cli.render.runtime import import_mitsuba
+from sensaov_cli.render.scene import PreparedScene, prepare_scene
+from sensaov_cli.render.selection import ownership_of, select
+from sensaov_cli.spec.job import CameraSpec, JobSpec, ParameterSpec
+
+
+@dataclass
+class LoadedScene:
+    """The live scene plus the plain-data description of its selected parameters."""
+
+    mi: ModuleType
+    scene: Any
+    params: Any  # mi.SceneParameters of the whole scene; only `selected` get gradients
+    sensor: Any
+    integrator: Any
+    variant: str
+    selected: tuple[ParamRecord, ...]  # exactly the records the buffer stores
+    excluded: tuple[ExcludedParam, ...]
+    textures: dict[str, TextureSource]  # texture parameter key -> its bitmap file
+    objects: tuple[str, ...]
+    resolution: tuple[int, int]
+    inspection_sensors: dict[str, Any]  # inspection camera name -> its own sensor
+    prepared: PreparedScene  # what was loaded: the text, files, fingerprint, changes
+
+    @property
+    def integrator_type(self) -> str:
+        """The plugin name of the replay integrator: "prb", or "prbvolpath" for media."""
+        return "prbvolpath" if type(self.integrator).__name__ == "PRBVolpathIntegrator" else "prb"
+
+
+def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSpec) -> LoadedScene:
+    """Load a prepared scene with Mitsuba (``variant``: a job's, e.g. "auto") and select the
+    parameters ``parameters`` names."""
+    mi = import_mitsuba(variant)
+    try:
+        with _resolving_from(mi, prepared.search_path):
+            scene = mi.load_string(prepared.text, optimize=False)
+    except Exception as exc:  # Mitsuba raises plain RuntimeError with a long message
+        message, where = prepared.locate(str(exc))
+        raise SceneError(message, where=where or str(prepared.path)) from exc
+    sensors = {sensor.id(): sensor for sensor in scene.sensors()}
+    sensor = sensors[prepared.sensor_id]
+    ownership = ownership_of(mi, scene, prepared.instances)
+    params = mi.traverse(scene)
+    sources = {Path(name).name: prepared.path.parent / name for name in prepared.bitmap_files}
+    selected, excluded, textures = select(mi, parameters, params, ownership, sources)
+    size = sensor.film().crop_size()
+    return LoadedScene(
+        mi=mi,
+        scene=scene,
+        params=params,
+        sensor=sensor,
+        integrator=scene.integrator(),
+        variant=mi.variant(),
+        selected=selected,
+        excluded=excluded,
+        textures=textures,
+        objects=ownership.objects,
+        resolution=(int(size[0]), int(size[1])),
+        inspection_sensors={name: sensors[sid] for name, sid in prepared.inspection_ids.items()},
+        prepared=prepared,
+    )
+
+
+def load_job_scene(job: JobSpec, cameras: tuple[CameraSpec, ...] = ()) -> LoadedScene:
+    """Prepare and load a job's scene in one call, for scripts, tests and benchmarks (commands
+    prepare first, check the prepared scene, then load it)."""
+    prepared = prepare_scene(job, cameras)
+    return load_scene(prepared, variant=job.variant, parameters=job.parameters)
+
+
+@contextmanager
+def _resolving_from(mi: ModuleType, folders: tuple[Path, ...]) -> Iterator[None]:
+    """Resolve names still relative in the prepared text against ``folders`` first (the main
+    file's ``<path>`` folders and its own folder, as load_file would), then restore the
+    process-wide resolver (tests and the bench load many scenes in one process)."""
+    resolver = mi.file_resolver()
+    saved = [str(resolver[i]) for i in range(len(resolver))]
+    for folder in reversed(folders):
+        resolver.prepend(str(folder))
+    try:
+        yield
+    finally:
+        resolver.clear()
+        for entry in saved:
+            resolver.append(entry)
+
+
+def assign(loaded: LoadedScene, key: str, array: np.ndarray) -> None:
+    """Set a selected parameter to ``array`` (in its recorded shape), for finite differences."""
+    import drjit as dr
+
+    current = loaded.params[key]
+    flat = np.ascontiguousarray(array, dtype=np.float32)
+    if dr.is_tensor_v(current):
+        replacement = type(current)(flat)
+    elif dr.size_v(current) == 3:  # a colour: one value per channel
+        replacement = type(current)(*[float(v) for v in flat.reshape(-1)])
+    else:
+        replacement = type(current)(flat.reshape(-1))
+    loaded.params[key] = replacement
+    loaded.params.update()
