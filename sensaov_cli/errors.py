@@ -14,6 +14,7 @@ EXIT_OK = 0
 EXIT_JOB_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_ENVIRONMENT = 3
+EXIT_HANGUP = 129  # 128 + SIGHUP: the terminal closed, an ssh connection dropped
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what shells report for Ctrl-C
 EXIT_TERMINATED = 143  # 128 + SIGTERM, what a farm's scheduler sends before SIGKILL
 
@@ -23,6 +24,7 @@ EXIT_MEANINGS: dict[int, str] = {
     EXIT_JOB_FAILED: "the job failed (rendering, objective, NaN gradients, internal error)",
     EXIT_BAD_INPUT: "bad input (malformed job, unknown key, missing file, corrupt buffer)",
     EXIT_ENVIRONMENT: "the machine cannot render (no usable libLLVM, no CUDA for a cuda variant)",
+    EXIT_HANGUP: "stopped by SIGHUP (terminal closed); the message names the outputs replaced",
     EXIT_INTERRUPTED: "interrupted by Ctrl-C (SIGINT); the message names the outputs replaced",
     EXIT_TERMINATED: "stopped by SIGTERM (a farm); the message names the outputs replaced",
 }
@@ -78,6 +80,18 @@ class EnvironmentProblem(SensaovError):
     """The machine cannot run the renderer (no usable libLLVM, no CUDA for a cuda variant)."""
 
     exit_code = EXIT_ENVIRONMENT
+
+
+class InputFileError(SensaovError):
+    """A file a command reads is missing, not a regular file (a FIFO, a device) or too large."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
+class MemoryBudgetError(SensaovError):
+    """A setting (resolution, spp, an image's declared size) needs more memory than the budget."""
+
+    exit_code = EXIT_BAD_INPUT
 
 
 class OutputError(SensaovError):
@@ -155,6 +169,12 @@ class CryptomatteError(SensaovError, ValueError):
 
 class ExrError(SensaovError, ValueError):
     """An EXR cannot be written as asked (bad shapes, NaN, clashing names) or cannot be read."""
+
+
+class ExrReadError(ExrError):
+    """An EXR a command reads is a special file, corrupt, truncated or declares too many pixels."""
+
+    exit_code = EXIT_BAD_INPUT
 
 
 class CameraFileError(SensaovError):

@@ -1,4 +1,4 @@
-"""Ctrl-C and SIGTERM: stop, and never write outputs after a stop was asked for.
+"""Ctrl-C, SIGTERM and SIGHUP: stop, and never write outputs after a stop was asked for.
 
 Python runs signal handlers only between bytecodes; during a long Dr.Jit kernel the resulting
 KeyboardInterrupt can surface inside a callback and be swallowed. So the handler also records the
@@ -17,7 +17,16 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
-from sensaov_cli.errors import EXIT_INTERRUPTED, EXIT_TERMINATED
+from sensaov_cli.errors import EXIT_HANGUP, EXIT_INTERRUPTED, EXIT_TERMINATED
+
+# The signals that stop a command, with their exit codes (128 + the signal's number). SIGHUP
+# comes when the terminal closes or an ssh connection drops: a stop like the others, so the
+# outputs stay whole and the line says so (if anything still reads it).
+STOP_SIGNALS = {
+    signal.SIGINT: EXIT_INTERRUPTED,
+    signal.SIGTERM: EXIT_TERMINATED,
+    signal.SIGHUP: EXIT_HANGUP,
+}
 
 _requested = threading.Event()
 _signal: list[int] = []  # the first stop signal received
@@ -33,14 +42,15 @@ def _stop(signum: int, frame: FrameType | None) -> None:
 
 
 def install(*, raising: bool = True) -> None:
-    """Farms stop jobs with SIGTERM, people with Ctrl-C: both unwind as KeyboardInterrupt.
+    """Farms stop jobs with SIGTERM, people with Ctrl-C, closed terminals with SIGHUP: all
+    unwind as KeyboardInterrupt.
 
     ``raising=False`` only records the signal: the command line's first act, before any import
     that a raised exception could break.
     """
     _raising[0] = raising
-    signal.signal(signal.SIGINT, _stop)
-    signal.signal(signal.SIGTERM, _stop)
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, _stop)
 
 
 def check() -> None:
@@ -50,17 +60,22 @@ def check() -> None:
 
 
 def requested() -> bool:
-    """Whether SIGINT or SIGTERM has arrived (or Ctrl-C raised KeyboardInterrupt directly)."""
+    """Whether a stop signal has arrived (or Ctrl-C raised KeyboardInterrupt directly)."""
     return _requested.is_set()
 
 
 def exit_code() -> int:
-    """130 after SIGINT (or a KeyboardInterrupt with no signal), 143 after SIGTERM."""
-    return EXIT_TERMINATED if _signal and _signal[0] == signal.SIGTERM else EXIT_INTERRUPTED
+    """130 after SIGINT (or a KeyboardInterrupt with no signal), 143 after SIGTERM, 129 after
+    SIGHUP."""
+    return STOP_SIGNALS.get(_first(), EXIT_INTERRUPTED)
 
 
 def signal_name() -> str:
-    return "SIGTERM" if exit_code() == EXIT_TERMINATED else "SIGINT"
+    return signal.Signals(_first()).name
+
+
+def _first() -> int:
+    return _signal[0] if _signal else signal.SIGINT
 
 
 @contextmanager

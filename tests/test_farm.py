@@ -196,7 +196,7 @@ def test_merge_refuses_mismatched_shards(farm: Path, tmp_path: Path, case: str, 
 def test_merge_refuses_to_overwrite_a_shard(farm: Path) -> None:
     paths = shard_paths(farm)
     done = sensaov("merge", *map(str, paths), "-o", str(paths[0]))
-    assert done.returncode == 2 and "overwrite an input" in done.stderr
+    assert done.returncode == 2 and "which this command reads" in done.stderr
 
 
 # --- objective splits, resume, progress ----------------------------------------------------

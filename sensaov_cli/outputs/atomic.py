@@ -2,9 +2,10 @@
 
 One discipline for every output (buffers, EXRs, PNGs, HTML, SVG): each file is written to a
 temporary beside it, the write is checked (an empty or failed write is an error, ``fsync``
-reports a full disk the page cache hid), and only then renamed over the old file. SIGINT and
-SIGTERM are held back while a temporary is created and while the renames run, so a stop can
-never leave a temporary nobody knows about, and a set of files is replaced together.
+reports a full disk the page cache hid), and only then renamed over the old file. The stop
+signals (SIGINT, SIGTERM, SIGHUP) are held back while a temporary is created and while the
+renames run, so a stop can never leave a temporary nobody knows about, and a set of files is
+replaced together.
 
 The module keeps a ledger of what this process replaced, so whoever reports a failure or a stop
 can say exactly which outputs are new and which are as they were (:func:`replaced`).
@@ -15,6 +16,7 @@ from __future__ import annotations
 import errno
 import os
 import signal
+import stat
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -23,7 +25,7 @@ from pathlib import Path
 from sensaov_cli import interrupts
 
 TEMPORARY_SUFFIX = ".partial"
-_HELD = {signal.SIGINT, signal.SIGTERM}
+_HELD = set(interrupts.STOP_SIGNALS)
 _live: set[Path] = set()  # temporaries that exist right now (removed on any failure or stop)
 _replaced: list[Path] = []  # every output this process renamed into place, in order
 
@@ -34,7 +36,7 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
 
 
 def atomic_write_all(files: list[tuple[Path, Callable[[Path], None]]]) -> None:
-    """Write every file to a temporary beside it, then rename them all, with SIGINT and SIGTERM
+    """Write every file to a temporary beside it, then rename them all, with stop signals
     held back during the renames: a run's outputs are replaced together or not at all.
 
     An ``OSError`` names the output it was writing (``filename``); a stop asked for while a
@@ -82,7 +84,7 @@ def _written_temporary(path: Path, write: Callable[[Path], None]) -> Path:
         raise _named(exc, path) from exc
     try:
         write(tmp)
-        _check_written(tmp)
+        _check_written(tmp, path)
     except BaseException as exc:
         _remove(tmp)
         if interrupts.requested():  # e.g. zipfile's error about a write the signal cut short
@@ -93,12 +95,13 @@ def _written_temporary(path: Path, write: Callable[[Path], None]) -> Path:
     return tmp
 
 
-def _check_written(tmp: Path) -> None:
+def _check_written(tmp: Path, path: Path) -> None:
     """A writer that wrote nothing failed; ``fsync`` makes a full disk show here, not later."""
     if tmp.stat().st_size == 0:
         raise OSError(errno.EIO, "the writer produced an empty file")
-    # mkstemp creates the file owner-only; outputs get the permissions any new file would.
-    os.chmod(tmp, 0o666 & ~_umask())
+    # mkstemp creates the file owner-only: a new output gets the permissions any new file
+    # would, a replaced one keeps its own (a buffer someone made 0600 stays private).
+    os.chmod(tmp, _mode_of(path))
     with open(tmp, "rb") as stream:
         os.fsync(stream.fileno())
 
@@ -132,6 +135,14 @@ def _signals_held() -> Iterator[None]:
         signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
+def _mode_of(path: Path) -> int:
+    try:
+        info = os.stat(path)
+    except OSError:
+        return 0o666 & ~_umask()
+    return stat.S_IMODE(info.st_mode) if stat.S_ISREG(info.st_mode) else 0o666 & ~_umask()
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -155,12 +166,15 @@ def _fsync_directory(folder: Path) -> None:
 def check_writable(folder: Path, names: list[str]) -> None:
     """Fail before any work if ``folder/<name>`` cannot be written (nothing is created here).
 
-    A name may be a sub-folder (``previews``): an existing file in its place is refused too.
+    A name may be a sub-folder (``previews/``): an existing file in its place is refused too,
+    and so is a symbolic link that leads nowhere (dangling, or a loop) in place of the folder,
+    a sub-folder or an output: creating it would fail only once the work is done.
     """
     from sensaov_cli.errors import OutputError
 
     for name in names:
         target = folder / name
+        _refuse_broken_link(target)
         if name.endswith("/"):
             if target.exists() and not target.is_dir():
                 raise OutputError(
@@ -172,8 +186,26 @@ def check_writable(folder: Path, names: list[str]) -> None:
             raise OutputError(f"{target} is not a regular file", hint="move it out of the way")
     existing = folder
     while not existing.exists():  # the folder will be created: its nearest existing parent
+        _refuse_broken_link(existing)
         existing = existing.parent
     if not existing.is_dir():
         raise OutputError(f"{existing} is not a directory", where=str(folder))
     if not os.access(existing, os.W_OK | os.X_OK):
         raise OutputError(f"no permission to write in {existing}", where=str(folder))
+
+
+def _refuse_broken_link(path: Path) -> None:
+    """A link whose target does not exist (or that loops) cannot be written through."""
+    from sensaov_cli.errors import OutputError
+
+    if not path.is_symlink():
+        return
+    try:
+        os.stat(path)
+    except OSError as exc:
+        looped = exc.errno == errno.ELOOP
+        raise OutputError(
+            f"{path} is a symbolic link that "
+            + ("loops" if looped else f"leads to {os.readlink(path)}, which does not exist"),
+            hint="remove the link, or point it at a folder that exists",
+        ) from None

@@ -8,13 +8,17 @@ from __future__ import annotations
 
 import errno
 import os
-from collections.abc import Callable
+import sys
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from sensaov_cli.errors import ExrError
+from sensaov_cli.errors import ExrReadError
+from sensaov_cli.limits import check_memory, regular_file
 from sensaov_cli.outputs.atomic import atomic_write
 
 
@@ -61,27 +65,80 @@ def image_channels(image: np.ndarray) -> dict[str, np.ndarray]:
     return {name: image[..., index] for index, name in enumerate(names)}
 
 
-def read_exr(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+def read_exr(
+    path: Path, what: str = "OpenEXR file"
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Every channel of a scanline EXR by its full name (``layer.pass.Y``) and the header.
 
     Channels come back as H x W arrays in the stored type (float32, or float16 for half); the
-    header as the OpenEXR binding gives it (strings stay strings, windows are arrays).
+    header as the OpenEXR binding gives it (strings stay strings, windows are arrays). A file
+    that cannot be read is bad input (:class:`ExrReadError`, exit 2): a special file, a corrupt
+    or truncated one, or one whose declared size is over the memory budget (its header is read
+    first, so a 6 kB file declaring a gigapixel image allocates nothing).
     """
     import OpenEXR
 
-    if not path.is_file():  # else the OpenEXR library prints its own line to stderr first
-        raise ExrError("no such OpenEXR file", where=str(path))
+    # Checked first: else a FIFO blocks, and the library prints its own line to stderr first.
+    regular_file(path, what, error=ExrReadError)
     try:
         # ``separate_channels`` keeps full channel names: by default the binding groups
         # ``X.R``, ``X.G``, ``X.B`` into one ``X`` entry. Read inside ``with``: the File's
         # header and pixels are invalid once it is closed.
-        with OpenEXR.File(str(path), separate_channels=True) as exr:
-            header = dict(exr.header())
-            channels = {name: np.array(ch.pixels, copy=True) for name, ch in exr.channels().items()}
-    except (OSError, RuntimeError) as error:
-        raise ExrError(
-            f"cannot read OpenEXR file: {error}",
+        with _library_quiet() as said:
+            with OpenEXR.File(str(path), header_only=True) as exr:
+                _check_declared_size(dict(exr.header()), path, what)
+            with OpenEXR.File(str(path), separate_channels=True) as exr:
+                header = dict(exr.header())
+                channels = {n: np.array(c.pixels, copy=True) for n, c in exr.channels().items()}
+    except (OSError, RuntimeError, ValueError, TypeError) as error:
+        raise ExrReadError(
+            f"cannot read the {what}: {' '.join(str(error).split())[:200]}",
             where=str(path),
             hint="check that the path names a complete OpenEXR file",
         ) from error
+    if said:  # a truncated file reads as zeros after the library's own warning
+        raise ExrReadError(
+            f"the {what} is corrupt or truncated: {' '.join(said[0].split())[:200]}",
+            where=str(path),
+            hint="write it again: sensaov reads complete OpenEXR files only",
+        )
     return channels, header
+
+
+@contextmanager
+def _library_quiet() -> Iterator[list[str]]:
+    """The OpenEXR library prints its complaints to the process's stdout and stderr, which
+    would break the one-line error (and ``--json`` on stdout): they are caught here instead,
+    and what it said is yielded (filled once the block ends)."""
+    said: list[str] = []
+    saved = [os.dup(1), os.dup(2)]
+    with tempfile.TemporaryFile() as caught:
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        os.dup2(caught.fileno(), 1)
+        os.dup2(caught.fileno(), 2)
+        try:
+            yield said
+        finally:
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for descriptor in saved:
+                os.close(descriptor)
+            caught.seek(0)
+            said.extend(
+                line for line in caught.read().decode(errors="replace").splitlines() if line
+            )
+
+
+def _check_declared_size(header: dict[str, Any], path: Path, what: str) -> None:
+    """The pixels the header's data window and channels declare, against the memory budget."""
+    window = np.asarray(header.get("dataWindow"), dtype=np.int64).reshape(-1)
+    if window.size != 4:
+        raise ExrReadError(f"the {what} has no data window", where=str(path))
+    width, height = window[2] - window[0] + 1, window[3] - window[1] + 1
+    channels = max(len(header.get("channels", ())), 1)
+    check_memory(
+        int(width) * int(height) * channels * 4 * 2,  # float32 channels, and the binding's copy
+        f"the {what}'s declared {width}x{height} pixels x {channels} channels",
+        where=str(path),
+    )

@@ -48,20 +48,37 @@ def seen_names(
     pattern = re.compile(rf"^{OBJECT_TYPE}\d\d\.([RGBA])$")
     layers = {name[:-2] for name in channels if pattern.match(name)}
     ids: set[float] = set()
-    for layer in layers:
+    for layer in sorted(layers):
         for id_channel, coverage_channel in _PAIRS:
-            covered = channels[f"{layer}.{coverage_channel}"] > 0
-            ids.update(np.asarray(channels[f"{layer}.{id_channel}"])[covered].tolist())
+            names = (f"{layer}.{id_channel}", f"{layer}.{coverage_channel}")
+            missing = [name for name in names if name not in channels]
+            if missing:
+                raise CameraFileError(f"Cryptomatte channel {missing[0]} is missing", where=where)
+            ids.update(np.asarray(channels[names[0]])[np.asarray(channels[names[1]]) > 0].tolist())
     return frozenset(name for name in names if float(id_float(name)) in ids)
 
 
 def _manifest(header: Mapping[str, Any], where: str) -> list[str]:
     for key, value in header.items():
         if key.startswith("cryptomatte/") and key.endswith("/name") and value == OBJECT_TYPE:
-            manifest = header.get(key[: -len("name")] + "manifest", "{}")
-            return list(json.loads(manifest))
+            return _manifest_names(header.get(key[: -len("name")] + "manifest", "{}"), where)
     raise CameraFileError(
         f"no {OBJECT_TYPE} layer",
         where=where,
         hint="pass an inspection camera's EXR written by 'sensaov project'",
     )
+
+
+def _manifest_names(manifest: Any, where: str) -> list[str]:
+    """The object names of a Cryptomatte manifest: a JSON object of name -> 8 hex digits."""
+    try:
+        names = json.loads(manifest) if isinstance(manifest, str | bytes) else None
+    except (ValueError, RecursionError):
+        names = None
+    if not isinstance(names, dict) or not all(isinstance(v, str) for v in names.values()):
+        raise CameraFileError(
+            f"the {OBJECT_TYPE} manifest is not a JSON object of names and IDs",
+            where=where,
+            hint="pass an inspection camera's EXR written by 'sensaov project'",
+        )
+    return list(names)

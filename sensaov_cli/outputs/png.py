@@ -46,6 +46,63 @@ def write_png_file(path: Path, rgb_uint8: np.ndarray, text: Mapping[str, str] | 
     atomic_write(path, write)
 
 
+def png_problem(data: bytes) -> str | None:
+    """Why ``data`` is not a whole PNG a browser shows as written (None: it is): the
+    signature, every chunk's length and CRC, an IHDR first with a size, image data that
+    inflates to the rows it declares (never more: a bomb stops there), an IEND last."""
+    if not data:
+        return "an empty file"
+    if not data.startswith(_SIGNATURE):
+        return "not a PNG file"
+    chunks, problem = _chunks(data)
+    if problem is not None:
+        return problem
+    if not chunks or chunks[0][0] != b"IHDR" or len(chunks[0][1]) != 13:
+        return "no image header (IHDR) first"
+    width, height, depth, colour = struct.unpack(">IIBB", chunks[0][1][:10])
+    samples = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}.get(colour)
+    if not width or not height or samples is None or depth not in (1, 2, 4, 8, 16):
+        return f"an image header that declares no image ({width}x{height}, colour type {colour})"
+    if chunks[-1][0] != b"IEND":
+        return "cut short (no IEND chunk at the end)"
+    rows = height * (1 + -(-width * samples * depth // 8))  # one filter byte per row
+    interlaced = chunks[0][1][12] != 0  # Adam7's passes hold other rows: only inflated
+    data = b"".join(body for kind, body in chunks if kind == b"IDAT")
+    if not _inflates_to(data, rows, at_least=not interlaced):
+        return "image data that is corrupt or not the size its header declares"
+    return None
+
+
+def _chunks(data: bytes) -> tuple[list[tuple[bytes, bytes]], str | None]:
+    chunks, at = [], len(_SIGNATURE)
+    while at < len(data):
+        if at + 12 > len(data):
+            return chunks, "cut short inside a chunk"
+        (length,) = struct.unpack(">I", data[at : at + 4])
+        kind, body = data[at + 4 : at + 8], data[at + 8 : at + 8 + length]
+        if len(body) < length or at + 12 + length > len(data):
+            return chunks, f"cut short inside its {kind.decode('latin-1')!r} chunk"
+        (crc,) = struct.unpack(">I", data[at + 8 + length : at + 12 + length])
+        if zlib.crc32(kind + body) & 0xFFFFFFFF != crc:
+            return chunks, f"a {kind.decode('latin-1')!r} chunk whose checksum is wrong"
+        chunks.append((kind, body))
+        at += 12 + length
+    return chunks, None
+
+
+def _inflates_to(compressed: bytes, size: int, *, at_least: bool) -> bool:
+    """Whether the zlib stream is whole and holds ``size`` bytes (or, without ``at_least``,
+    any number up to about twice that), inflating no more than that."""
+    inflater = zlib.decompressobj()
+    try:
+        produced = len(inflater.decompress(compressed, 2 * size + 64))
+    except zlib.error:
+        return False
+    if not inflater.eof:  # cut short, or more data than the image holds
+        return False
+    return produced == size if at_least else produced > 0
+
+
 def _chunk(kind: bytes, body: bytes) -> bytes:
     crc = zlib.crc32(kind + body) & 0xFFFFFFFF
     return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", crc)

@@ -20,6 +20,7 @@ from sensaov_cli.buffer.statistics import weighted_mean
 from sensaov_cli.errors import MergeError, SensaovError
 from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
 from sensaov_cli.outputs.exr import exr_writer, read_exr
+from sensaov_cli.outputs.overwrite import recorded_inputs, refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
 
@@ -45,18 +46,17 @@ def primal_beside(buffer_path: Path) -> Path:
 def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> MergeOutputs:
     started = time.perf_counter()
     primal_path = primal_beside(output)
-    inputs = {p.resolve() for p in paths}
-    for target in (output, primal_path):
-        if target.resolve() in inputs or target.resolve() in {
-            primal_beside(p).resolve() for p in paths
-        }:
-            raise MergeError("the output would overwrite an input shard", where=str(target))
     check_writable(output.parent, [output.name, primal_path.name])
     shards = []
     with progress.stage("read_s", f"reading {len(paths)} shard(s)"):
         for path in paths:
             buffer, version = read_buffer_versioned(path)
             shards.append(Shard(path, buffer, version))
+    read = [*paths, *map(primal_beside, paths)]
+    read += [path for shard in shards for path in recorded_inputs(shard.buffer.provenance)]
+    refuse_unsafe_outputs(
+        read, [output, primal_path], where=str(output), hint="name another file with -o"
+    )
     with progress.stage("merge_s", "merging"):
         merged = merge_shards(shards, FORMAT_VERSION)
         merged.provenance.update(made_by("merge"))

@@ -23,6 +23,7 @@ from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.pipeline import project_texels
 from sensaov_cli.pipeline.project_forward import projected_layers
+from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.beauty import render_beauty
 from sensaov_cli.render.loading import LoadedScene, load_scene
@@ -63,11 +64,13 @@ def project_job(
     chosen = _cameras(job, tuple(dict.fromkeys(cameras)))  # a camera named twice renders once
     prepared = prepare_scene(job, tuple(chosen))
     _check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
-    check_writable(job.output, [f"{camera.name}.exr" for camera in chosen])
+    texel_folder = ["textures/"] if any(c.kind == "texel" for c in job.channels) else []
+    folders = texel_folder + ["previews/"] * png
+    check_writable(job.output, [f"{camera.name}.exr" for camera in chosen] + folders)
     refuse_unsafe_outputs(
-        (*job.input_files(), *prepared.files, buffer_path),
+        (*job.input_files(), *prepared.files, buffer_path, buffer_path.with_name(FORWARD_NAME)),
         [job.output / f"{camera.name}.exr" for camera in chosen],
-        folders=[job.output / "previews"] if png else [],
+        folders=[job.output / folder for folder in folders],
         where=str(job.path),
     )
     passes = channel_values(buffer, job.channels)  # camera-independent: computed once

@@ -13,13 +13,17 @@ import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
-from sensaov_cli.errors import OutputError
+from sensaov_cli.errors import OutputError, SensaovError
+from sensaov_cli.outputs.atomic import check_writable
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.outputs.frames import visible_objects
+from sensaov_cli.outputs.overwrite import recorded_inputs, refuse_unsafe_outputs
+from sensaov_cli.outputs.preview_files import read_previews
 from sensaov_cli.outputs.previews import srgb_uint8
 from sensaov_cli.outputs.report_html import Picture, ReportContent, png_bytes, write_report
 from sensaov_cli.outputs.sunburst_drawing import sunburst_bytes
 from sensaov_cli.pipeline.run import BUFFER_NAME, PRIMAL_NAME
+from sensaov_cli.render.scene.expand import expand_scene
 from sensaov_cli.spec.job import JobSpec
 from sensaov_cli.views.hierarchy import rankings
 from sensaov_cli.views.sunburst_geometry import panels
@@ -31,15 +35,27 @@ TOP = 12  # rows per ranking table: a page, not a spreadsheet
 def make_report(job: JobSpec, path: Path | None = None) -> Path:
     """Write the report of ``job`` (default ``<output>/report.html``) and return its path."""
     buffer_path = job.output / BUFFER_NAME
-    if not buffer_path.is_file():
+    if not buffer_path.exists():
         raise OutputError(
             "no buffer to report on",
             where=str(buffer_path),
             hint=f"run 'sensaov run {job.path}' first",
         )
     buf = read_buffer(buffer_path)
+    target = path or job.output / REPORT_NAME
+    check_writable(target.parent, [target.name])  # not a folder, not a FIFO, writable
     cameras = [job.output / f"{c.name}.exr" for c in job.inspection_cameras]
-    visible = visible_objects([p for p in cameras if p.is_file()]) or None
+    cameras = [p for p in cameras if p.exists()]  # one that is no regular file is refused
+    previews, left_out = read_previews(job.output, job.output / "previews")
+    read = [buffer_path, job.output / PRIMAL_NAME, *cameras, *_job_files(job)]
+    read += [job.output / name for name in (*previews, *left_out)]
+    refuse_unsafe_outputs(
+        [*read, *recorded_inputs(buf.provenance)],
+        [target],
+        where=str(target),
+        hint="name another file with -o, e.g. report.html",
+    )
+    visible = visible_objects(cameras) or None
     content = ReportContent(
         title=f"sensaov report: {job.path.name}",
         primal=_primal(job.output / PRIMAL_NAME),
@@ -48,19 +64,24 @@ def make_report(job: JobSpec, path: Path | None = None) -> Path:
             by: rankings(buf, by=by, top=TOP, visible=None if by == "type" else visible)
             for by in ("object", "type", "key")
         },
-        previews=tuple(
-            Picture(str(p.relative_to(job.output)), p.read_bytes())
-            for p in sorted((job.output / "previews").rglob("*.png"))
-        ),
+        previews=tuple(Picture(name, data) for name, data in previews.items()),
         params=buf.params,
         provenance=buf.provenance,
-        absent=_absent(job, job.output / "previews"),
+        absent=_absent(job, job.output / "previews")
+        + tuple(f"{name} is not shown: {why}" for name, why in left_out.items()),
     )
-    target = path or job.output / REPORT_NAME
-    if target.is_dir():
-        raise OutputError("is a folder", where=str(target), hint="name a .html file")
     write_report(target, content)
     return target
+
+
+def _job_files(job: JobSpec) -> tuple[Path, ...]:
+    """The job's files and those its scene reads now. A report renders nothing: a scene that
+    no longer expands only leaves this list to the buffer's provenance (``recorded_inputs``)."""
+    try:
+        scene = expand_scene(job.scene, job.scene_args).files
+    except SensaovError:
+        scene = (job.scene,)
+    return (*job.input_files(), *scene)
 
 
 def _absent(job: JobSpec, previews: Path) -> tuple[str, ...]:
@@ -81,7 +102,7 @@ def _absent(job: JobSpec, previews: Path) -> tuple[str, ...]:
 
 
 def _primal(path: Path) -> Picture | None:
-    if not path.is_file():
+    if not path.exists():
         return None
     channels, _ = read_exr(path)
     linear = [channels[c] for c in ("R", "G", "B") if c in channels]

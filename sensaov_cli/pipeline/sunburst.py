@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from sensaov_cli.buffer.npz import read_buffer
+from sensaov_cli.outputs.atomic import check_writable
+from sensaov_cli.outputs.overwrite import recorded_inputs, refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.outputs.sunburst_drawing import write_sunburst
 from sensaov_cli.views.sunburst_geometry import panels
@@ -22,6 +24,13 @@ def draw_sunburst(
 ) -> Path:
     """Write one disc per objective (or per named objective) to ``output``."""
     loaded = read_buffer(buffer)
+    check_writable(output.parent, [output.name])
+    refuse_unsafe_outputs(
+        [buffer, *recorded_inputs(loaded.provenance)],
+        [output],
+        where=str(output),
+        hint="name another file with -o, e.g. sunburst.svg",
+    )
     drawn = panels(loaded, objectives or None, order=order, method=method, weight=weight)
     contribution = "θ·∂M/∂θ" if weight == "value" else "∂M/∂θ"
     provenance = {

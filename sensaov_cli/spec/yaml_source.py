@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import re
-import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,6 +17,7 @@ from typing import Any
 import yaml
 
 from sensaov_cli.errors import SpecError
+from sensaov_cli.limits import read_regular
 
 KeyPath = tuple[Any, ...]
 _MERGE_TAG = "tag:yaml.org,2002:merge"
@@ -71,14 +71,8 @@ class YamlDocument:
 
 def read_yaml(path: Path, shown: str) -> YamlDocument:
     """Read and parse ``path``; every failure is a SpecError located in ``shown``."""
-    try:
-        raw = _read_regular(path, shown)
-    except FileNotFoundError:
-        raise spec_error(shown, None, (), "job file not found") from None
-    except IsADirectoryError:
-        raise spec_error(shown, None, (), "is a directory, not a job file") from None
-    except OSError as exc:
-        raise spec_error(shown, None, (), f"cannot read job file: {exc.strerror}") from None
+    # A regular file of sane size: a FIFO would block forever, /dev/zero never end.
+    raw = read_regular(path, "job file", cap=MAX_JOB_BYTES, error=SpecError)
     try:
         return _parse(raw, shown)
     except yaml.MarkedYAMLError as exc:
@@ -87,20 +81,6 @@ def read_yaml(path: Path, shown: str) -> YamlDocument:
         raise spec_error(shown, None, (), f"YAML error: {exc}") from None
     except RecursionError:
         raise spec_error(shown, None, (), "YAML nested too deeply") from None
-
-
-def _read_regular(path: Path, shown: str) -> bytes:
-    """The bytes of a regular file of sane size: a FIFO would block forever, /dev/zero never end."""
-    mode = path.stat().st_mode
-    if stat.S_ISDIR(mode):
-        raise IsADirectoryError(path)
-    if not stat.S_ISREG(mode):
-        hint = "name the job's YAML file itself"
-        raise spec_error(shown, None, (), "not a regular file (a FIFO, socket or device)", hint)
-    if path.stat().st_size > MAX_JOB_BYTES:
-        message = f"the job file is larger than {MAX_JOB_BYTES >> 20} MiB"
-        raise spec_error(shown, None, (), message, "a job file is a few kilobytes of YAML")
-    return path.read_bytes()
 
 
 def _parse(raw: bytes, shown: str) -> YamlDocument:

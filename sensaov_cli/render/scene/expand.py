@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sensaov_cli.errors import SceneError
+from sensaov_cli.limits import regular_file
 from sensaov_cli.render.scene.source import (
     OBJECT_TAGS,
     is_object,
@@ -348,7 +349,8 @@ def _resolve(name: str, folders: list[Path], origin: str) -> Path:
 
 
 def _existing(name: str, folders: list[Path], origin: str, what: str = "file") -> Path:
-    """``name`` resolved, refused where Mitsuba would fail to open it (run and validate alike)."""
+    """``name`` resolved, refused where Mitsuba would fail to open it (run and validate alike),
+    or where it would block or never end reading it (a FIFO, a device: a regular file only)."""
     path = _resolve(name, folders, origin)
     if not _exists(path, origin):
         looked = "" if path.is_absolute() else ", ".join(str(p) for p in dict.fromkeys(folders))
@@ -357,6 +359,7 @@ def _existing(name: str, folders: list[Path], origin: str, what: str = "file") -
             where=origin,
             hint=f"looked in {looked}" if looked else None,
         )
+    regular_file(path, what, where=origin, error=SceneError)
     return path.absolute()
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 from xml.parsers import expat
 
 from sensaov_cli.errors import SceneError
+from sensaov_cli.limits import read_regular
 
 OBJECT_TAGS = frozenset(
     "scene bsdf emitter field film integrator medium phase rfilter sampler sensor shape texture"
@@ -27,6 +28,7 @@ _WHERE = "{urn:sensaov}where"
 _MITSUBA_LOCATION = re.compile(
     r"(?:Error while loading |While loading |At )?string \(line (\d+), col \d+\):?\s*"
 )
+MAX_XML_BYTES = 256 << 20  # far above any scene file; /dev/zero or a disk image is refused
 _LONG_QUOTED = re.compile(r'"([^"]{61,})"')  # a long value Mitsuba echoes, shown shortened
 _MITSUBA_SOURCE_TAG = re.compile(r"\[[\w.]+:\d+\]\s*")  # "[parser.cpp:451] "
 _ATTRIBUTE_ESCAPES = str.maketrans(
@@ -51,12 +53,7 @@ def is_object(element: ET.Element) -> bool:
 
 def read_xml(path: Path) -> ET.Element:
     """Parse ``path``; every element remembers the line its start tag is on."""
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError as exc:
-        raise SceneError("scene file not found", where=str(path)) from exc
-    except OSError as exc:
-        raise SceneError(f"cannot read scene file: {exc.strerror}", where=str(path)) from exc
+    data = read_regular(path, "scene file", cap=MAX_XML_BYTES, error=SceneError)
     parser = expat.ParserCreate(_fallback_encoding(data))
     stack: list[ET.Element] = []
     found: list[ET.Element] = []

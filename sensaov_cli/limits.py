@@ -1,0 +1,183 @@
+"""Bounds on what a command reads and allocates: regular files of capped size, a memory budget.
+
+A FIFO blocks its reader until a writer comes (forever, on a farm), ``/dev/zero`` never ends
+and a 6 kB PNG may declare 40000x40000 pixels. So every file sensaov opens is checked here
+first (:func:`regular_file`, :func:`read_regular`: a regular file, at most so many bytes, opened
+without blocking), and every setting that sizes an allocation (a film, spp, an image's declared
+size) is compared with the memory budget (:func:`check_memory`) before anything is allocated.
+Each refusal is one line naming the file or the setting; the caller's stage picks the class.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import resource
+import stat
+from pathlib import Path
+
+from sensaov_cli.errors import InputFileError, MemoryBudgetError, SensaovError
+
+MEMORY_BUDGET_VARIABLE = "SENSAOV_MEMORY_BUDGET"
+BUDGET_SHARE = 0.75  # of the memory this process may use: the rest is the OS's and Dr.Jit's
+_UNITS = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+_SIZE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([KMGT]?)(?:i?B)?\s*$", re.IGNORECASE)
+_KINDS = (
+    (stat.S_ISFIFO, "a FIFO (named pipe)"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def regular_file(
+    path: Path,
+    what: str,
+    *,
+    cap: int | None = None,
+    where: str | None = None,
+    error: type[SensaovError] = InputFileError,
+) -> int:
+    """The size of ``path`` if it is a regular file of at most ``cap`` bytes; else ``error``
+    (located at ``where``, default the path), saying what the file is instead."""
+    try:
+        return _checked(os.stat(path), path, what, cap, where, error)
+    except OSError as exc:
+        raise _unreadable(exc, path, what, where, error) from None
+
+
+def read_regular(
+    path: Path,
+    what: str,
+    *,
+    cap: int,
+    where: str | None = None,
+    error: type[SensaovError] = InputFileError,
+) -> bytes:
+    """The bytes of ``path``, checked as :func:`regular_file` on the open descriptor itself (a
+    file swapped for a FIFO after a check cannot block: it is opened non-blocking), and never
+    more than ``cap`` bytes read (a file that grows while it is read is refused too)."""
+    try:
+        descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    except OSError as exc:
+        raise _unreadable(exc, path, what, where, error) from None
+    try:
+        _checked(os.fstat(descriptor), path, what, cap, where, error)
+        os.set_blocking(descriptor, True)
+        with os.fdopen(descriptor, "rb", closefd=False) as stream:
+            data = stream.read(cap + 1)
+    except OSError as exc:
+        raise _unreadable(exc, path, what, where, error) from None
+    finally:
+        os.close(descriptor)
+    if len(data) > cap:
+        subject = f"{what} {path}" if where else f"the {what}"
+        raise error(f"{subject} grew past {_size(cap)} while it was read", where=where or str(path))
+    return data
+
+
+def _checked(
+    info: os.stat_result,
+    path: Path,
+    what: str,
+    cap: int | None,
+    where: str | None,
+    error: type[SensaovError],
+) -> int:
+    subject = f"{what} {path}" if where else f"the {what}"
+    if stat.S_ISDIR(info.st_mode):
+        raise error(f"{subject} is a directory, not a file", where=where or str(path))
+    if not stat.S_ISREG(info.st_mode):
+        kind = next((name for test, name in _KINDS if test(info.st_mode)), "no regular file")
+        raise error(
+            f"{subject} is {kind}, not a regular file",
+            where=where or str(path),
+            hint="sensaov reads regular files only: a FIFO would block it, a device never end",
+        )
+    if cap is not None and info.st_size > cap:
+        raise error(
+            f"{subject} is {_size(info.st_size)}, over the {_size(cap)} sensaov reads",
+            where=where or str(path),
+            hint=f"is this the right file? a {what} is far smaller",
+        )
+    return info.st_size
+
+
+def _unreadable(
+    exc: OSError, path: Path, what: str, where: str | None, error: type[SensaovError]
+) -> SensaovError:
+    subject = f"{what} {path}" if where else f"the {what}"
+    if exc.errno == errno.ENOENT:
+        message = f"{subject} does not exist"
+    elif exc.errno == errno.ELOOP:
+        message = f"{subject} is a loop of symbolic links"
+    else:
+        message = f"cannot read {subject}: {exc.strerror or exc}"
+    return error(message, where=where or str(path))
+
+
+def memory_budget() -> tuple[int, str]:
+    """Bytes a command may plan to allocate, and where that figure comes from.
+
+    ``SENSAOV_MEMORY_BUDGET`` (e.g. ``8G``, ``512M``, bytes) when set; else 3/4 of the least
+    of the machine's memory, the cgroup's limit (a container, a Slurm allocation) and the
+    address-space limit (``ulimit -v``).
+    """
+    text = os.environ.get(MEMORY_BUDGET_VARIABLE)
+    if text is not None:
+        return parse_size(text), f"{MEMORY_BUDGET_VARIABLE}={text.strip()}"
+    limits = {"the machine's memory": os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")}
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        limits["ulimit -v"] = soft
+    cgroup = _cgroup_limit()
+    if cgroup is not None:
+        limits["the cgroup's memory.max"] = cgroup
+    source, least = min(limits.items(), key=lambda item: item[1])
+    return int(least * BUDGET_SHARE), f"3/4 of {source}; {MEMORY_BUDGET_VARIABLE} sets it"
+
+
+def parse_size(text: str) -> int:
+    """``8G``, ``512M``, ``1.5G``, ``1000000`` -> bytes (binary units)."""
+    match = _SIZE.match(text)
+    if match is None:
+        raise MemoryBudgetError(
+            f"{MEMORY_BUDGET_VARIABLE}={text!r} is not a size",
+            hint="write bytes or a number with K, M, G or T, e.g. 8G",
+        )
+    return int(float(match.group(1)) * _UNITS[match.group(2).upper()])
+
+
+def _cgroup_limit() -> int | None:
+    try:
+        text = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+    except OSError:
+        return None
+    return int(text) if text.isdigit() else None
+
+
+def check_memory(
+    need: int, what: str, *, setting: str | None = None, where: str | None = None
+) -> None:
+    """Refuse, before allocating, ``what`` needing ``need`` bytes over the budget; the line
+    says the need and the budget, and names the ``setting`` ("key = value") that asks for it."""
+    budget, source = memory_budget()
+    if need <= budget:
+        return
+    message = f"{what} needs about {_size(need)}, over the memory budget of {_size(budget)}"
+    lower = f"lower {setting.split(' = ')[0]}, or " if setting else ""
+    raise MemoryBudgetError(
+        f"{setting}: {message} ({source})" if setting else f"{message} ({source})",
+        where=where,
+        hint=f"{lower}raise {MEMORY_BUDGET_VARIABLE} on a machine with more memory",
+    )
+
+
+def _size(count: float) -> str:
+    value, unit = float(count), "bytes"
+    for larger in ("KiB", "MiB", "GiB", "TiB"):
+        if value < 1024:
+            break
+        value, unit = value / 1024, larger
+    return f"{value:.0f} bytes" if unit == "bytes" else f"{value:.1f} {unit}"
