@@ -5,6 +5,9 @@ are files and a carriage-return animation turns into noise. In the ``farm`` styl
 when stderr is not a terminal) every finished stage is also followed by a ``Progress: N%`` line,
 the pattern farm managers (Deadline, OpenCue, Tractor) parse; N counts finished stages out of
 the stages planned (:meth:`Progress.plan`), so it never goes back.
+
+Progress is for people: when stderr is closed, or its reader went away (``2>&1 | head``), the
+lines are dropped and the work goes on; only the exit code and the outputs tell then.
 """
 
 from __future__ import annotations
@@ -17,8 +20,8 @@ from contextlib import contextmanager
 
 class Progress:
     def __init__(self, quiet: bool = False, stream=None, style: str = "plain"):  # noqa: ANN001
-        self.quiet = quiet
         self.stream = stream if stream is not None else sys.stderr
+        self.quiet = quiet or self.stream is None  # None: Python started with stderr closed
         if style == "auto":
             style = "plain" if _is_terminal(self.stream) else "farm"
         self.farm = style == "farm"
@@ -28,8 +31,15 @@ class Progress:
         self._shown = -1
 
     def note(self, message: str) -> None:
-        if not self.quiet:
-            print(f"sensaov: {message}", file=self.stream, flush=True)
+        self._print(f"sensaov: {message}")
+
+    def _print(self, text: str, end: str = "\n") -> None:
+        if self.quiet:
+            return
+        try:
+            print(text, end=end, file=self.stream, flush=True)
+        except (OSError, ValueError, AttributeError):  # broken pipe, closed or absent stream
+            self.quiet = True
 
     def plan(self, stages: int) -> None:
         """``stages`` more stages are to come (a farm's percentage counts them)."""
@@ -38,19 +48,16 @@ class Progress:
     @contextmanager
     def stage(self, name: str, label: str) -> Iterator[None]:
         """Time the block as ``name`` (recorded in provenance) and report ``label`` on stderr."""
-        if not self.quiet:
-            print(f"sensaov: {label} ...", end="", file=self.stream, flush=True)
+        self._print(f"sensaov: {label} ...", end="")
         start = time.perf_counter()
         try:
             yield
         except BaseException:
-            if not self.quiet:
-                print(" failed", file=self.stream, flush=True)
+            self._print(" failed")
             raise
         elapsed = time.perf_counter() - start
         self.timings[name] = round(elapsed, 4)
-        if not self.quiet:
-            print(f" {elapsed:.2f} s", file=self.stream, flush=True)
+        self._print(f" {elapsed:.2f} s")
         self._done += 1
         self._report()
 
@@ -60,7 +67,7 @@ class Progress:
         percent = min(100, 100 * self._done // self._planned)
         if percent > self._shown:
             self._shown = percent
-            print(f"Progress: {percent}%", file=self.stream, flush=True)
+            self._print(f"Progress: {percent}%")
 
 
 def _is_terminal(stream) -> bool:  # noqa: ANN001 - any text stream

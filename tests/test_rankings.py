@@ -253,5 +253,5 @@ def test_a_missing_camera_exr_is_one_line_of_bad_input(buffer_path: Path) -> Non
     result = sensaov("rank", str(buffer_path), "--by", "object", "--exr", str(missing))
     assert result.returncode == EXIT_BAD_INPUT
     assert result.stderr.strip().splitlines() == [
-        f"sensaov: error: {missing}: no such OpenEXR file; no output was replaced"
+        f"sensaov: error: {missing}: the OpenEXR file does not exist; no output was replaced"
     ]

@@ -31,10 +31,14 @@ from sensaov_cli.cli import (  # noqa: E402
     sunburst,
     validate,
 )
-from sensaov_cli.cli.options import EXIT_CODES_EPILOG  # noqa: E402
+from sensaov_cli.cli.options import EXIT_CODES_EPILOG, OneLineGroup  # noqa: E402
 
 
-@click.group(epilog=EXIT_CODES_EPILOG, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(
+    cls=OneLineGroup,
+    epilog=EXIT_CODES_EPILOG,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
 @click.version_option(__version__, prog_name="sensaov")
 @click.option("-v", "--verbose", count=True, help="-vv prints tracebacks with errors.")
 def main(verbose: int) -> None:

@@ -7,12 +7,14 @@ rather than declaring them again, so ``--json`` or the job argument read the sam
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
+import select
 import sys
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from functools import wraps
 from pathlib import Path
 from typing import Any
@@ -66,6 +68,38 @@ weight_option = click.option(
 )
 
 
+class OneLineGroup(click.Group):
+    """The ``sensaov`` group: click's usage errors (a missing argument, a value out of range, an
+    unknown command) end as every other failure does, in one line and a documented exit code
+    (click prints three: the usage, a pointer to --help, the error)."""
+
+    def main(  # type: ignore[override]
+        self,
+        args: list[str] | None = None,
+        prog_name: str | None = None,
+        complete_var: str | None = None,
+        standalone_mode: bool = True,
+        **extra: Any,
+    ) -> Any:
+        try:
+            result = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.exceptions.NoArgsIsHelpError as exc:  # bare 'sensaov': its help, exit 0
+            click.echo(exc.ctx.get_help() if exc.ctx else "")
+            result = 0
+        except click.ClickException as exc:
+            if not standalone_mode:
+                raise
+            where = exc.ctx.command_path if isinstance(exc, click.UsageError) and exc.ctx else ""
+            hint = f" (see '{where} --help')" if where else ""
+            _fail(f"{where}: {exc.format_message()}{hint}" if where else exc.format_message(),
+                  exc.exit_code)  # fmt: skip
+        except OSError as exc:  # --help into a closed pipe
+            _fail(*_reported(exc))
+        if not standalone_mode:
+            return result
+        sys.exit(result if isinstance(result, int) else 0)
+
+
 def objective_option(help_text: str, *, multiple: bool = False) -> Decorator:
     """``--objective NAME``: an objective of the buffer (all of them when not given)."""
     return click.option("--objective", multiple=multiple, help=help_text)
@@ -84,8 +118,22 @@ def echo_json(data: Any, **dumps: Any) -> None:
 
 
 def _fail(message: str, code: int, earlier: int = 0) -> None:
-    click.echo(f"sensaov: error: {_one_line(message)}{_written(earlier)}", err=True)
+    written = _written(earlier)
+    if code == EXIT_BAD_INPUT and not written.endswith(_NOTHING_REPLACED):
+        code = EXIT_JOB_FAILED  # exit 2 promises nothing was written: this job got further
+    try:
+        click.echo(f"sensaov: error: {_one_line(message)}{written}", err=True)
+    except (OSError, ValueError, UnicodeError):
+        _silence(2)  # stderr is gone: the exit code is all that can still be said
     sys.exit(code)
+
+
+def _silence(descriptor: int) -> None:
+    """Point a standard stream whose reader went away at /dev/null, so that the interpreter's
+    last flush on exit does not print a second complaint (Python's advice for EPIPE)."""
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, descriptor)
+    os.close(null)
 
 
 def _stopped(earlier: int) -> None:
@@ -106,6 +154,9 @@ def _stopped(earlier: int) -> None:
     os._exit(code)
 
 
+_NOTHING_REPLACED = "; no output was replaced"
+
+
 def _one_line(text: str) -> str:
     """A message on one line whatever it quotes (a name with a newline from a stranger's file)."""
     return " ".join(text.split("\n")).replace("\r", " ")
@@ -119,7 +170,7 @@ def _written(earlier: int) -> str:
     remove_temporaries()
     done = replaced()[earlier:]
     if not done:
-        return "; no output was replaced"
+        return _NOTHING_REPLACED
     return f"; replaced: {', '.join(map(str, done))}; no other output was touched"
 
 
@@ -137,6 +188,7 @@ _OS_FAILURES = {
     errno.ENOENT: ("no such file or directory", EXIT_BAD_INPUT),
     errno.ENAMETOOLONG: ("file name too long", EXIT_BAD_INPUT),
     errno.EMFILE: ("too many open files", EXIT_JOB_FAILED),
+    errno.EPIPE: ("broken pipe: the program reading the output exited first", EXIT_JOB_FAILED),
 }
 
 
@@ -144,6 +196,9 @@ def _os_failure(err: OSError) -> tuple[str, int] | None:
     if err.errno not in _OS_FAILURES:
         return None
     what, code = _OS_FAILURES[err.errno]
+    if err.errno == errno.EPIPE:  # stdout's reader (| head) went away; stderr is another case
+        _silence(1)
+        return f"stdout: {what}", code
     where = f"{err.filename}: " if err.filename else ""
     full = err.errno in (errno.ENOSPC, errno.EDQUOT)
     hint = " (free space and run again; the previous outputs were kept)" if full else ""
@@ -167,6 +222,60 @@ def _reported(err: BaseException) -> tuple[str, int]:
     )
 
 
+def _require_stdout() -> None:
+    """A closed stdout (``>&-``) cannot take the result: refused before any work (exit 2).
+
+    The closed standard descriptors are first given /dev/null: else the first file the
+    command opens becomes descriptor 1, and whatever prints (a library's log) writes into it.
+    """
+    closed = [descriptor for descriptor in (0, 1, 2) if not _is_open(descriptor)]
+    for _ in closed:  # open() takes the lowest free descriptor: the closed ones, in order
+        os.open(os.devnull, os.O_RDWR)
+    from sensaov_cli.errors import OutputError
+
+    if 1 in closed or sys.stdout is None:
+        raise OutputError(
+            "stdout is closed: the result could not be printed",
+            hint="send it to a file or to /dev/null instead of closing it",
+        )
+    if _reader_gone(1):  # a pipe whose reader exited: found now, not after hours of rendering
+        raise OutputError(
+            "stdout is a pipe nobody reads any more: the result could not be printed",
+            hint="check the command after the '|'",
+        )
+
+
+def _reader_gone(descriptor: int) -> bool:
+    """Whether ``descriptor`` is a pipe whose read end is closed (poll reports an error)."""
+    poller = select.poll()
+    poller.register(descriptor, select.POLLOUT)
+    return any(events & select.POLLERR for _, events in poller.poll(0))
+
+
+def _is_open(descriptor: int) -> bool:
+    try:
+        os.fstat(descriptor)
+    except OSError:
+        return False
+    return True
+
+
+@contextlib.contextmanager
+def stdout_to_stderr() -> Iterator[None]:
+    """While a command's work runs, what anything prints (a Python objective's ``print``, a
+    library's own output) goes to stderr: stdout carries the result only (``run --json``)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    os.dup2(2, 1)
+    try:
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
     """Turn any failure into one line on stderr and a documented exit code (traceback at -vv).
 
@@ -181,7 +290,13 @@ def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
         earlier = len(atomic.replaced())  # one process may run several commands (tests)
         try:
             interrupts.check()  # a signal that came while the interpreter was importing
-            return command(*args, **kwargs)
+            _require_stdout()
+            result = command(*args, **kwargs)
+            # The work is done and printed: a stop from here on is only recorded (the process
+            # exits 0), one that came while the result was printed still says what was written.
+            interrupts.install(raising=False)
+            interrupts.check()
+            return result
         except (KeyboardInterrupt, Exception) as err:
             interrupts.install(raising=False)  # a second signal must not break the report
             # After a stop, whatever it made a library raise (Dr.Jit wraps it in a

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import click
@@ -16,6 +17,7 @@ from sensaov_cli.cli.options import (
     progress_option,
     quiet_option,
     reports_errors,
+    stdout_to_stderr,
     top_option,
 )
 
@@ -23,10 +25,11 @@ from sensaov_cli.cli.options import (
 def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[int, int] | None:
     if value is None:
         return None
-    index, _, count = value.partition("/")
-    if not (index.isdigit() and count.isdigit()) or not 1 <= int(index) <= int(count):
+    # ASCII digits only: str.isdigit() takes '²' and '٣', which int() refuses or reads.
+    match = re.fullmatch(r"([0-9]{1,9})/([0-9]{1,9})", value)
+    if match is None or not 1 <= int(match.group(1)) <= int(match.group(2)):
         raise click.BadParameter(f"{value!r} is not I/N with 1 <= I <= N (e.g. 3/8)")
-    return int(index), int(count)
+    return int(match.group(1)), int(match.group(2))
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
@@ -82,13 +85,14 @@ def run(
     from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
-    outputs = run_job(
-        spec,
-        allow_python=allow_python,
-        progress=Progress(quiet=quiet, style=progress_style),
-        task=Task(shard, tuple(dict.fromkeys(objective))),
-        resume=resume,
-    )
+    with stdout_to_stderr():  # an objective's print() must not end up in the summary
+        outputs = run_job(
+            spec,
+            allow_python=allow_python,
+            progress=Progress(quiet=quiet, style=progress_style),
+            task=Task(shard, tuple(dict.fromkeys(objective))),
+            resume=resume,
+        )
     summary = summary_of(outputs.buffer, as_json=as_json, top=top)
     if isinstance(summary, dict):
         summary["files"] = {"buffer": str(outputs.buffer_path), "primal": str(outputs.primal_path)}

@@ -50,11 +50,11 @@ def seen_names(
     ids: set[float] = set()
     for layer in sorted(layers):
         for id_channel, coverage_channel in _PAIRS:
-            names = (f"{layer}.{id_channel}", f"{layer}.{coverage_channel}")
-            missing = [name for name in names if name not in channels]
+            pair = (f"{layer}.{id_channel}", f"{layer}.{coverage_channel}")
+            missing = [name for name in pair if name not in channels]
             if missing:
                 raise CameraFileError(f"Cryptomatte channel {missing[0]} is missing", where=where)
-            ids.update(np.asarray(channels[names[0]])[np.asarray(channels[names[1]]) > 0].tolist())
+            ids.update(np.asarray(channels[pair[0]])[np.asarray(channels[pair[1]]) > 0].tolist())
     return frozenset(name for name in names if float(id_float(name)) in ids)
 
 
