@@ -8,24 +8,46 @@ the fraction of a pixel's samples that hit each object). The ``aov`` integrator'
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from types import ModuleType
 from typing import Any
 
 import numpy as np
 
+from sensaov_cli import interrupts
 from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass, histogram, ranked
 
+# A stop (SIGTERM, Ctrl-C) is acted on between kernel launches: the pass traces at most this
+# many samples per launch, so it stops within one chunk (~50 ms on 2 cores) instead of after
+# the whole view (a 512² camera at 64 spp: 16.7 M samples, ~2 s; more with heavy geometry).
+SAMPLES_PER_CHUNK = 1 << 19
 
-def film_positions(mi: ModuleType, width: int, height: int, spp: int, seed: int) -> Any:
+
+def film_positions(
+    mi: ModuleType,
+    width: int,
+    height: int,
+    spp: int,
+    seed: int,
+    *,
+    samples: tuple[int, int] | None = None,
+) -> Any:
     """Film positions in [0, 1)^2 for every (pixel, sample), row-major, samples innermost:
     stratified on a ceil(sqrt(spp))^2 grid inside each pixel, jittered by PCG32 (in Dr.Jit, so
-    millions of samples never round-trip through numpy)."""
+    millions of samples never round-trip through numpy). ``samples``: only the [first, end)
+    range of the flat sample index, with the values the whole film would give them."""
     import drjit as dr
 
+    first, end = samples or (0, width * height * spp)
     side = int(np.ceil(np.sqrt(spp)))
-    index = dr.arange(mi.UInt32, width * height * spp)
+    # The offset is opaque: a literal would compile a new kernel for every chunk.
+    offset = dr.opaque(mi.UInt32, first)
+    index = offset + dr.arange(mi.UInt32, end - first)
     pixel, sample = index // spp, index % spp
-    rng = mi.PCG32(size=width * height * spp, initstate=seed, initseq=index)
+    # PCG32 adds arange(size) to both seeds (to de-correlate its lanes): offset by ``first``,
+    # every sample gets the state the whole film's generator gives it.
+    wide = mi.UInt64(offset)
+    rng = mi.PCG32(size=end - first, initstate=seed + wide, initseq=mi.UInt64(index) + wide)
     jitter_x, jitter_y = rng.next_float32(), rng.next_float32()
     x = mi.Float(pixel % width) + (mi.Float(sample % side) + jitter_x) / side
     y = mi.Float(pixel // width) + (mi.Float(sample // side) + jitter_y) / side
@@ -42,33 +64,20 @@ def trace(
     *,
     with_uv: bool = False,
 ) -> VisibilityPass:
-    """Trace ``spp`` primary rays per pixel of ``sensor``'s film (no gradients).
+    """Trace ``spp`` primary rays per pixel of ``sensor``'s film (no gradients), in chunks of
+    at most SAMPLES_PER_CHUNK samples with a stop check between them.
 
     Only the object index of each sample leaves Dr.Jit (and the UVs when ``with_uv``).
     """
-    import drjit as dr
-
     size = sensor.film().crop_size()
     width, height = int(size[0]), int(size[1])
-    with dr.suspend_grad():
-        position = film_positions(mi, width, height, spp, seed)
-        ray, _ = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5, 0.5))
-        si = scene.ray_intersect(ray)
-        # A hit through an instance reports the shapegroup's member in si.shape and the
-        # instance (the object people see) in si.instance; 0 there means no instance.
-        instance: Any = dr.reinterpret_array(mi.UInt32, si.instance)  # stubs say object
-        shape: Any = dr.reinterpret_array(mi.UInt32, si.shape)
-        registry = dr.select(instance != 0, instance, shape)
-        table = mi.Int32(_object_of_registry_id(mi, scene, objects))
-        hit = si.is_valid() & (registry < dr.width(table))
-        index = dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)
-        if with_uv:  # one kernel for both: converting them apart would trace every ray twice
-            dr.eval(index, si.uv)
-        samples = np.array(index, dtype=np.int32)
-        uv = None
-        if with_uv:
-            uv = np.empty((samples.size, 2), np.float32)
-            uv[:, 0], uv[:, 1] = np.array(si.uv.x), np.array(si.uv.y)
+    table = mi.Int32(_object_of_registry_id(mi, scene, objects))
+    samples = np.empty(width * height * spp, np.int32)
+    uv = np.empty((samples.size, 2), np.float32) if with_uv else None
+    for span in sample_spans(samples.size, spp):
+        position = film_positions(mi, width, height, spp, seed, samples=span)
+        _trace_span(mi, scene, sensor, table, position, samples[span[0] : span[1]],
+                    None if uv is None else uv[span[0] : span[1]])  # fmt: skip
     coverage = histogram(samples.reshape(height * width, spp))
     rank_index, rank_coverage = ranked(coverage, (height, width), spp)
     sample_uv = sample_object = None
@@ -79,6 +88,45 @@ def trace(
     return VisibilityPass(
         width, height, spp, objects, sample_uv, coverage, rank_index, rank_coverage, sample_object
     )
+
+
+def sample_spans(count: int, spp: int) -> Iterator[tuple[int, int]]:
+    """[first, end) spans of whole pixels' samples, at most SAMPLES_PER_CHUNK each (at least
+    one pixel); a pending stop is raised (as KeyboardInterrupt) before every span but the first."""
+    step = max(1, SAMPLES_PER_CHUNK // spp) * spp
+    for first in range(0, count, step):
+        if first:
+            interrupts.check()
+        yield first, min(first + step, count)
+
+
+def _trace_span(
+    mi: ModuleType,
+    scene: Any,
+    sensor: Any,
+    table: Any,
+    position: Any,
+    samples: np.ndarray,
+    uv: np.ndarray | None,
+) -> None:
+    """Trace the rays through ``position``; their object indices (and UVs) into the arrays."""
+    import drjit as dr
+
+    with dr.suspend_grad():
+        ray, _ = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5, 0.5))
+        si = scene.ray_intersect(ray)
+        # A hit through an instance reports the shapegroup's member in si.shape and the
+        # instance (the object people see) in si.instance; 0 there means no instance.
+        instance: Any = dr.reinterpret_array(mi.UInt32, si.instance)  # stubs say object
+        shape: Any = dr.reinterpret_array(mi.UInt32, si.shape)
+        registry = dr.select(instance != 0, instance, shape)
+        hit = si.is_valid() & (registry < dr.width(table))
+        index = dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)
+        if uv is not None:  # one kernel for both: converting them apart would trace twice
+            dr.eval(index, si.uv)
+        samples[:] = np.array(index, dtype=np.int32)
+        if uv is not None:
+            uv[:, 0], uv[:, 1] = np.array(si.uv.x), np.array(si.uv.y)
 
 
 def _object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> np.ndarray:
