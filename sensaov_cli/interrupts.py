@@ -22,7 +22,7 @@ from sensaov_cli.errors import EXIT_HANGUP, EXIT_INTERRUPTED, EXIT_TERMINATED
 # The signals that stop a command, with their exit codes (128 + the signal's number). SIGHUP
 # comes when the terminal closes or an ssh connection drops: a stop like the others, so the
 # outputs stay whole and the line says so (if anything still reads it).
-STOP_SIGNALS = {
+STOP_SIGNALS: dict[int, int] = {
     signal.SIGINT: EXIT_INTERRUPTED,
     signal.SIGTERM: EXIT_TERMINATED,
     signal.SIGHUP: EXIT_HANGUP,

@@ -158,19 +158,26 @@ def _cgroup_limit() -> int | None:
 
 
 def check_memory(
-    need: int, what: str, *, setting: str | None = None, where: str | None = None
+    need: int,
+    what: str,
+    *,
+    setting: str | None = None,
+    where: str | None = None,
+    hint: str | None = None,
 ) -> None:
     """Refuse, before allocating, ``what`` needing ``need`` bytes over the budget; the line
-    says the need and the budget, and names the ``setting`` ("key = value") that asks for it."""
+    says the need and the budget, and names the ``setting`` ("key = value") that asks for it
+    (``hint``: what to do instead of lowering it)."""
     budget, source = memory_budget()
     if need <= budget:
         return
     message = f"{what} needs about {_size(need)}, over the memory budget of {_size(budget)}"
-    lower = f"lower {setting.split(' = ')[0]}, or " if setting else ""
+    instead = hint or (f"lower {setting.split(' = ')[0]}" if setting else "")
     raise MemoryBudgetError(
         f"{setting}: {message} ({source})" if setting else f"{message} ({source})",
         where=where,
-        hint=f"{lower}raise {MEMORY_BUDGET_VARIABLE} on a machine with more memory",
+        hint=f"{instead + ', or ' if instead else ''}raise {MEMORY_BUDGET_VARIABLE} on a machine "
+        "with more memory",
     )
 
 

@@ -30,7 +30,7 @@ from sensaov_cli.cli.options import (
 @click.option("--png", is_flag=True, help="Also write PNG previews and a contact sheet per camera.")
 @click.option(
     "--beauty-spp",
-    type=click.IntRange(min=0),
+    type=click.IntRange(min=0, max=2**32 - 1),  # Mitsuba's spp is 32-bit
     default=4,
     show_default=True,
     help="Samples per pixel of the quick beauty pass, a reference for the compositor "

@@ -141,4 +141,5 @@ def _check_declared_size(header: dict[str, Any], path: Path, what: str) -> None:
         int(width) * int(height) * channels * 4 * 2,  # float32 channels, and the binding's copy
         f"the {what}'s declared {width}x{height} pixels x {channels} channels",
         where=str(path),
+        hint="check that it is the file meant",
     )

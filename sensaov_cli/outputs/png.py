@@ -74,7 +74,8 @@ def png_problem(data: bytes) -> str | None:
 
 
 def _chunks(data: bytes) -> tuple[list[tuple[bytes, bytes]], str | None]:
-    chunks, at = [], len(_SIGNATURE)
+    chunks: list[tuple[bytes, bytes]] = []
+    at = len(_SIGNATURE)
     while at < len(data):
         if at + 12 > len(data):
             return chunks, "cut short inside a chunk"

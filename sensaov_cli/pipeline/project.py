@@ -27,6 +27,7 @@ from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.beauty import render_beauty
 from sensaov_cli.render.loading import LoadedScene, load_scene
+from sensaov_cli.render.memory import check_job, sensor_sizes
 from sensaov_cli.render.scene import prepare_scene
 from sensaov_cli.render.visibility import trace
 from sensaov_cli.spec.job import CameraSpec, JobSpec
@@ -79,6 +80,7 @@ def project_job(
     with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     _check_objects(buffer, loaded, buffer_path)
+    check_job(job, sensor_sizes(loaded))  # before the first view allocates anything
     texels = project_texels.project_fields(job, buffer, loaded, buffer_path, progress)
     views = []
     for camera in chosen:

@@ -25,6 +25,7 @@ from sensaov_cli.pipeline.run_forward import plan_forward, run_forward
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, batch_plan, integrator_plan, run_adjoint
 from sensaov_cli.render.loading import LoadedScene, load_scene
+from sensaov_cli.render.memory import check_render
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.scene import prepare_scene
 from sensaov_cli.spec.job import JobSpec
@@ -107,6 +108,7 @@ def run_job(
             f"render.spp = {job.render.spp} (both are recorded in the buffer)"
         )
     width, height = loaded.resolution
+    _check_memory(job, width, height)
     progress.note(
         f"{len(loaded.selected)} parameters over {len(loaded.objects)} objects, "
         f"variant {loaded.variant}, {len(job.objectives)} objective(s)"
@@ -156,6 +158,17 @@ def run_job(
                 f"cannot write outputs: {exc.strerror or exc}", where=str(job.output)
             ) from exc
     return RunOutputs(buffer, buffer_path, primal_path)
+
+
+def _check_memory(job: JobSpec, width: int, height: int) -> None:
+    """The objective camera's passes against the memory budget, at the film the scene gave."""
+    check_render(
+        width * height,
+        job.render.spp,
+        objectives=len(job.objectives) * job.render.batches,
+        setting=f"render.spp = {job.render.spp} at {width}x{height}",
+        where=str(job.path),
+    )
 
 
 def _make_buffer(

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from sensaov_cli.render.memory import check_job
 from sensaov_cli.render.scene import PreparedScene, prepare_scene
 from sensaov_cli.spec.job import JobSpec
 
 
 def validate_job(job: JobSpec) -> PreparedScene:
     """The job's scene prepared as ``run`` and ``project`` prepare it, with every inspection
-    camera placed: what they would refuse before rendering is refused here."""
-    return prepare_scene(job, job.inspection_cameras)
+    camera placed: what they would refuse before rendering is refused here, settings over the
+    memory budget included (where the job states the film's size)."""
+    prepared = prepare_scene(job, job.inspection_cameras)
+    check_job(job)
+    return prepared

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.errors import ObjectiveError, SpecError
+from sensaov_cli.limits import check_memory, regular_file
 from sensaov_cli.spec.job import ObjectiveSpec
 
 # Rec. 709 / sRGB primaries, the photometric response of the paper's example objective.
@@ -140,10 +141,15 @@ def _region_mask(spec: ObjectiveSpec, size: tuple[int, int], where: str) -> np.n
 def _read_image(path: Path | None, where: str) -> np.ndarray:
     import OpenImageIO as oiio
 
+    regular_file(Path(str(path)), "image", where=where, error=SpecError)  # a FIFO blocks OIIO
     image = oiio.ImageInput.open(str(path))
     if image is None:
         raise SpecError(f"cannot read image {path}: {oiio.geterror()}", where=where)
     try:
+        spec = image.spec()  # the declared size, checked before a pixel is allocated
+        check_memory(spec.width * spec.height * spec.nchannels * 4 * 2,
+                     f"reading {path}, which declares {spec.width}x{spec.height} pixels,",
+                     where=where, hint="check the image")  # fmt: skip
         pixels = image.read_image(format="float")
     finally:
         image.close()

@@ -116,7 +116,7 @@ Number = Annotated[float, STRICT, Setting(allow_inf_nan=False)]
 Unit = Annotated[float, STRICT, Ge(0.0), Le(1.0)]
 Pixels = Annotated[int, STRICT, Ge(1), Le(16384)]
 Fov = Annotated[float, STRICT, Gt(0.0), Lt(180.0), Doc("Field of view, degrees.")]
-VisSpp = Annotated[int, STRICT, Ge(1), Doc("Samples per pixel of the pass.")]
+VisSpp = Annotated[int, STRICT, Ge(1), Lt(2**32), Doc("Samples per pixel of the pass (32-bit).")]
 Resolution = Annotated[tuple[Pixels, Pixels], _count(2, "integers [width, height]")]
 Vector = Annotated[tuple[Number, Number, Number], _count(3, "numbers [x, y, z]")]
 Region = Annotated[
