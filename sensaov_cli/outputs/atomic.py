@@ -13,8 +13,10 @@ can say exactly which outputs are new and which are as they were (:func:`replace
 
 from __future__ import annotations
 
+import atexit
 import errno
 import os
+import shutil
 import signal
 import stat
 import tempfile
@@ -28,6 +30,7 @@ TEMPORARY_SUFFIX = ".partial"
 _HELD = set(interrupts.STOP_SIGNALS)
 _live: set[Path] = set()  # temporaries that exist right now (removed on any failure or stop)
 _replaced: list[Path] = []  # every output this process renamed into place, in order
+_scratch: list[Path] = []  # private temporary folders (scratch_folder), removed at exit
 
 
 def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
@@ -58,6 +61,16 @@ def atomic_write_all(files: list[tuple[Path, Callable[[Path], None]]]) -> None:
         _fsync_directory(folder)
 
 
+def scratch_folder(purpose: str) -> Path:
+    """A private temporary folder (a library's cache), removed at exit, and with the outputs'
+    temporaries when a stop or a failure ends the process (:func:`remove_temporaries`)."""
+    if not _scratch:
+        atexit.register(remove_temporaries)
+    folder = Path(tempfile.mkdtemp(prefix=f"sensaov-{purpose}-"))
+    _scratch.append(folder)
+    return folder
+
+
 def replaced() -> tuple[Path, ...]:
     """Every output this process has renamed into place so far (a new file or a new version)."""
     return tuple(_replaced)
@@ -67,6 +80,8 @@ def remove_temporaries() -> None:
     """Remove every temporary still on disk: the last thing a stopped process does."""
     for tmp in list(_live):
         _remove(tmp)
+    while _scratch:
+        shutil.rmtree(_scratch.pop(), ignore_errors=True)
 
 
 def _written_temporary(path: Path, write: Callable[[Path], None]) -> Path:

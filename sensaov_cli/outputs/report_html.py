@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -21,6 +20,7 @@ import numpy as np
 
 from sensaov_cli.buffer.model import ParamRecord
 from sensaov_cli.outputs.atomic import atomic_write
+from sensaov_cli.outputs.png import encode_png
 from sensaov_cli.outputs.tables import SUSPECT_MARK, UNVERIFIED_MARK
 from sensaov_cli.views.hierarchy import Ranking
 
@@ -67,11 +67,7 @@ class ReportContent:
 
 def png_bytes(rgb_uint8: np.ndarray) -> bytes:
     """An (H, W, 3) uint8 image as the bytes of a PNG file."""
-    from matplotlib import image
-
-    out = io.BytesIO()
-    image.imsave(out, rgb_uint8, format="png")
-    return out.getvalue()
+    return encode_png(rgb_uint8)
 
 
 def write_report(path: Path, content: ReportContent) -> None:

@@ -14,6 +14,8 @@ from __future__ import annotations
 import io
 import json
 import math
+import os
+import warnings
 from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
@@ -22,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from sensaov_cli.errors import OutputError
-from sensaov_cli.outputs.atomic import atomic_write
+from sensaov_cli.outputs.atomic import atomic_write, scratch_folder
 from sensaov_cli.outputs.previews import RDBU, diverging_rgb
 from sensaov_cli.views.sunburst_geometry import Panel, Wedge
 
@@ -70,18 +72,28 @@ def sunburst_bytes(
     panels: Sequence[Panel], *, fmt: str, order: str, encoding: str, provenance: dict[str, Any]
 ) -> bytes:
     """The drawing as the bytes of an SVG or PNG file (a report embeds them)."""
+    # matplotlib keeps a font cache in MPLCONFIGDIR, by default under $HOME (and warns when
+    # HOME is read-only): sensaov writes nowhere but its outputs, so it gets a folder of its
+    # own, removed at exit, unless the user set one (docs/rankings.md, "Sunburst").
+    os.environ.setdefault("MPLCONFIGDIR", str(scratch_folder("matplotlib")))
     import matplotlib
 
     matplotlib.use("Agg")  # no display on a farm; must precede pyplot
     from matplotlib import pyplot as plt
 
-    fig = _figure(panels, order, encoding)
-    out = io.BytesIO()
-    try:
-        metadata = {"Description": json.dumps(provenance, sort_keys=True)}
-        fig.savefig(out, format=fmt, dpi=DPI, metadata=metadata)
-    finally:
-        plt.close(fig)
+    with warnings.catch_warnings():
+        # A name in a script DejaVu Sans lacks is drawn with boxes; the name is in the file's
+        # metadata and in 'rank', so a warning per glyph on stderr says nothing more.
+        warnings.filterwarnings(
+            "ignore", message="Glyph .* missing from font", category=UserWarning
+        )
+        fig = _figure(panels, order, encoding)
+        out = io.BytesIO()
+        try:
+            metadata = {"Description": json.dumps(provenance, sort_keys=True)}
+            fig.savefig(out, format=fmt, dpi=DPI, metadata=metadata)
+        finally:
+            plt.close(fig)
     return out.getvalue()
 
 

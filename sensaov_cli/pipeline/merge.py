@@ -15,6 +15,7 @@ import numpy as np
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import FORMAT_VERSION, SensitivityBuffer
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer_versioned
+from sensaov_cli.buffer.shard_metadata import check_shard_metadata
 from sensaov_cli.buffer.shards import Shard, merge_shards
 from sensaov_cli.buffer.statistics import weighted_mean
 from sensaov_cli.errors import MergeError, SensaovError
@@ -51,6 +52,7 @@ def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> Merge
     with progress.stage("read_s", f"reading {len(paths)} shard(s)"):
         for path in paths:
             buffer, version = read_buffer_versioned(path)
+            check_shard_metadata(path, buffer.provenance)
             shards.append(Shard(path, buffer, version))
     read = [*paths, *map(primal_beside, paths)]
     read += [path for shard in shards for path in recorded_inputs(shard.buffer.provenance)]
@@ -81,11 +83,14 @@ def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:
     for shard in shards:
         first_of_index.setdefault(shard.index[0], shard)
     images, spp = [], []
+    width, height = shards[0].buffer.provenance["resolution"]  # checked: two positive ints
     for _, shard in sorted(first_of_index.items()):
         path = primal_beside(shard.path)
-        if not path.is_file():
+        if not path.exists():
             raise MergeError("the shard's primal is missing", where=str(path))
-        channels, _ = read_exr(path)
+        channels, _ = read_exr(path, "shard's primal")
+        if not channels or any(c.shape != (height, width) for c in channels.values()):
+            raise MergeError(f"the primal is not the shard's {width}x{height}", where=str(path))
         images.append(channels)
         spp.append(int(shard.buffer.provenance["spp"]))
     names = list(images[0])

@@ -80,7 +80,7 @@ def project_job(
     with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     _check_objects(buffer, loaded, buffer_path)
-    check_job(job, sensor_sizes(loaded))  # before the first view allocates anything
+    _check_views(job, chosen, loaded, bool(forward))  # before the first view writes a file
     texels = project_texels.project_fields(job, buffer, loaded, buffer_path, progress)
     views = []
     for camera in chosen:
@@ -92,6 +92,23 @@ def project_job(
             )  # fmt: skip
         views.append(replace(view, seconds=progress.timings[stage]))
     return views
+
+
+def _check_views(
+    job: JobSpec, chosen: list[CameraSpec], loaded: LoadedScene, forward: bool
+) -> None:
+    """What a view would refuse, refused before the first one writes its EXR (exit 2 means
+    nothing was written): settings over the memory budget, forward layers at another size."""
+    sizes = sensor_sizes(loaded)
+    check_job(job, sizes)
+    objective = next((c.name for c in chosen if c.objective), None)
+    if forward and objective is not None and sizes[objective] != loaded.resolution:
+        raise SpecError(
+            "forward and transport layers are rendered at render.resolution, "
+            "but the objective inspection camera has another resolution",
+            where=f"inspection_cameras: {objective}",
+            hint="leave that camera's resolution null",
+        )
 
 
 def _check_fingerprint(
@@ -156,15 +173,7 @@ def _project_camera(
         with_uv=bool(texels),
     )
     beauty = render_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed)
-    layers = [_layer(p, visibility, buffer_path, camera) for p in passes]
-    layers += [f for f in forward if f[0].data.shape[:2] == (visibility.height, visibility.width)]
-    if len(layers) < len(passes) + len(forward):
-        raise SpecError(
-            "forward and transport layers are rendered at render.resolution, "
-            "but the objective inspection camera has another resolution",
-            where=f"inspection_cameras: {camera.name}",
-            hint="leave that camera's resolution null",
-        )
+    layers = [_layer(p, visibility, buffer_path, camera) for p in passes] + forward
     panels = project_texels.camera_layers(texels, visibility, buffer_path, camera.name)
     layers += [layer for _, texel_layers in panels for layer in texel_layers]
     crypto = CryptoLayer(

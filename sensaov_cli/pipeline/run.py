@@ -18,13 +18,13 @@ from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer
 from sensaov_cli.errors import SensaovError, SpecError
 from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
-from sensaov_cli.outputs.exr import exr_writer, image_channels
+from sensaov_cli.outputs.exr import exr_writer, image_channels, read_exr
 from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.pipeline.run_forward import plan_forward, run_forward
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, batch_plan, integrator_plan, run_adjoint
-from sensaov_cli.render.loading import LoadedScene, load_scene
+from sensaov_cli.render.loading import LoadedScene, load_scene, refuse_non_finite
 from sensaov_cli.render.memory import check_render
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.scene import prepare_scene
@@ -89,6 +89,7 @@ def run_job(
     refuse_unsafe_outputs(inputs, outputs, where=str(job.path))
     with progress.stage("load_s", f"loading {job.scene.name}"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
+    refuse_non_finite(loaded)
     if not loaded.selected:
         raise SpecError(
             "no scene parameter is selected: there is nothing to differentiate",
@@ -233,7 +234,17 @@ def completed(
     made = buffer.provenance
     same = made.get("job_hash") == job.job_hash() and made.get("task") == task.describe()
     same = same and made.get("scene_fingerprint") == fingerprint
-    return buffer if same and primal_path.stat().st_size > 0 else None
+    return buffer if same and _whole_image(primal_path, made.get("resolution")) else None
+
+
+def _whole_image(path: Path, resolution: Any) -> bool:
+    """Whether ``path`` is a complete EXR of ``[width, height]`` (a cut one is rendered again)."""
+    try:
+        channels, _ = read_exr(path)
+    except SensaovError:
+        return False
+    shape = tuple(reversed(resolution)) if isinstance(resolution, list) else None
+    return bool(channels) and all(c.shape == shape for c in channels.values())
 
 
 def _provenance(

@@ -57,6 +57,9 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
             scene = mi.load_string(prepared.text, optimize=False)
     except Exception as exc:  # Mitsuba raises plain RuntimeError with a long message
         message, where = prepared.locate(str(exc))
+        culprit = _file_named(message, prepared.files[1:])
+        if culprit is not None:  # a mesh's or an image's own fault: that file is where
+            raise SceneError(f"{message} (used at {where})", where=str(culprit)) from exc
         raise SceneError(message, where=where or str(prepared.path)) from exc
     sensors = {sensor.id(): sensor for sensor in scene.sensors()}
     sensor = sensors[prepared.sensor_id]
@@ -80,6 +83,28 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
         inspection_sensors={name: sensors[sid] for name, sid in prepared.inspection_ids.items()},
         prepared=prepared,
     )
+
+
+def _file_named(message: str, files: tuple[Path, ...]) -> Path | None:
+    """The file (a PLY, an image) Mitsuba's message names in quotes, if it is one of ``files``."""
+    return next((f for f in files if f'"{f.name}"' in message or f'"{f}"' in message), None)
+
+
+def refuse_non_finite(loaded: LoadedScene) -> None:
+    """A selected parameter holding NaN or an infinity (an EXR texture's texel, say) is bad
+    input named by its key and file: the render would fail later, blaming the objective."""
+    for info in loaded.selected:
+        value = np.asarray(loaded.params[info.key], dtype=np.float64)
+        bad = int(np.count_nonzero(~np.isfinite(value)))
+        if bad:
+            source = loaded.textures.get(info.key)
+            raise SceneError(
+                f"parameter {info.key!r} holds {bad} NaN or infinite value(s) of {value.size}",
+                where=source.file
+                if source is not None and source.file
+                else str(loaded.prepared.path),
+                hint="write finite values, or leave the parameter out of the selection",
+            )
 
 
 def load_job_scene(job: JobSpec, cameras: tuple[CameraSpec, ...] = ()) -> LoadedScene:

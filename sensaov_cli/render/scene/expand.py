@@ -34,7 +34,7 @@ from pathlib import Path
 
 from sensaov_cli.errors import SceneError
 from sensaov_cli.limits import regular_file
-from sensaov_cli.render.scene.image_headers import check_image
+from sensaov_cli.render.scene.declared_sizes import check_declared_size
 from sensaov_cli.render.scene.source import (
     OBJECT_TAGS,
     is_object,
@@ -204,7 +204,7 @@ class _Expansion:
             ref.set("id", self.aliases.get(ref.get("id", ""), ref.get("id", "")))
         for element in self.filenames:
             resolved = _existing(element.get("value", ""), main.resolver, where(element))
-            check_image(resolved, where(element))  # a declared gigapixel: before Mitsuba
+            check_declared_size(resolved, where(element))  # a gigapixel, a billion vertices
             self.files.append(resolved)
             element.set("value", str(resolved))
         upgrade_legacy(root, self.legacy)

@@ -58,6 +58,7 @@ from sensaov_cli.render.scene.sensors import (
 )
 from sensaov_cli.render.scene.sharing import place_textures, split_shapegroups, split_shared_bsdfs
 from sensaov_cli.render.scene.source import locate_load_error, where, write_xml
+from sensaov_cli.render.scene.values import refuse_non_finite
 from sensaov_cli.spec.job import CameraSpec, JobSpec
 
 _CHUNK = 1 << 20  # files are hashed a MiB at a time, never read whole
@@ -173,6 +174,7 @@ def _rewrite(
     checked: tuple[CameraSpec, ...],
 ) -> PreparedScene:
     root = expanded.root
+    refuse_non_finite(root)  # Mitsuba loads nan and inf; the run would blame the objective
     own_sensors = sensor_ids(root)
     changes = [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
     kind, replay = replace_integrator(root, max_depth)

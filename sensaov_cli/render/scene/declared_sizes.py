@@ -1,10 +1,12 @@
-"""The size an image file declares in its header, read without decoding the image (pure Python).
+"""The size an image or a mesh declares in its header, read without decoding it (pure Python).
 
-A 6 kB PNG may declare 40000x40000 pixels: Mitsuba allocates them all (76 GB as float32) and
-the process dies without a word. So before Mitsuba loads a scene, every image it will read
-(the formats of Mitsuba's ``Bitmap``: PNG, JPEG, OpenEXR, Radiance RGBE, PFM, PPM, BMP, TGA) is
-measured from its first bytes and checked against the memory budget (:func:`check_image`).
-A file in none of these formats is left to Mitsuba, which says what it thinks of it.
+A 6 kB PNG may declare 40000x40000 pixels, a PLY header four billion vertices: Mitsuba
+allocates them all and the process dies without a word (SIGSEGV, std::bad_alloc). So before
+Mitsuba loads a scene, every image it will read (the formats of Mitsuba's ``Bitmap``: PNG,
+JPEG, OpenEXR, Radiance RGBE, PFM, PPM, BMP, TGA) and every PLY mesh is measured from its first
+bytes and checked against the memory budget (:func:`check_declared_size`); a binary PLY that
+declares more than the file holds is refused outright. A file in none of these formats is left
+to Mitsuba, which says what it thinks of it.
 """
 
 from __future__ import annotations
@@ -23,9 +25,13 @@ TEXTURE_COPIES = 4  # the file's pixels, their float conversion, the texture, a 
 Size = tuple[int, int, int]  # width, height, channels
 
 
-def check_image(path: Path, where: str) -> None:
-    """Refuse an image whose declared pixels, once loaded, are over the memory budget."""
-    size = declared_size(path, where)
+def check_declared_size(path: Path, where: str) -> None:
+    """Refuse an image or a mesh whose declared size, once loaded, is over the memory budget."""
+    head = _head(path, where)
+    if head.startswith(b"ply"):
+        _check_ply(path, head, where)
+        return
+    size = declared_size(path, where, head)
     if size is None:
         return
     width, height, channels = size
@@ -37,13 +43,9 @@ def check_image(path: Path, where: str) -> None:
     )
 
 
-def declared_size(path: Path, where: str) -> Size | None:
-    """(width, height, channels) from the header, or None for a format not listed above."""
-    try:
-        with open(path, "rb") as stream:
-            head = stream.read(HEAD_BYTES)
-    except OSError as exc:
-        raise SceneError(f"cannot read {path}: {exc.strerror or exc}", where=where) from None
+def declared_size(path: Path, where: str, head: bytes | None = None) -> Size | None:
+    """An image's (width, height, channels) from its header, or None for another format."""
+    head = _head(path, where) if head is None else head
     # TGA has no signature: Mitsuba knows it by its extension, and so does this.
     tga = path.suffix.lower() == ".tga"
     reader = _tga if tga else next((r for magic, r in _READERS if head.startswith(magic)), None)
@@ -51,6 +53,49 @@ def declared_size(path: Path, where: str) -> Size | None:
         return None if reader is None else reader(head)
     except (struct.error, ValueError, IndexError):
         return None  # a damaged header: Mitsuba's own reader will say so
+
+
+def _head(path: Path, where: str) -> bytes:
+    try:
+        with open(path, "rb") as stream:
+            return stream.read(HEAD_BYTES)
+    except OSError as exc:
+        raise SceneError(f"cannot read {path}: {exc.strerror or exc}", where=where) from None
+
+
+# Bytes of each PLY scalar type; a list counts as its length and three entries (a triangle).
+_PLY_TYPES = {
+    **dict.fromkeys(("char", "uchar", "int8", "uint8"), 1),
+    **dict.fromkeys(("short", "ushort", "int16", "uint16"), 2),
+    **dict.fromkeys(("int", "uint", "float", "int32", "uint32", "float32"), 4),
+    **dict.fromkeys(("double", "float64"), 8),
+}
+MESH_COPIES = 4  # the file's data, Mitsuba's vertex and index buffers, the ray-tracing BVH
+
+
+def _check_ply(path: Path, head: bytes, where: str) -> None:
+    end = head.find(b"end_header")
+    if end < 0:
+        return  # Mitsuba's reader says what is wrong with it
+    least, likely, count = 0, 0, 0  # a list holds at least its length; likely a triangle
+    for line in head[:end].decode("latin-1").splitlines():
+        words = line.split()
+        if words[:1] == ["element"] and len(words) == 3 and words[2].isdigit():
+            count = int(words[2])
+        elif words[:1] == ["property"] and len(words) >= 3:
+            sizes = [_PLY_TYPES.get(word, 4) for word in words[1:-1] if word != "list"]
+            least += count * sizes[0]
+            likely += count * (sizes[0] + 3 * sizes[-1] if words[1] == "list" else sizes[0])
+    held = path.stat().st_size - end
+    if b"binary" in head[:end] and least > held:
+        raise SceneError(
+            f"{path.name} declares at least {least:,} bytes of elements but holds {held:,}",
+            where=where,
+            hint="the PLY file is cut short or its header is wrong: export it again",
+        )
+    check_memory(likely * MESH_COPIES, f"loading {path.name}, whose header declares about "
+                 f"{likely:,} bytes of vertices and faces,", where=where,
+                 hint="check the mesh, or simplify it")  # fmt: skip
 
 
 def _png(head: bytes) -> Size:
