@@ -1,12 +1,16 @@
 """The bad-input corpus (tests/data/bad/): every case exits with its documented code, says so in
 one line, prints no traceback and writes nothing. Jobs and scenes go to ``validate`` or ``run``,
 masks and targets to ``run`` (refused before rendering), buffers to ``rank`` and ``project``.
+A second corpus breaks a finished project one thing at a time (tests/hostile_workspace.py: an
+output onto an input, special files, shard metadata, corrupt EXRs, odd command-line values,
+closed pipes, links that lead nowhere, memory settings) and asserts the same of every command.
 """
 
 from __future__ import annotations
 
 import os
 import shutil
+import stat
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -19,6 +23,7 @@ from sensaov_cli.outputs.buffer_file import write_buffer
 
 from .bad_buffers import MAKERS, STRICT_READER, good_buffer
 from .conftest import ROOT, SCENES
+from .hostile_workspace import HOSTILE, Hostile, make_workspace
 
 CORPUS = Path(__file__).parent / "data" / "bad"
 SCENE = SCENES / "cbox" / "scene.xml"
@@ -108,6 +113,10 @@ def prepare(case: Case, tmp: Path) -> list[str]:
     if case.extra == "fifo":
         extra = str(tmp / "scene.xml")
         os.mkfifo(extra)
+    elif case.extra.endswith(".xml"):  # a corpus scene may name a file beside it as HERE/...
+        text = (CORPUS / case.extra).read_text().replace("HERE", str(CORPUS))
+        (tmp / case.extra).write_text(text)
+        extra = str(tmp / case.extra)
     elif case.extra:
         extra = str(shutil.copy(CORPUS / case.extra, tmp / case.extra))
     return [case.command, str(_job(tmp, case.file, extra))]
@@ -154,3 +163,67 @@ def test_bad_input_is_refused(tmp_path: Path, case: Case) -> None:
 @pytest.mark.parametrize("case", STRICT)
 def test_bad_buffer_the_strict_reader_refuses(tmp_path: Path, case: Case) -> None:
     check(case, tmp_path)
+
+
+# --- a finished project, broken one thing at a time (tests/hostile_workspace.py) ------------
+
+
+@pytest.fixture(scope="session")
+def workspace(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return make_workspace(tmp_path_factory.mktemp("workspace"))
+
+
+def state(root: Path) -> dict[str, object]:
+    """What is on disk under ``root``, links and special files included (never opened)."""
+    found: dict[str, object] = {}
+    for path in sorted(root.rglob("*")):
+        info = path.lstat()
+        name = str(path.relative_to(root))
+        if stat.S_ISLNK(info.st_mode):
+            found[name] = ("link", os.readlink(path))
+        elif stat.S_ISREG(info.st_mode):
+            small = info.st_size < 1 << 22
+            found[name] = (info.st_size, info.st_mode, path.read_bytes() if small else None)
+        else:
+            found[name] = (stat.S_IFMT(info.st_mode),)
+    return found
+
+
+def test_the_workspace_corpus_has_its_cases() -> None:
+    assert len(HOSTILE) >= 60
+    assert sum("(new)" in case.id for case in HOSTILE) >= 20
+
+
+@pytest.mark.parametrize("case", HOSTILE, ids=lambda c: c.id)
+def test_a_hostile_workspace_is_refused(workspace: Path, tmp_path: Path, case: Hostile) -> None:
+    ws = tmp_path / "ws"
+    shutil.copytree(workspace, ws, symlinks=True)
+    args = case.build(ws)
+    before = state(ws)
+    command = [sys.executable, "-m", "sensaov_cli", *args]
+    env = {**os.environ, "PYTHONPATH": str(ROOT), **case.env}
+    if case.stdout == "closed":
+        command = ["sh", "-c", 'exec "$@" >&-', "sh", *command]
+    reader, writer = os.pipe()
+    if case.stdout == "gone":
+        os.close(reader)
+    try:
+        result = subprocess.run(
+            command,
+            cwd=ws,
+            env=env,
+            stdout=writer if case.stdout == "gone" else subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=case.timeout,
+        )
+    finally:
+        os.close(writer)
+        if case.stdout != "gone":
+            os.close(reader)
+    assert result.returncode in case.codes, result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("sensaov: error: "), result.stderr
+    assert "Traceback" not in result.stderr and "internal error" not in result.stderr
+    assert lines[0].endswith("; no output was replaced"), lines[0]
+    assert state(ws) == before

@@ -46,7 +46,8 @@ def exr_writer(
             with OpenEXR.File(header, pixels) as exr:
                 exr.write(str(tmp))
         except RuntimeError as error:  # the binding's only exception type, even for ENOSPC
-            raise _os_error(str(error)) from error
+            # Its message names the temporary, which is gone by the time anyone reads it.
+            raise _os_error(str(error).replace(str(tmp), "the file")) from error
 
     return write
 
