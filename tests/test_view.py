@@ -56,7 +56,6 @@ def small_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
     data["scene"] = str(ROOT / "scenes" / "cbox" / "scene.xml")
     data["variant"] = "llvm_ad_rgb"
     data["render"].update(spp=4, resolution=[24, 24])
-    data["channels"] = [c for c in data["channels"] if c["kind"] != "texel"]
     data["output"] = str(folder / "out")
     job = folder / "job.yaml"
     job.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -247,6 +246,30 @@ def test_forward_layers_are_served_at_the_objective_camera_only(server: ViewServ
     assert status == 200
     legend = json.loads(headers["X-Sensaov-Legend"])
     assert legend["scale_mode"] == "image" and legend["peak"] > 0
+
+
+def test_a_texel_field_is_painted_through_the_hit_uvs_of_a_new_viewpoint(
+    server: ViewServer, session: ViewSession
+) -> None:
+    """The checker wall's texel panel lands on the checker wall only, from a moved camera."""
+    camera = "origin=1.5,0.3,3&spp=4&width=64"
+    channel = "texels_checker_reflectance_texel"
+    status, headers, body = get(server.url + f"api/view?channel={channel}&{camera}&format=exr")
+    assert status == 200, body
+    exr = Path(session.job.output) / "texel-test.exr"
+    exr.write_bytes(body)
+    channels, _ = read_exr(exr)
+    exr.unlink()
+    layer = channels[f"mean_luma.{channel}.Y"]
+    _, _, ids = get(server.url + f"api/view?{camera}&format=ids")
+    index = np.frombuffer(ids, "<i4").reshape(layer.shape)
+    wall = index == session.buffer.objects.index("left_wall")
+    assert wall.sum() > 100 and np.count_nonzero(layer[wall]) > 0.9 * wall.sum()
+    near = np.pad(wall, 1)  # pixels beside the wall may hold some of its coverage
+    near = np.any([near[1 + dy : near.shape[0] - 1 + dy, 1 + dx : near.shape[1] - 1 + dx]
+                   for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)  # fmt: skip
+    assert not np.any(layer[~near])
+    assert "fixed by the job's texel channel" in json.loads(headers["X-Sensaov-Legend"])["encoding"]
 
 
 def test_other_hosts_and_cross_site_saves_are_refused(server: ViewServer) -> None:

@@ -24,6 +24,7 @@ from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import RequestError, UnknownNameError
 from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.outputs.view_images import exr_bytes, id_map_bytes, png_bytes, view_rgb
+from sensaov_cli.pipeline import project_texels
 from sensaov_cli.pipeline.project import OBJECTIVE_CAMERA, check_fingerprint, check_objects
 from sensaov_cli.pipeline.view_query import (
     PICK_KEYS,
@@ -33,14 +34,15 @@ from sensaov_cli.pipeline.view_query import (
     single_values,
     view_request,
 )
-from sensaov_cli.pipeline.view_sources import Sources, StoredImage
+from sensaov_cli.pipeline.view_sources import Sources, StoredImage, TexelPanel
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene, load_scene
 from sensaov_cli.render.scene import prepare_scene
 from sensaov_cli.render.viewpoint import Pose, ViewTracer, scene_bounds, sensor_pose
 from sensaov_cli.spec.job import JobSpec
+from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.inspection import InspectionView, paint_image, paint_view
+from sensaov_cli.views.inspection import InspectionView, paint_image, paint_texel, paint_view
 from sensaov_cli.views.object_parameters import object_parameters
 from sensaov_cli.views.summary import weakest_trust
 from sensaov_cli.views.sunburst_geometry import panels
@@ -73,7 +75,9 @@ class ViewSession:
         self, job: JobSpec, buffer: SensitivityBuffer, buffer_path: Path, loaded: LoadedScene
     ):
         self.job, self.buffer, self.buffer_path, self.loaded = job, buffer, buffer_path, loaded
-        self.sources = Sources(job, buffer, buffer_path)
+        self.sources = Sources(
+            job, buffer, buffer_path, project_texels.prepare(job, buffer, loaded)
+        )
         self.tracer = ViewTracer(loaded.mi, loaded.scene, buffer.objects)
         self.bounds = scene_bounds(loaded.scene)
         self.cameras = _cameras(job, loaded, self.bounds)
@@ -187,7 +191,9 @@ class ViewSession:
 
     def _paint(self, request: ViewRequest) -> tuple[VisibilityPass, InspectionView]:
         source = self.sources.find(request.objective, request.channel)
-        visibility = self.visibility(request)
+        visibility = self.visibility(request, with_uv=isinstance(source, TexelPanel))
+        if isinstance(source, TexelPanel):
+            return visibility, paint_texel(source.field, source.panel, visibility, request.look)
         if isinstance(source, StoredImage):
             if not self.is_objective_pose(request.pose):
                 raise RequestError(
@@ -199,15 +205,18 @@ class ViewSession:
             return visibility, paint_image(source.data, visibility, request.look, source.unverified)
         return visibility, paint_view(self.buffer, source, visibility, request.look)
 
-    def visibility(self, request: ViewRequest) -> VisibilityPass:
-        """The visibility pass of a request's camera, traced once and kept for picks."""
+    def visibility(self, request: ViewRequest, with_uv: bool = False) -> VisibilityPass:
+        """The visibility pass of a request's camera, traced once and kept for picks (a pass
+        with UVs serves a request without them too)."""
         key = (request.pose, request.width, request.height, request.spp)
         with self._lock:
-            if key in self._passes:
-                self._passes.move_to_end(key)
-                return self._passes[key]
-            traced = self.tracer.trace(request.pose, request.width, request.height, request.spp)
-            self._passes[key] = traced
+            for uv in (True, False) if not with_uv else (True,):
+                if (*key, uv) in self._passes:
+                    self._passes.move_to_end((*key, uv))
+                    return self._passes[(*key, uv)]
+            size = (request.width, request.height, request.spp)
+            traced = self.tracer.trace(request.pose, *size, with_uv=with_uv)
+            self._passes[(*key, with_uv)] = traced
             while len(self._passes) > CACHED_PASSES:
                 self._passes.popitem(last=False)
             return traced
@@ -221,14 +230,14 @@ class ViewSession:
 
     def _object_summary(self, request: ViewRequest, obj: str) -> dict[str, Any]:
         source = self.sources.find(request.objective, request.channel)
-        weight = source.spec.weight if not isinstance(source, StoredImage) else "value"
+        weight = source.spec.weight if isinstance(source, ChannelValues) else "value"
         rows = object_parameters(self.buffer, request.objective, obj, weight)
         summary: dict[str, Any] = {
             "weight": weight,
             "parameters": [asdict(r) for r in rows],
             "trust": weakest_trust(self.buffer, [r.key for r in rows]) if rows else "verified",
         }
-        if not isinstance(source, StoredImage):
+        if isinstance(source, ChannelValues):
             index = self.buffer.objects.index(obj)
             order = sorted(range(len(source.magnitudes)), key=lambda i: -source.magnitudes[i])
             summary.update(

@@ -23,6 +23,8 @@ from sensaov_cli.errors import RequestError, UnknownNameError
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.spec.job import ChannelSpec, JobSpec
 from sensaov_cli.views.channels import ChannelValues, channel_values
+from sensaov_cli.views.texel_fields import TexelField
+from sensaov_cli.views.texel_passes import PANELS, texture_token
 from sensaov_cli.views.transport import forward_views, transport_views
 
 SELECT_PREFIX = "select:"
@@ -41,29 +43,53 @@ class StoredImage:
     note: str  # the duality check of a transport layer; the colour reduction of a forward one
 
 
+@dataclass(frozen=True, eq=False)
+class TexelPanel:
+    """One of Fig. 4's panels of a texel field: painted through the hit UVs of each view."""
+
+    field: TexelField
+    panel: str  # "object" | "texel" | "joint"
+
+
 class Sources:
     """Every channel of every objective, by name; typed select queries added on first use."""
 
-    def __init__(self, job: JobSpec, buffer: SensitivityBuffer, buffer_path: Path):
+    def __init__(
+        self,
+        job: JobSpec,
+        buffer: SensitivityBuffer,
+        buffer_path: Path,
+        fields: list[TexelField],
+    ):
         self.buffer = buffer
         specs = job.channels if any(c.kind == "object" for c in job.channels) else (
             OBJECTS, *job.channels
         )  # fmt: skip
         self.painted = {(v.objective, v.pass_name): v for v in channel_values(buffer, specs)}
         self.images = _stored_images(job, buffer, buffer_path)
+        self.texels = {
+            (f.objective, f"{f.channel.name}_{texture_token(f.record.key)}_{panel}"): TexelPanel(
+                f, panel
+            )
+            for f in fields
+            for panel in PANELS
+        }
 
     def names(self) -> list[str]:
         """Channel names in the order the job lists them, then the stored layers."""
         painted = dict.fromkeys(name for _, name in self.painted)
-        return [*painted, *dict.fromkeys(name for _, name in self.images)]
+        texels = dict.fromkeys(name for _, name in self.texels)
+        return [*painted, *texels, *dict.fromkeys(name for _, name in self.images)]
 
     def objective_only(self) -> list[str]:
         return list(dict.fromkeys(name for _, name in self.images))
 
-    def find(self, objective: str, channel: str) -> ChannelValues | StoredImage:
+    def find(self, objective: str, channel: str) -> ChannelValues | StoredImage | TexelPanel:
         self.buffer.objective(objective)  # UnknownNameError (HTTP 400) names the known ones
         if (objective, channel) in self.painted:
             return self.painted[(objective, channel)]
+        if (objective, channel) in self.texels:
+            return self.texels[(objective, channel)]
         if (objective, channel) in self.images:
             return self.images[(objective, channel)]
         if channel.startswith(SELECT_PREFIX):

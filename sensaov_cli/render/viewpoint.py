@@ -52,19 +52,32 @@ class ViewTracer:
         self.mi, self.scene, self.objects = mi, scene, objects
         self._table = mi.Int32(object_of_registry_id(mi, scene, objects))
 
-    def trace(self, pose: Pose, width: int, height: int, spp: int, seed: int = 0) -> VisibilityPass:
-        """``spp`` rays per pixel (stratified, jittered; the pixel centre at 1 spp)."""
+    def trace(
+        self, pose: Pose, width: int, height: int, spp: int, seed: int = 0, *, with_uv: bool = False
+    ) -> VisibilityPass:
+        """``spp`` rays per pixel (stratified, jittered; the pixel centre at 1 spp), with each
+        sample's object and hit UV when ``with_uv`` (texel channels read them)."""
         import drjit as dr
 
         with dr.suspend_grad():
             ray = self._rays(pose, width, height, spp, seed)
-            index = self._object_index(self.scene.ray_intersect(ray))
+            si = self.scene.ray_intersect(ray)
+            index = self._object_index(si)
+            if with_uv:  # one kernel for both: converting them apart would trace twice
+                dr.eval(index, si.uv)
             samples = np.array(index, dtype=np.int32)
+            uv = np.stack([np.array(si.uv.x), np.array(si.uv.y)], axis=1) if with_uv else None
         coverage = histogram(samples.reshape(height * width, spp))
         rank_index, rank_coverage = ranked(coverage, (height, width), spp)
+        sample_uv = sample_object = None
+        if uv is not None:
+            uv[samples == BACKGROUND] = 0.0
+            sample_uv = uv.astype(np.float32).reshape(height, width, spp, 2)
+            sample_object = samples.reshape(height, width, spp)
         return VisibilityPass(
-            width, height, spp, self.objects, None, coverage, rank_index, rank_coverage
-        )
+            width, height, spp, self.objects, sample_uv, coverage, rank_index, rank_coverage,
+            sample_object,
+        )  # fmt: skip
 
     def hit(self, pose: Pose, width: int, height: int, x: int, y: int) -> Hit:
         """The ray through the centre of pixel (x, y): the object there, the point and distance."""

@@ -11,6 +11,8 @@ a value that this view does not see, and the keys behind both.
 
 from __future__ import annotations
 
+import json
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -19,6 +21,8 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.encoding import Encoding, Scale, encode_image, signed_object_values
+from sensaov_cli.views.texel_fields import TexelField
+from sensaov_cli.views.texel_passes import texel_passes, texture_footprint
 from sensaov_cli.views.view_scales import job_shared_scale, peak_of, value_at, view_own_scale
 
 SCALE_MODES = ("shared", "view")
@@ -131,3 +135,52 @@ def paint_image(
 def _nearest(source: int, target: int) -> np.ndarray:
     """For each of ``target`` pixels, the ``source`` pixel its centre falls in."""
     return np.minimum((np.arange(target) + 0.5) * source / target, source - 1).astype(np.intp)
+
+
+def paint_texel(
+    field: TexelField, panel: str, visibility: VisibilityPass, look: Look
+) -> InspectionView:
+    """One of Fig. 4's panels of a texel field (``object``, ``texel``, ``joint``) in this view.
+
+    The panel keeps its channel's own encoding (``sensaov project`` writes the same layer);
+    the page's scale choice sets where its colours saturate: the view's own peak, or the
+    panel's camera-independent one (the object values' peak, the whole field's, or 1 for the
+    joint panel, which is a share of its object's value).
+    """
+    (shown,) = [p for p in texel_passes(field, visibility, texture_footprint(field, visibility))
+                if p.panel == panel]  # fmt: skip
+    data = shown.data.sum(axis=2) if shown.data.ndim == 3 else shown.data
+    if look.scale == "view":
+        scale = Scale(shown.scale.threshold, shown.preview_scale)
+    else:
+        scale = _panel_scale(field, panel, shown.scale)
+    display = np.clip(np.asarray(data, np.float64) / scale.scale, -1.0, 1.0)
+    tonemap = "none" if shown.scale.threshold == 0.0 else "log"
+    legend = Legend(
+        encoding=f"{shown.metadata['encoding']} (fixed by the job's texel channel)",
+        scale_mode=look.scale,
+        scale=scale,
+        peak=peak_of(scale, tonemap),
+        stops=tuple((p, value_at(p, scale, tonemap)) for p in LEGEND_STOPS),
+        unverified=tuple(json.loads(shown.metadata["unverified"])),
+        invisible=(),
+    )
+    doubt = float(bool(legend.unverified))
+    mask = visibility.paint(np.array([doubt if o in field.record.owners else 0.0
+                                      for o in visibility.objects]))  # fmt: skip
+    return InspectionView(
+        data.astype(np.float32), display.astype(np.float32), visibility.coverage_hit, mask, legend
+    )
+
+
+def _panel_scale(field: TexelField, panel: str, encoded: Scale) -> Scale:
+    """The panel's scale whatever the camera sees, in the units its data are encoded in."""
+    if panel == "joint":
+        return Scale(0.0, 1.0)
+    if panel == "object":
+        peak = max((abs(v) for v in field.object_values.values()), default=0.0)
+        return Scale(0.0, peak or 1.0)
+    summed = float(np.abs(field.pooled.sum(axis=2)).max()) if field.pooled.size else 0.0
+    if encoded.threshold > 0.0:  # the panel's log tone map, around the threshold it was made with
+        summed = math.log10(1.0 + summed / encoded.threshold)
+    return Scale(encoded.threshold, (summed / encoded.scale) or 1.0)
