@@ -70,7 +70,8 @@ def _measure(
     first = progress.timings["warm_s"]  # the kernel compilation a fresh process pays once
     loaded = session.loaded
     sensor = loaded.inspection_sensors["fixed"]
-    server = ViewServer(("127.0.0.1", 0), session, lambda text: None, None)
+    server = ViewServer(("127.0.0.1", 0), lambda text: None, None)
+    server.attach(session)
     thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05})
     thread.start()
     try:

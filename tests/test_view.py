@@ -13,6 +13,7 @@ import json
 import math
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -30,7 +31,7 @@ import yaml
 
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import per_object
-from sensaov_cli.errors import EXIT_TERMINATED, RequestError
+from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED, RequestError
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.pipeline.view import ViewSession, open_session
 from sensaov_cli.pipeline.view_query import single_values, view_request
@@ -75,7 +76,8 @@ def session(small_job: Path) -> ViewSession:
 @pytest.fixture(scope="module")
 def server(session: ViewSession) -> Iterator[ViewServer]:
     saved: list[str] = []
-    running = ViewServer(("127.0.0.1", 0), session, saved.append, None)
+    running = ViewServer(("127.0.0.1", 0), saved.append, None)
+    running.attach(session)
     thread = threading.Thread(target=running.serve_forever, kwargs={"poll_interval": 0.05})
     thread.start()
     yield running
@@ -172,6 +174,40 @@ def test_view_command_serves_meta_two_views_and_a_pick_then_stops(small_job: Pat
         if process.poll() is None:
             process.kill()
             process.wait()
+
+
+def test_ctrl_c_stops_the_server_with_130(small_job: Path) -> None:
+    process = subprocess.Popen(
+        [sys.executable, "-m", "sensaov_cli", "view", str(small_job), "--port", "0", "-q"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert process.stdout is not None
+    url = process.stdout.readline().strip()
+    assert get(url + "api/meta")[0] == 200
+    process.send_signal(signal.SIGINT)
+    start = time.monotonic()
+    _, err = process.communicate(timeout=30)
+    assert time.monotonic() - start < STOP_BOUND_S and process.returncode == EXIT_INTERRUPTED
+    assert err.strip().splitlines() == ["sensaov: error: stopped by SIGINT; no output was replaced"]
+
+
+def test_a_taken_port_and_a_missing_buffer_are_one_line_of_bad_input(
+    small_job: Path, tmp_path: Path
+) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = sensaov("view", str(small_job), "--port", str(port))
+    assert result.returncode == EXIT_BAD_INPUT and result.stdout == ""
+    assert result.stderr.splitlines() == [
+        f"sensaov: error: cannot listen on 127.0.0.1:{port}: Address already in use (choose "
+        "another --port (0 picks a free one)); no output was replaced"
+    ]
+    missing = tmp_path / "none.npz"
+    result = sensaov("view", str(small_job), "--port", "0", "--buffer", str(missing))
+    assert result.returncode == EXIT_BAD_INPUT
+    assert len(result.stderr.splitlines()) == 1 and str(missing) in result.stderr
 
 
 def test_a_view_paints_the_buffer_values_and_a_pick_lists_the_gradients(

@@ -67,12 +67,20 @@ def view(
       curl -o v.png 'http://127.0.0.1:8765/api/view?channel=objects&origin=2,1,3'
     """
     from sensaov_cli.pipeline.view import open_session
-    from sensaov_cli.pipeline.view_server import serve
+    from sensaov_cli.pipeline.view_server import listen, serve
     from sensaov_cli.progress import Progress
     from sensaov_cli.spec.load import load_job
 
+    def printed(text: str) -> None:  # a saved camera's YAML, on stdout as it is saved
+        click.echo(text, nl=False)
+        sys.stdout.flush()
+
+    def log(line: str) -> None:
+        click.echo(f"sensaov view: {line}", err=True)
+
     spec = load_job(job)
     progress = Progress(quiet=quiet)
+    server = listen(host, port, on_save=printed, log=log if log_requests else None)
     session = open_session(
         spec, buffer_path=buffer_path or spec.output / "buffer.npz", force=force, progress=progress
     )
@@ -85,18 +93,4 @@ def view(
 
             webbrowser.open(url)
 
-    def printed(text: str) -> None:  # a saved camera's YAML, on stdout as it is saved
-        click.echo(text, nl=False)
-        sys.stdout.flush()
-
-    def log(line: str) -> None:
-        click.echo(f"sensaov view: {line}", err=True)
-
-    serve(
-        session,
-        host,
-        port,
-        ready=ready,
-        on_save=printed,
-        log=log if log_requests else None,
-    )
+    serve(server, session, ready=ready)

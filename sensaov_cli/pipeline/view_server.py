@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
@@ -33,13 +34,25 @@ class ViewServer(ThreadingHTTPServer):
     def __init__(
         self,
         address: tuple[str, int],
-        session: ViewSession,
         on_save: Callable[[str], None],
         log: Callable[[str], None] | None,
     ):
-        self.session, self.on_save, self.log = session, on_save, log
-        self.inputs = (*session.job.input_files(), *session.loaded.prepared.files)
+        self.on_save, self.log = on_save, log
+        self._session: ViewSession | None = None
+        self.inputs: tuple[Path, ...] = ()
         super().__init__(address, _Handler)
+
+    @property
+    def session(self) -> ViewSession:
+        if self._session is None:
+            raise RuntimeError("the server answers once a session is attached")
+        return self._session
+
+    def attach(self, session: ViewSession) -> None:
+        """Answer from ``session`` (the server listens before the scene loads: a taken port
+        is reported at once, not after the load)."""
+        self._session = session
+        self.inputs = (*session.job.input_files(), *session.loaded.prepared.files)
 
     @property
     def url(self) -> str:
@@ -140,23 +153,26 @@ def _refuse(status: int, reason: str) -> Answer:
     return Answer(line.encode(), "text/plain; charset=utf-8", {"status": str(status)})
 
 
-def serve(
-    session: ViewSession,
+def listen(
     host: str,
     port: int,
     *,
-    ready: Callable[[str], None],
     on_save: Callable[[str], None],
     log: Callable[[str], None] | None = None,
-) -> None:
-    """Serve until the main thread is interrupted; ``ready`` gets the URL once listening."""
+) -> ViewServer:
+    """Bind ``host:port`` (0: any free port) or say why not; requests wait for :func:`serve`."""
     try:
-        server = ViewServer((host, port), session, on_save, log)
+        return ViewServer((host, port), on_save, log)
     except OSError as error:
         raise ServerError(
             f"cannot listen on {host}:{port}: {error.strerror or error}",
             hint="choose another --port (0 picks a free one)",
         ) from None
+
+
+def serve(server: ViewServer, session: ViewSession, *, ready: Callable[[str], None]) -> None:
+    """Answer from ``session`` until the main thread is interrupted; ``ready`` gets the URL."""
+    server.attach(session)
     try:
         ready(server.url)
         server.serve_forever(poll_interval=0.2)
