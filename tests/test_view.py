@@ -282,6 +282,9 @@ def test_forward_layers_are_served_at_the_objective_camera_only(server: ViewServ
     assert status == 200
     legend = json.loads(headers["X-Sensaov-Legend"])
     assert legend["scale_mode"] == "image" and legend["peak"] > 0
+    status, headers, _ = get(server.url + "api/view?channel=transport_green_wall&width=32")
+    (note,) = json.loads(headers["X-Sensaov-Legend"])["notes"]
+    assert status == 200 and note.startswith("duality residual") and note.endswith("agrees")
 
 
 def test_a_texel_field_is_painted_through_the_hit_uvs_of_a_new_viewpoint(

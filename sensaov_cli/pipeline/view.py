@@ -202,7 +202,9 @@ class ViewSession:
                     "viewpoint (paper §7)",
                     hint="ask for it with the objective camera (leave origin, target, up, fov out)",
                 )
-            return visibility, paint_image(source.data, visibility, request.look, source.unverified)
+            notes = (source.note,) if source.note else ()
+            shown = paint_image(source.data, visibility, request.look, source.unverified, notes)
+            return visibility, shown
         return visibility, paint_view(self.buffer, source, visibility, request.look)
 
     def visibility(self, request: ViewRequest, with_uv: bool = False) -> VisibilityPass:
@@ -331,6 +333,7 @@ def _legend_json(shown: InspectionView) -> dict[str, Any]:
         "stops": [list(stop) for stop in legend.stops],
         "unverified": list(legend.unverified),
         "invisible": list(legend.invisible),
+        "notes": list(legend.notes),
     }
 
 

@@ -62,18 +62,17 @@ class Sources:
         fields: list[TexelField],
     ):
         self.buffer = buffer
-        specs = job.channels if any(c.kind == "object" for c in job.channels) else (
-            OBJECTS, *job.channels
-        )  # fmt: skip
+        has_objects = any(c.kind == "object" for c in job.channels)
+        specs = job.channels if has_objects else (OBJECTS, *job.channels)
         self.painted = {(v.objective, v.pass_name): v for v in channel_values(buffer, specs)}
         self.images = _stored_images(job, buffer, buffer_path)
         self.texels = {
-            (f.objective, f"{f.channel.name}_{texture_token(f.record.key)}_{panel}"): TexelPanel(
-                f, panel
+            (f.objective, f"{f.channel.name}_{texture_token(f.record.key)}_{panel}"): (
+                TexelPanel(f, panel)
             )
             for f in fields
             for panel in PANELS
-        }
+        }  # the names project gives these layers
 
     def names(self) -> list[str]:
         """Channel names in the order the job lists them, then the stored layers."""

@@ -55,6 +55,7 @@ class Legend:
     stops: tuple[tuple[float, float], ...]  # (position in [-1, 1], value there)
     unverified: tuple[str, ...]  # keys of the channel whose gradient is not verified
     invisible: tuple[str, ...]  # objects with a non-zero value that this view does not see
+    notes: tuple[str, ...] = ()  # what else the layer says about itself (a duality check)
 
 
 @dataclass(frozen=True)
@@ -104,7 +105,11 @@ def unverified_objects(buffer: SensitivityBuffer, values: ChannelValues) -> froz
 
 
 def paint_image(
-    image: np.ndarray, visibility: VisibilityPass, look: Look, unverified: tuple[str, ...]
+    image: np.ndarray,
+    visibility: VisibilityPass,
+    look: Look,
+    unverified: tuple[str, ...],
+    notes: tuple[str, ...] = (),
 ) -> InspectionView:
     """A stored image of the objective camera (a forward or transport layer), resampled to
     ``visibility``'s size (nearest pixel) and encoded as ``look`` asks; both scales are the
@@ -126,6 +131,7 @@ def paint_image(
         stops=tuple((p, value_at(p, scale, tonemap)) for p in LEGEND_STOPS),
         unverified=unverified,
         invisible=(),
+        notes=notes,
     )
     full = np.ones_like(display)
     doubt = full if unverified else np.zeros_like(display)
@@ -164,6 +170,7 @@ def paint_texel(
         stops=tuple((p, value_at(p, scale, tonemap)) for p in LEGEND_STOPS),
         unverified=tuple(json.loads(shown.metadata["unverified"])),
         invisible=(),
+        notes=tuple(filter(None, shown.metadata["notes"].split(" | "))),
     )
     doubt = float(bool(legend.unverified))
     mask = visibility.paint(np.array([doubt if o in field.record.owners else 0.0
