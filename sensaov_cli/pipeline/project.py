@@ -64,7 +64,7 @@ def project_job(
     buffer = read_buffer(buffer_path)
     chosen = _cameras(job, tuple(dict.fromkeys(cameras)))  # a camera named twice renders once
     prepared = prepare_scene(job, tuple(chosen))
-    _check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
+    check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
     texel_folder = ["textures/"] if any(c.kind == "texel" for c in job.channels) else []
     folders = texel_folder + ["previews/"] * png
     check_writable(job.output, [f"{camera.name}.exr" for camera in chosen] + folders)
@@ -79,7 +79,7 @@ def project_job(
     project_texels.check_texel_channels(job, buffer)
     with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
-    _check_objects(buffer, loaded, buffer_path)
+    check_objects(buffer, loaded, buffer_path)
     _check_views(job, chosen, loaded, bool(forward))  # before the first view writes a file
     texels = project_texels.project_fields(job, buffer, loaded, buffer_path, progress)
     views = []
@@ -111,7 +111,7 @@ def _check_views(
         )
 
 
-def _check_fingerprint(
+def check_fingerprint(
     job: JobSpec, buffer: SensitivityBuffer, path: Path, fingerprint: str, force: bool
 ) -> None:
     if buffer.provenance.get("scene_fingerprint") != fingerprint and not force:
@@ -122,7 +122,7 @@ def _check_fingerprint(
         )
 
 
-def _check_objects(buffer: SensitivityBuffer, loaded: LoadedScene, path: Path) -> None:
+def check_objects(buffer: SensitivityBuffer, loaded: LoadedScene, path: Path) -> None:
     missing = sorted(set(buffer.objects) - set(loaded.objects))
     if missing:
         raise FingerprintMismatch(

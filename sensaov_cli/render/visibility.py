@@ -71,7 +71,7 @@ def trace(
     """
     size = sensor.film().crop_size()
     width, height = int(size[0]), int(size[1])
-    table = mi.Int32(_object_of_registry_id(mi, scene, objects))
+    table = mi.Int32(object_of_registry_id(mi, scene, objects))
     samples = np.empty(width * height * spp, np.int32)
     uv = np.empty((samples.size, 2), np.float32) if with_uv else None
     for span in sample_spans(samples.size, spp):
@@ -129,7 +129,7 @@ def _trace_span(
             uv[:, 0], uv[:, 1] = np.array(si.uv.x), np.array(si.uv.y)
 
 
-def _object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> np.ndarray:
+def object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> np.ndarray:
     """A table from shape registry id (what a hit reports) to object index in ``objects``."""
     import drjit as dr
 
