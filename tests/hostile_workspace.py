@@ -283,6 +283,7 @@ def _then(*steps: Callable[[Path], object], args: list[str]) -> Callable[[Path],
 
 BUFFER = "out/buffer.npz"
 RANK = ["rank", BUFFER]
+VIEW = ["view", "-q", "job.yaml", "--port", "0"]  # refused before it serves
 
 # By the classes; "(new)" marks the cases this round invented beyond the text.
 HOSTILE = [
@@ -398,6 +399,17 @@ HOSTILE = [
             args=["validate", "huge.yaml"],
         ),
     ),
+    Hostile(
+        "view: texture is a FIFO (new)",
+        _then(lambda ws: fifo(ws / "scene" / "textures" / "wall.png"), args=VIEW),
+        timeout=20,
+    ),
+    Hostile(
+        "view: the buffer is a FIFO (new)",
+        _then(lambda ws: fifo(ws / BUFFER), args=VIEW),
+        timeout=20,
+    ),
+    Hostile("view: --buffer is a directory (new)", lambda ws: [*VIEW, "--buffer", "scene"]),
     # 6. closed pipes: refused before any work
     Hostile("rank with stdout closed", lambda ws: list(RANK), stdout="closed"),
     Hostile("schema with stdout closed", lambda ws: ["schema"], stdout="closed"),
@@ -407,6 +419,7 @@ HOSTILE = [
     Hostile(
         "rank --json into a pipe nobody reads (new)", lambda ws: [*RANK, "--json"], stdout="gone"
     ),
+    Hostile("view with stdout closed (new)", lambda ws: list(VIEW), stdout="closed"),
     # 7. output folders that lead nowhere
     Hostile(
         "output folder is a dangling link",

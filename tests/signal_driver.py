@@ -8,7 +8,7 @@ POINT is where the signal is sent from:
                 thread, so the signal lands in the middle of the stage's work (a kernel);
   write:N       inside the N-th output file's writer (counting from 1), after it wrote a part;
   rename        just before the first rename of a set of outputs (signals are held there).
-SIGNAL is TERM, INT or KILL. The CLOCK_MONOTONIC time the signal was sent is written to STAMP,
+SIGNAL is TERM, INT, HUP or KILL. The CLOCK_MONOTONIC time the signal was sent is written to STAMP,
 so the test can measure how long the process took to exit after it.
 """
 
@@ -33,7 +33,12 @@ from sensaov_cli.cli import main  # noqa: E402
 from sensaov_cli.progress import Progress  # noqa: E402
 
 POINT, SIGNAL, DELAY, STAMP = sys.argv[1], sys.argv[2], float(sys.argv[3]), Path(sys.argv[4])
-SIGNUM = {"TERM": signal.SIGTERM, "INT": signal.SIGINT, "KILL": signal.SIGKILL}[SIGNAL]
+SIGNUM = {
+    "TERM": signal.SIGTERM,
+    "INT": signal.SIGINT,
+    "HUP": signal.SIGHUP,
+    "KILL": signal.SIGKILL,
+}[SIGNAL]
 
 
 def send() -> None:

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from sensaov_cli.buffer.npz import read_buffer
-from sensaov_cli.errors import EXIT_INTERRUPTED, EXIT_TERMINATED
+from sensaov_cli.errors import EXIT_HANGUP, EXIT_INTERRUPTED, EXIT_TERMINATED
 from sensaov_cli.outputs.atomic import TEMPORARY_SUFFIX
 from sensaov_cli.outputs.exr import read_exr
 
@@ -102,7 +102,7 @@ def check_outcome(
         assert result.returncode == -signal.SIGKILL
         return changed
     assert not temporaries, temporaries
-    code = EXIT_TERMINATED if sig == "TERM" else EXIT_INTERRUPTED
+    code = {"TERM": EXIT_TERMINATED, "INT": EXIT_INTERRUPTED, "HUP": EXIT_HANGUP}[sig]
     assert result.returncode == code, result.stderr
     assert "Traceback" not in result.stderr
     line = result.stderr.strip()
@@ -128,6 +128,8 @@ RUN_CASES = [
     ("stage:primal_s", "TERM", 0.005, set()),
     ("stage:backward_", "TERM", 0.005, set()),
     ("stage:backward_", "INT", 0.005, set()),
+    ("stage:backward_", "HUP", 0.005, set()),  # a closed terminal: a stop like the others
+    ("rename", "HUP", 0.0, {"buffer.npz", "primal.exr"}),
     ("write:1", "TERM", 0.0, set()),  # the buffer half written
     ("write:2", "TERM", 0.0, set()),  # the buffer complete, the primal EXR half written
     ("rename", "TERM", 0.0, {"buffer.npz", "primal.exr"}),  # both renamed together
@@ -152,6 +154,7 @@ def test_run_stopped(
 PROJECT_CASES = [
     ("stage:load_s", "TERM", 0.05, set()),
     ("stage:view_", "TERM", 0.005, set()),
+    ("stage:view_", "HUP", 0.005, set()),
     ("write:1", "TERM", 0.0, set()),  # the camera's EXR half written
     ("write:3", "TERM", 0.0, {"objective.exr", "previews/objective/mean_luma.objects.png"}),
     ("rename", "TERM", 0.0, {"objective.exr"}),
@@ -225,3 +228,56 @@ def test_sigterm_during_a_long_backward_pass_ends_within_one_sub_pass(tmp_path: 
     assert process.returncode == EXIT_TERMINATED, rest
     assert waited < TERM_BOUND_S, f"{waited:.2f} s from SIGTERM to exit"
     assert not (job.parent / "out").exists() or not list((job.parent / "out").iterdir())
+
+
+def test_sigterm_at_random_points_of_a_large_view(tmp_path: Path) -> None:
+    """``project`` on a 512² camera at 64 visibility spp (16.7 M samples: ~2 s of tracing in
+    one launch before the pass was split), SIGTERM at 10 random points between the start of
+    the scene load and the end of the view: exit 143 within 1 s of the signal each time."""
+    job = write_job(tmp_path, render={**RENDER, "spp": 2}, inspection_cameras=[LARGE_CAMERA])
+    assert sensaov("run", "-q", str(job)).returncode == 0
+    process = _project_loading(job)
+    started = time.perf_counter()
+    _, whole = process.communicate(timeout=120)
+    assert process.returncode == 0, whole
+    window = time.perf_counter() - started  # the load, both views and the writes
+    waits, codes = [], []
+    for delay in np.random.default_rng(21).uniform(0.0, 0.8 * window, 10):
+        process = _project_loading(job)
+        time.sleep(delay)
+        sent = time.perf_counter()
+        process.send_signal(signal.SIGTERM)
+        _, rest = process.communicate(timeout=60)
+        waits.append(time.perf_counter() - sent)
+        codes.append(process.returncode)
+        assert rest.strip().splitlines()[-1].startswith("sensaov: error: stopped by SIGTERM"), rest
+    print(f"window {window:.2f} s; SIGTERM to exit: {', '.join(f'{w:.2f}' for w in waits)} s")
+    assert codes == [EXIT_TERMINATED] * 10, codes
+    assert max(waits) < LARGE_VIEW_BOUND_S, waits
+
+
+def _project_loading(job: Path) -> subprocess.Popen[str]:
+    """``project`` started and past the moment its scene load began (read from its stderr)."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "sensaov_cli", "project", str(job)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    assert process.stderr is not None
+    seen = ""
+    while "loading" not in seen:
+        char = process.stderr.read(1)
+        assert char, seen  # it ended before the scene load
+        seen += char
+    return process
+
+
+LARGE_VIEW_BOUND_S = 1.0  # the issue's acceptance bound
+LARGE_CAMERA = {
+    "name": "big",
+    "look_at": {"origin": [0, 0, 3.9], "target": [0, 0, 0], "up": [0, 1, 0]},
+    "resolution": [512, 512],
+    "vis_spp": 64,
+}

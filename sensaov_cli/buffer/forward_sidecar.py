@@ -22,6 +22,7 @@ import numpy as np
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import archive_writer
 from sensaov_cli.errors import BufferFormatError, FingerprintMismatch
+from sensaov_cli.limits import regular_file
 
 FORMAT_NAME = "sensaov-forward"
 FORMAT_VERSION = 1
@@ -124,6 +125,7 @@ def _pass_json(p: ForwardPass) -> dict[str, Any]:
 
 def read_forward(path: Path) -> ForwardData:
     """Read a sidecar; any defect is one :class:`BufferFormatError` line (exit 2)."""
+    regular_file(path, "forward sidecar", error=BufferFormatError)  # a FIFO would block np.load
     try:
         with np.load(path, allow_pickle=False) as npz:
             header = json.loads(str(npz[HEADER][()]))

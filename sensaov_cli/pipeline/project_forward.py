@@ -37,7 +37,7 @@ def projected_layers(
         )
         return []
     path = buffer_path.with_name(FORWARD_NAME)
-    if not path.is_file():
+    if not path.exists():  # a FIFO or a folder there is refused by read_forward, by name
         raise SpecError(
             f"the job asks for forward channels but {path.name} is missing",
             where=str(path),

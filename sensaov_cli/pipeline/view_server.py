@@ -19,6 +19,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from sensaov_cli.errors import SensaovError, ServerError
 from sensaov_cli.outputs.view_page import page_html
+from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.pipeline.view import Answer, ViewSession
 from sensaov_cli.pipeline.view_query import VIEW_KEYS, single_values
 from sensaov_cli.pipeline.view_save import save_viewpoint, viewpoint_yaml
@@ -52,7 +53,13 @@ class ViewServer(ThreadingHTTPServer):
         """Answer from ``session`` (the server listens before the scene loads: a taken port
         is reported at once, not after the load)."""
         self._session = session
-        self.inputs = (*session.job.input_files(), *session.loaded.prepared.files)
+        buffer = session.buffer_path  # a saved camera never replaces the buffer or its sidecar
+        self.inputs = (
+            *session.job.input_files(),
+            *session.loaded.prepared.files,
+            buffer,
+            buffer.with_name(FORWARD_NAME),
+        )
 
     @property
     def url(self) -> str:

@@ -117,7 +117,7 @@ def _stored_images(
 ) -> dict[tuple[str, str], StoredImage]:
     """The forward and transport layers of the sidecar, under every objective they apply to."""
     path = buffer_path.with_name(FORWARD_NAME)
-    if not job.wants_forward or not single_pass(buffer.provenance) or not path.is_file():
+    if not job.wants_forward or not single_pass(buffer.provenance) or not path.exists():
         return {}
     data = read_forward(path)
     check_belongs(data, buffer, path)
