@@ -431,3 +431,16 @@ def test_the_page_orbits_on_a_drag_and_shows_a_clicked_object(
     finally:
         browser.close()
     assert (shots / "view-orbited-picked.png").stat().st_size > 10_000
+
+
+def test_a_view_over_the_memory_budget_is_refused_before_tracing(
+    server: ViewServer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Width, height and spp come from a request: checked against the budget like a job's."""
+    monkeypatch.setenv("SENSAOV_MEMORY_BUDGET", "64M")
+    status, _, body = get(server.url + "api/view?width=2048&height=2048&spp=256")
+    assert status == 400
+    assert b"width x height = 2048x2048 at spp = 256" in body and b"memory budget" in body
+    assert len(body.decode().splitlines()) == 1
+    monkeypatch.delenv("SENSAOV_MEMORY_BUDGET")
+    assert get(server.url + "api/view?width=32")[0] == 200  # the server still answers

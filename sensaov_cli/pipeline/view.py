@@ -37,6 +37,7 @@ from sensaov_cli.pipeline.view_query import (
 from sensaov_cli.pipeline.view_sources import Sources, StoredImage, TexelPanel
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene, load_scene
+from sensaov_cli.render.memory import check_view
 from sensaov_cli.render.scene import prepare_scene
 from sensaov_cli.render.viewpoint import Pose, ViewTracer, scene_bounds, sensor_pose
 from sensaov_cli.spec.job import JobSpec
@@ -217,6 +218,10 @@ class ViewSession:
                     self._passes.move_to_end((*key, uv))
                     return self._passes[(*key, uv)]
             size = (request.width, request.height, request.spp)
+            check_view(  # a request is a stranger's numbers: refused (400) before allocating
+                request.width * request.height, request.spp, layers=1, texels=with_uv,
+                setting=f"width x height = {request.width}x{request.height} at spp = {request.spp}",
+            )  # fmt: skip
             traced = self.tracer.trace(request.pose, *size, with_uv=with_uv)
             self._passes[(*key, with_uv)] = traced
             while len(self._passes) > CACHED_PASSES:
