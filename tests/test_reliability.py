@@ -173,3 +173,29 @@ def test_a_forward_sidecar_that_is_a_fifo_is_refused_not_waited_on(tmp_path: Pat
     os.mkfifo(tmp_path / "forward.npz")
     with pytest.raises(BufferFormatError, match="FIFO"):
         read_forward(tmp_path / "forward.npz")
+
+
+@pytest.mark.parametrize("stderr", ["closed", "gone"])
+def test_a_closed_stderr_drops_progress_and_the_run_goes_on(tmp_path: Path, stderr: str) -> None:
+    """stderr is for people: closed (``2>&-``) or read by nobody, the work is still done."""
+    job = write_job(tmp_path, render=RENDER)
+    command = [sys.executable, "-m", "sensaov_cli", "run", "--progress", "farm", str(job)]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    if stderr == "closed":
+        done = subprocess.run(
+            ["sh", "-c", 'exec "$@" 2>&-', "sh", *command], capture_output=False,
+            stdout=subprocess.DEVNULL, env=env, timeout=300,
+        )  # fmt: skip
+    else:
+        reader, writer = os.pipe()
+        os.close(reader)
+        try:
+            done = subprocess.run(
+                command, stdout=subprocess.DEVNULL, stderr=writer, env=env, timeout=300
+            )
+        finally:
+            os.close(writer)
+    assert done.returncode == 0
+    assert (tmp_path / "out" / "buffer.npz").is_file()
+    assert (tmp_path / "out" / "primal.exr").is_file()
+    assert not list((tmp_path / "out").glob(".*.partial"))
