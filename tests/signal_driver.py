@@ -7,7 +7,9 @@ POINT is where the signal is sent from:
                 (load_s, primal_s, backward_, view_) fires after DELAY seconds, from another
                 thread, so the signal lands in the middle of the stage's work (a kernel);
   write:N       inside the N-th output file's writer (counting from 1), after it wrote a part;
-  rename        just before the first rename of a set of outputs (signals are held there).
+  rename        just before the first rename of a set of outputs (signals are held there);
+  written       just after the first set of outputs was renamed into place (the command is
+                finishing: printing what it wrote).
 SIGNAL is TERM, INT, HUP or KILL. The CLOCK_MONOTONIC time the signal was sent is written to STAMP,
 so the test can measure how long the process took to exit after it.
 """
@@ -93,12 +95,25 @@ def patch_rename() -> None:
     os.replace = replace  # type: ignore[assignment]
 
 
+def patch_written() -> None:
+    original = atomic.atomic_write_all
+
+    def write_all(files: list[tuple[Path, Callable[[Path], None]]]) -> None:
+        original(files)
+        send()
+
+    atomic.atomic_write_all = write_all  # type: ignore[assignment]
+    atomic.atomic_write = lambda path, write: write_all([(path, write)])  # type: ignore
+
+
 if POINT.startswith("stage:"):
     patch_stage(POINT.split(":", 1)[1])
 elif POINT.startswith("write:"):
     patch_write(int(POINT.split(":", 1)[1]))
 elif POINT == "rename":
     patch_rename()
+elif POINT == "written":
+    patch_written()
 else:
     raise SystemExit(f"unknown point {POINT!r}")
 main(args=sys.argv[5:], prog_name="sensaov")

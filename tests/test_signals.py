@@ -175,6 +175,24 @@ def test_project_stopped(
         assert replaced == expected, result.stderr
 
 
+@pytest.mark.parametrize("sig", ["TERM", "HUP"])
+def test_a_stop_just_after_the_report_was_written_still_says_so(
+    tmp_path: Path, previous: Path, sig: str
+) -> None:
+    """The report is whole and in place; the process still ends 143/129 with its one line,
+    which names the report (it used to die without a word)."""
+    result, after, delay_s = interrupted(tmp_path, previous, ["report"], "written", sig)
+    code = {"TERM": EXIT_TERMINATED, "HUP": EXIT_HANGUP}[sig]
+    report = tmp_path / "out" / "report.html"
+    assert result.returncode == code, result.stderr
+    line = result.stderr.strip()
+    assert "\n" not in line and line.startswith(f"sensaov: error: stopped by SIG{sig}"), line
+    assert line.endswith(f"; replaced: {report}; no other output was touched"), line
+    assert after["report.html"].rstrip().endswith(b"</html>")
+    assert not [name for name in after if name.endswith(TEMPORARY_SUFFIX)]
+    assert delay_s is not None and delay_s < TERM_BOUND_S
+
+
 @pytest.mark.parametrize("delay", [0.03, 0.08, 0.2])
 def test_sigterm_while_the_interpreter_imports(
     tmp_path: Path, previous: Path, delay: float
