@@ -299,3 +299,41 @@ LARGE_CAMERA = {
     "resolution": [512, 512],
     "vis_spp": 64,
 }
+
+
+@pytest.mark.parametrize(
+    ("command", "point", "job"),
+    [
+        (  # 128² x 128 spp: four forward sub-passes of 2^19 samples
+            ["run", "-q"],
+            "stage:forward_",
+            {
+                "render": {**RENDER, "spp": 128, "resolution": [128, 128]},
+                "forward": [{"name": "light", "object": "light"}],
+            },
+        ),
+        (  # the visibility pass with UVs that texel fields are painted through
+            ["project", "-q", "--beauty-spp", "1"],
+            "stage:view_big",
+            {
+                "inspection_cameras": [LARGE_CAMERA],
+                "channels": [{"name": "t", "kind": "texel"}],
+            },
+        ),
+    ],
+    ids=["forward", "texel"],
+)
+def test_sigterm_in_a_forward_or_texel_pass_ends_within_one_chunk(
+    tmp_path: Path, command: list[str], point: str, job: dict[str, object]
+) -> None:
+    path = write_job(tmp_path, **{"render": RENDER, **job})
+    if command[0] == "project":  # its buffer first
+        assert sensaov("run", "-q", str(path)).returncode == 0
+    stamp = tmp_path / "stamp"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    args = [sys.executable, str(DRIVER), point, "TERM", "0.3", str(stamp), *command, str(path)]
+    result = subprocess.run(args, capture_output=True, text=True, env=env, timeout=300)
+    waited = time.monotonic() - float(stamp.read_text())
+    assert result.returncode == EXIT_TERMINATED, result.stderr
+    assert result.stderr.startswith("sensaov: error: stopped by SIGTERM"), result.stderr
+    assert waited < LARGE_VIEW_BOUND_S, f"{waited:.2f} s from SIGTERM to exit"
