@@ -31,7 +31,13 @@ import yaml
 
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import per_object
-from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED, RequestError
+from sensaov_cli.errors import (
+    EXIT_BAD_INPUT,
+    EXIT_HANGUP,
+    EXIT_INTERRUPTED,
+    EXIT_TERMINATED,
+    RequestError,
+)
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.pipeline.view import ViewSession, open_session
 from sensaov_cli.pipeline.view_query import single_values, view_request
@@ -176,7 +182,12 @@ def test_view_command_serves_meta_two_views_and_a_pick_then_stops(small_job: Pat
             process.wait()
 
 
-def test_ctrl_c_stops_the_server_with_130(small_job: Path) -> None:
+@pytest.mark.parametrize(
+    ("sig", "code"), [(signal.SIGINT, EXIT_INTERRUPTED), (signal.SIGHUP, EXIT_HANGUP)]
+)
+def test_ctrl_c_or_a_closed_terminal_stops_the_server(
+    small_job: Path, sig: signal.Signals, code: int
+) -> None:
     process = subprocess.Popen(
         [sys.executable, "-m", "sensaov_cli", "view", str(small_job), "--port", "0", "-q"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -184,11 +195,12 @@ def test_ctrl_c_stops_the_server_with_130(small_job: Path) -> None:
     assert process.stdout is not None
     url = process.stdout.readline().strip()
     assert get(url + "api/meta")[0] == 200
-    process.send_signal(signal.SIGINT)
+    process.send_signal(sig)
     start = time.monotonic()
     _, err = process.communicate(timeout=30)
-    assert time.monotonic() - start < STOP_BOUND_S and process.returncode == EXIT_INTERRUPTED
-    assert err.strip().splitlines() == ["sensaov: error: stopped by SIGINT; no output was replaced"]
+    assert time.monotonic() - start < STOP_BOUND_S and process.returncode == code
+    line = f"sensaov: error: stopped by {sig.name}; no output was replaced"
+    assert err.strip().splitlines() == [line]
 
 
 def test_a_taken_port_and_a_missing_buffer_are_one_line_of_bad_input(
