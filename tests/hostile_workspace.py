@@ -302,6 +302,12 @@ HOSTILE = [
     Hostile("merge -o the scene XML", _merge_after(_shards_here, "scene/scene.xml"), timeout=90),
     Hostile("merge -o a shard", lambda ws: merge(ws, SHARD.format(2))),
     Hostile(
+        "merge -o the shards' job file (new)",
+        _merge_after(_shards_here, "job_shards.yaml"),
+        timeout=90,
+    ),
+    Hostile("sunburst -o the buffer", lambda ws: ["sunburst", BUFFER, "-o", BUFFER]),
+    Hostile(
         "sunburst -o a scene texture",
         _then(run_here, args=["sunburst", BUFFER, "-o", "scene/textures/wall.png"]),
     ),
@@ -448,6 +454,9 @@ HOSTILE = [
         "shard: count a float (new)", shard_edit(lambda p: p["task"]["shard"].update(count=2.0))
     ),
     Hostile("shard: spp 0", shard_edit(lambda p: p.update(spp=0))),
+    Hostile("shard: spp says twice its share (new)", shard_edit(lambda p: p.update(spp=2))),
+    Hostile("shard: spp 2^31 (new)", shard_edit(lambda p: p.update(spp=2**31))),
+    Hostile("shard: job_spp missing (new)", shard_edit(lambda p: p.pop("job_spp"))),
     Hostile("shard: no primal_seed (new)", shard_edit(lambda p: p.pop("primal_seed"))),
     Hostile("shard: task missing (new)", shard_edit(lambda p: p.pop("task"))),
     Hostile(

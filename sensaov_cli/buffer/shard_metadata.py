@@ -1,10 +1,11 @@
 """What ``merge`` relies on in a shard's provenance, checked where it is read.
 
 A shard is a buffer ``sensaov run --shard I/N`` wrote; its provenance says which shard it is
-(``task.shard.index`` of ``count``), how many samples it holds (``spp``), its seed
-(``primal_seed``), the job's objectives (``job.objectives``) and the image size
-(``resolution``). Those come from a file: a missing key, a string, a float, an index outside
-1..N or ``spp`` 0 would end in an internal error, or in a shard silently left out of the mean.
+(``task.shard.index`` of ``count``), how many samples it holds (``spp``, which over all shards
+adds up to the job's ``job_spp``), its seed (``primal_seed``), the job's objectives
+(``job.objectives``) and the image size (``resolution``). Those come from a file: a missing
+key, a string, a float, an index outside 1..N or ``spp`` 0 would end in an internal error, or
+in a shard silently left out of (or over-weighted in) the mean.
 Each is refused here (exit 2), naming the shard file and the key.
 """
 
@@ -31,6 +32,7 @@ def check_shard_metadata(path: Path, provenance: Mapping[str, Any]) -> None:
     count = _integer(path, shard, "count", "task.shard.count", 1, MAX_SHARDS)
     _integer(path, shard, "index", "task.shard.index", 1, count)
     _integer(path, provenance, "spp", "spp", 1, 2**32 - 1)
+    _integer(path, provenance, "job_spp", "job_spp", 1, 2**32 - 1)
     _integer(path, provenance, "primal_seed", "primal_seed", 0, 2**32 - 1)
     objectives = _field(path, _field(path, provenance, "job", dict), "objectives", list)
     names = [entry.get("name") if isinstance(entry, dict) else None for entry in objectives]

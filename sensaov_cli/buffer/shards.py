@@ -68,6 +68,7 @@ def merge_shards(shards: Sequence[Shard], current_version: int) -> SensitivityBu
         merged_values.append(values)
         spp.append(spps)
         seeds.append(int(by_index[index][0].buffer.provenance["primal_seed"]))
+    _check_spp_total(shards, sum(spp))
     keys = first.buffer.keys
     grads, objective_values, statistics = combine_batches(
         keys, first.buffer.values, merged_grads, merged_values, spp, seeds, "shards"
@@ -116,6 +117,19 @@ def _check_alike(shards: Sequence[Shard], current_version: int) -> None:
                 where=where,
             )
         _check_parameters(shard, first)
+
+
+def _check_spp_total(shards: Sequence[Shard], total: int) -> None:
+    """The shards split the job's render.spp between them (``batch_plan``): a shard that says
+    it holds more samples than it does would weigh more in the mean, silently."""
+    for shard in shards:
+        wanted = shard.buffer.provenance.get("job_spp")
+        if wanted != total:
+            raise MergeError(
+                f"the shards hold {total} spp in all, but their job's render.spp is {wanted}",
+                where=str(shard.path),
+                hint="a shard's provenance spp was changed, or shards of other runs are mixed",
+            )
 
 
 def _check_parameters(shard: Shard, first: Shard) -> None:
