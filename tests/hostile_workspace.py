@@ -480,6 +480,18 @@ HOSTILE = [
         _rank_exr(lambda s, t: exr_with_header(s, t, _manifest("[1, 2]"))),
     ),
     Hostile(
+        "manifest IDs that are no hash of their names (new)",
+        _rank_exr(lambda s, t: exr_with_header(s, t, _manifest('{"left_wall": "zzzzzzzz"}'))),
+    ),
+    Hostile(
+        "manifest: two names, one ID (new)",
+        _rank_exr(
+            lambda s, t: exr_with_header(
+                s, t, _manifest('{"left_wall": "3f800000", "floor": "3f800000"}')
+            )
+        ),
+    ),
+    Hostile(
         "Cryptomatte coverage channel missing (new)",
         _rank_exr(lambda s, t: exr_without(s, t, "CryptoObject00.G")),
     ),

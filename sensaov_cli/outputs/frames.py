@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.errors import CameraFileError, ExrError
-from sensaov_cli.outputs.cryptomatte import id_float
+from sensaov_cli.outputs.cryptomatte import id_float, id_hex
 from sensaov_cli.outputs.exr import read_exr
 
 OBJECT_TYPE = "CryptoObject"
@@ -80,5 +80,16 @@ def _manifest_names(manifest: Any, where: str) -> list[str]:
             f"the {OBJECT_TYPE} manifest is not a JSON object of names and IDs",
             where=where,
             hint="pass an inspection camera's EXR written by 'sensaov project'",
+        )
+    # Names are matched by their hash (MurmurHash3, as every Cryptomatte writer computes it):
+    # an ID that is not that hash means the file was damaged or names other objects, and the
+    # objects it lists as seen would be the wrong ones.
+    wrong = next((name for name, value in names.items() if value.lower() != id_hex(name)), None)
+    if wrong is not None:
+        raise CameraFileError(
+            f"the {OBJECT_TYPE} manifest gives {wrong[:60]!r} the ID {names[wrong][:20]!r}, "
+            f"not its Cryptomatte hash {id_hex(wrong)}",
+            where=where,
+            hint="the file is damaged: run 'sensaov project' again for this camera",
         )
     return list(names)
