@@ -302,7 +302,7 @@ LARGE_CAMERA = {
 
 
 @pytest.mark.parametrize(
-    ("command", "point", "job"),
+    ("command", "point", "job", "bound"),
     [
         (  # 128² x 128 spp: four forward sub-passes of 2^19 samples
             ["run", "-q"],
@@ -311,6 +311,7 @@ LARGE_CAMERA = {
                 "render": {**RENDER, "spp": 128, "resolution": [128, 128]},
                 "forward": [{"name": "light", "object": "light"}],
             },
+            TERM_BOUND_S,  # a forward sub-pass of 2^19 samples takes ~0.9 s on 2 cores
         ),
         (  # the visibility pass with UVs that texel fields are painted through
             ["project", "-q", "--beauty-spp", "1"],
@@ -319,13 +320,17 @@ LARGE_CAMERA = {
                 "inspection_cameras": [LARGE_CAMERA],
                 "channels": [{"name": "t", "kind": "texel"}],
             },
+            LARGE_VIEW_BOUND_S,
         ),
     ],
     ids=["forward", "texel"],
 )
 def test_sigterm_in_a_forward_or_texel_pass_ends_within_one_chunk(
-    tmp_path: Path, command: list[str], point: str, job: dict[str, object]
+    tmp_path: Path, command: list[str], point: str, job: dict[str, object], bound: float
 ) -> None:
+    """The stop lands 0.3 s into the pass and is acted on when the running launch returns:
+    a visibility chunk (tens of ms) or a forward sub-pass (measured 0.69 s after SIGTERM with
+    the machine shared, the sub-pass itself ~0.9 s: 1 s is not guaranteed there, 3 s is)."""
     path = write_job(tmp_path, **{"render": RENDER, **job})
     if command[0] == "project":  # its buffer first
         assert sensaov("run", "-q", str(path)).returncode == 0
@@ -336,4 +341,5 @@ def test_sigterm_in_a_forward_or_texel_pass_ends_within_one_chunk(
     waited = time.monotonic() - float(stamp.read_text())
     assert result.returncode == EXIT_TERMINATED, result.stderr
     assert result.stderr.startswith("sensaov: error: stopped by SIGTERM"), result.stderr
-    assert waited < LARGE_VIEW_BOUND_S, f"{waited:.2f} s from SIGTERM to exit"
+    print(f"{point}: {waited:.2f} s from SIGTERM to exit")
+    assert waited < bound, f"{waited:.2f} s from SIGTERM to exit"
