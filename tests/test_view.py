@@ -41,6 +41,7 @@ from sensaov_cli.errors import (
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.pipeline.view import ViewSession, open_session
 from sensaov_cli.pipeline.view_query import single_values, view_request
+from sensaov_cli.pipeline.view_save import copy_path
 from sensaov_cli.pipeline.view_server import ViewServer
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.viewpoint import Pose, ViewTracer, sensor_pose
@@ -456,3 +457,35 @@ def test_a_view_over_the_memory_budget_is_refused_before_tracing(
     assert len(body.decode().splitlines()) == 1
     monkeypatch.delenv("SENSAOV_MEMORY_BUDGET")
     assert get(server.url + "api/view?width=32")[0] == 200  # the server still answers
+
+
+@pytest.mark.parametrize(
+    "kind", ["link to the buffer", "link to the scene", "FIFO", "edited into no job"]
+)
+def test_a_save_never_replaces_an_input_or_opens_a_special_file(
+    server: ViewServer, session: ViewSession, kind: str
+) -> None:
+    """The job's copy is the one file the view writes: when its name leads to the buffer, a
+    scene file or a FIFO, the save is refused (400, one line) and nothing changes on disk."""
+    copy = copy_path(session.job)
+    kept = copy.with_name("kept.yaml")
+    if copy.exists():
+        copy.rename(kept)
+    targets = {"link to the buffer": session.buffer_path, "link to the scene": session.job.scene}
+    try:
+        if kind == "FIFO":
+            os.mkfifo(copy)
+        elif kind == "edited into no job":
+            copy.write_text("version: 1\nscene: [unclosed\n")
+        else:
+            copy.symlink_to(targets[kind])
+        before = {p: p.read_bytes() for p in targets.values()}
+        status, _, body = get(server.url + "api/camera?name=elsewhere", {"X-Sensaov": "1"}, "POST")
+        assert status == 400 and len(body.decode().splitlines()) == 1, body
+        expected = {"FIFO": b"not a regular file", "edited into no job": copy.name.encode()}
+        assert expected.get(kind, b"would replace") in body, body
+        assert {p: p.read_bytes() for p in targets.values()} == before
+    finally:
+        copy.unlink()
+        if kept.exists():
+            kept.rename(copy)

@@ -45,12 +45,16 @@ def save_viewpoint(
 ) -> Path:
     """Append the request's camera, named ``name``, to the job's copy; returns the copy."""
     copy = copy_path(job)
+    # Before the copy is read as the base of the next save: a copy that is a link to the
+    # buffer or a scene file, or a FIFO, is refused, never parsed or waited on.
+    refuse_unsafe_outputs(inputs, [copy], where=str(job.path))
+    check_writable(job.output, [copy.name])
     base = copy if copy.is_file() else job.path
+    if base == copy:  # a copy edited since into no job at all: refused at its line, not parsed
+        load_job(copy)
     problem = check_camera_name(name, camera_names(base))
     if problem is not None:
         raise RequestError(problem, hint="choose another name")
-    refuse_unsafe_outputs(inputs, [copy], where=str(job.path))
-    check_writable(job.output, [copy.name])
     text = job_copy_text(job, base, [viewpoint_camera(request, name)], copy, buffer)
 
     def write(tmp: Path) -> None:
