@@ -587,6 +587,11 @@ HOSTILE = [
         env={"SENSAOV_MEMORY_BUDGET": "16M"},
     ),
     Hostile(
+        "view over a small memory budget (new)",
+        lambda ws: list(VIEW),
+        env={"SENSAOV_MEMORY_BUDGET": "1M"},
+    ),
+    Hostile(
         "a memory budget that is not a size (new)",
         lambda ws: ["run", "-q", "job.yaml"],
         env={"SENSAOV_MEMORY_BUDGET": "banana"},

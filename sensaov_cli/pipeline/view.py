@@ -292,6 +292,10 @@ def open_session(
     session = ViewSession(job, buffer, buffer_path, loaded)
     with progress.stage("warm_s", "compiling the visibility kernel"):
         first = session.objective_camera
+        width, height = first.size
+        check_view(width * height, REST_SPP, layers=1, texels=False,
+                   setting=f"render.resolution = {width}x{height} (traced at {REST_SPP} spp)",
+                   where=str(job.path))  # fmt: skip
         for spp in (1, REST_SPP):  # the two kernels a page asks for, compiled before it asks
             session.tracer.trace(first.pose, first.size[0], first.size[1], spp)
     return session
