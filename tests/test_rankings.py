@@ -85,8 +85,12 @@ def runner(monkeypatch: pytest.MonkeyPatch) -> CliRunner:
     return CliRunner()
 
 
-def direct(path: Path, objective: str, by: str, method: str, weight: str) -> list[dict]:
-    """The ranking from the raw archive with plain numpy, as docs/rankings.md defines it."""
+def direct(
+    path: Path, objective: str, by: str, method: str, weight: str, part: str = "trusted"
+) -> list[dict]:
+    """The ranking from the raw archive with plain numpy, as docs/rankings.md defines it:
+    object and type rows of verified parameters (``part`` "trusted"), or of the others
+    ("untrusted", the left-out rows); key rows of every parameter a gradient flows to."""
     with np.load(path, allow_pickle=False) as npz:
         header = json.loads(str(npz["header"]))
         j = next(o["array"] for o in header["objectives"] if o["name"] == objective)
@@ -97,16 +101,17 @@ def direct(path: Path, objective: str, by: str, method: str, weight: str) -> lis
             value = npz[f"value_{p['array']:06d}"].astype(np.float64).ravel()
             c[p["key"]] = grad * value if weight == "value" else grad
             c[p["key"] + "/mean"] = value.mean()
+    total_sq = sum(float(c[k] @ c[k]) for k in (p["key"] for p in params))
     if by == "key":
         groups = {p["key"]: [p["key"]] for p in params}
     else:
+        chosen = [p for p in params if (p["trust"] == "verified") == (part == "trusted")]
         field = "owners" if by == "object" else "type"
-        names = sorted({n for p in params for n in (p[field] if by == "object" else [p[field]])})
+        names = sorted({n for p in chosen for n in (p[field] if by == "object" else [p[field]])})
         groups = {
-            n: [p["key"] for p in params if n in (p[field] if by == "object" else [p[field]])]
+            n: [p["key"] for p in chosen if n in (p[field] if by == "object" else [p[field]])]
             for n in names
         }
-    total_sq = sum(float(c[k] @ c[k]) for k in (p["key"] for p in params))
     rows = []
     for name, keys in groups.items():
         allc = np.concatenate([c[k] for k in keys])
@@ -137,17 +142,23 @@ def test_rank_json_agrees_with_the_raw_arrays(
     assert result.exit_code == 0, result.output
     doc = json.loads(result.output)
     assert doc["format"] == "sensaov-ranking" and doc["columns"] == list(COLUMNS)
+    assert doc["format_version"] == 3
     for objective in doc["objectives"]:
-        expected = direct(buffer_path, objective["name"], by, method, weight)
-        rows = objective["rows"]
-        assert [r["name"] for r in rows] == [e["name"] for e in expected]
-        for row, want in zip(rows, expected, strict=True):
-            for column in ("score", "signed", "share"):
-                assert row[column] == pytest.approx(want[column], rel=1e-9, abs=1e-12)
-            assert row["value"] == (None if want["value"] is None else pytest.approx(want["value"]))
-            assert row["sign"] == ("+" if row["signed"] > 0 else "-")
+        for part, rows in (("trusted", objective["rows"]), ("untrusted", objective["left_out"])):
+            expected = direct(buffer_path, objective["name"], by, method, weight, part)
+            if by == "key" and part == "untrusted":
+                expected = []  # a key is its own row, marked: nothing is left out of it
+            assert [r["name"] for r in rows] == [e["name"] for e in expected]
+            for row, want in zip(rows, expected, strict=True):
+                for column in ("score", "signed", "share"):
+                    assert row[column] == pytest.approx(want[column], rel=1e-9, abs=1e-12)
+                assert row["value"] == (
+                    None if want["value"] is None else pytest.approx(want["value"])
+                )
+                assert row["sign"] == ("+" if row["signed"] > 0 else "-")
+                assert row["part"] == ("all" if by == "key" else part)
         assert [p["key"] for p in objective["no_gradient"]] == ["glass.eta"]
-        assert "ball" not in {r["name"] for r in rows}  # all its parameters are no_gradient
+        assert "ball" not in {r["name"] for r in objective["rows"]}  # only no_gradient there
 
 
 def test_shares_of_keys_and_of_types_add_up_to_one(runner: CliRunner, buffer_path: Path) -> None:
@@ -156,7 +167,8 @@ def test_shares_of_keys_and_of_types_add_up_to_one(runner: CliRunner, buffer_pat
             main, ["rank", str(buffer_path), "--by", by, "--json", "--top", "99"]
         )
         for objective in json.loads(result.output)["objectives"]:
-            assert sum(r["share"] for r in objective["rows"]) == pytest.approx(1.0)
+            rows = objective["rows"] + objective["left_out"]  # types: trusted and left out
+            assert sum(r["share"] for r in rows) == pytest.approx(1.0)
 
 
 def test_csv_carries_the_json_columns_and_numbers(runner: CliRunner, buffer_path: Path) -> None:
@@ -172,11 +184,19 @@ def test_csv_carries_the_json_columns_and_numbers(runner: CliRunner, buffer_path
 
 
 def test_text_marks_trust_and_lists_no_gradient(runner: CliRunner, buffer_path: Path) -> None:
-    result = runner.invoke(main, ["rank", str(buffer_path), "--by", "object"])
+    one = ["--objective", "brightness"]
+    result = runner.invoke(main, ["rank", str(buffer_path), "--by", "object", *one])
     assert result.exit_code == 0
-    floor = next(line for line in result.output.splitlines() if line.rstrip().endswith("floor"))
-    assert " ! " in floor  # floor owns the biased alpha
+    floors = [line for line in result.output.splitlines() if line.rstrip().endswith("floor")]
+    assert len(floors) == 2  # its trusted part, and its biased alpha left out, marked
+    assert " ! " not in floors[0] and " ! " in floors[1]
+    above = result.output.index(floors[1]) > result.output.index("left out of the rows above")
+    assert above and "! = biased: disagrees with finite differences" in result.output
     assert "glass.eta (ball): a reason" in result.output
+    mixed = runner.invoke(main, ["rank", str(buffer_path), "--by", "object", *one,
+                                 "--untrusted", "include"]).output  # fmt: skip
+    (floor,) = [line for line in mixed.splitlines() if line.rstrip().endswith("floor")]
+    assert " ! " in floor and "left out" not in mixed
 
 
 def test_default_output_is_the_summary(runner: CliRunner, buffer_path: Path) -> None:
