@@ -171,3 +171,10 @@ class PreviewError(SensaovError):
 
 class FingerprintMismatch(SpecError):
     """The buffer was computed on another version of the scene."""
+
+
+class StaleInputError(SensaovError):
+    """An input made from another buffer, or by another version of the job, than the one at
+    hand: a preview, an EXR or a buffer that would mix two states in one output."""
+
+    exit_code = EXIT_BAD_INPUT
