@@ -275,3 +275,46 @@ def test_a_missing_camera_exr_is_one_line_of_bad_input(buffer_path: Path) -> Non
     assert result.stderr.strip().splitlines() == [
         f"sensaov: error: {missing}: no such OpenEXR file; no output was replaced"
     ]
+
+
+def zero_valued_buffer() -> SensitivityBuffer:
+    """make_buffer() with the lamp's radiance at 0: value weighting scores it 0."""
+    base = make_buffer()
+    values = dict(base.values)
+    values["lamp.emitter.radiance.value"] = np.zeros(3, np.float32)
+    return SensitivityBuffer(
+        provenance=base.provenance, objects=base.objects, params=base.params,
+        objectives=base.objectives, values=values, grads=base.grads,
+    )  # fmt: skip
+
+
+def test_zero_valued_parameters_are_flagged_with_their_raw_gradient() -> None:
+    """θ = 0 gives a value-weighted score of 0 (issue 18, point 5): never 'does not matter'
+    without a word, in rankings, the summary, channels and the sunburst."""
+    from sensaov_cli.outputs.rankings import ranking_dict, ranking_text
+    from sensaov_cli.spec.job import ChannelSpec
+    from sensaov_cli.views.channels import channel_values
+    from sensaov_cli.views.hierarchy import rankings
+    from sensaov_cli.views.summary import summary_dict
+    from sensaov_cli.views.sunburst_geometry import panels
+
+    buf, key = zero_valued_buffer(), "lamp.emitter.radiance.value"
+    raw = float(buf.grad("brightness", key).astype(np.float64).sum())
+    found = rankings(buf, by="key", objectives=["brightness"])
+    (row,) = [r for r in found[0].rows if r.name == key]
+    assert (row.score, row.zero_value, row.raw_signed) == (0.0, True, pytest.approx(raw))
+    doc = ranking_dict(buf, found, method="l2", weight="value", cameras=None)
+    (entry,) = doc["objectives"][0]["zero_valued"]
+    assert (entry["key"], entry["hidden"], entry["size"]) == (key, 3, 3)
+    text = ranking_text(found, method="l2", weight="value")
+    assert "θ0" in text and f"{key} (lamp): {raw:+.3e}" in text
+    (lamp,) = [r for r in rankings(buf, by="object")[0].rows if r.name == "lamp"]
+    assert lamp.zero_value  # its object says so too
+    summary = summary_dict(buf)["objectives"][0]
+    assert [z["key"] for z in summary["zero_valued"]] == [key]
+    assert "θ0 = value exactly 0" in summary_text(buf)
+    (objects, *_) = channel_values(buf, (ChannelSpec("objects", "object"),))
+    assert objects.zero_valued == {key: pytest.approx(raw)}
+    assert [z.key for z in panels(buf, ["brightness"])[0].zero_valued] == [key]
+    raw_weight = rankings(buf, by="key", weight="raw", objectives=["brightness"])[0]
+    assert not any(r.zero_value for r in raw_weight.rows)  # nothing hidden per unit of θ
