@@ -285,12 +285,14 @@ def _objective_lines(objective: dict[str, Any], method: str, counts: dict[str, i
 def _group_table(title: str, field: str, entries: list[dict[str, Any]], signed: bool) -> list[str]:
     if signed:
         rows = [
-            [str(i), _mark(e["trust"]), _fmt(e["score"], signed), e[field]]
+            [str(i), _mark(e["trust"]) + (ZERO_VALUE_MARK if e.get("zero_value") else ""),
+             _fmt(e["score"], signed), e[field]]
             for i, e in enumerate(entries, 1)
-        ]
+        ]  # fmt: skip
         return _indented(["#", "", "score", title], rows, numeric={0, 2})
     rows = [  # the signed sum and its rank beside the score (docs/encoding.md: which to read)
-        [str(i), _mark(e["trust"]), _fmt(e["score"], False), _fmt(e["signed"], True),
+        [str(i), _mark(e["trust"]) + (ZERO_VALUE_MARK if e.get("zero_value") else ""),
+         _fmt(e["score"], False), _fmt(e["signed"], True),
          str(e["signed_rank"]), e[field]]
         for i, e in enumerate(entries, 1)
     ]  # fmt: skip

@@ -119,8 +119,8 @@ def _objective_summary(
             }
             for entry in _parameters(buf, stats, ranked["param"], top, method)
         ],  # fmt: skip
-        "objects": _group_entries(buf, stats, objects.kept, "name", method, top),
-        "types": _group_entries(buf, stats, types.kept, "type", method, None),
+        "objects": _group_entries(buf, stats, objects.kept, "name", method, top, hidden),
+        "types": _group_entries(buf, stats, types.kept, "type", method, None, hidden),
         "left_out": {
             "objects": _left_out(buf, stats, objects.left_out, method),
             "types": _left_out(buf, stats, types.left_out, method),
@@ -183,6 +183,7 @@ def _group_entries(
     field: str,
     method: Aggregate,
     top: int | None,
+    hidden: Mapping[str, Any],
 ) -> list[dict[str, Any]]:
     # The signed sum beside every score, with its own rank: a texture's l2 is about
     # 1/sqrt(texels) of its sum, so l2 and sum can rank one group far apart (docs/encoding.md).
@@ -193,7 +194,8 @@ def _group_entries(
         trust = weakest_trust(buf, grouped[name])
         entries.append({field: name, "score": score, "signed": sums[name],
                         "signed_rank": sum_rank[name], "verified": trust == "verified",
-                        "trust": trust})  # fmt: skip
+                        "trust": trust,
+                        "zero_value": any(k in hidden for k in grouped[name])})  # fmt: skip
     return entries
 
 
