@@ -187,11 +187,12 @@ def legend_notes(
             f"({100 * scale.clipped:.1f} % over the rule's cameras)"
         )
     left_out = json.loads(meta.get("left_out", "{}"))
-    if left_out:
+    if meta.get("part") == "untrusted":
+        held = ", ".join(f"{name} ({len(keys)})" for name, keys in sorted(left_out.items()))
+        lines.append(f"{UNTRUSTED_NOTE}: by object (parameters): {held}")
+    elif left_out:
         lines.append(f"left out (untrusted, see {layer.pass_name}_untrusted): "
                      + ", ".join(sorted(left_out)))  # fmt: skip
-    if meta.get("part") == "untrusted":
-        lines.append(UNTRUSTED_NOTE + ": " + ", ".join(json.loads(meta.get("keys", "[]"))))
     zero = json.loads(meta.get("zero_valued", "{}"))
     if zero:
         raw = ", ".join(f"{k} (raw dM/dtheta {v:+.2e})" for k, v in zero.items())

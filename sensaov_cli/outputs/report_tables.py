@@ -69,18 +69,21 @@ def left_out_list(r: Ranking, keys: Mapping[str, tuple[ParamRecord, ...]]) -> st
         items = "".join(
             f"<li><b>{html.escape(row.name)}</b> (score {row.score:.2e}, signed "
             f"{row.signed:+.2e}): "
-            + "; ".join(
-                f"{html.escape(p.key)} — {html.escape(LABEL_MEANINGS.get(p.trust, p.trust))}"
-                f"{': ' + html.escape(p.note) if p.note else ''}"
-                for p in keys.get(row.name, ())
-            )
+            + ", ".join(f"{html.escape(p.key)} ({p.trust})" for p in keys.get(row.name, ()))
             + "</li>"
             for row in r.left_out
+        )
+        notes = sorted({(p.trust, p.note) for found in keys.values() for p in found})
+        why = "".join(
+            f"<li>{html.escape(LABEL_MEANINGS.get(label, label))}"
+            f"{': ' + html.escape(note) if note else ''}</li>"
+            for label, note in notes
         )
         parts.append(
             "<h3>Left out of the objects above</h3><p class=note>Gradients sensaov does not "
             "stand behind are not added to any object or type; they are shown apart (their "
             f"own layer <code>…_untrusted</code>, hatched):</p><ul>{items}</ul>"
+            f"<p class=note>Why:</p><ul class=note>{why}</ul>"
         )
     if r.zero_valued:
         items = "".join(

@@ -41,7 +41,8 @@ class ChannelValues:
     signed_sums: np.ndarray  # (n_objects,) Σ c per object: the direction of a group's effect
     unverified: tuple[str, ...]  # selected keys whose gradient is not verified
     part: str = "all"  # "trusted" / "untrusted" under untrusted: apart
-    left_out: dict[str, tuple[str, ...]] | None = None  # object -> keys in the untrusted pass
+    # object -> its keys in the untrusted pass (on both parts: left out of one, held by the other)
+    left_out: dict[str, tuple[str, ...]] | None = None
     zero_valued: dict[str, float] | None = None  # key -> raw Σ ∂M/∂θ, θ = 0 (weight value)
 
     @property
@@ -92,7 +93,8 @@ def _parts(
     ]
     if apart:
         name, where = pass_name + UNTRUSTED_PASS, f"{selection};untrusted"
-        passes.append(_values(buf, objective, channel, name, where, apart, "untrusted", zeros))
+        part = _values(buf, objective, channel, name, where, apart, "untrusted", zeros)
+        passes.append(replace(part, left_out=passes[0].left_out))  # what it holds, by object
     return passes
 
 
