@@ -39,7 +39,7 @@ def table(headers: Sequence[str], rows: Sequence[Sequence[str]], numeric: set[in
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
-def ranking_table(r: Ranking, rows: Sequence[RankRow]) -> str:
+def ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -> str:
     """Rows of one ranking: score, signed sum with its standard error, significance, share,
     trust and off-frame cameras (columns as docs/rankings.md)."""
     if not rows:
@@ -57,6 +57,8 @@ def ranking_table(r: Ranking, rows: Sequence[RankRow]) -> str:
         for row in rows
     ]  # fmt: skip
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "signed", "±", "share")}
+    if not notes:
+        return table(headers, body, numeric)
     verified = "" if trust else '<p class="note">every row: verified gradients only.</p>'
     return table(headers, body, numeric) + verified + _significance(r)
 
@@ -111,15 +113,22 @@ def rankings_html(by_cut: Mapping[str, tuple[Ranking, ...]]) -> str:
         parts.append(f"<h4>objective {html.escape(name)}</h4><div class=cuts>")
         for cut, found in by_cut.items():
             r = found[index]
-            left = (f"<p class=note>left out (untrusted)</p>{ranking_table(r, r.left_out)}"
-                    if r.left_out else "")  # fmt: skip
-            parts.append(f"<div><b>by {html.escape(cut)}</b>{ranking_table(r, r.rows)}{left}</div>")
+            left = (
+                f"<p class=note>left out (untrusted)</p>{ranking_table(r, r.left_out, notes=False)}"
+                if r.left_out
+                else ""
+            )
+            rows = ranking_table(r, r.rows, notes=False)
+            parts.append(f"<div><b>by {html.escape(cut)}</b>{rows}{left}</div>")  # fmt: skip
         parts.append("</div>")
     parts.append(
         f'<p class="note">{UNVERIFIED_MARK} biased or unverified gradient, {SUSPECT_MARK} '
         "suspect, θ0 value exactly 0; share: of the total sum of squares; columns: "
         "docs/rankings.md</p>"
     )
+    first = next((r for found in by_cut.values() for r in found), None)
+    if first is not None:
+        parts.append(_significance(first))
     return "\n".join(parts)
 
 
@@ -153,7 +162,10 @@ def _sign(row: RankRow) -> str:
 
 def _significance(r: Ranking) -> str:
     if r.significance is None:
-        return ""
+        return (
+            '<p class="note">no ±: this buffer has one batch; render.batches ≥ 2 (or a merge '
+            "of farm shards) gives standard errors and significance (docs/farm.md).</p>"
+        )
     s = r.significance
     return (
         f'<p class="note">± standard error from {s.batches} batches; sign significant when 0 '

@@ -25,11 +25,14 @@ _RUN_KEYS = ("scene", "scene_args", "variant", "render", "parameters", "objectiv
              "objectives", "forward", "channels")  # fmt: skip
 
 
-def check_buffer_of_job(job: JobSpec, buffer: SensitivityBuffer, path: Path) -> None:
+def check_buffer_of_job(
+    job: JobSpec, buffer: SensitivityBuffer, path: Path, *, override: str = ""
+) -> None:
     """Refuse a buffer that ``run`` made from another version of ``job`` (or another job).
 
     The same version is the same ``run_version``, or (a job moved beside its scene, or a buffer
-    older than ``run_version``) the same values of every key ``run`` reads, paths absolute."""
+    older than ``run_version``) the same values of every key ``run`` reads, paths absolute.
+    ``override`` names the command's way past the check, for the hint."""
     made = buffer.provenance
     if run_version(buffer) == job.run_hash():
         return
@@ -41,7 +44,7 @@ def check_buffer_of_job(job: JobSpec, buffer: SensitivityBuffer, path: Path) -> 
     raise StaleInputError(
         f"the buffer was made by another version of {job.path.name}{what}",
         where=str(path),
-        hint=f"re-run 'sensaov run {job.path}', or name another buffer with --buffer",
+        hint=f"re-run 'sensaov run {job.path}'" + (f", or {override}" if override else ""),
     )
 
 

@@ -78,7 +78,7 @@ def project_job(
     prepared = prepare_scene(job, tuple(every))  # every camera: the shared scales read them all
     _check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
     if not force:
-        check_buffer_of_job(job, buffer, buffer_path)
+        check_buffer_of_job(job, buffer, buffer_path, override="pass --force to project it anyway")
     check_writable(job.output, [f"{camera.name}.exr" for camera in chosen])
     refuse_unsafe_outputs(
         (*job.input_files(), *prepared.files, buffer_path),
