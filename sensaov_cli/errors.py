@@ -178,3 +178,15 @@ class StaleInputError(SensaovError):
     hand: a preview, an EXR or a buffer that would mix two states in one output."""
 
     exit_code = EXIT_BAD_INPUT
+
+
+class RequestError(SensaovError):
+    """A request to ``sensaov view``'s server with a bad value: answered HTTP 400, one line."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
+class ServerError(SensaovError):
+    """``sensaov view`` cannot listen where it was told to (the port is taken, no such host)."""
+
+    exit_code = EXIT_BAD_INPUT

@@ -76,7 +76,7 @@ def project_job(
     every = _cameras(job, ())
     chosen = _cameras(job, tuple(dict.fromkeys(cameras)))  # a camera named twice renders once
     prepared = prepare_scene(job, tuple(every))  # every camera: the shared scales read them all
-    _check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
+    check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
     if not force:
         check_buffer_of_job(job, buffer, buffer_path, override="pass --force to project it anyway")
     check_writable(job.output, [f"{camera.name}.exr" for camera in chosen])
@@ -93,10 +93,10 @@ def project_job(
     progress.plan(2 + texel_stage + len(chosen))  # load, visibility, texels, one per view
     with progress.stage("load_s", f"loading {job.scene.name} with {len(every)} camera(s)"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
-    _check_objects(buffer, loaded, buffer_path)
+    check_objects(buffer, loaded, buffer_path)
     texels = project_texels.project_fields(job, buffer, loaded, buffer_path, progress)
     with progress.stage("visibility_s", f"visibility of {len(every)} camera(s) and scales"):
-        traced = {c.name: _trace(job, buffer, loaded, c, bool(texels)) for c in every}
+        traced = {c.name: trace_camera(job, buffer, loaded, c, bool(texels)) for c in every}
         raw = {
             c.name: _raw_layers(passes, traced[c.name], buffer_path, c, forward, texels)
             for c in every
@@ -114,9 +114,10 @@ def project_job(
     return views
 
 
-def _trace(
+def trace_camera(
     job: JobSpec, buffer: SensitivityBuffer, loaded: LoadedScene, camera: CameraSpec, uv: bool
 ) -> VisibilityPass:
+    """``camera``'s visibility pass as ``project`` paints and scales it (``view`` reuses it)."""
     sensor = loaded.inspection_sensors[camera.name]
     return trace(
         loaded.mi, loaded.scene, sensor, buffer.objects, camera.vis_spp,
@@ -180,7 +181,7 @@ def _scales(job: JobSpec, raw: dict[str, _RawLayers]) -> dict[tuple[str, str], D
     )
 
 
-def _check_fingerprint(
+def check_fingerprint(
     job: JobSpec, buffer: SensitivityBuffer, path: Path, fingerprint: str, force: bool
 ) -> None:
     if buffer.provenance.get("scene_fingerprint") != fingerprint and not force:
@@ -191,7 +192,7 @@ def _check_fingerprint(
         )
 
 
-def _check_objects(buffer: SensitivityBuffer, loaded: LoadedScene, path: Path) -> None:
+def check_objects(buffer: SensitivityBuffer, loaded: LoadedScene, path: Path) -> None:
     missing = sorted(set(buffer.objects) - set(loaded.objects))
     if missing:
         raise FingerprintMismatch(
