@@ -131,11 +131,12 @@ def project_point(camera: dict[str, Any], point: tuple[float, float, float]) -> 
 
 
 def test_view_command_serves_meta_two_views_and_a_pick_then_stops(small_job: Path) -> None:
-    """The acceptance test: the real command on the demo job, as a user starts it."""
+    """The acceptance test: the real command on the demo job (made small: its buffer belongs to
+    that version of the job, which `view` checks), as a user starts it."""
     buffer = load_job(small_job).output / "buffer.npz"
     port = free_port()
     process = subprocess.Popen(
-        [sys.executable, "-m", "sensaov_cli", "view", str(CBOX), "--buffer", str(buffer),
+        [sys.executable, "-m", "sensaov_cli", "view", str(small_job), "--buffer", str(buffer),
          "--port", str(port)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
@@ -209,6 +210,20 @@ def test_a_taken_port_and_a_missing_buffer_are_one_line_of_bad_input(
     result = sensaov("view", str(small_job), "--port", "0", "--buffer", str(missing))
     assert result.returncode == EXIT_BAD_INPUT
     assert len(result.stderr.splitlines()) == 1 and str(missing) in result.stderr
+
+
+def test_a_buffer_of_another_job_version_is_refused(small_job: Path, tmp_path: Path) -> None:
+    """One consistent state (issue 18): an objective renamed since `run` is refused in one line
+    (exit 2) before anything is served; --force inspects it anyway."""
+    data = yaml.safe_load(small_job.read_text())
+    data["objectives"][0]["name"] = "renamed"
+    other = tmp_path / "job.yaml"
+    other.write_text(yaml.safe_dump(data, sort_keys=False))
+    buffer = small_job.parent / "out" / "buffer.npz"
+    result = sensaov("view", str(other), "--port", "0", "--buffer", str(buffer))
+    assert result.returncode == EXIT_BAD_INPUT and result.stdout == ""
+    (line,) = result.stderr.splitlines()
+    assert "made by another version of job.yaml" in line and "--force" in line
 
 
 def test_a_view_paints_the_buffer_values_and_a_pick_lists_the_gradients(

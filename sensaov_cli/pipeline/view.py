@@ -10,7 +10,6 @@ not re-entrant, and one user's page sends one request at a time anyway.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import threading
 import time
@@ -19,12 +18,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sensaov_cli.buffer.identity import buffer_id
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import RequestError, UnknownNameError
 from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.outputs.view_images import exr_bytes, id_map_bytes, png_bytes, view_rgb
 from sensaov_cli.pipeline import project_texels
+from sensaov_cli.pipeline.consistency import check_buffer_of_job
 from sensaov_cli.pipeline.project import check_fingerprint, check_objects
 from sensaov_cli.pipeline.view_job_scales import JobScales
 from sensaov_cli.pipeline.view_query import (
@@ -83,7 +84,7 @@ class ViewSession:
         self.tracer = ViewTracer(loaded.mi, loaded.scene, buffer.objects)
         self.bounds = scene_bounds(loaded.scene)
         self.cameras = _cameras(job, loaded, self.bounds)
-        self.buffer_id = _file_id(buffer_path)
+        self.buffer_id = buffer_id(buffer)  # the id project, report and rank --exr check
         self.saved: list[Path] = []
         self._lock = threading.Lock()
         self.scales = JobScales(job, buffer, loaded, self._lock)
@@ -285,6 +286,8 @@ def open_session(
     buffer = read_buffer(buffer_path)
     prepared = prepare_scene(job, job.projected_cameras())  # project's cameras: its scales
     check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
+    if not force:
+        check_buffer_of_job(job, buffer, buffer_path, override="pass --force to view it anyway")
     with progress.stage("load_s", f"loading {job.scene.name}"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     check_objects(buffer, loaded, buffer_path)
@@ -350,12 +353,3 @@ def _direction(pose: Pose) -> tuple[float, ...]:
 
 def _token(name: str) -> str:
     return "".join(c if c.isalnum() or c == "_" else "_" for c in name)
-
-
-def _file_id(path: Path) -> str:
-    """The first 16 hex digits of the buffer file's sha256: which buffer a view painted."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as stream:
-        for block in iter(lambda: stream.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()[:16]
