@@ -296,6 +296,8 @@ def open_session(
         first = session.objective_camera
         for spp in (1, REST_SPP):  # the two kernels a page asks for, compiled before it asks
             session.tracer.trace(first.pose, first.size[0], first.size[1], spp)
+    with progress.stage("scales_s", "tracing the job's cameras for its shared scales"):
+        session.scales.warm()
     return session
 
 

@@ -4,7 +4,7 @@ A channel's shared scale is read over every camera ``project`` paints (the objec
 the job's inspection cameras), traced as ``project`` traces them (same spp, same seed), so the
 page's "shared" colours are those of the previews and the EXR display layers
 (:func:`~sensaov_cli.views.display_scale.shared_channel_scale`). The passes are traced once, on
-the first request that needs them; each (objective, channel, sign) is computed once.
+opening (or the first request that needs them); each (objective, channel, sign) is computed once.
 """
 
 from __future__ import annotations
@@ -47,6 +47,11 @@ class JobScales:
                     untrusted=self.job.views.untrusted, percentile=self.job.views.percentile,
                 )  # fmt: skip
             return self._scales[key]
+
+    def warm(self) -> None:
+        """Trace the cameras now (``open_session``), not on the page's first request."""
+        with self._lock:
+            self._visibilities()
 
     def _visibilities(self) -> dict[str, VisibilityPass]:
         if not self._passes:
