@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import per_object
@@ -182,6 +183,37 @@ def test_a_farm_task_of_one_camera_derives_the_same_scales(demo: Path, tmp_path:
     assert {n: m["display_scale"] for n, m in before.items()} == {
         n: m["display_scale"] for n, m in after.items()
     }
+
+
+def test_a_per_tile_scale_is_only_on_request_and_labelled(demo: Path, tmp_path: Path) -> None:
+    """`views: {scale: tile}` (the same buffer: views are not part of the run version) gives
+    each camera its own scale, the rule over that camera alone, said in EXR and legends."""
+    data = yaml.safe_load(demo.read_text())
+    floor = {"name": "floor_only", "resolution": [16, 16], "vis_spp": 4, "fov": 30,
+             "look_at": {"origin": [0.0, 0.2, 0.3], "target": [0.0, -1.0, 0.3],
+                         "up": [0.0, 0.0, -1.0]}}  # fmt: skip
+    data.update(views={"scale": "tile"}, output=str(tmp_path / "out"),
+                inspection_cameras=[*data["inspection_cameras"], floor])  # fmt: skip
+    tiled = tmp_path / "job.yaml"
+    tiled.write_text(yaml.safe_dump(data, sort_keys=False))
+    buffer = demo.parent / "out" / "buffer.npz"
+    done = sensaov("project", "-q", str(tiled), "--buffer", str(buffer), "--png")
+    assert done.returncode == 0, done.stderr
+    scales = {}
+    for camera in ("objective", "overhead", "floor_only"):
+        channels, meta = layers_of(tmp_path / "out" / f"{camera}.exr")
+        m = meta["mean_luma.objects"]
+        assert m["display_scope"] == "tile" and json.loads(m["display_cameras"]) == [camera]
+        scales[camera] = float(m["display_scale"])
+        assert scales[camera] == robust_scale({camera: [data_of(channels, m)]}).value
+        manifest = json.loads((tmp_path / "out" / "previews" / f"{camera}.json").read_text())
+        (entry,) = [e for e in manifest["files"] if e.get("pass_name") == "objects"
+                    and e["objective"] == "mean_luma"]  # fmt: skip
+        assert entry["notes"][0].startswith(f"per-tile scale +-{scales[camera]:.3g}: p95")
+        assert entry["notes"][0].endswith(f"non-zero pixels of {camera} only")
+    # objective and overhead both land on the back wall's value; the floor alone does not,
+    # and keeps its own number where the shared rule gives every camera one
+    assert scales["floor_only"] not in (scales["objective"], scales["overhead"])
 
 
 def test_every_raw_layer_has_a_display_layer_an_artist_sees(demo: Path) -> None:
