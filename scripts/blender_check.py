@@ -9,8 +9,11 @@ It lists the layers and passes Blender builds from the file, checks that every s
 channel ``layer.pass.C`` shows up as pass ``pass`` of layer ``layer``, keys OBJECT_NAME with a
 Cryptomatte node (source Image), renders that matte to ``DIR/matte.png`` and compares it with
 the object's coverage decoded here from the file itself (a small pure-Python EXR reader, since
-Blender's Python has no numpy or OpenEXR). Prints PASS/FAIL lines and a summary; exits 1 on any
-failure, 2 on bad arguments.
+Blender's Python has no numpy or OpenEXR). It also renders every display layer
+(``<objective>.<pass>_display``) straight into the composite with no grade, under Blender's
+default view transform and under Standard, and checks that an artist sees it (and sees the
+previews' colours). Prints PASS/FAIL lines and a summary; exits 1 on any failure, 2 on bad
+arguments.
 """
 
 from __future__ import annotations
@@ -242,14 +245,120 @@ def render_matte(
     return [value for row in reversed(rows) for value in row]  # Blender stores bottom row first
 
 
+def render_socket(
+    image: bpy.types.Image,
+    layer: str,
+    socket: str,
+    size: tuple[int, int],
+    out: Path,
+    view: str,
+) -> list[tuple[float, float, float]]:
+    """Render one pass of the Image node straight into the Composite, with no grade, under the
+    view transform ``view``; the 8-bit PNG's RGB in [0, 1], top row first."""
+    scene = bpy.context.scene
+    tree = scene.node_tree
+    for node in list(tree.nodes):
+        tree.nodes.remove(node)
+    source = tree.nodes.new("CompositorNodeImage")
+    source.image = image
+    source.layer = layer
+    composite = tree.nodes.new("CompositorNodeComposite")
+    tree.links.new(source.outputs[socket], composite.inputs["Image"])
+    width, height = size
+    render = scene.render
+    render.resolution_x, render.resolution_y, render.resolution_percentage = width, height, 100
+    render.image_settings.file_format = "PNG"
+    render.image_settings.color_mode = "RGB"
+    render.image_settings.color_depth = "8"
+    render.dither_intensity = 0.0
+    scene.view_settings.view_transform = view
+    scene.view_settings.look = "None"
+    render.filepath = str(out)
+    bpy.ops.render.render(write_still=True)
+    png = bpy.data.images.load(str(out))
+    png.colorspace_settings.name = "Non-Color"
+    rgba = list(png.pixels)
+    bpy.data.images.remove(png)
+    rows = [
+        [tuple(rgba[4 * (width * y + x) : 4 * (width * y + x) + 3]) for x in range(width)]
+        for y in range(height)
+    ]
+    return [pixel for row in reversed(rows) for pixel in row]  # type: ignore[misc]
+
+
+def _srgb(linear: float) -> float:
+    linear = min(max(linear, 0.0), 1.0)
+    return 12.92 * linear if linear <= 0.0031308 else 1.055 * linear ** (1 / 2.4) - 0.055
+
+
+def check_display(
+    image: bpy.types.Image,
+    channels: dict[str, list[float]],
+    size: tuple[int, int],
+    out: Path,
+    default_view: str,
+) -> list[tuple[bool, str]]:
+    """Every ``<objective>.<pass>_display`` layer as an artist sees it, with no grade: under the
+    default view transform at least 10 % of the visible pixels (beauty alpha > 0) are above 0.1
+    (its raw layer's share is printed beside it), and under Standard the viewer shows exactly
+    the previews' colours (the sRGB encoding of the stored values, within 1.5/255)."""
+    results = []
+    visible = [k for k, a in enumerate(channels.get("A", [])) if a > 0] or list(
+        range(size[0] * size[1])
+    )
+    displays = sorted(
+        {
+            n.rsplit(".", 1)[0]
+            for n in channels
+            if n.count(".") == 2 and n.split(".")[1].endswith("_display")
+        }
+    )
+    for name in displays:
+        layer, socket = name.rsplit(".", 1)
+        raw_socket = socket.removesuffix("_display")
+        shown = render_socket(image, layer, socket, size, out / "display.png", default_view)
+        raw_name = next(
+            (f"{layer}.{raw_socket}.{c}" for c in "YR" if f"{layer}.{raw_socket}.{c}" in channels),
+            None,
+        )
+        raw_share = 0.0
+        if raw_name is not None:
+            raw = render_socket(image, layer, raw_socket, size, out / "raw.png", default_view)
+            raw_share = sum(max(raw[k]) > 0.1 for k in visible) / len(visible)
+        share = sum(max(shown[k]) > 0.1 for k in visible) / len(visible)
+        results.append(
+            (
+                share >= 0.1,
+                f"{name} ({default_view}, no grade): {100 * share:.1f} % of "
+                f"visible pixels above 0.1 (raw {raw_socket}: {100 * raw_share:.1f} %)",
+            )
+        )
+        standard = render_socket(image, layer, socket, size, out / "standard.png", "Standard")
+        stored = [channels[f"{name}.{c}"] for c in "RGB"]
+        error = max(
+            abs(standard[k][c] - _srgb(stored[c][k]))
+            for k in range(len(standard))
+            for c in range(3)
+        )
+        results.append(
+            (
+                error <= 1.5 / 255,
+                f"{name} (Standard): the previews' colours, max |diff| {255 * error:.2f}/255",
+            )
+        )
+    results.append((bool(displays), f"{len(displays)} display layers found"))
+    return results
+
+
 # --- the check -------------------------------------------------------------------------------
 
 
-def check(exr: Path, object_name: str, out: Path) -> list[tuple[bool, str]]:
+def check(exr: Path, object_name: str, out: Path, display: bool) -> list[tuple[bool, str]]:
     channels, header, width, height = read_exr(exr)
     results: list[tuple[bool, str]] = []
     image = bpy.data.images.load(str(exr))
     scene = bpy.context.scene
+    default_view = scene.view_settings.view_transform  # what an artist's viewer starts with
     scene.use_nodes = True
     for node in list(scene.node_tree.nodes):
         scene.node_tree.nodes.remove(node)
@@ -264,6 +373,8 @@ def check(exr: Path, object_name: str, out: Path) -> list[tuple[bool, str]]:
     types = crypto_types(header).values()
     preview = [f"{t}.{c}" for t in types for c in "RGB" if f"{t}.{c}" in channels]
     results.append((not preview, f"no deprecated Cryptomatte preview channels {preview or ''}"))
+    if display:
+        results += check_display(image, channels, (width, height), out, default_view)
     type_name, coverage = object_coverage(channels, header, object_name)
     matte = render_matte(image, type_name, object_name, (width, height), out / "matte.png")
     results += compare_matte(matte, coverage, width, height, f"{type_name} {object_name!r}")
@@ -291,10 +402,13 @@ def main(argv: list[str]) -> int:
     parser.add_argument("exr", type=Path)
     parser.add_argument("object_name")
     parser.add_argument("--out", type=Path, help="folder for matte.png (default: a temp folder)")
+    parser.add_argument(
+        "--no-display", action="store_true", help="skip the display layers' checks (faster)"
+    )
     args = parser.parse_args(argv[argv.index("--") + 1 :] if "--" in argv else [])
     out = args.out or Path(tempfile.mkdtemp(prefix="sensaov-blender-"))
     out.mkdir(parents=True, exist_ok=True)
-    results = check(args.exr, args.object_name, out)
+    results = check(args.exr, args.object_name, out, not args.no_display)
     for ok, text in results:
         print(f"{'PASS' if ok else 'FAIL'}: {text}")
     failed = sum(not ok for ok, _ in results)

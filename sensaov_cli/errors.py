@@ -193,6 +193,13 @@ class FingerprintMismatch(SpecError):
     """The buffer was computed on another version of the scene."""
 
 
+class StaleInputError(SensaovError):
+    """An input made from another buffer, or by another version of the job, than the one at
+    hand: a preview, an EXR or a buffer that would mix two states in one output."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
 class RequestError(SensaovError):
     """A request to ``sensaov view``'s server with a bad value: answered HTTP 400, one line."""
 

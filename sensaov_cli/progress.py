@@ -45,6 +45,12 @@ class Progress:
         """``stages`` more stages are to come (a farm's percentage counts them)."""
         self._planned = self._done + stages
 
+    def skip(self, stages: int) -> None:
+        """``stages`` planned stages turned out unnecessary: count them as done, silently."""
+        if stages > 0:
+            self._done += stages
+            self._report()
+
     @contextmanager
     def stage(self, name: str, label: str) -> Iterator[None]:
         """Time the block as ``name`` (recorded in provenance) and report ``label`` on stderr."""

@@ -17,6 +17,12 @@ Normalize = Literal["none", "channel", "shared"]
 Grouping = Literal["param", "object", "type"]
 Cut = Literal["key", "object", "type"]  # what `rank --by` names a grouping (key = param)
 Order = Literal["object,type", "type,object"]  # the sunburst's rings, innermost first
+# Headline (object and type) views: parameters the tool does not stand behind shown apart, or
+# mixed in with a mark (docs/encoding.md, "Trusted numbers").
+Untrusted = Literal["apart", "include"]
+# Display scales of previews and display layers: one per (objective, channel) across every
+# camera of the job, or each tile its own (docs/encoding.md, "Display scales").
+ScaleScope = Literal["shared", "tile"]
 # The job's own words (spec/job.py): a Mitsuba variant, an objective's type, a channel's kind,
 # a forward pass's direction, a texel channel's pooling and units.
 Variant = Literal[
@@ -46,4 +52,6 @@ NORMALIZES: tuple[str, ...] = get_args(Normalize)
 GROUPINGS: tuple[str, ...] = get_args(Grouping)
 CUTS: tuple[str, ...] = get_args(Cut)
 ORDERS: tuple[str, ...] = get_args(Order)
+UNTRUSTED_MODES: tuple[str, ...] = get_args(Untrusted)
+SCALE_SCOPES: tuple[str, ...] = get_args(ScaleScope)
 TRUSTS: tuple[str, ...] = get_args(Trust)

@@ -106,6 +106,7 @@ def _gradient_check(verified: bool, verdict: str) -> SimpleNamespace:
         plugin="diffuse",
         type="reflectance",
         claimed_verified=verified,
+        claimed="verified" if verified else "biased",
         adjoint=1.0,
         finite_difference=2.0,
         standard_error=0.01,
@@ -185,3 +186,11 @@ def test_an_unexpected_error_is_an_internal_error(
         "sensaov: error: internal error: ZeroDivisionError: last line "
         "(run with -vv for the traceback); no output was replaced\n"
     )
+
+
+def test_check_table_says_biased_where_the_trust_table_does() -> None:
+    from sensaov_cli.outputs.check_tables import checks_text
+
+    text = checks_text([_gradient_check(False, "disagrees")])  # type: ignore[list-item]
+    (row,) = text.splitlines()[1:]
+    assert " biased " in row and "unverified" not in row

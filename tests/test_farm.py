@@ -120,8 +120,16 @@ def test_rank_shows_standard_errors_and_stability(merged: Path) -> None:
     assert first["batches"] == 4 and 0.0 <= first["stability"] <= 1.0
     row = first["rows"][0]
     assert row["score_se"] > 0 and row["signed_se"] > 0 and row["significant"] is True
+    # Significance at the batch count: Student's t at 3 degrees of freedom, not 2 SE
+    significance = first["significance"]
+    assert (significance["batches"], significance["dof"]) == (4, 3)
+    assert significance["factor"] == pytest.approx(3.1824463, abs=1e-6)
+    rows = first["rows"] + first["left_out"]
+    for entry in rows:
+        assert entry["significant"] == (abs(entry["signed"]) > 3.1824463 * entry["signed_se"])
     text = sensaov("rank", str(merged), "--by", "object").stdout
     assert "standard error from 4 batches" in text and "bootstrap" in text
+    assert "within 3.18 standard errors (Student's t, 3 degrees of freedom" in text
 
 
 # --- refusals: one line, exit 2 -----------------------------------------------------------

@@ -206,3 +206,24 @@ def test_delta_lobe_parameters_keep_duality(tmp_path: Path) -> None:
     assert len(views) == 2
     for view in views:  # 2.3e-3 for the region before path's own render_forward was used
         assert view.residual <= 1e-4 and view.forward_sum > 0, (view.objective, view.residual)
+
+
+def test_progress_counts_every_pass_and_provenance_times_them(cbox_forward: tuple) -> None:
+    """100 % comes at the end, after the forward passes (it came after 3 of 7); the buffer's
+    wall time and timings include the forward passes."""
+    job, done = cbox_forward
+    lines = done.stderr.splitlines()
+    percents = [
+        (i, int(line[10:-1])) for i, line in enumerate(lines) if line.startswith("Progress:")
+    ]
+    last_pass = max(i for i, line in enumerate(lines) if "forward pass" in line)
+    assert [p for _, p in percents] == sorted(p for _, p in percents)
+    assert [i for i, p in percents if p == 100] and min(
+        i for i, p in percents if p == 100
+    ) > last_pass
+    assert len(percents) >= 8  # a line per stage: primal, backward passes, forward passes, write
+    buffer, _ = _load(job)
+    timings = buffer.provenance["timings_s"]
+    forward = [seconds for stage, seconds in timings.items() if stage.startswith("forward_")]
+    assert len(forward) >= 4
+    assert buffer.provenance["wall_time_s"] >= sum(forward) + timings["primal_s"]

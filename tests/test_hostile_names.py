@@ -7,10 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sensaov_cli.outputs.contact_sheets import write_previews
+from sensaov_cli.outputs.contact_sheets import write_manifest, write_previews
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.names import MAX_TOKEN, file_token
 from sensaov_cli.outputs.tables import format_table
+from sensaov_cli.views.display_scale import robust_scale
 
 HOSTILE = [
     "/etc/passwd", "../../outside", "..", ".", "", "a/b\\c", "tab\tnew\nline\x00nul",
@@ -34,8 +35,9 @@ def test_distinct_names_get_distinct_tokens() -> None:
 def test_previews_stay_inside_their_folder(tmp_path: Path) -> None:
     folder = tmp_path / "out" / "previews"
     data = np.linspace(-1, 1, 16, dtype=np.float32).reshape(4, 4)
+    scale = robust_scale({"../cam": [data]})
     layers = [
-        (SensitivityLayer(name, name, data, {"encoding": "linear", "unverified": "[]"}), 1.0)
+        (SensitivityLayer(name, name, data, {"encoding": "linear", "unverified": "[]"}), scale)
         for name in HOSTILE[:4] + HOSTILE[5:]
     ]
     coverage = np.ones((4, 4), np.float32)
@@ -43,7 +45,9 @@ def test_previews_stay_inside_their_folder(tmp_path: Path) -> None:
     class Visibility:
         coverage_hit = coverage
 
-    written = write_previews(folder, "../cam", layers, None, Visibility())  # type: ignore[arg-type]
+    entries = write_previews(folder, "../cam", layers, None, Visibility(), {})  # type: ignore[arg-type]
+    manifest = write_manifest(folder, "../cam", entries, {})
+    written = [folder / entry.file for entry in entries] + [manifest]
     assert written and all(p.resolve().is_relative_to(folder.resolve()) for p in written)
     assert {p for p in tmp_path.rglob("*") if p.is_file()} == set(written)
 

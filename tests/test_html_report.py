@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import base64
+import html
 import json
+import re
 import shutil
 import struct
 import subprocess
@@ -17,6 +19,7 @@ from .conftest import sensaov
 from .test_rankings import DEMO_CAMERAS
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+SCREENS, SCREEN_HEIGHT = 5, 900  # "about five screens before the appendix", at 1280 x 900
 CHROMIUM = next(
     (shutil.which(n) for n in ("chromium", "chromium-browser") if shutil.which(n)), None
 )
@@ -83,37 +86,81 @@ def test_nothing_comes_from_a_network_or_a_script(reported: Path) -> None:
 
 def test_tables_show_rankings_trust_and_provenance(reported: Path) -> None:
     text = reported.read_text(encoding="utf-8")
-    for heading in ("Rankings", "Trust of the buffer", "Provenance", "objective centre"):
+    for heading in ("Rankings in full", "Trust of the buffer", "Provenance", "objective centre"):
         assert heading in text
-    assert "<td>light</td><td>overhead</td>" in text  # the off-frame label per camera
+    assert re.search(r"<td>light</td>(<td[^>]*>[^<]*</td>)+<td>overhead</td></tr>", text)
+
+
+def test_the_page_reads_summary_cameras_appendix(reported: Path) -> None:
+    """Summary first (question, objectives, top objects, left out), a section per camera with
+    its headline previews, then the appendix; every section names the buffer it shows."""
+    text = reported.read_text(encoding="utf-8")
+    order = [
+        text.index(mark)
+        for mark in (
+            'id="summary"',
+            "Which parts of scene.xml matter",
+            "Top objects",
+            'id="camera-objective"',
+            'id="camera-overhead"',
+            'id="appendix"',
+        )
+    ]
+    assert order == sorted(order)
+    summary = text[: text.index('id="camera-objective"')]
+    assert "mean_luma.objects" not in summary  # previews belong to their camera's section
+    camera = text[text.index('id="camera-objective"') : text.index('id="camera-overhead"')]
+    assert "mean_luma.objects (trusted gradients)" in camera  # a headline preview
+    assert "<details>" in camera  # every other pass, folded away
+    assert text.count("made from buffer id") >= 4  # summary, each camera, appendix
+
+
+def test_the_sunburst_is_shown_at_its_own_size(reported: Path) -> None:
+    """At 1:1 its text keeps the size it was drawn at (>= 11 px, tests/test_sunburst.py)."""
+    page = Page()
+    page.feed(reported.read_text(encoding="utf-8"))
+    images = [attrs for tag, attrs in page.tags if tag == "img"]
+    sunbursts = [a for a in images if (a.get("alt") or "").startswith("sunburst of")]
+    assert len(sunbursts) == 2
+    for attrs in images:
+        data = base64.b64decode((attrs["src"] or "").split(",", 1)[1])
+        assert (int(attrs["width"] or 0), int(attrs["height"] or 0)) == png_size(data)
+
+
+def _chromium(page: Path, tmp_path: Path, height: int) -> tuple[dict[str, Any], Path]:
+    """The page's measurements (every image's sizes, the appendix's offset) and a screenshot
+    of its first ``height`` pixels at 1280 px wide."""
+    assert CHROMIUM is not None
+    probe = tmp_path / "probe.html"
+    script = (
+        "<script>addEventListener('load',()=>{document.body.setAttribute('data-m',"
+        "JSON.stringify({images:[...document.images].map(i=>[i.naturalWidth,i.width]),"
+        "appendix:document.getElementById('appendix').offsetTop,"
+        "height:document.documentElement.scrollHeight}))})</script>"
+    )
+    probe.write_text(page.read_text(encoding="utf-8").replace("</body>", script + "</body>"))
+    run = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+           "--virtual-time-budget=5000"]  # fmt: skip
+    dom = subprocess.run(
+        [*run, "--window-size=1280,900", "--dump-dom", probe.as_uri()],
+        capture_output=True, text=True, timeout=120, check=True,
+    ).stdout  # fmt: skip
+    found = json.loads(html.unescape(dom.split('data-m="', 1)[1].split('"', 1)[0]))
+    shot = tmp_path / "report.png"
+    subprocess.run(
+        [*run, f"--screenshot={shot}", f"--window-size=1280,{height}", page.as_uri()],
+        capture_output=True, timeout=120, check=True,
+    )  # fmt: skip
+    return found, shot
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium: apt-get install chromium (README)")
-def test_chromium_loads_every_image(reported: Path, tmp_path: Path) -> None:
-    probe = tmp_path / "probe.html"
-    script = (
-        "<script>addEventListener('load',()=>{document.body.setAttribute('data-widths',"
-        "JSON.stringify([...document.images].map(i=>i.naturalWidth)))})</script>"
-    )
-    probe.write_text(reported.read_text(encoding="utf-8").replace("</body>", script + "</body>"))
-    run = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--virtual-time-budget=5000"]
-    dom = subprocess.run(
-        [*run, "--dump-dom", probe.as_uri()],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=True,
-    ).stdout
-    widths = json.loads(dom.split('data-widths="', 1)[1].split('"', 1)[0].replace("&quot;", '"'))
-    assert widths and all(w > 0 for w in widths)
-    shot = tmp_path / "report.png"
-    subprocess.run(
-        [*run, f"--screenshot={shot}", "--window-size=1280,2000", probe.as_uri()],
-        capture_output=True,
-        timeout=120,
-        check=True,
-    )
-    assert png_size(shot.read_bytes())[0] > 0
+def test_chromium_shows_every_image_at_its_size(reported: Path, tmp_path: Path) -> None:
+    found, shot = _chromium(reported, tmp_path, 1000)
+    assert found["images"] and all(natural > 0 for natural, _ in found["images"])
+    assert all(shown == natural for natural, shown in found["images"])  # nothing scaled down
+    assert found["appendix"] <= SCREENS * SCREEN_HEIGHT  # the demo's figure: docs/rankings.md
+    assert png_size(shot.read_bytes()) == (1280, 1000)
 
 
 def test_a_report_before_run_says_what_to_do(tmp_path: Path) -> None:

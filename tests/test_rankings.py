@@ -85,8 +85,12 @@ def runner(monkeypatch: pytest.MonkeyPatch) -> CliRunner:
     return CliRunner()
 
 
-def direct(path: Path, objective: str, by: str, method: str, weight: str) -> list[dict]:
-    """The ranking from the raw archive with plain numpy, as docs/rankings.md defines it."""
+def direct(
+    path: Path, objective: str, by: str, method: str, weight: str, part: str = "trusted"
+) -> list[dict]:
+    """The ranking from the raw archive with plain numpy, as docs/rankings.md defines it:
+    object and type rows of verified parameters (``part`` "trusted"), or of the others
+    ("untrusted", the left-out rows); key rows of every parameter a gradient flows to."""
     with np.load(path, allow_pickle=False) as npz:
         header = json.loads(str(npz["header"]))
         j = next(o["array"] for o in header["objectives"] if o["name"] == objective)
@@ -97,16 +101,17 @@ def direct(path: Path, objective: str, by: str, method: str, weight: str) -> lis
             value = npz[f"value_{p['array']:06d}"].astype(np.float64).ravel()
             c[p["key"]] = grad * value if weight == "value" else grad
             c[p["key"] + "/mean"] = value.mean()
+    total_sq = sum(float(c[k] @ c[k]) for k in (p["key"] for p in params))
     if by == "key":
         groups = {p["key"]: [p["key"]] for p in params}
     else:
+        chosen = [p for p in params if (p["trust"] == "verified") == (part == "trusted")]
         field = "owners" if by == "object" else "type"
-        names = sorted({n for p in params for n in (p[field] if by == "object" else [p[field]])})
+        names = sorted({n for p in chosen for n in (p[field] if by == "object" else [p[field]])})
         groups = {
-            n: [p["key"] for p in params if n in (p[field] if by == "object" else [p[field]])]
+            n: [p["key"] for p in chosen if n in (p[field] if by == "object" else [p[field]])]
             for n in names
         }
-    total_sq = sum(float(c[k] @ c[k]) for k in (p["key"] for p in params))
     rows = []
     for name, keys in groups.items():
         allc = np.concatenate([c[k] for k in keys])
@@ -137,17 +142,23 @@ def test_rank_json_agrees_with_the_raw_arrays(
     assert result.exit_code == 0, result.output
     doc = json.loads(result.output)
     assert doc["format"] == "sensaov-ranking" and doc["columns"] == list(COLUMNS)
+    assert doc["format_version"] == 3
     for objective in doc["objectives"]:
-        expected = direct(buffer_path, objective["name"], by, method, weight)
-        rows = objective["rows"]
-        assert [r["name"] for r in rows] == [e["name"] for e in expected]
-        for row, want in zip(rows, expected, strict=True):
-            for column in ("score", "signed", "share"):
-                assert row[column] == pytest.approx(want[column], rel=1e-9, abs=1e-12)
-            assert row["value"] == (None if want["value"] is None else pytest.approx(want["value"]))
-            assert row["sign"] == ("+" if row["signed"] > 0 else "-")
+        for part, rows in (("trusted", objective["rows"]), ("untrusted", objective["left_out"])):
+            expected = direct(buffer_path, objective["name"], by, method, weight, part)
+            if by == "key" and part == "untrusted":
+                expected = []  # a key is its own row, marked: nothing is left out of it
+            assert [r["name"] for r in rows] == [e["name"] for e in expected]
+            for row, want in zip(rows, expected, strict=True):
+                for column in ("score", "signed", "share"):
+                    assert row[column] == pytest.approx(want[column], rel=1e-9, abs=1e-12)
+                assert row["value"] == (
+                    None if want["value"] is None else pytest.approx(want["value"])
+                )
+                assert row["sign"] == ("+" if row["signed"] > 0 else "-")
+                assert row["part"] == ("all" if by == "key" else part)
         assert [p["key"] for p in objective["no_gradient"]] == ["glass.eta"]
-        assert "ball" not in {r["name"] for r in rows}  # all its parameters are no_gradient
+        assert "ball" not in {r["name"] for r in objective["rows"]}  # only no_gradient there
 
 
 def test_shares_of_keys_and_of_types_add_up_to_one(runner: CliRunner, buffer_path: Path) -> None:
@@ -156,7 +167,8 @@ def test_shares_of_keys_and_of_types_add_up_to_one(runner: CliRunner, buffer_pat
             main, ["rank", str(buffer_path), "--by", by, "--json", "--top", "99"]
         )
         for objective in json.loads(result.output)["objectives"]:
-            assert sum(r["share"] for r in objective["rows"]) == pytest.approx(1.0)
+            rows = objective["rows"] + objective["left_out"]  # types: trusted and left out
+            assert sum(r["share"] for r in rows) == pytest.approx(1.0)
 
 
 def test_csv_carries_the_json_columns_and_numbers(runner: CliRunner, buffer_path: Path) -> None:
@@ -172,11 +184,19 @@ def test_csv_carries_the_json_columns_and_numbers(runner: CliRunner, buffer_path
 
 
 def test_text_marks_trust_and_lists_no_gradient(runner: CliRunner, buffer_path: Path) -> None:
-    result = runner.invoke(main, ["rank", str(buffer_path), "--by", "object"])
+    one = ["--objective", "brightness"]
+    result = runner.invoke(main, ["rank", str(buffer_path), "--by", "object", *one])
     assert result.exit_code == 0
-    floor = next(line for line in result.output.splitlines() if line.rstrip().endswith("floor"))
-    assert " ! " in floor  # floor owns the biased alpha
+    floors = [line for line in result.output.splitlines() if line.rstrip().endswith("floor")]
+    assert len(floors) == 2  # its trusted part, and its biased alpha left out, marked
+    assert " ! " not in floors[0] and " ! " in floors[1]
+    above = result.output.index(floors[1]) > result.output.index("left out of the rows above")
+    assert above and "! = biased: disagrees with finite differences" in result.output
     assert "glass.eta (ball): a reason" in result.output
+    mixed = runner.invoke(main, ["rank", str(buffer_path), "--by", "object", *one,
+                                 "--untrusted", "include"]).output  # fmt: skip
+    (floor,) = [line for line in mixed.splitlines() if line.rstrip().endswith("floor")]
+    assert " ! " in floor and "left out" not in mixed
 
 
 def test_default_output_is_the_summary(runner: CliRunner, buffer_path: Path) -> None:
@@ -255,3 +275,46 @@ def test_a_missing_camera_exr_is_one_line_of_bad_input(buffer_path: Path) -> Non
     assert result.stderr.strip().splitlines() == [
         f"sensaov: error: {missing}: the OpenEXR file does not exist; no output was replaced"
     ]
+
+
+def zero_valued_buffer() -> SensitivityBuffer:
+    """make_buffer() with the lamp's radiance at 0: value weighting scores it 0."""
+    base = make_buffer()
+    values = dict(base.values)
+    values["lamp.emitter.radiance.value"] = np.zeros(3, np.float32)
+    return SensitivityBuffer(
+        provenance=base.provenance, objects=base.objects, params=base.params,
+        objectives=base.objectives, values=values, grads=base.grads,
+    )  # fmt: skip
+
+
+def test_zero_valued_parameters_are_flagged_with_their_raw_gradient() -> None:
+    """θ = 0 gives a value-weighted score of 0 (issue 18, point 5): never 'does not matter'
+    without a word, in rankings, the summary, channels and the sunburst."""
+    from sensaov_cli.outputs.rankings import ranking_dict, ranking_text
+    from sensaov_cli.spec.job import ChannelSpec
+    from sensaov_cli.views.channels import channel_values
+    from sensaov_cli.views.hierarchy import rankings
+    from sensaov_cli.views.summary import summary_dict
+    from sensaov_cli.views.sunburst_geometry import panels
+
+    buf, key = zero_valued_buffer(), "lamp.emitter.radiance.value"
+    raw = float(buf.grad("brightness", key).astype(np.float64).sum())
+    found = rankings(buf, by="key", objectives=["brightness"])
+    (row,) = [r for r in found[0].rows if r.name == key]
+    assert (row.score, row.zero_value, row.raw_signed) == (0.0, True, pytest.approx(raw))
+    doc = ranking_dict(buf, found, method="l2", weight="value", cameras=None)
+    (entry,) = doc["objectives"][0]["zero_valued"]
+    assert (entry["key"], entry["hidden"], entry["size"]) == (key, 3, 3)
+    text = ranking_text(found, method="l2", weight="value")
+    assert "θ0" in text and f"{key} (lamp): {raw:+.3e}" in text
+    (lamp,) = [r for r in rankings(buf, by="object")[0].rows if r.name == "lamp"]
+    assert lamp.zero_value  # its object says so too
+    summary = summary_dict(buf)["objectives"][0]
+    assert [z["key"] for z in summary["zero_valued"]] == [key]
+    assert "θ0 = value exactly 0" in summary_text(buf)
+    (objects, *_) = channel_values(buf, (ChannelSpec("objects", "object"),))
+    assert objects.zero_valued == {key: pytest.approx(raw)}
+    assert [z.key for z in panels(buf, ["brightness"])[0].zero_valued] == [key]
+    raw_weight = rankings(buf, by="key", weight="raw", objectives=["brightness"])[0]
+    assert not any(r.zero_value for r in raw_weight.rows)  # nothing hidden per unit of θ

@@ -30,6 +30,7 @@ from sensaov_cli.spec.job import CameraSpec, ChannelSpec
 from sensaov_cli.spec.load import load_job
 from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass, histogram, ranked
+from sensaov_cli.views.display_scale import robust_scale
 from sensaov_cli.views.painting import paint_pass
 from tests.conftest import sensaov, write_job
 
@@ -165,15 +166,16 @@ def test_run_and_project_go_through_on_every_corpus_scene(tmp_path: Path, scene:
         assert invisible
 
 
-def test_previews_take_their_scale_from_what_the_camera_sees() -> None:
+def test_display_scales_never_read_what_no_camera_sees() -> None:
     objects = ("ball", "sky")
     coverage = histogram(np.zeros((4, 2), np.int32))  # every sample hits the ball
     index, amount = ranked(coverage, (2, 2), 2)
     vis = VisibilityPass(2, 2, 2, objects, None, coverage, index, amount)
+    channel = ChannelSpec("objects", "object", normalize="shared")
     values = ChannelValues(
         objective="m",
         pass_name="objects",
-        spec=ChannelSpec("objects", "object", normalize="shared"),
+        spec=channel,
         selection="all",
         keys=("ball.x", "sky.data"),
         magnitudes=np.array([0.1, 10.0]),
@@ -181,10 +183,12 @@ def test_previews_take_their_scale_from_what_the_camera_sees() -> None:
         unverified=(),
     )
     painted = paint_pass(values, vis)
-    # Encoded on the camera-independent scale (the sky's 10), previewed at the ball's 0.1.
+    # Encoded on the camera-independent scale (the sky's 10); its display scale reads only the
+    # pixels this camera paints: the ball's 0.1, encoded as 0.01.
     assert painted.scale.scale == pytest.approx(10.0)
-    assert painted.preview_scale * painted.scale.scale == pytest.approx(0.1)
     assert painted.invisible == ("sky",)
+    scale = robust_scale({"cam": [painted.data]})
+    assert scale.value == pytest.approx(0.01) and scale.clipped == 0.0
 
 
 def integrator_of(tmp_path: Path, integrator: str) -> tuple[ET.Element, str | None]:

@@ -10,6 +10,7 @@ import pytest
 
 from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
 from sensaov_cli.outputs.tables import (
+    LABEL_MEANINGS,
     NO_GRADIENT_MARK,
     SUSPECT_MARK,
     UNVERIFIED_MARK,
@@ -74,8 +75,8 @@ def row_of(text: str, key: str) -> str:
 
 
 # The text of make_buffer() before trust labels existed (with the signed sum and its rank
-# beside each object's and type's score since texel channels): a buffer with no suspect and
-# no zero-gradient parameter must still print exactly this.
+# beside each object's and type's score since texel channels), read with untrusted parameters
+# mixed in: only the legend changed since, to say the label the table says.
 BEFORE_LABELS = """\
 sensitivity buffer: 3 parameters, 4 objects, 1 objective · scene scenes/cbox.xml · variant llvm_ad_rgb · spp 16
 scores: l2 of theta * dM/dtheta over each group's components
@@ -98,40 +99,70 @@ objective 'brightness'   M = 0.125
     1  !  5.00e-01  -5.00e-01     1  roughness
     2     4.00e-02  +4.00e-02     2  radiance
     3     3.00e-03  +5.00e-03     3  reflectance
-  ! = unverified gradient, do not trust the number:
-      floor.bsdf.alpha.value: known biased: roughplastic alpha gradient ~5x too small
-    objects and types marked ! include such a parameter
+  ! = {meaning}
+      floor.bsdf.alpha.value: {trust}: known biased: roughplastic alpha gradient ~5x too small
+    objects and types so marked include such a parameter
 """  # noqa: E501
+
+# The default since: objects and types add up trusted parameters only, the rest apart.
+APART = """\
+  objects (trusted parameters only) (top 3 of 3)
+    #       score     signed  #sum  object
+    1    4.00e-02  +4.00e-02     1  lamp
+    2    3.00e-03  +5.00e-03     2  wall
+    3    0.00e+00  +0.00e+00     3  ceiling
+  types (trusted parameters only)
+    #       score     signed  #sum  type
+    1    4.00e-02  +4.00e-02     1  radiance
+    2    3.00e-03  +5.00e-03     2  reflectance
+  left out of the objects and types above (not trusted), by object:
+      floor  5.00e-01  -5.00e-01  floor.bsdf.alpha.value (biased)
+  ! = biased: disagrees with finite differences, do not trust the number
+      floor.bsdf.alpha.value: biased: known biased: roughplastic alpha gradient ~5x too small
+"""
 
 
 @pytest.mark.parametrize("trust", ["biased", "unverified"])
-def test_text_without_new_labels_is_unchanged(trust: str) -> None:
-    assert summary_text(make_buffer(trust)) == BEFORE_LABELS
+def test_text_without_new_labels_is_unchanged_but_for_the_label(trust: str) -> None:
+    meaning = LABEL_MEANINGS[trust]
+    expected = BEFORE_LABELS.format(meaning=meaning, trust=trust)
+    assert summary_text(make_buffer(trust), untrusted="include") == expected
+
+
+def test_objects_and_types_leave_untrusted_parameters_apart() -> None:
+    text = summary_text(make_buffer("biased"))
+    assert text.endswith(APART)
+    assert "unverified" not in text  # a biased parameter is called biased, nowhere unverified
 
 
 def test_unverified_parameter_is_marked_in_text(buf: SensitivityBuffer) -> None:
     text = summary_text(buf)
     assert UNVERIFIED_MARK in row_of(text, ALPHA).split()
     assert UNVERIFIED_MARK not in row_of(text, WALL).split()
-    assert f"{ALPHA}: {BIASED}" in text  # the legend gives the reason
-    assert "unverified" in text
+    assert f"{ALPHA}: biased: {BIASED}" in text  # the legend gives the label and the reason
+    assert "unverified" not in text  # biased is said biased
 
 
 def test_labels_are_in_the_dict(buf: SensitivityBuffer) -> None:
-    (objective,) = summary_dict(buf)["objectives"]
+    (objective,) = summary_dict(buf, untrusted="include")["objectives"]
     labels = {p["key"]: (p["verified"], p["trust"], p["note"]) for p in objective["parameters"]}
     assert labels[ALPHA] == (False, "biased", BIASED)
     assert labels[WALL] == (True, "verified", "")
     assert {o["name"]: o["trust"] for o in objective["objects"]}["floor"] == "biased"
     assert {t["type"]: t["verified"] for t in objective["types"]}["roughness"] is False
+    (apart,) = summary_dict(buf)["objectives"]
+    assert "floor" not in {o["name"] for o in apart["objects"]}  # its only parameter: biased
+    (floor,) = apart["left_out"]["objects"]
+    assert (floor["name"], floor["keys"], floor["score"]) == ("floor", [[ALPHA, "biased"]], 0.5)
 
 
 def test_suspect_parameter_has_its_own_mark_and_legend() -> None:
     buf = make_buffer("suspect")
     text = summary_text(buf)
     assert SUSPECT_MARK in row_of(text, ALPHA).split()
-    assert SUSPECT_MARK in row_of(summary_text(buf, top=0), "roughness").split()  # its type
-    assert "? = suspect gradient: it failed a run-time self-check:" in text
+    included = summary_text(buf, top=0, untrusted="include")
+    assert SUSPECT_MARK in row_of(included, "roughness").split()  # its type
+    assert "? = suspect: failed a run-time self-check" in text
     assert UNVERIFIED_MARK + " =" not in text  # nothing unverified here
 
 
@@ -140,13 +171,16 @@ def test_zero_gradient_is_listed_apart_not_ranked() -> None:
     assert not [line for line in text.splitlines() if re.match(rf"\s+\d+\s.*{GOLD}", line)]
     assert f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:" in text
     assert f"      {GOLD} (gold_ball): {NO_FLOW}" in text
-    assert "parameters (top 3 of 3)" in text and "objects (top 4 of 4)" in text
+    assert (
+        "parameters (top 3 of 3)" in text
+        and "objects (trusted parameters only) (top 3 of 3)" in text
+    )
     assert not re.search(r"^\s+\d+\s.*\b(gold_ball|eta)$", text, re.MULTILINE)
 
 
 def test_zero_gradient_in_json_and_out_of_every_score() -> None:
     summary = json.loads(json.dumps(summary_dict(with_gold_ball(), top=10)))
-    assert (summary["format"], summary["format_version"]) == ("sensaov-summary", 2)
+    assert (summary["format"], summary["format_version"]) == ("sensaov-summary", 3)
     assert summary["counts"]["parameters"] == 4 and summary["counts"]["ranked_parameters"] == 3
     (objective,) = summary["objectives"]
     assert [p["key"] for p in objective["no_gradient"]] == [GOLD]
@@ -161,7 +195,7 @@ def test_an_object_keeps_its_flowing_parameters() -> None:
     """A zero-gradient parameter leaves its object only when it was the object's last one."""
     extra = ParamRecord("floor.bsdf.reflectance.value", "reflectance", ("floor",), (3,), False,
                         "diffuse", (), "no_gradient", NO_FLOW)  # fmt: skip
-    (objective,) = summary_dict(make_buffer(extra=(extra,)))["objectives"]
+    (objective,) = summary_dict(make_buffer(extra=(extra,)), untrusted="include")["objectives"]
     floor = {o["name"]: o for o in objective["objects"]}["floor"]
     assert floor["score"] == 0.5 and floor["trust"] == "biased"
     types = {t["type"]: t for t in objective["types"]}
@@ -169,7 +203,7 @@ def test_an_object_keeps_its_flowing_parameters() -> None:
 
 
 def test_dict_is_json_and_ranked(buf: SensitivityBuffer) -> None:
-    summary = json.loads(json.dumps(summary_dict(buf, top=2)))
+    summary = json.loads(json.dumps(summary_dict(buf, top=2, untrusted="include")))
     (objective,) = summary["objectives"]
     assert (objective["name"], objective["value"]) == ("brightness", 0.125)
     assert objective["definition"] == {"kind": "mean_luminance"}
@@ -205,15 +239,16 @@ def test_no_mark_and_no_legend_when_all_verified() -> None:
 
 
 def test_groups_stay_marked_when_the_parameter_is_not_shown(buf: SensitivityBuffer) -> None:
-    text = summary_text(buf, top=0)
+    text = summary_text(buf, top=0, untrusted="include")
     assert UNVERIFIED_MARK in row_of(text, "roughness").split()
-    assert "includes a parameter whose gradient is unverified" in text
+    assert "! = biased: disagrees with finite differences" in text
+    assert "objects and types so marked include such a parameter" in text
 
 
 def test_a_suspect_group_outranks_an_unverified_one() -> None:
     suspect = ParamRecord("floor.bsdf.k.value", "k", ("floor",), (1,), False, "x", (),
                           "suspect", "failed a self-check")  # fmt: skip
-    (objective,) = summary_dict(make_buffer(extra=(suspect,)))["objectives"]
+    (objective,) = summary_dict(make_buffer(extra=(suspect,)), untrusted="include")["objectives"]
     assert {o["name"]: o["trust"] for o in objective["objects"]}["floor"] == "suspect"
 
 
@@ -235,7 +270,8 @@ def test_params_shows_every_label() -> None:
     inventory = Inventory(with_gold_ball().params)
     text = params_text(inventory)
     assert "BIASED" in row_of_params(text, ALPHA) and "NO GRADIENT" in row_of_params(text, GOLD)
-    assert "UNVERIFIED" not in row_of_params(text, WALL) and f"  - {NO_FLOW}" in text
+    assert "UNVERIFIED" not in row_of_params(text, WALL) and f"  - NO GRADIENT: {NO_FLOW}" in text
+    assert f"  - BIASED: {BIASED}" in text  # the heading no longer calls biased unverified
     entries = {e["key"]: e for e in params_dict(inventory)["selected"]}
     assert (entries[GOLD]["trust"], entries[GOLD]["verified"]) == ("no_gradient", False)
 
@@ -250,6 +286,16 @@ def test_a_pass_is_not_marked_for_a_parameter_no_gradient_flows_through() -> Non
     from sensaov_cli.spec.job import ChannelSpec
     from sensaov_cli.views.channels import channel_values
 
-    (objects,) = channel_values(with_gold_ball(), (ChannelSpec("objects", "object"),))
+    channel = (ChannelSpec("objects", "object"),)
+    (objects,) = channel_values(with_gold_ball(), channel, untrusted="include")
     assert GOLD in objects.keys
     assert objects.unverified == (ALPHA,)
+    trusted, apart = channel_values(with_gold_ball(), channel)  # the default: apart
+    assert (trusted.pass_name, trusted.part, trusted.unverified) == ("objects", "trusted", ())
+    assert GOLD in trusted.keys and ALPHA not in trusted.keys
+    assert trusted.left_out == {"floor": (ALPHA,)}
+    assert (apart.pass_name, apart.keys, apart.unverified) == (
+        "objects_untrusted",
+        (ALPHA,),
+        (ALPHA,),
+    )

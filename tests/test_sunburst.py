@@ -40,7 +40,7 @@ def children(wedges: tuple[Wedge, ...], parent: Wedge) -> list[Wedge]:
 def test_first_ring_angles_are_the_ranking(
     objective: str, order: str, first: str, method: str
 ) -> None:
-    wedges = sunburst_wedges(BUF, objective, order=order, method=method)
+    wedges = sunburst_wedges(BUF, objective, order=order, method=method, untrusted="include")
     ring = [w for w in wedges if w.ring == 1]
     ranked = [
         (n, s)
@@ -57,6 +57,25 @@ def test_first_ring_angles_are_the_ranking(
         assert wedge.span == pytest.approx(abs(score) / total, rel=1e-12)
         assert wedge.score == pytest.approx(score, rel=1e-12)
     assert ring[0].start == 0.0 and ring[-1].stop == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize(("order", "first"), [("object,type", "object"), ("type,object", "type")])
+def test_untrusted_parameters_get_a_hatched_wedge_of_their_own(order: str, first: str) -> None:
+    """The biased floor alpha leaves floor's (roughness's) wedge for one of its own."""
+    wedges = sunburst_wedges(BUF, "brightness", order=order)
+    ring = {w.label: w for w in wedges if w.ring == 1}
+    trusted = [k for k in FLOWING if BUF.param(k).trust == "verified"]
+    name = "floor" if first == "object" else "roughness"
+    apart = ring[f"{name} (untrusted)"]
+    assert apart.trust == "biased"
+    assert apart.score == pytest.approx(aggregate(BUF, "brightness", ["floor.bsdf.alpha.value"]))
+    if first == "object":  # floor keeps its shared, verified reflectance
+        kept = [k for k in trusted if "floor" in BUF.param(k).owners]
+        assert ring["floor"].trust == "verified"
+        assert ring["floor"].score == pytest.approx(aggregate(BUF, "brightness", kept))
+    else:  # roughness had nothing else
+        assert "roughness" not in ring
+    assert all(w.trust == "verified" for label, w in ring.items() if "untrusted" not in label)
 
 
 @pytest.mark.parametrize("order", ["object,type", "type,object"])
@@ -121,3 +140,22 @@ def test_cli_refuses_an_unknown_format(runner: CliRunner, tmp_path: Path) -> Non
     result = runner.invoke(main, ["sunburst", str(buffer), "-o", str(tmp_path / "s.jpg")])
     assert result.exit_code == EXIT_BAD_INPUT
     assert not (tmp_path / "s.jpg").exists()
+
+
+def test_every_text_is_at_least_eleven_pixels_at_one_to_one() -> None:
+    """The report shows the PNG at 1:1: a font of FONT_PT at DPI is its size in pixels."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+    from matplotlib.text import Text
+
+    from sensaov_cli.outputs import sunburst_drawing as drawing
+
+    fig = drawing._figure(panels(BUF, ["brightness"]), "object,type", "l2", 5.6)
+    try:
+        texts = [t for t in fig.findobj(Text) if t.get_text().strip() and t.get_visible()]
+        sizes = [t.get_fontsize() * drawing.DPI / 72 for t in texts]
+    finally:
+        plt.close(fig)
+    assert len(texts) > 10 and min(sizes) >= drawing.MIN_TEXT_PX

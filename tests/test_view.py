@@ -47,6 +47,7 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.viewpoint import Pose, ViewTracer, sensor_pose
 from sensaov_cli.spec.cameras import LookAt
 from sensaov_cli.spec.load import load_job
+from sensaov_cli.views.headline import is_trusted
 
 from .conftest import ROOT, sensaov
 from .webdriver import Browser, browser_missing, free_port
@@ -137,11 +138,12 @@ def project_point(camera: dict[str, Any], point: tuple[float, float, float]) -> 
 
 
 def test_view_command_serves_meta_two_views_and_a_pick_then_stops(small_job: Path) -> None:
-    """The acceptance test: the real command on the demo job, as a user starts it."""
+    """The acceptance test: the real command on the demo job (made small: its buffer belongs to
+    that version of the job, which `view` checks), as a user starts it."""
     buffer = load_job(small_job).output / "buffer.npz"
     port = free_port()
     process = subprocess.Popen(
-        [sys.executable, "-m", "sensaov_cli", "view", str(CBOX), "--buffer", str(buffer),
+        [sys.executable, "-m", "sensaov_cli", "view", str(small_job), "--buffer", str(buffer),
          "--port", str(port)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
@@ -223,14 +225,31 @@ def test_a_taken_port_and_a_missing_buffer_are_one_line_of_bad_input(
     assert len(result.stderr.splitlines()) == 1 and str(missing) in result.stderr
 
 
+def test_a_buffer_of_another_job_version_is_refused(small_job: Path, tmp_path: Path) -> None:
+    """One consistent state (issue 18): an objective renamed since `run` is refused in one line
+    (exit 2) before anything is served; --force inspects it anyway."""
+    data = yaml.safe_load(small_job.read_text())
+    data["objectives"][0]["name"] = "renamed"
+    other = tmp_path / "job.yaml"
+    other.write_text(yaml.safe_dump(data, sort_keys=False))
+    buffer = small_job.parent / "out" / "buffer.npz"
+    result = sensaov("view", str(other), "--port", "0", "--buffer", str(buffer))
+    assert result.returncode == EXIT_BAD_INPUT and result.stdout == ""
+    (line,) = result.stderr.splitlines()
+    assert "made by another version of job.yaml" in line and "--force" in line
+
+
 def test_a_view_paints_the_buffer_values_and_a_pick_lists_the_gradients(
     server: ViewServer, session: ViewSession
 ) -> None:
-    """The EXR layer holds the objects' aggregates from the buffer at fully covered pixels, and
-    a pick reports the stored value and gradient of each of the object's parameters."""
+    """The EXR layer holds the objects' aggregates of their trusted gradients (the headline
+    view, issue 18) at fully covered pixels, and a pick reports the stored value and gradient
+    of each of the object's parameters."""
     buffer = read_buffer(session.buffer_path)
-    scores = per_object(buffer, "mean_luma", method="l2", weight="value")
-    sums = per_object(buffer, "mean_luma", method="sum", weight="value")
+    trusted = [p.key for p in buffer.params if is_trusted(p)]
+    assert len(trusted) < len(buffer.params)  # the demo holds biased gradients: left out here
+    scores = per_object(buffer, "mean_luma", method="l2", weight="value", keys=trusted)
+    sums = per_object(buffer, "mean_luma", method="sum", weight="value", keys=trusted)
     status, _, body = get(server.url + "api/view?channel=objects&format=exr&spp=4&width=64")
     assert status == 200
     exr = Path(session.job.output) / "view-test.exr"
@@ -288,6 +307,39 @@ def test_a_pick_outside_the_image_and_an_unknown_page_are_refused(server: ViewSe
     assert get(server.url + "api/pick?x=256&y=0")[0] == 400
     assert get(server.url + "api/pick?x=1")[0] == 400
     assert get(server.url + "nope")[0] == 404
+
+
+def test_the_shared_scale_is_the_one_project_paints_with(
+    server: ViewServer, session: ViewSession, small_job: Path
+) -> None:
+    """Fig. 6 across tools: the page's shared scale of `mean_luma.objects` is the display scale
+    `project` records for that layer in every camera's EXR (one function, p95 rule); the
+    view's own scale is p95 of its own pixels and says so."""
+    done = sensaov("project", "-q", str(small_job))
+    assert done.returncode == 0, done.stderr
+    recorded = set()
+    for camera in session.job.projected_cameras():
+        _, header = read_exr(session.job.output / f"{camera.name}.exr")
+        recorded |= {value for key, value in header.items()
+                     if key.endswith("/display_scale") and header.get(key.replace(
+                         "/display_scale", "/name")) == "mean_luma.objects"}  # fmt: skip
+    assert len(recorded) == 1
+    shared = float(recorded.pop())
+    for pose in ("", "&origin=1,1,3"):  # the objective camera, then a free one
+        status, headers, _ = get(server.url + "api/view?channel=objects&width=32" + pose)
+        legend = json.loads(headers["X-Sensaov-Legend"])
+        assert status == 200 and legend["peak"] == pytest.approx(shared, rel=1e-12)
+        assert legend["notes"][0].startswith("scale: p95 of |v| over the non-zero pixels of")
+    _, headers, body = get(server.url + "api/view?channel=objects&width=32&scale=view&format=exr")
+    own = json.loads(headers["X-Sensaov-Legend"])
+    exr = session.job.output / "view-own.exr"
+    exr.write_bytes(body)
+    channels, _ = read_exr(exr)
+    exr.unlink()
+    values = np.abs(channels["mean_luma.objects.Y"].astype(np.float64))
+    painted = values[values > 0]
+    assert own["notes"][0].startswith("scale: p95 of |v| over this view's pixels")
+    assert np.mean(painted > own["peak"] * 1.001) <= 0.05 < np.mean(painted >= own["peak"] * 0.999)
 
 
 def test_forward_layers_are_served_at_the_objective_camera_only(server: ViewServer) -> None:

@@ -24,7 +24,7 @@ import click
 from sensaov_cli import interrupts
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_MEANINGS, SensaovError
 from sensaov_cli.outputs import atomic
-from sensaov_cli.vocabulary import AGGREGATES, WEIGHTS
+from sensaov_cli.vocabulary import AGGREGATES, UNTRUSTED_MODES, WEIGHTS
 
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 
@@ -65,6 +65,14 @@ weight_option = click.option(
     default="value",
     show_default=True,
     help="value: θ·∂M/∂θ (response to a proportional change); raw: ∂M/∂θ.",
+)
+untrusted_option = click.option(
+    "--untrusted",
+    type=click.Choice(UNTRUSTED_MODES),
+    default="apart",
+    show_default=True,
+    help="apart: objects and types add up trusted gradients only, the rest shown apart; "
+    "include: mix them in, marked (docs/encoding.md, 'Trusted numbers').",
 )
 
 

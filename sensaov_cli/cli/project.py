@@ -37,7 +37,9 @@ from sensaov_cli.cli.options import (
     "(0: none). It is a full path trace: at 16 spp it costs more than the whole view.",
 )
 @click.option(
-    "--force", is_flag=True, help="Project even if the scene changed since the buffer was made."
+    "--force",
+    is_flag=True,
+    help="Project even if the scene or the job changed since the buffer was made.",
 )
 @json_option
 @quiet_option
@@ -57,7 +59,15 @@ def project(
     Reads the buffer and traces primary visibility only: no derivative is
     computed, so each view costs a fraction of the adjoint pass. Writes
     <output>/<camera>.exr per camera (beauty, CryptoObject, one layer per
-    objective and channel; see docs/exr-layout.md) and, with --png, previews.
+    objective and channel, each with a display layer a viewer shows without
+    a grade; see docs/exr-layout.md) and, with --png, legended previews.
+
+    \b
+    Pictures of one objective and channel share one scale in every camera
+    (the 95th percentile of |value| over the pixels it paints; job key views),
+    so every camera's visibility is traced even with --camera. The objects and
+    types layers add up trusted gradients; the rest goes to <pass>_untrusted.
+    A buffer made by another version of the job is refused (exit 2).
 
     \b
     Example:

@@ -15,9 +15,10 @@ from sensaov_cli.cli.options import (
     objective_option,
     reports_errors,
     top_option,
+    untrusted_option,
     weight_option,
 )
-from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Weight
+from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
@@ -40,6 +41,7 @@ from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Weight
 @top_option("Rows per table.")
 @aggregate_option
 @weight_option
+@untrusted_option
 @reports_errors
 def rank(
     buffer: Path,
@@ -51,6 +53,7 @@ def rank(
     top: int,
     aggregate: str,
     weight: str,
+    untrusted: str,
 ) -> None:
     """Rank parameters, objects and types from a stored buffer (numpy only, no rendering).
 
@@ -58,8 +61,12 @@ def rank(
     Without --by: the summary `sensaov run` prints (top keys, objects, types).
     With --by key|object|type: one table per objective at that cut; every row
     has its score, signed sum, sign, share of the total, value (keys: the mean
-    of the value array) and trust label. --exr CAMERA.exr labels the objects
-    (or keys) that camera does not see. Columns: docs/rankings.md.
+    of the value array) and trust label. Objects and types add up only the
+    gradients sensaov stands behind; the rest is ranked apart ("left out",
+    --untrusted include mixes it in). A sign is significant when 0 lies outside
+    its 95 % interval (Student's t at batches - 1 degrees of freedom).
+    --exr CAMERA.exr labels the objects (or keys) that camera does not see; the
+    EXR must come from this very buffer. Columns: docs/rankings.md.
 
     \b
     Example:
@@ -72,13 +79,16 @@ def rank(
 
     refuse_options(by=by, objective=bool(objective), as_json=as_json, as_csv=as_csv, exr=bool(exrs))
     method, weighting = cast(Aggregate, aggregate), cast(Weight, weight)
+    apart = cast(Untrusted, untrusted)
     if by is None:
-        result = rank_summary(buffer, as_json=as_json, top=top, method=method, weight=weighting)
+        result = rank_summary(
+            buffer, as_json=as_json, top=top, method=method, weight=weighting, untrusted=apart
+        )
     else:
         style = "json" if as_json else "csv" if as_csv else "text"
         result = rank_by_cut(
             buffer, by=cast(Cut, by), objectives=objective, style=style, exrs=exrs, top=top,
-            method=method, weight=weighting,
+            method=method, weight=weighting, untrusted=apart,
         )  # fmt: skip
     if isinstance(result, dict):
         echo_json(result)

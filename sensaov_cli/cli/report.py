@@ -22,10 +22,12 @@ def report(job: Path, output: Path | None) -> None:
     """Write one HTML page of a job's outputs: nothing is rendered again.
 
     \b
-    The primal, a sunburst and ranked tables (by object, type and key) per
-    objective, every channel preview of every camera (`project --png`), the
-    trust of every parameter and the provenance. Images are embedded: the file
-    opens in a browser straight from disk, with no network and no server.
+    A summary first (the question, each objective's top objects with ± and
+    trust, what was left out and why, its sunburst), one section per camera
+    with its headline previews and legends (`project --png`), then an appendix
+    (rankings in full, trust of every parameter, provenance). Images are
+    embedded: the file opens in a browser straight from disk. Outputs made
+    from another buffer or job version are refused (exit 2).
 
     \b
     Example:

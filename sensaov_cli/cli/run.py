@@ -93,7 +93,7 @@ def run(
             task=Task(shard, tuple(dict.fromkeys(objective))),
             resume=resume,
         )
-    summary = summary_of(outputs.buffer, as_json=as_json, top=top)
+    summary = summary_of(outputs.buffer, as_json=as_json, top=top, untrusted=spec.views.untrusted)
     if isinstance(summary, dict):
         summary["files"] = {"buffer": str(outputs.buffer_path), "primal": str(outputs.primal_path)}
         echo_json(summary)

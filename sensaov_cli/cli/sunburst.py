@@ -12,9 +12,10 @@ from sensaov_cli.cli.options import (
     aggregate_option,
     objective_option,
     reports_errors,
+    untrusted_option,
     weight_option,
 )
-from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Weight
+from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Untrusted, Weight
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
@@ -31,6 +32,7 @@ from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Weight
 )
 @aggregate_option
 @weight_option
+@untrusted_option
 @click.option(
     "-o",
     "--output",
@@ -41,7 +43,13 @@ from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Weight
 )
 @reports_errors
 def sunburst(
-    buffer: Path, objective: tuple[str, ...], order: str, aggregate: str, weight: str, output: Path
+    buffer: Path,
+    objective: tuple[str, ...],
+    order: str,
+    aggregate: str,
+    weight: str,
+    untrusted: str,
+    output: Path,
 ) -> None:
     """Draw a sunburst of a stored buffer (numpy and matplotlib, no rendering).
 
@@ -50,7 +58,8 @@ def sunburst(
     types, then the parameters (--order type,object swaps the middle rings).
     Siblings share their parent's angle in proportion to their scores; colour
     is the signed sum (blue: raising the group lowers M, red: raises it);
-    hatched wedges hold a gradient that is not verified. docs/rankings.md.
+    a gradient sensaov does not stand behind is left out of its object and
+    drawn apart, in a hatched "(untrusted)" wedge. docs/rankings.md.
 
     \b
     Example:
@@ -66,5 +75,6 @@ def sunburst(
         order=cast(Order, order),
         method=cast(Aggregate, aggregate),
         weight=cast(Weight, weight),
+        untrusted=cast(Untrusted, untrusted),
     )
     click.echo(str(written))

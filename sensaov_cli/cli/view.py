@@ -34,7 +34,9 @@ from sensaov_cli.cli.options import EXIT_CODES_EPILOG, job_argument, quiet_optio
     help="Buffer to inspect (default: <output>/buffer.npz of the job).",
 )
 @click.option(
-    "--force", is_flag=True, help="Inspect even if the scene changed since the buffer was made."
+    "--force",
+    is_flag=True,
+    help="Inspect even if the scene or the job changed since the buffer was made.",
 )
 @click.option("--log", "log_requests", is_flag=True, help="Print every request on stderr.")
 @quiet_option

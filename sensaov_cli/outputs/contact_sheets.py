@@ -1,96 +1,234 @@
-"""PNG previews of a projected view: one image per pass and a labelled contact sheet.
+"""PNG previews of a projected view: one legended image per pass, a contact sheet per objective,
+and the camera's manifest of what was written from which buffer.
 
-Each pass is coloured at the largest value among the objects this camera sees, so an object
-no camera shows (an environment map, a point light, anything off-frame) never washes the
-picture out; a pass whose objects all lie out of view is titled "unseen".
+Every picture saturates at its layer's display scale (:mod:`sensaov_cli.views.display_scale`):
+by default one scale per (objective, channel) shared by every camera of the job, so the same
+object has the same colour in every view. Each single preview carries its own legend: the
+colour bar at ±scale, the scale's rule and scope, the share of pixels it clips here and over all
+cameras, and what the layer leaves out. A layer of untrusted gradients is hatched. The manifest
+``<previews>/<camera>.json`` lists every file with the buffer id and job version it was made
+from: ``sensaov report`` shows exactly those files, and refuses them if they are stale.
 """
 
 from __future__ import annotations
 
 import json
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from sensaov_cli.outputs.atomic import atomic_write
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.names import file_token
-from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, underlay, write_png
+from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay, write_png
 from sensaov_cli.views.coverage import VisibilityPass
+from sensaov_cli.views.display_scale import DisplayScale, clipped_share, signed_pixels
 
 SHEET_COLUMNS = 4
-REC709_LUMA = (0.2126, 0.7152, 0.0722)
 MIN_TILE_WIDTH = 192  # small views are enlarged (nearest neighbour) so labels stay readable
+SINGLE_TILE_WIDTH = 256  # a single preview is enlarged further: its legend needs the width
+MANIFEST_FORMAT = "sensaov-previews"
+MANIFEST_VERSION = 1
+UNTRUSTED_NOTE = "hatched: gradients sensaov does not stand behind, left out of the headline"
+
+
+@dataclass(frozen=True)
+class PreviewFile:
+    """One file of a camera's previews, as its manifest lists it."""
+
+    file: str  # relative to the previews folder
+    kind: str  # "layer", "sheet" (an objective's contact sheet) or "fig4"
+    objective: str
+    pass_name: str = ""
+    part: str = "all"  # "trusted" / "untrusted" / "all"
+    scale: float | None = None
+    scope: str = ""
+    rule: str = ""
+    clipped: float | None = None  # share of this camera's non-zero pixels above the scale
+    clipped_all: float | None = None
+    notes: tuple[str, ...] = field(default_factory=tuple)  # the legend's lines, as drawn
 
 
 def write_previews(
     folder: Path,
     camera: str,
-    layers: Sequence[tuple[SensitivityLayer, float]],
+    layers: Sequence[tuple[SensitivityLayer, DisplayScale]],
     beauty: np.ndarray | None,
     visibility: VisibilityPass,
-) -> tuple[Path, ...]:
-    """Write ``folder/<camera>/<objective>.<pass>.png`` and ``folder/<camera>_<objective>.png``.
-
-    Every name in a path is a :func:`~.names.file_token` (a buffer's objective names come from
-    whoever wrote it); the names as they were are kept in each PNG's text chunks.
-    """
+    stamp: Mapping[str, str],
+) -> list[PreviewFile]:
+    """``folder/<camera>/<objective>.<pass>.png`` per layer and ``folder/<camera>_<objective>.png``
+    per objective. Names in paths are :func:`~.names.file_token`; the names as they were are
+    kept in each PNG's text chunks, with the ``stamp`` (buffer id, job version)."""
     written = []
     sheets: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
     for layer, scale in layers:
-        values = _signed(layer)
-        rgb = diverging_rgb(values, scale)
-        if beauty is not None:
-            rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
-        path = (
-            folder
-            / file_token(camera)
-            / f"{file_token(layer.objective)}.{file_token(layer.pass_name)}.png"
-        )
+        values = signed_pixels(layer.data, layer.metadata.get("kind", ""))
+        rgb = _picture(values, scale.value, layer, beauty, visibility)
+        entry = _layer_entry(camera, layer, scale, values)
         names = {"sensaov/camera": camera, "sensaov/objective": layer.objective}
-        write_png(
-            path,
-            rgb,
-            {
-                **names,
-                "sensaov/pass": layer.pass_name,
-                "sensaov/scale": repr(scale),
-                "sensaov/encoding": layer.metadata.get("encoding", ""),
-            },
-        )
-        written.append(path)
-        tile = _enlarged(diverging_rgb(values / (scale or 1.0), 1.0))
-        marked = layer.metadata.get("duality", "agrees") != "agrees"  # a transport layer's check
-        mark = " !" if marked or json.loads(layer.metadata.get("unverified", "[]")) else ""
-        title = f"{layer.pass_name} +-{scale:.2e}{mark}"
-        if not values.any() and json.loads(layer.metadata.get("invisible", "[]")):
-            title = f"{layer.pass_name}: unseen{mark}"  # it matters; this camera does not see it
-        sheets[layer.objective].append((title, tile))
+        text = {**stamp, **names, "sensaov/pass": layer.pass_name,
+                "sensaov/scale": repr(scale.value), "sensaov/scale_rule": scale.rule(),
+                "sensaov/encoding": layer.metadata.get("encoding", "")}  # fmt: skip
+        title = f"{layer.objective}.{layer.pass_name} ({camera})"
+        tile = _enlarged(rgb, SINGLE_TILE_WIDTH)
+        sheet = contact_sheet([(_label(layer, scale), tile)], 1, scale=scale.value, title=title,
+                              notes=entry.notes)  # fmt: skip
+        write_png(folder / entry.file, sheet, text)
+        written.append(entry)
+        sheets[layer.objective].append((_label(layer, scale), _enlarged(rgb, MIN_TILE_WIDTH)))
     for objective, tiles in sheets.items():
-        sheet = contact_sheet(
-            tiles,
-            SHEET_COLUMNS,
-            scale=1.0,
-            title=f"{camera} / {objective}: each tile at its own +-scale; ! = unverified gradients",
+        file = f"{file_token(camera)}_{file_token(objective)}.png"
+        notes = _sheet_notes(layers, objective)
+        sheet = contact_sheet(tiles, SHEET_COLUMNS, scale=1.0, title=f"{camera} / {objective}",
+                              notes=notes)  # fmt: skip
+        write_png(folder / file, sheet, {**stamp, "sensaov/camera": camera,
+                                         "sensaov/objective": objective})  # fmt: skip
+        written.append(PreviewFile(file, "sheet", objective, notes=tuple(notes)))
+    return written
+
+
+def write_manifest(
+    folder: Path, camera: str, files: Sequence[PreviewFile], stamp: Mapping[str, str]
+) -> Path:
+    """``folder/<camera>.json``: every preview of the camera and what it was made from.
+
+    Previews the camera's previous manifest listed and this one does not (an objective or a
+    channel since renamed) are removed first: they were made from another state of the job."""
+    path = folder / f"{file_token(camera)}.json"
+    _remove_stale(folder, path, {entry.file for entry in files})
+    document: dict[str, Any] = {
+        "format": MANIFEST_FORMAT,
+        "format_version": MANIFEST_VERSION,
+        "camera": camera,
+        **{key.removeprefix("sensaov/"): value for key, value in stamp.items()},
+        "files": [asdict(entry) for entry in files],
+    }
+    text = json.dumps(document, indent=1, sort_keys=True) + "\n"
+
+    def write(tmp: Path) -> None:
+        tmp.write_text(text, encoding="utf-8")
+
+    atomic_write(path, write)
+    return path
+
+
+def _remove_stale(folder: Path, manifest: Path, keep: set[str]) -> None:
+    try:
+        listed = json.loads(manifest.read_text(encoding="utf-8"))["files"]
+        old = {entry["file"] for entry in listed if isinstance(entry.get("file"), str)}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return  # no previous manifest, or not one of ours: nothing is ours to remove
+    root = folder.resolve()
+    for name in sorted(old - keep):
+        stale = folder / name
+        if (
+            stale.suffix == ".png"
+            and stale.resolve().is_relative_to(root)
+            and not stale.is_symlink()
+            and stale.is_file()
+        ):
+            stale.unlink(missing_ok=True)
+
+
+def _picture(
+    values: np.ndarray,
+    scale: float,
+    layer: SensitivityLayer,
+    beauty: np.ndarray | None,
+    visibility: VisibilityPass,
+) -> np.ndarray:
+    rgb = diverging_rgb(values, scale)
+    if beauty is not None:
+        rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
+    if layer.metadata.get("part") == "untrusted":
+        rgb = hatch(rgb, values != 0)
+    return rgb
+
+
+def _layer_entry(
+    camera: str, layer: SensitivityLayer, scale: DisplayScale, values: np.ndarray
+) -> PreviewFile:
+    file = f"{file_token(camera)}/{file_token(layer.objective)}.{file_token(layer.pass_name)}.png"
+    here = clipped_share([values], scale.value)
+    return PreviewFile(
+        file=file,
+        kind="layer",
+        objective=layer.objective,
+        pass_name=layer.pass_name,
+        part=layer.metadata.get("part", "all"),
+        scale=scale.value,
+        scope=scale.scope,
+        rule=scale.rule(),
+        clipped=here,
+        clipped_all=scale.clipped,
+        notes=tuple(legend_notes(layer, scale, here, values)),
+    )
+
+
+def legend_notes(
+    layer: SensitivityLayer, scale: DisplayScale, here: float, values: np.ndarray
+) -> list[str]:
+    """The lines under a single preview's colour bar (ASCII: the font has no θ or ∂)."""
+    meta = layer.metadata
+    scope = {"shared": "shared scale", "tile": "per-tile scale", "fixed": "fixed scale"}
+    lines = [f"{scope[scale.scope]} +-{scale.value:.3g}: {scale.rule()}"]
+    if scale.value == 0:
+        lines[0] = f"zero in every camera of the rule: {scale.rule()}"
+    elif not values.any():
+        lines.append("nothing of it in this view")
+    else:
+        lines.append(
+            f"clipped: {100 * here:.1f} % of this view's non-zero pixels "
+            f"({100 * scale.clipped:.1f} % over the rule's cameras)"
         )
-        path = folder / f"{file_token(camera)}_{file_token(objective)}.png"
-        write_png(path, sheet, {"sensaov/camera": camera, "sensaov/objective": objective})
-        written.append(path)
-    return tuple(written)
+    left_out = json.loads(meta.get("left_out", "{}"))
+    if meta.get("part") == "untrusted":
+        held = ", ".join(f"{name} ({len(keys)})" for name, keys in sorted(left_out.items()))
+        lines.append(f"{UNTRUSTED_NOTE}: by object (parameters): {held}")
+    elif left_out:
+        lines.append(f"left out (untrusted, see {layer.pass_name}_untrusted): "
+                     + ", ".join(sorted(left_out)))  # fmt: skip
+    zero = json.loads(meta.get("zero_valued", "{}"))
+    if zero:
+        raw = ", ".join(f"{k} (raw dM/dtheta {v:+.2e})" for k, v in zero.items())
+        lines.append(f"theta = 0, scored 0 whatever the gradient: {raw}")
+    invisible = json.loads(meta.get("invisible", "[]"))
+    if invisible:
+        lines.append("not in this view: " + ", ".join(invisible))
+    if meta.get("duality", "agrees") != "agrees":
+        lines.append("duality check FAILED: do not trust this layer")
+    return lines
 
 
-def _signed(layer: SensitivityLayer) -> np.ndarray:
-    """One signed value per pixel. An RGB image (a forward channel's J·v) by its luminance; an
-    RGB texel field by the sum of its components, the effect of scaling all three together."""
-    data = layer.data
-    if data.ndim == 2:
-        return data
-    if layer.metadata.get("kind") in ("forward", "transport"):
-        return data[..., :3] @ np.array(REC709_LUMA, data.dtype)
-    return data.sum(axis=2)
+def _sheet_notes(
+    layers: Sequence[tuple[SensitivityLayer, DisplayScale]], objective: str
+) -> list[str]:
+    mine = [(layer, scale) for layer, scale in layers if layer.objective == objective]
+    scopes = sorted({scale.scope for _, scale in mine})
+    shared = ", one per channel across every camera" if "shared" in scopes else ""
+    notes = [
+        f"colour bar in units of each tile's scale (+-, in its label); scales: "
+        f"{', '.join(scopes)}{shared}"
+    ]
+    if any(layer.metadata.get("part") == "untrusted" for layer, _ in mine):
+        notes.append(UNTRUSTED_NOTE)
+    return notes
 
 
-def _enlarged(tile: np.ndarray) -> np.ndarray:
-    factor = -(-MIN_TILE_WIDTH // tile.shape[1])  # ceil
+def _label(layer: SensitivityLayer, scale: DisplayScale) -> str:
+    marks = " //" if layer.metadata.get("part") == "untrusted" else ""
+    marks += " !" if layer.metadata.get("duality", "agrees") != "agrees" else ""
+    tile = " tile" if scale.scope == "tile" else ""
+    if scale.value == 0:
+        return f"{layer.pass_name}: 0 everywhere{marks}"
+    return f"{layer.pass_name} +-{scale.value:.2e}{tile}{marks}"
+
+
+def _enlarged(tile: np.ndarray, width: int) -> np.ndarray:
+    factor = -(-width // tile.shape[1])  # ceil
     return np.repeat(np.repeat(tile, factor, axis=0), factor, axis=1) if factor > 1 else tile

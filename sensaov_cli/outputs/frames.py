@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,8 +24,11 @@ OBJECT_TYPE = "CryptoObject"
 _PAIRS = (("R", "G"), ("B", "A"))
 
 
-def visible_objects(paths: Sequence[Path]) -> dict[str, frozenset[str]]:
-    """Camera name (the file's stem, as ``project`` names it) -> the objects it sees."""
+def visible_objects(
+    paths: Sequence[Path], check: Callable[[Path, Mapping[str, Any]], None] | None = None
+) -> dict[str, frozenset[str]]:
+    """Camera name (the file's stem, as ``project`` names it) -> the objects it sees; ``check``
+    is called with each file's header first (``rank --exr`` refuses an EXR of another buffer)."""
     seen = {}
     for path in paths:
         if path.stem in seen:
@@ -36,6 +39,8 @@ def visible_objects(paths: Sequence[Path]) -> dict[str, frozenset[str]]:
             channels, header = read_exr(path)
         except ExrError as error:  # a file the user named: bad input, not a failed job
             raise CameraFileError(error.message, where=error.where, hint=error.hint) from error
+        if check is not None:
+            check(path, header)
         seen[path.stem] = seen_names(channels, header, where=str(path))
     return seen
 

@@ -24,7 +24,7 @@ from sensaov_cli.outputs import cryptomatte
 from sensaov_cli.outputs.exr import write_exr
 
 FORMAT_NAME = "sensaov-aov-exr"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: display layers, display scales, trust parts, stamps (exr-layout.md)
 TOKEN_BYTES = 63  # Blender keeps layer and pass names in 64-byte buffers
 SUFFIX_HEX = 6
 BEAUTY_CHANNELS = ("R", "G", "B", "A")

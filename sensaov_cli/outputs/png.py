@@ -110,3 +110,30 @@ def _inflates_to(compressed: bytes, size: int, *, at_least: bool) -> bool:
 def _chunk(kind: bytes, body: bytes) -> bytes:
     crc = zlib.crc32(kind + body) & 0xFFFFFFFF
     return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", crc)
+
+
+def read_png_text(path: Path, limit: int = 1 << 26) -> dict[str, str]:
+    """The ``tEXt`` chunks of a PNG file (Latin-1), without decoding its pixels.
+
+    Raises ``ValueError`` for a file that is not a PNG or whose chunks run past its end, and
+    reads at most ``limit`` bytes (a preview is far smaller).
+    """
+    with open(path, "rb") as stream:
+        data = stream.read(limit)
+    if not data.startswith(_SIGNATURE):
+        raise ValueError("not a PNG file")
+    text: dict[str, str] = {}
+    position = len(_SIGNATURE)
+    while position + 8 <= len(data):
+        (length,) = struct.unpack_from(">I", data, position)
+        kind = data[position + 4 : position + 8]
+        body = data[position + 8 : position + 8 + length]
+        if len(body) < length:
+            raise ValueError("a chunk runs past the end of the file")
+        if kind == b"tEXt":
+            keyword, _, value = body.partition(b"\0")
+            text[keyword.decode("latin-1")] = value.decode("latin-1")
+        if kind in (b"IDAT", b"IEND"):  # sensaov writes its text before the pixels
+            break
+        position += 12 + length
+    return text

@@ -51,6 +51,7 @@ BASELINE = 15  # from the top of a text line to its baseline
 BAR_HEIGHT = 12
 MIN_WIDTH = 256  # room for the legend's numbers under even a single small tile
 LEGEND_HEIGHT = LABEL_HEIGHT + BAR_HEIGHT + LABEL_HEIGHT + PAD  # title, bar, numbers, margin
+MAX_NOTES = 10  # lines of text under a legend: the scale's rule, what it clips, what is left out
 
 
 def diverging_rgb(values: np.ndarray, scale: float) -> np.ndarray:
@@ -71,6 +72,35 @@ def diverging_rgb(values: np.ndarray, scale: float) -> np.ndarray:
     table = RDBU.astype(np.float64)
     rgb = table[low] * (1.0 - frac) + table[low + 1] * frac
     return np.rint(rgb).astype(np.uint8)
+
+
+def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
+    """``values`` as float32 linear Rec. 709 RGB (shape + (3,)): the RdBu colours of
+    :func:`diverging_rgb` before rounding, decoded from sRGB, so that a viewer's sRGB (Standard)
+    display shows exactly the previews' colours. Display layers of EXRs are drawn with it."""
+    if not (math.isfinite(scale) and scale >= 0):
+        raise ValueError(f"scale must be finite and non-negative, got {scale}")
+    x = np.asarray(values, dtype=np.float64)
+    if not np.all(np.isfinite(x)):
+        raise NonFiniteError("values to draw are NaN or infinite", hint="encode finite values")
+    t = np.clip(x / scale, -1.0, 1.0) if scale > 0 else np.sign(x)
+    position = (t + 1.0) * 0.5 * (len(RDBU) - 1)
+    low = np.minimum(np.floor(position).astype(np.intp), len(RDBU) - 2)
+    frac = (position - low)[..., None]
+    table = RDBU.astype(np.float64) / 255.0
+    encoded = table[low] * (1.0 - frac) + table[low + 1] * frac
+    return _linear(encoded).astype(np.float32)
+
+
+def hatch(rgb_uint8: np.ndarray, mask: np.ndarray, period: int = 8, width: int = 2) -> np.ndarray:
+    """``rgb_uint8`` with dark diagonal stripes over ``mask``: the mark of a picture of
+    gradients left out of the headline views (untrusted), as the sunburst hatches them."""
+    _check_rgb(rgb_uint8)
+    rows, columns = np.indices(rgb_uint8.shape[:2])
+    stripe = ((rows + columns) % period < width) & np.asarray(mask, bool)
+    out = rgb_uint8.copy()
+    out[stripe] = (out[stripe] * 0.35).astype(np.uint8)
+    return out
 
 
 def underlay(
@@ -123,6 +153,7 @@ class _Layout:
     columns: int
     cell: tuple[int, int]  # (height, width) of the largest tile
     legend_top: int
+    notes: int = 0  # lines of text under the legend's numbers
 
     def cell_origin(self, index: int) -> tuple[int, int]:
         """(top, left) of tile ``index``'s label line; the tile itself starts below it."""
@@ -134,20 +165,27 @@ class _Layout:
         return top, left
 
 
-def _layout(shapes: Sequence[tuple[int, ...]], columns: int) -> _Layout:
+def _layout(shapes: Sequence[tuple[int, ...]], columns: int, notes: int) -> _Layout:
     columns = min(columns, len(shapes))
     rows = math.ceil(len(shapes) / columns)
     cell = (max(s[0] for s in shapes), max(s[1] for s in shapes))
     grid_height = PAD + rows * (LABEL_HEIGHT + cell[0] + PAD)
     width = max(PAD + columns * (cell[1] + PAD), MIN_WIDTH)
-    return _Layout(width, grid_height + LEGEND_HEIGHT, columns, cell, grid_height)
+    height = grid_height + LEGEND_HEIGHT + notes * LABEL_HEIGHT
+    return _Layout(width, height, columns, cell, grid_height, notes)
 
 
 def contact_sheet(
-    tiles: Sequence[tuple[str, np.ndarray]], columns: int, *, scale: float, title: str = ""
+    tiles: Sequence[tuple[str, np.ndarray]],
+    columns: int,
+    *,
+    scale: float,
+    title: str = "",
+    notes: Sequence[str] = (),
 ) -> np.ndarray:
     """The ``tiles`` (label, uint8 RGB) on a grid ``columns`` wide, each under its label, above
-    a blue-white-red colour bar marked -``scale``, 0 and +``scale``, with ``title`` over it.
+    a blue-white-red colour bar marked -``scale``, 0 and +``scale``, with ``title`` over it and
+    up to MAX_NOTES lines of ``notes`` (the scale's rule, what it clips) under it.
 
     ``scale`` is the value at which the tiles' colours saturate, in the units the caller wants
     read (the sheet states it, it cannot check it). Tiles of different sizes are centred in
@@ -159,7 +197,9 @@ def contact_sheet(
         raise ValueError(f"columns must be a positive integer, got {columns!r}")
     for _, rgb in tiles:
         _check_rgb(rgb)
-    layout = _layout([rgb.shape for _, rgb in tiles], columns)
+    width = _layout([rgb.shape for _, rgb in tiles], columns, 0).width - 2 * PAD
+    notes = [line for note in notes for line in _wrap(note, width)][:MAX_NOTES]
+    layout = _layout([rgb.shape for _, rgb in tiles], columns, len(notes))
     sheet = np.empty((layout.height, layout.width, 3), dtype=np.uint8)
     sheet[...] = BACKGROUND
     texts: list[tuple[int, int, str, str]] = []
@@ -171,6 +211,11 @@ def contact_sheet(
         sheet[y : y + rgb.shape[0], x : x + rgb.shape[1]] = rgb
         texts.append((left + cell_width // 2, top, _fit(label, cell_width), "center"))
     texts += _legend(sheet, layout, scale, title)
+    notes_top = layout.legend_top + LABEL_HEIGHT + BAR_HEIGHT + LABEL_HEIGHT
+    texts += [
+        (PAD, notes_top + i * LABEL_HEIGHT, _fit(note, layout.width - 2 * PAD), "left")
+        for i, note in enumerate(notes)
+    ]
     _draw_text(sheet, texts)
     return sheet
 
@@ -187,10 +232,25 @@ def _legend(
     middle = layout.width // 2
     return [
         (middle, layout.legend_top, _fit(title, right - left), "center"),
-        (left, numbers_top, f"{-scale:.3g}", "left"),
+        (left, numbers_top, f"{-scale:.3g}" if scale else "-", "left"),
         (middle, numbers_top, "0", "center"),
-        (right, numbers_top, f"+{scale:.3g}", "right"),
+        (right, numbers_top, f"+{scale:.3g}" if scale else "+", "right"),
     ]
+
+
+def _wrap(text: str, width: int) -> list[str]:
+    """``text`` broken at spaces into lines at most ``width`` pixels wide at FONT_SIZE (a word
+    wider than a line is cut by :func:`_fit`)."""
+    from OpenImageIO import ImageBufAlgo
+
+    lines: list[str] = []
+    for word in text.split(" "):
+        candidate = f"{lines[-1]} {word}" if lines else word
+        if lines and ImageBufAlgo.text_size(candidate, FONT_SIZE, FONT).width <= width:
+            lines[-1] = candidate
+        else:
+            lines.append(word)
+    return [_fit(line, width) for line in lines]
 
 
 def _fit(text: str, width: int) -> str:
@@ -237,6 +297,11 @@ def srgb_uint8(linear: np.ndarray) -> np.ndarray:
     """A linear (H, W, 3) image as uint8 sRGB: clipped to [0, 1], non-finite pixels black."""
     clean = np.nan_to_num(np.asarray(linear, dtype=np.float64), nan=0.0, posinf=1.0, neginf=0.0)
     return np.rint(_srgb(np.clip(clean, 0.0, 1.0)) * 255.0).astype(np.uint8)
+
+
+def _linear(encoded: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`_srgb` (IEC 61966-2-1) on [0, 1]."""
+    return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
 
 
 def _srgb(linear: np.ndarray) -> np.ndarray:

@@ -12,17 +12,26 @@ import copy
 import csv
 import io
 from collections.abc import Sequence
+from dataclasses import asdict
 from typing import Any
 
 from sensaov_cli.buffer.model import SensitivityBuffer
-from sensaov_cli.outputs.tables import NO_GRADIENT_MARK, SUSPECT_MARK, UNVERIFIED_MARK, format_table
+from sensaov_cli.outputs.tables import (
+    NO_GRADIENT_MARK,
+    SUSPECT_MARK,
+    UNVERIFIED_MARK,
+    ZERO_VALUE_MARK,
+    format_table,
+    trust_legend,
+    zero_value_legend,
+)
 from sensaov_cli.views.hierarchy import RANKING_FORMAT, RANKING_VERSION, Ranking, RankRow
 from sensaov_cli.vocabulary import Aggregate, Weight
 
 # The columns of a row, in JSON, CSV and text order (CSV puts "objective" first).
 COLUMNS = (
     "rank", "name", "score", "signed", "share", "sign", "value", "trust", "off_frame",
-    "score_se", "signed_se", "significant",
+    "score_se", "signed_se", "significant", "part", "zero_value", "raw_signed",
 )  # fmt: skip
 _MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
 _CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}
@@ -65,7 +74,11 @@ def ranking_dict(
                 "batches": r.batches,
                 "stability": r.stability,
                 "stability_top": r.stability_top,
+                "untrusted": r.untrusted,
+                "significance": None if r.significance is None else asdict(r.significance),
                 "rows": [row_dict(row) for row in r.rows],
+                "left_out": [row_dict(row) for row in r.left_out],
+                "zero_valued": [{**asdict(z), "owners": list(z.owners)} for z in r.zero_valued],
                 "no_gradient": [
                     {"key": p.key, "type": p.type, "owners": list(p.owners), "note": p.note}
                     for p in r.no_gradient
@@ -82,11 +95,11 @@ def ranking_csv(found: Sequence[Ranking]) -> str:
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(("objective", *COLUMNS))
     for r in found:
-        for row in r.rows:
+        for row in (*r.rows, *r.left_out):
             cells = row_dict(row)
             cells["value"] = "" if row.value is None else repr(row.value)
             cells["off_frame"] = "" if row.off_frame is None else ";".join(row.off_frame)
-            for column in ("score_se", "signed_se", "significant"):
+            for column in ("score_se", "signed_se", "significant", "raw_signed"):
                 cells[column] = "" if cells[column] is None else repr(cells[column])
             writer.writerow((r.objective, *(cells[c] for c in COLUMNS)))
     return out.getvalue()
@@ -100,16 +113,22 @@ def ranking_text(found: Sequence[Ranking], *, method: Aggregate, weight: Weight)
     ]
     for r in found:
         lines += ["", f"objective {r.objective!r}   M = {r.objective_value:.4g}"]
-        lines.append(f"  by {r.by} (top {len(r.rows)} of {r.ranked})")
-        lines += _table(r)
+        trusted = " (trusted parameters only)" if r.untrusted == "apart" and r.by != "key" else ""
+        lines.append(f"  by {r.by}{trusted} (top {len(r.rows)} of {r.ranked})")
+        lines += _table(r, r.rows)
+        if r.left_out:
+            lines.append(
+                f"  left out of the rows above: parameters sensaov does not stand behind, by {r.by}"
+            )
+            lines += _table(r, r.left_out)
         lines += _legend(r)
     return "\n".join(lines) + "\n"
 
 
-def _table(r: Ranking) -> list[str]:
-    if not r.rows:
+def _table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
+    if not shown:
         return ["    (none)"]
-    cameras = any(row.off_frame is not None for row in r.rows)
+    cameras = any(row.off_frame is not None for row in shown)
     values = r.by == "key"  # only a parameter has a value; groups leave the column out
     errors = r.batches is not None
     headers = [
@@ -128,7 +147,7 @@ def _table(r: Ranking) -> list[str]:
     rows = [
         [
             str(row.rank),
-            _MARKS.get(row.trust, ""),
+            _MARKS.get(row.trust, "") + (ZERO_VALUE_MARK if row.zero_value else ""),
             f"{row.score:.2e}",
             *([_error(row.score_se)] * errors),
             f"{row.signed:+.2e}",
@@ -139,7 +158,7 @@ def _table(r: Ranking) -> list[str]:
             row.name,
             *([", ".join(row.off_frame or ()) or "-"] * cameras),
         ]
-        for row in r.rows
+        for row in shown
     ]
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "±", "signed", "share")}
     numeric |= {headers.index("value")} if values else set()
@@ -155,23 +174,23 @@ def _value(value: float | None) -> str:
 
 
 def _legend(r: Ranking) -> list[str]:
-    marks = {_MARKS.get(row.trust, "") for row in r.rows}
-    lines = []
-    if UNVERIFIED_MARK in marks:
-        lines.append(f"  {UNVERIFIED_MARK} = unverified or biased gradient (or a group with one)")
-    if SUSPECT_MARK in marks:
-        lines.append(f"  {SUSPECT_MARK} = suspect gradient: it failed a run-time self-check")
-    if r.batches is not None:
+    shown = (*r.rows, *r.left_out)
+    lines = trust_legend([row.trust for row in shown], groups=r.by != "key")
+    if r.batches is not None and r.significance is not None:
+        sig = r.significance
         lines.append(
-            f"  ±: standard error from {r.batches} batches; ? = sign within 2 standard errors"
+            f"  ±: standard error from {r.batches} batches; ? = sign not significant: |signed| "
+            f"within {sig.factor:.2f} standard errors (Student's t, {sig.dof} degrees of "
+            f"freedom, {100 * sig.level:.0f} % two-sided)"
         )
         if r.stability is not None:
             lines.append(
                 f"  the top {r.stability_top} keep their order in {100 * r.stability:.0f}% "
                 "of bootstrap resamples of the batches"
             )
-    if any(row.off_frame for row in r.rows):
+    if any(row.off_frame for row in shown):
         lines.append("  off-frame: the cameras that see none of its objects")
+    lines += zero_value_legend(r.zero_valued)
     if r.no_gradient:
         lines.append(f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:")
         lines += [f"      {p.key} ({', '.join(p.owners) or '-'}): {p.note}" for p in r.no_gradient]

@@ -38,11 +38,12 @@ DPI = 120  # PNG only
 # Outer radius of the objective's disc and of each ring; the parameters' ring is the widest
 # because keys are the longest labels.
 RADII = (0.17, 0.43, 0.68, 1.0)
-FONT_PT = 7.5
+FONT_PT = 8.0  # 13.3 px at DPI: every text of the drawing is at least MIN_TEXT_PX at 1:1
+MIN_TEXT_PX = 11.0
 MIN_LABEL_ARC_IN = 0.17  # a wedge narrower than this at mid-radius gets no label
 _VIEW = 1.12  # axes limits: the disc plus a margin
 _HATCH = "////"
-_NOISE_HATCH = "...."  # the sign is within 2 standard errors (buffers with statistics)
+_NOISE_HATCH = "...."  # the sign is within its 95 % t interval (buffers with statistics)
 _RING_NAMES = {
     "object,type": "objects → types → parameters",
     "type,object": "types → objects → parameters",
@@ -69,9 +70,15 @@ def write_sunburst(
 
 
 def sunburst_bytes(
-    panels: Sequence[Panel], *, fmt: str, order: str, encoding: str, provenance: dict[str, Any]
+    panels: Sequence[Panel],
+    *,
+    fmt: str,
+    order: str,
+    encoding: str,
+    provenance: dict[str, Any],
+    panel_inches: float = PANEL_INCHES,
 ) -> bytes:
-    """The drawing as the bytes of an SVG or PNG file (a report embeds them)."""
+    """The drawing as the bytes of an SVG or PNG file (a report embeds them at 1:1)."""
     # matplotlib keeps a font cache in MPLCONFIGDIR, by default under $HOME (and warns when
     # HOME is read-only): sensaov writes nowhere but its outputs, so it gets a folder of its
     # own, removed at exit, unless the user set one (docs/rankings.md, "Sunburst").
@@ -87,7 +94,7 @@ def sunburst_bytes(
         warnings.filterwarnings(
             "ignore", message="Glyph .* missing from font", category=UserWarning
         )
-        fig = _figure(panels, order, encoding)
+        fig = _figure(panels, order, encoding, panel_inches)
         out = io.BytesIO()
         try:
             metadata = {"Description": json.dumps(provenance, sort_keys=True)}
@@ -97,20 +104,20 @@ def sunburst_bytes(
     return out.getvalue()
 
 
-def _figure(panels: Sequence[Panel], order: str, encoding: str) -> Figure:
+def _figure(panels: Sequence[Panel], order: str, encoding: str, inches: float) -> Figure:
     from matplotlib import pyplot as plt
 
     fig, axes = plt.subplots(
-        1, len(panels), figsize=(PANEL_INCHES * len(panels), PANEL_INCHES + 0.9), squeeze=False
+        1, len(panels), figsize=(inches * len(panels), inches + 1.1), squeeze=False
     )
     for ax, panel in zip(axes[0], panels, strict=True):
-        _draw_panel(ax, panel)
+        _draw_panel(ax, panel, inches)
     _legend(fig, order, encoding)
     fig.subplots_adjust(left=0.01, right=0.99, top=0.96, bottom=0.12, wspace=0.02)
     return fig
 
 
-def _draw_panel(ax: Axes, panel: Panel) -> None:
+def _draw_panel(ax: Axes, panel: Panel, inches: float) -> None:
     from matplotlib.patches import Circle
 
     ax.set_xlim(-_VIEW, _VIEW)
@@ -119,24 +126,24 @@ def _draw_panel(ax: Axes, panel: Panel) -> None:
     ax.axis("off")
     ax.add_patch(Circle((0, 0), RADII[0], facecolor="#f0f0f0", edgecolor="white"))
     ax.set_title(f"objective {panel.objective!r}", fontsize=11, weight="bold")
-    ax.text(0, 0, f"M =\n{panel.value:.4g}", ha="center", va="center", fontsize=8)
+    ax.text(0, 0, f"M =\n{panel.value:.4g}", ha="center", va="center", fontsize=FONT_PT)
     rings = [w for w in panel.wedges if w.ring > 0]
     for ring in sorted({w.ring for w in rings}):
         members = [w for w in rings if w.ring == ring]
         scale = max(abs(w.signed) for w in members)
         colours = diverging_rgb(np.array([w.signed for w in members]), scale) / 255.0
         for wedge, colour in zip(members, colours, strict=True):
-            _draw_wedge(ax, wedge, tuple(colour))
+            _draw_wedge(ax, wedge, tuple(colour), inches)
+    notes = []
     if panel.no_gradient:
         shown = ", ".join(panel.no_gradient[:4]) + (" …" if len(panel.no_gradient) > 4 else "")
-        ax.text(
-            0,
-            -_VIEW + 0.02,
-            f"not drawn (no gradient): {shown}",
-            ha="center",
-            fontsize=7,
-            color="#555555",
-        )
+        notes.append(f"not drawn (no gradient): {shown}")
+    if panel.zero_valued:
+        zero = ", ".join(f"{z.key} (raw ∂M/∂θ {z.raw_signed:+.2e})" for z in panel.zero_valued[:3])
+        notes.append(f"θ = 0, so no wedge: {zero}" + (" …" if len(panel.zero_valued) > 3 else ""))
+    for line, text in enumerate(notes):
+        ax.text(0, -_VIEW + 0.02 + 0.07 * line, text, ha="center", fontsize=FONT_PT,
+                color="#555555")  # fmt: skip
 
 
 def _degrees(fraction: float) -> float:
@@ -144,7 +151,7 @@ def _degrees(fraction: float) -> float:
     return 90.0 - 360.0 * fraction
 
 
-def _draw_wedge(ax: Axes, wedge: Wedge, colour: tuple[float, ...]) -> None:
+def _draw_wedge(ax: Axes, wedge: Wedge, colour: tuple[float, ...], inches: float) -> None:
     from matplotlib.patches import Wedge as WedgePatch
 
     inner, outer = RADII[wedge.ring - 1], RADII[wedge.ring]
@@ -156,13 +163,18 @@ def _draw_wedge(ax: Axes, wedge: Wedge, colour: tuple[float, ...]) -> None:
     hatched = bool(hatches)
     if hatched:  # a second, unfilled patch: matplotlib hatches in the edge colour
         ax.add_patch(ring(fill=False, hatch=hatches, edgecolor="#444444", linewidth=0))
-    _label(ax, wedge, (inner, outer), colour, hatched)
+    _label(ax, wedge, (inner, outer), colour, hatched, inches)
 
 
 def _label(
-    ax: Axes, wedge: Wedge, radii: tuple[float, float], colour: tuple[float, ...], boxed: bool
+    ax: Axes,
+    wedge: Wedge,
+    radii: tuple[float, float],
+    colour: tuple[float, ...],
+    boxed: bool,
+    inches: float,
 ) -> None:
-    inches_per_unit = PANEL_INCHES / (2 * _VIEW)
+    inches_per_unit = inches / (2 * _VIEW)
     radius = sum(radii) / 2
     if wedge.span * 2 * math.pi * radius * inches_per_unit < MIN_LABEL_ARC_IN:
         return
@@ -206,28 +218,28 @@ def _legend(fig: Figure, order: str, encoding: str) -> None:
     from matplotlib.patches import Patch
 
     cmap = LinearSegmentedColormap.from_list("sensaov_rdbu", RDBU / 255.0)
-    bar_ax = fig.add_axes((0.1, 0.075, 0.35, 0.02))
+    bar_ax = fig.add_axes((0.06, 0.085, 0.36, 0.02))
     bar = fig.colorbar(ScalarMappable(Normalize(-1, 1), cmap), cax=bar_ax, orientation="horizontal")
     bar.set_ticks([-1, 0, 1], labels=["lowers M", "0", "raises M"])
-    bar.ax.tick_params(labelsize=8)
-    bar.ax.set_title("colour: signed sum Σc / largest |Σc| in its ring", fontsize=8)
+    bar.ax.tick_params(labelsize=FONT_PT)
+    bar.ax.set_title("colour: Σc / largest |Σc| in its ring", fontsize=FONT_PT)
     hatched = Patch(
         facecolor="white",
         edgecolor="#444444",
         hatch=_HATCH,
-        label="gradient not verified (unverified, biased or suspect)",
+        label="not trusted: apart from its group",
     )
     noisy = Patch(
         facecolor="white",
         edgecolor="#444444",
         hatch=_NOISE_HATCH,
-        label="sign not significant (|Σc| < 2 standard errors)",
+        label="sign within noise (95 %, Student t)",
     )
     fig.legend(
         handles=[hatched, noisy],
-        loc="lower right",
-        bbox_to_anchor=(0.98, 0.055),
-        fontsize=8,
+        loc="lower left",
+        bbox_to_anchor=(0.5, 0.045),
+        fontsize=FONT_PT,
         frameon=False,
     )
     fig.text(
@@ -236,5 +248,6 @@ def _legend(fig: Figure, order: str, encoding: str) -> None:
         f"rings from the centre: objective → {_RING_NAMES.get(order, order)}; "
         f"angle ∝ {encoding} among the wedges of one parent",
         ha="center",
-        fontsize=8,
+        fontsize=FONT_PT,
+        wrap=True,
     )

@@ -12,20 +12,25 @@ import unicodedata
 from collections import defaultdict
 from collections.abc import Collection, Sequence
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, SensitivityBuffer, TextureSource
+from sensaov_cli.views.headline import ZeroValued
 from sensaov_cli.views.summary import summary_dict
-from sensaov_cli.vocabulary import Aggregate, Weight
-
-if TYPE_CHECKING:
-    pass
+from sensaov_cli.vocabulary import Aggregate, Untrusted, Weight
 
 # Marks in the mark column of a ranking, one per label that is not "verified"; a parameter
 # with no gradient is never ranked: it is listed under its objective behind NO_GRADIENT_MARK.
 UNVERIFIED_MARK = "!"  # unverified or known biased
 SUSPECT_MARK = "?"  # failed a run-time self-check
 NO_GRADIENT_MARK = "0"
+ZERO_VALUE_MARK = "θ0"  # θ is 0 where ∂M/∂θ is not: value weighting scores it 0 regardless
+# What each label means, said the same way in every legend (docs/verification.md).
+LABEL_MEANINGS = {
+    "biased": "biased: disagrees with finite differences, do not trust the number",
+    "unverified": "unverified: not checked against finite differences, or too noisy to tell",
+    "suspect": "suspect: failed a run-time self-check",
+}
 _MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
 _PARAMS_NOTES = {
     "unverified": "UNVERIFIED", "biased": "BIASED", "suspect": "SUSPECT",
@@ -133,13 +138,13 @@ def params_text(loaded: ParameterInventory, *, show_all: bool = False) -> str:
 
 
 def _unverified_legend(loaded: ParameterInventory) -> list[str]:
-    notes = sorted({info.note for info in loaded.selected if not info.verified})
-    return (
-        ["", "UNVERIFIED gradients (do not trust their ranking blindly):"]
-        + [f"  - {n}" for n in notes]
-        if notes
-        else []
+    notes = sorted(
+        {(_PARAMS_NOTES[i.trust], i.note) for i in loaded.selected if i.trust != "verified"}
     )
+    if not notes:
+        return []
+    head = "gradients sensaov does not stand behind (left out of object and type views):"
+    return ["", head] + [f"  - {label}: {note}" for label, note in notes]
 
 
 def _textures(loaded: ParameterInventory) -> list[str]:
@@ -187,10 +192,16 @@ def _excluded(loaded: ParameterInventory, show_all: bool) -> list[str]:
 
 
 def summary_text(
-    buf: SensitivityBuffer, *, top: int = 8, method: Aggregate = "l2", weight: Weight = "value"
+    buf: SensitivityBuffer,
+    *,
+    top: int = 8,
+    method: Aggregate = "l2",
+    weight: Weight = "value",
+    untrusted: Untrusted = "apart",
 ) -> str:
     """The summary as short aligned tables, one block per objective, for a terminal."""
-    return render_text(summary_dict(buf, top=top, method=method, weight=weight))
+    summary = summary_dict(buf, top=top, method=method, weight=weight, untrusted=untrusted)
+    return render_text(summary)
 
 
 def render_text(summary: dict[str, Any]) -> str:
@@ -246,16 +257,27 @@ def _objective_lines(objective: dict[str, Any], method: str, counts: dict[str, i
     lines.append(f"  parameters (top {len(params)} of {counts['ranked_parameters']})")
     headers = ["#", "", "score", *([] if signed else ["signed"]), "type", "key", "owners"]
     rows = [
-        [str(i), _mark(p["trust"]), _fmt(p["score"], signed),
-         *([] if signed else [_fmt(p["signed"], True)]), p["type"], p["key"], _owners(p["owners"])]
+        [str(i), _mark(p["trust"]) + (ZERO_VALUE_MARK if p.get("zero_value") else ""),
+         _fmt(p["score"], signed), *([] if signed else [_fmt(p["signed"], True)]), p["type"],
+         p["key"], _owners(p["owners"])]
         for i, p in enumerate(params, 1)
     ]  # fmt: skip
     lines.extend(_indented(headers, rows, numeric={0, 2} if signed else {0, 2, 3}))
-
-    lines.append(f"  objects (top {len(objects)} of {counts['ranked_objects']})")
+    apart = objective.get("untrusted") == "apart"
+    trusted = " (trusted parameters only)" if apart else ""
+    ranked = objective.get("ranked_objects", counts["ranked_objects"])
+    lines.append(f"  objects{trusted} (top {len(objects)} of {ranked})")
     lines.extend(_group_table("object", "name", objects, signed))
-    lines.append("  types")
+    lines.append(f"  types{trusted}")
     lines.extend(_group_table("type", "type", types, signed))
+    left = objective.get("left_out") or {}
+    if left.get("objects") or left.get("types"):
+        lines.append("  left out of the objects and types above (not trusted), by object:")
+        lines += [
+            printable(f"      {e['name']}  {_fmt(e['score'], signed)}  {_fmt(e['signed'], True)}  "
+                      + ", ".join(f"{k} ({t})" for k, t in e["keys"]))
+            for e in left["objects"]
+        ]  # fmt: skip
     lines.extend(_legend(objective))
     return lines
 
@@ -263,48 +285,68 @@ def _objective_lines(objective: dict[str, Any], method: str, counts: dict[str, i
 def _group_table(title: str, field: str, entries: list[dict[str, Any]], signed: bool) -> list[str]:
     if signed:
         rows = [
-            [str(i), _mark(e["trust"]), _fmt(e["score"], signed), e[field]]
+            [str(i), _mark(e["trust"]) + (ZERO_VALUE_MARK if e.get("zero_value") else ""),
+             _fmt(e["score"], signed), e[field]]
             for i, e in enumerate(entries, 1)
-        ]
+        ]  # fmt: skip
         return _indented(["#", "", "score", title], rows, numeric={0, 2})
     rows = [  # the signed sum and its rank beside the score (docs/encoding.md: which to read)
-        [str(i), _mark(e["trust"]), _fmt(e["score"], False), _fmt(e["signed"], True),
+        [str(i), _mark(e["trust"]) + (ZERO_VALUE_MARK if e.get("zero_value") else ""),
+         _fmt(e["score"], False), _fmt(e["signed"], True),
          str(e["signed_rank"]), e[field]]
         for i, e in enumerate(entries, 1)
     ]  # fmt: skip
     return _indented(["#", "", "score", "signed", "#sum", title], rows, numeric={0, 2, 3, 4})
 
 
-_LEGENDS = (  # mark, the word for a group that includes such a parameter, what it means
-    (UNVERIFIED_MARK, "unverified", "unverified gradient, do not trust the number"),
-    (SUSPECT_MARK, "suspect", "suspect gradient: it failed a run-time self-check"),
-)
+def trust_legend(trusts: Sequence[str], *, groups: bool) -> list[str]:
+    """The marks' meanings for the labels among ``trusts``, each label named as it is."""
+    present = set(trusts)
+    lines = []
+    for mark, labels in ((UNVERIFIED_MARK, ("biased", "unverified")), (SUSPECT_MARK, ("suspect",))):
+        shown = [label for label in labels if label in present]
+        if shown:
+            lines.append(f"  {mark} = " + "; ".join(LABEL_MEANINGS[label] for label in shown))
+    if lines and groups:
+        lines.append("    a group so marked includes such a parameter")
+    return lines
+
+
+def zero_value_legend(found: Sequence[ZeroValued]) -> list[str]:
+    """What ``θ0`` means and the raw gradient of every parameter it marks."""
+    if not found:
+        return []
+    lines = [
+        f"  {ZERO_VALUE_MARK} = value exactly 0: θ·∂M/∂θ is 0 whatever the gradient; "
+        "its raw gradient (Σ ∂M/∂θ, per unit of θ):"
+    ]
+    lines += [
+        printable(f"      {z.key} ({', '.join(z.owners) or '-'}): {z.raw_signed:+.3e}"
+                  f"{'' if z.hidden == z.size else f' ({z.hidden} of {z.size} components 0)'}")
+        for z in found
+    ]  # fmt: skip
+    return lines
 
 
 def _legend(objective: dict[str, Any]) -> list[str]:
+    params = objective["parameters"]
+    groups = objective["objects"] + objective["types"]
     lines = []
-    for mark, word, meaning in _LEGENDS:
-        lines += _mark_legend(objective, mark, word, meaning)
+    marked = [p for p in params if p["trust"] not in ("verified", "no_gradient")]
+    labels = [p["trust"] for p in params] + [g["trust"] for g in groups]
+    lines += trust_legend(labels, groups=False)
+    lines += [printable(f"      {p['key']}: {p['trust']}: {p['note']}") for p in marked]
+    if any(_mark(g["trust"]) for g in groups):
+        lines.append("    objects and types so marked include such a parameter")
+    zero = [ZeroValued(z["key"], tuple(z["owners"]), z["hidden"], z["size"], z["raw_signed"])
+            for z in objective.get("zero_valued", ())]  # fmt: skip
+    lines += zero_value_legend(zero)
     if objective["no_gradient"]:
         lines.append(f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:")
         lines += [
             printable(f"      {p['key']} ({', '.join(p['owners']) or '-'}): {p['note']}")
             for p in objective["no_gradient"]
         ]
-    return lines
-
-
-def _mark_legend(objective: dict[str, Any], mark: str, word: str, meaning: str) -> list[str]:
-    """What ``mark`` means, with the notes of the parameters it marks."""
-    marked = [p for p in objective["parameters"] if _mark(p["trust"]) == mark]
-    groups = objective["objects"] + objective["types"]
-    groups_marked = any(_mark(g["trust"]) == mark for g in groups)
-    if not marked:
-        return [f"  {mark} = includes a parameter whose gradient is {word}"] * groups_marked
-    lines = [f"  {mark} = {meaning}:"]
-    lines += [printable(f"      {p['key']}: {p['note'] or 'not verified'}") for p in marked]
-    if groups_marked:
-        lines.append(f"    objects and types marked {mark} include such a parameter")
     return lines
 
 

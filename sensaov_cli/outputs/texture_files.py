@@ -13,7 +13,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -110,17 +110,26 @@ def _png_writer(field: TexelField) -> Callable[[Path], None]:
     return write
 
 
-def write_fig4_sheet(path: Path, camera: str, passes: Sequence[TexelPass]) -> Path:
+def write_fig4_sheet(
+    path: Path,
+    camera: str,
+    passes: Sequence[TexelPass],
+    scales: Sequence[float],
+    stamp: Mapping[str, str],
+) -> Path:
     """Fig. 4: the object, per-texel and joint panels of one texture side by side, each
-    titled with the value at which it saturates (its scale, also in the layer's metadata)."""
+    titled with the value at which it saturates (its display scale, in the layer's metadata)."""
     tiles = []
-    for texel_pass in passes:
-        tile = _enlarged(diverging_rgb(_luminance(texel_pass.data), texel_pass.preview_scale))
+    for texel_pass, scale in zip(passes, scales, strict=True):
+        tile = _enlarged(diverging_rgb(_luminance(texel_pass.data), scale))
         mark = " !" if json.loads(texel_pass.metadata.get("unverified", "[]")) else ""
-        tiles.append((f"{texel_pass.panel} +-{texel_pass.preview_scale:.2e}{mark}", tile))
+        tiles.append((f"{texel_pass.panel} +-{scale:.2e}{mark}", tile))
     meta = passes[0].metadata
-    title = f"{camera}: {meta['texture']} (object | per texel | joint share; ! = unverified)"
-    write_png(path, contact_sheet(tiles, len(tiles), scale=1.0, title=title))
+    title = f"{camera}: {meta['texture']} (object | per texel | joint share; ! = not trusted)"
+    notes = ["each panel at its own display scale (shared by every camera); the joint panel "
+             "at 1 = the object's value spread evenly over the texture"]  # fmt: skip
+    sheet = contact_sheet(tiles, len(tiles), scale=1.0, title=title, notes=notes)
+    write_png(path, sheet, {**stamp, "sensaov/camera": camera, "sensaov/texture": meta["texture"]})
     return path
 
 

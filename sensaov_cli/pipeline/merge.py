@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from sensaov_cli import interrupts
+from sensaov_cli.buffer.identity import BUFFER_ID, new_buffer_id
 from sensaov_cli.buffer.model import FORMAT_VERSION, SensitivityBuffer
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer_versioned
 from sensaov_cli.buffer.shard_metadata import check_shard_metadata
@@ -61,7 +62,8 @@ def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> Merge
     )
     with progress.stage("merge_s", "merging"):
         merged = merge_shards(shards, FORMAT_VERSION)
-        merged.provenance.update(made_by("merge"))
+        # A merge is a new buffer: outputs made from a shard (or an earlier merge) are not its.
+        merged.provenance.update(made_by("merge"), **{BUFFER_ID: new_buffer_id()})
         primal = _merged_primal(shards)
     interrupts.check()
     with progress.stage("write_s", f"writing {output.name} and {primal_path.name}"):

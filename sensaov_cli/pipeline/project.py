@@ -1,8 +1,11 @@
 """``sensaov project``: bind a stored buffer to inspection cameras and write layered EXRs.
 
 Reads the buffer, traces primary visibility per camera and paints per-object values: no
-derivative is computed here (§3 "Binding"; the deferred-shading half of the paper). Shared
-colour scales come from the object values, so cameras rendered in separate farm tasks agree.
+derivative is computed here (§3 "Binding"; the deferred-shading half of the paper). Every
+picture of a layer saturates at its group's display scale (views/display_scale.py): one per
+(objective, channel) read from the pixels of *every* camera of the job, so each camera's
+visibility is traced even when ``--camera`` picks one (primary rays only, a fraction of a view's
+cost): farm tasks that each write one camera derive the very same scales.
 """
 
 from __future__ import annotations
@@ -14,14 +17,17 @@ from pathlib import Path
 import numpy as np
 
 from sensaov_cli import interrupts
+from sensaov_cli.buffer.identity import stamp
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import FingerprintMismatch, SpecError
 from sensaov_cli.outputs.atomic import check_writable
+from sensaov_cli.outputs.display_layers import scale_of, with_display
 from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write_layered_exr
 from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.pipeline import project_texels
+from sensaov_cli.pipeline.consistency import check_buffer_of_job
 from sensaov_cli.pipeline.project_forward import projected_layers
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
@@ -33,11 +39,18 @@ from sensaov_cli.render.visibility import trace
 from sensaov_cli.spec.job import CameraSpec, JobSpec
 from sensaov_cli.views.channels import ChannelValues, channel_values
 from sensaov_cli.views.coverage import VisibilityPass, ranked
+from sensaov_cli.views.display_scale import (
+    FOLLOWER,
+    REFERENCE,
+    DisplayScale,
+    group_scales,
+    signed_pixels,
+)
 from sensaov_cli.views.painting import paint_pass
 from sensaov_cli.views.texel_fields import TexelField
+from sensaov_cli.views.texel_passes import TexelPass
 
 DEFAULT_BEAUTY_SPP = 4  # a quick reference for the compositor; it is a full path trace
-OBJECTIVE_CAMERA = CameraSpec("objective", objective=True)
 
 
 @dataclass(frozen=True)
@@ -62,9 +75,12 @@ def project_job(
     progress: Progress,
 ) -> list[ProjectedView]:
     buffer = read_buffer(buffer_path)
+    every = _cameras(job, ())
     chosen = _cameras(job, tuple(dict.fromkeys(cameras)))  # a camera named twice renders once
-    prepared = prepare_scene(job, tuple(chosen))
+    prepared = prepare_scene(job, tuple(every))  # every camera: the shared scales read them all
     check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
+    if not force:
+        check_buffer_of_job(job, buffer, buffer_path, override="pass --force to project it anyway")
     texel_folder = ["textures/"] if any(c.kind == "texel" for c in job.channels) else []
     folders = texel_folder + ["previews/"] * png
     check_writable(job.output, [f"{camera.name}.exr" for camera in chosen] + folders)
@@ -74,34 +90,43 @@ def project_job(
         folders=[job.output / folder for folder in folders],
         where=str(job.path),
     )
-    passes = channel_values(buffer, job.channels)  # camera-independent: computed once
+    passes = channel_values(buffer, job.channels, untrusted=job.views.untrusted)
     forward = projected_layers(job, buffer, buffer_path, progress)  # the objective camera's
     project_texels.check_texel_channels(job, buffer)
-    with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
+    texel_stage = any(channel.kind == "texel" for channel in job.channels)
+    progress.plan(2 + texel_stage + len(chosen))  # load, visibility, texels, one per view
+    with progress.stage("load_s", f"loading {job.scene.name} with {len(every)} camera(s)"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     check_objects(buffer, loaded, buffer_path)
-    _check_views(job, chosen, loaded, bool(forward))  # before the first view writes a file
+    _check_views(job, every, loaded, bool(forward))  # before the first view writes a file
     texels = project_texels.project_fields(job, buffer, loaded, buffer_path, progress)
+    with progress.stage("visibility_s", f"visibility of {len(every)} camera(s) and scales"):
+        traced = {c.name: trace_camera(job, buffer, loaded, c, bool(texels)) for c in every}
+        raw = {
+            c.name: _raw_layers(passes, traced[c.name], buffer_path, c, forward, texels)
+            for c in every
+        }
+        scales = _scales(job, raw)
     views = []
     for camera in chosen:
         stage = f"view_{camera.name}_s"
         with progress.stage(stage, f"view '{camera.name}'"):
             view = _project_camera(
-                job, buffer, buffer_path, loaded, camera, passes, png, beauty_spp,
-                forward if camera.objective else [], texels,
+                job, buffer, buffer_path, loaded, camera, traced[camera.name],
+                raw[camera.name], scales, png, beauty_spp,
             )  # fmt: skip
         views.append(replace(view, seconds=progress.timings[stage]))
     return views
 
 
 def _check_views(
-    job: JobSpec, chosen: list[CameraSpec], loaded: LoadedScene, forward: bool
+    job: JobSpec, cameras: list[CameraSpec], loaded: LoadedScene, forward: bool
 ) -> None:
     """What a view would refuse, refused before the first one writes its EXR (exit 2 means
     nothing was written): settings over the memory budget, forward layers at another size."""
     sizes = sensor_sizes(loaded)
     check_job(job, sizes)
-    objective = next((c.name for c in chosen if c.objective), None)
+    objective = next((c.name for c in cameras if c.objective), None)
     if forward and objective is not None and sizes[objective] != loaded.resolution:
         raise SpecError(
             "forward and transport layers are rendered at render.resolution, "
@@ -109,6 +134,66 @@ def _check_views(
             where=f"inspection_cameras: {objective}",
             hint="leave that camera's resolution null",
         )
+
+
+def trace_camera(
+    job: JobSpec, buffer: SensitivityBuffer, loaded: LoadedScene, camera: CameraSpec, uv: bool
+) -> VisibilityPass:
+    """``camera``'s visibility pass as ``project`` paints and scales it (``view`` reuses it)."""
+    sensor = loaded.inspection_sensors[camera.name]
+    return trace(
+        loaded.mi, loaded.scene, sensor, buffer.objects, camera.vis_spp,
+        seed=job.render.seed, with_uv=uv,
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _RawLayers:
+    """One camera's sensitivity layers before their display scales are known."""
+
+    layers: list[SensitivityLayer]
+    fields: list[TexelField]
+    texel_panels: list[tuple[list[TexelPass], list[SensitivityLayer]]]  # per field
+
+
+def _raw_layers(
+    passes: list[ChannelValues],
+    visibility: VisibilityPass,
+    buffer_path: Path,
+    camera: CameraSpec,
+    forward: list[SensitivityLayer],
+    texels: list[TexelField],
+) -> _RawLayers:
+    layers = [_layer(p, visibility, buffer_path, camera) for p in passes]
+    if camera.objective:
+        layers += forward  # its size was checked before any view was written (_check_views)
+    panels = project_texels.camera_layers(texels, visibility, buffer_path, camera.name)
+    layers += [layer for _, texel_layers in panels for layer in texel_layers]
+    return _RawLayers(layers, texels, panels)
+
+
+def _scales(job: JobSpec, raw: dict[str, _RawLayers]) -> dict[tuple[str, str], DisplayScale]:
+    """Every (camera, scale group)'s display scale, under the job's ``views`` settings."""
+    entries = {
+        camera: [
+            (
+                layer.metadata["scale_group"],
+                layer.metadata.get("scale_role", REFERENCE),
+                signed_pixels(layer.data, layer.metadata.get("kind", "")),
+            )
+            for layer in found.layers
+        ]  # fmt: skip
+        for camera, found in raw.items()
+    }
+    fixed = {
+        layer.metadata["scale_group"]: float(layer.metadata["scale_fixed"])
+        for found in raw.values()
+        for layer in found.layers
+        if "scale_fixed" in layer.metadata
+    }
+    return group_scales(
+        entries, percentile=job.views.percentile, scope=job.views.scale, fixed=fixed
+    )
 
 
 def check_fingerprint(
@@ -134,9 +219,7 @@ def check_objects(buffer: SensitivityBuffer, loaded: LoadedScene, path: Path) ->
 
 def _cameras(job: JobSpec, names: tuple[str, ...]) -> list[CameraSpec]:
     """The job's inspection cameras plus the objective camera (once), or the named ones."""
-    cameras = list(job.inspection_cameras)
-    if not any(camera.objective for camera in cameras):
-        cameras.insert(0, OBJECTIVE_CAMERA)
+    cameras = list(job.projected_cameras())
     if not names:
         return cameras
     known = {camera.name: camera for camera in cameras}
@@ -156,32 +239,23 @@ def _project_camera(
     buffer_path: Path,
     loaded: LoadedScene,
     camera: CameraSpec,
-    passes: list[ChannelValues],
+    visibility: VisibilityPass,
+    raw: _RawLayers,
+    scales: dict[tuple[str, str], DisplayScale],
     png: bool,
     beauty_spp: int,
-    forward: list[tuple[SensitivityLayer, float]],
-    texels: list[TexelField],
 ) -> ProjectedView:
     sensor = loaded.inspection_sensors[camera.name]
-    visibility = trace(
-        loaded.mi,
-        loaded.scene,
-        sensor,
-        buffer.objects,
-        camera.vis_spp,
-        seed=job.render.seed,
-        with_uv=bool(texels),
-    )
     beauty = render_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed)
-    layers = [_layer(p, visibility, buffer_path, camera) for p in passes] + forward
-    panels = project_texels.camera_layers(texels, visibility, buffer_path, camera.name)
-    layers += [layer for _, texel_layers in panels for layer in texel_layers]
+    shown = [(layer, scale_of(scales, camera.name, layer)) for layer in raw.layers]
+    pairs = [with_display(layer, scale, visibility.coverage_hit) for layer, scale in shown]
     crypto = CryptoLayer(
         "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage
     )
     material = _material_cryptomatte(visibility, loaded.prepared.materials)
     path = job.output / f"{camera.name}.exr"
-    attributes = _attributes(buffer, buffer_path, camera, beauty_spp)
+    made_from = stamp(buffer, job.job_hash())
+    attributes = {**_attributes(buffer, buffer_path, camera, beauty_spp), **made_from}
     interrupts.check()
     write_layered_exr(
         path,
@@ -189,20 +263,38 @@ def _project_camera(
         height=visibility.height,
         beauty=beauty,
         cryptomattes=[crypto, material],
-        layers=[layer for layer, _ in layers],
+        layers=[layer for pair in pairs for layer in pair],
         attributes=attributes,
     )
     previews: tuple[Path, ...] = ()
     if png:
-        from sensaov_cli.outputs.contact_sheets import write_previews
-
-        previews = write_previews(job.output / "previews", camera.name, layers, beauty, visibility)
-        previews += project_texels.write_fig4_sheets(
-            job.output / "previews", camera.name, texels, panels
-        )
+        previews = _write_previews(job, camera, raw, scales, shown, beauty, visibility, made_from)
     return ProjectedView(
         camera.name, path, visibility.width, visibility.height, visibility.spp, 0.0, previews
     )
+
+
+def _write_previews(
+    job: JobSpec,
+    camera: CameraSpec,
+    raw: _RawLayers,
+    scales: dict[tuple[str, str], DisplayScale],
+    shown: list[tuple[SensitivityLayer, DisplayScale]],
+    beauty: np.ndarray | None,
+    visibility: VisibilityPass,
+    made_from: dict[str, str],
+) -> tuple[Path, ...]:
+    """The camera's PNG previews, its Fig. 4 sheets and, last, its manifest (report's index)."""
+    from sensaov_cli.outputs.contact_sheets import PreviewFile, write_manifest, write_previews
+
+    folder = job.output / "previews"
+    files = write_previews(folder, camera.name, shown, beauty, visibility, made_from)
+    for path, field in project_texels.write_fig4_sheets(
+        folder, camera.name, raw.fields, raw.texel_panels, scales, made_from
+    ):
+        files.append(PreviewFile(path.name, "fig4", field.objective, field.record.key))
+    manifest = write_manifest(folder, camera.name, files, made_from)
+    return (*(folder / f.file for f in files), manifest)
 
 
 def _material_cryptomatte(visibility: VisibilityPass, materials: dict[str, str]) -> CryptoLayer:
@@ -218,8 +310,8 @@ def _material_cryptomatte(visibility: VisibilityPass, materials: dict[str, str])
 
 def _layer(
     values: ChannelValues, visibility: VisibilityPass, buffer_path: Path, camera: CameraSpec
-) -> tuple[SensitivityLayer, float]:
-    """The encoded pass and the value at which its preview saturates in this camera."""
+) -> SensitivityLayer:
+    """The encoded pass, in its (objective, channel) display scale group."""
     painted = paint_pass(values, visibility)
     encoding = painted.encoding
     metadata = {
@@ -235,9 +327,13 @@ def _layer(
         "unverified": json.dumps(list(values.unverified)),
         "invisible": json.dumps(list(painted.invisible)),
         "original_name": f"{values.objective}.{values.pass_name}",
+        "part": values.part,
+        "left_out": json.dumps(values.left_out or {}),
+        "zero_valued": json.dumps(values.zero_valued or {}),
+        "scale_group": values.scale_group,
+        "scale_role": FOLLOWER if values.part == "untrusted" else REFERENCE,
     }
-    layer = SensitivityLayer(values.objective, values.pass_name, painted.data, metadata)
-    return layer, painted.preview_scale
+    return SensitivityLayer(values.objective, values.pass_name, painted.data, metadata)
 
 
 def _attributes(

@@ -4,9 +4,8 @@ forward sidecar ``sensaov run`` wrote beside its buffer (§4, §7)."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
-
-import numpy as np
 
 from sensaov_cli.buffer.forward_sidecar import check_belongs, read_forward
 from sensaov_cli.buffer.model import SensitivityBuffer
@@ -21,8 +20,10 @@ from sensaov_cli.views.transport import forward_views, transport_views
 
 def projected_layers(
     job: JobSpec, buffer: SensitivityBuffer, buffer_path: Path, progress: Progress
-) -> list[tuple[SensitivityLayer, float]]:
-    """The objective camera's forward and transport layers, each with its preview scale.
+) -> list[SensitivityLayer]:
+    """The objective camera's forward and transport layers, each in its display scale group:
+    a forward channel alone, a transport entry's layers per objective, a transport channel's
+    top objects per (objective, channel).
 
     Empty when the job asks for no forward pass. A pass Mitsuba could not push is reported,
     never written as a black image.
@@ -52,21 +53,31 @@ def projected_layers(
             progress.note(f"warning: no layer forward.{f.name}: Mitsuba failed: {f.failure}")
             continue
         meta = {**common, **_meta(f.keys, f.direction, f.seed, f.unverified), "kind": "forward"}
-        meta["original_name"] = f"forward.{f.name}"
-        layers.append((SensitivityLayer("forward", f.name, f.data, meta), _peak(f.data)))
+        meta.update(original_name=f"forward.{f.name}", scale_group=f"forward/{f.name}",
+                    aliases=json.dumps(list(f.aliases)))  # fmt: skip
+        layers.append(SensitivityLayer("forward", f.name, f.data, meta))
     for t in transport_views(buffer, data):
         meta = {**common, **_meta(t.keys, t.direction, t.seed, t.unverified), "kind": "transport"}
         meta.update(
             original_name=f"{t.objective}.{t.name}",
+            scale_group=f"{t.objective}/{_group(job, t.source, t.name)}",
+            aliases=json.dumps(list(t.aliases)),
             forward_sum=repr(t.forward_sum),
             reverse=repr(t.reverse),
             duality_residual=repr(t.residual),
             duality_tolerance=repr(t.tolerance),
             duality="agrees" if t.agrees else "EXCEEDS TOLERANCE: do not trust this layer",
         )
-        layer = SensitivityLayer(t.objective, t.name, t.data, meta)
-        layers.append((layer, _peak(t.data)))
+        layers.append(SensitivityLayer(t.objective, t.name, t.data, meta))
     return layers
+
+
+def _group(job: JobSpec, source: str, name: str) -> str:
+    """A transport channel's layers share their channel's scale; an entry's has its own."""
+    match = re.match(r"channels\[(\d+)\]", source)
+    if match and int(match.group(1)) < len(job.channels):
+        return job.channels[int(match.group(1))].name
+    return name
 
 
 def _meta(keys: tuple[str, ...], direction: str, seed: int, unverified: tuple[str, ...]) -> dict:
@@ -77,8 +88,3 @@ def _meta(keys: tuple[str, ...], direction: str, seed: int, unverified: tuple[st
         "encoding": "none (linear)",
         "unverified": json.dumps(list(unverified)),
     }
-
-
-def _peak(data: np.ndarray) -> float:
-    peak = float(np.abs(data).max()) if data.size else 0.0
-    return peak if peak > 0 else 1.0

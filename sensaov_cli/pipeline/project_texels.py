@@ -8,6 +8,7 @@ texture-domain files, the Fig. 4 sheet). Nothing here differentiates.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.texture_modes import objects_without_uv, texture_probes
 from sensaov_cli.spec.job import JobSpec
 from sensaov_cli.views.coverage import VisibilityPass
+from sensaov_cli.views.display_scale import DisplayScale
 from sensaov_cli.views.texel_fields import TexelField, texel_fields, texture_keys
 from sensaov_cli.views.texel_passes import TexelPass, texel_passes, texture_footprint
 from sensaov_cli.views.texels import FILTERS, WRAPS, Footprint, TextureSampling, lookup
@@ -111,8 +113,11 @@ def camera_layers(
     visibility: VisibilityPass,
     buffer_path: Path,
     camera: str,
-) -> list[tuple[list[TexelPass], list[tuple[SensitivityLayer, float]]]]:
-    """Per field, its three panels and the layers (with preview scales) they become."""
+) -> list[tuple[list[TexelPass], list[SensitivityLayer]]]:
+    """Per field, its three panels and the layers they become.
+
+    A panel's display scale is shared by every texture of its (objective, channel) and every
+    camera; the joint panel's is fixed at 1, its meaning (the object's value spread evenly)."""
     result = []
     footprints: dict[tuple[str, str], Footprint] = {}  # one per texture and lookup, not per field
     for field in fields:
@@ -133,11 +138,16 @@ def camera_layers(
                 "keys": json.dumps([field.record.key]),
                 "invisible": "[]",
                 "original_name": f"{field.objective}.{texel_pass.pass_name}",
+                "kind": "texel",
+                "scale_group": f"{field.objective}/{field.channel.name}/{texel_pass.panel}",
+                "scale_role": "reference",
             }
+            if texel_pass.panel == "joint":
+                metadata["scale_fixed"] = "1.0"
             layer = SensitivityLayer(
                 field.objective, texel_pass.pass_name, texel_pass.data, metadata
             )
-            layers.append((layer, texel_pass.preview_scale))
+            layers.append(layer)
         result.append((passes, layers))
     return result
 
@@ -146,11 +156,15 @@ def write_fig4_sheets(
     folder: Path,
     camera: str,
     fields: list[TexelField],
-    panels: list[tuple[list[TexelPass], list[tuple[SensitivityLayer, float]]]],
-) -> tuple[Path, ...]:
+    panels: list[tuple[list[TexelPass], list[SensitivityLayer]]],
+    scales: Mapping[tuple[str, str], DisplayScale],
+    stamp: Mapping[str, str],
+) -> list[tuple[Path, TexelField]]:
     """``<previews>/<camera>_<objective>_<texture>_fig4.png`` per texel field."""
-    paths = []
-    for field, (passes, _) in zip(fields, panels, strict=True):
+    written = []
+    for field, (passes, layers) in zip(fields, panels, strict=True):
         stem = f"{camera}_{field.objective}_{field.channel.name}_{safe_file_stem(field.record.key)}"
-        paths.append(write_fig4_sheet(folder / f"{stem}_fig4.png", camera, passes))
-    return tuple(paths)
+        values = [scales[(camera, layer.metadata["scale_group"])].value for layer in layers]
+        path = write_fig4_sheet(folder / f"{stem}_fig4.png", camera, passes, values, stamp)
+        written.append((path, field))
+    return written

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -11,16 +12,26 @@ from sensaov_cli.errors import QueryError
 from sensaov_cli.outputs.frames import visible_objects
 from sensaov_cli.outputs.rankings import ranking_csv, ranking_dict, ranking_text
 from sensaov_cli.outputs.tables import summary_text
+from sensaov_cli.pipeline.consistency import check_made_from
 from sensaov_cli.views.hierarchy import check_cut, rankings
 from sensaov_cli.views.summary import summary_dict
-from sensaov_cli.vocabulary import Aggregate, Cut, Weight
+from sensaov_cli.vocabulary import Aggregate, Cut, Untrusted, Weight
 
 
 def rank_summary(
-    buffer: Path, *, as_json: bool, top: int, method: Aggregate, weight: Weight
+    buffer: Path,
+    *,
+    as_json: bool,
+    top: int,
+    method: Aggregate,
+    weight: Weight,
+    untrusted: Untrusted = "apart",
 ) -> str | dict[str, Any]:
     """The summary ``sensaov run`` prints (top keys, objects, types), as text or JSON data."""
-    return summary_of(read_buffer(buffer), as_json=as_json, top=top, method=method, weight=weight)
+    loaded = read_buffer(buffer)
+    return summary_of(
+        loaded, as_json=as_json, top=top, method=method, weight=weight, untrusted=untrusted
+    )
 
 
 def summary_of(
@@ -30,11 +41,12 @@ def summary_of(
     top: int,
     method: Aggregate = "l2",
     weight: Weight = "value",
+    untrusted: Untrusted = "apart",
 ) -> str | dict[str, Any]:
     """A buffer's ranked summary, as text or JSON data (``run`` prints it for its buffer)."""
     if as_json:
-        return summary_dict(buffer, top=top, method=method, weight=weight)
-    return summary_text(buffer, top=top, method=method, weight=weight)
+        return summary_dict(buffer, top=top, method=method, weight=weight, untrusted=untrusted)
+    return summary_text(buffer, top=top, method=method, weight=weight, untrusted=untrusted)
 
 
 def rank_by_cut(
@@ -47,13 +59,19 @@ def rank_by_cut(
     top: int,
     method: Aggregate,
     weight: Weight,
+    untrusted: Untrusted = "apart",
 ) -> str | dict[str, Any]:
     """One table per objective at one cut: ``style`` "json" (data), "csv" or "text"."""
     loaded = read_buffer(buffer)
     check_cut(by, cameras=bool(exrs))
     for name in objectives:
         loaded.objective(name)  # an unknown name is an error that lists the known ones
-    visible = visible_objects(list(exrs)) if exrs else None
+
+    def made_from_this_buffer(path: Path, header: Mapping[str, Any]) -> None:
+        remake = f"sensaov project JOB, with the job that wrote {buffer.name}"
+        check_made_from(header, loaded, str(path), remake=remake)
+
+    visible = visible_objects(list(exrs), made_from_this_buffer) if exrs else None
     found = rankings(
         loaded,
         by=by,
@@ -62,6 +80,7 @@ def rank_by_cut(
         method=method,
         weight=weight,
         visible=visible,
+        untrusted=untrusted,
     )
     if style == "json":
         cameras = None if visible is None else list(visible)

@@ -1,35 +1,54 @@
 """``sensaov report``: gather a job's outputs into one self-contained HTML page.
 
 Reads what ``run`` and ``project`` wrote under the job's output folder (the buffer, the primal,
-the cameras' EXRs and PNG previews) and renders nothing: a missing buffer is an error, a
-missing primal or missing previews are said on the page.
+the cameras' EXRs, the previews and their manifests) and renders nothing. Everything shown must
+come from one state: the buffer must be this job's (its run version), and each camera's EXR and
+previews must be made from that buffer by this very job; anything else is refused in one line,
+exit 2, naming the file and the command that remakes it. Previews no manifest lists (left over
+from an objective or a channel since renamed) are not shown, and the page says how many.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from sensaov_cli.buffer.identity import buffer_id, provenance_id, run_version
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
-from sensaov_cli.errors import OutputError, SensaovError
+from sensaov_cli.errors import OutputError, SensaovError, StaleInputError
 from sensaov_cli.outputs.atomic import check_writable
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.outputs.frames import visible_objects
+from sensaov_cli.outputs.frames import seen_names
+from sensaov_cli.outputs.names import file_token
 from sensaov_cli.outputs.overwrite import recorded_inputs, refuse_unsafe_outputs
+from sensaov_cli.outputs.png import read_png_text
 from sensaov_cli.outputs.preview_files import read_previews
 from sensaov_cli.outputs.previews import srgb_uint8
-from sensaov_cli.outputs.report_html import Picture, ReportContent, png_bytes, write_report
+from sensaov_cli.outputs.provenance import PROVENANCE_ATTRIBUTE
+from sensaov_cli.outputs.report_html import (
+    CameraSection,
+    ObjectiveSection,
+    Picture,
+    ReportContent,
+    png_bytes,
+    write_report,
+)
 from sensaov_cli.outputs.sunburst_drawing import sunburst_bytes
+from sensaov_cli.pipeline.consistency import check_buffer_of_job, check_made_by, check_made_from
 from sensaov_cli.pipeline.run import BUFFER_NAME, PRIMAL_NAME
 from sensaov_cli.render.scene.expand import expand_scene
-from sensaov_cli.spec.job import JobSpec
+from sensaov_cli.spec.job import CameraSpec, JobSpec
+from sensaov_cli.views.headline import is_trusted
 from sensaov_cli.views.hierarchy import rankings
 from sensaov_cli.views.sunburst_geometry import panels
 
 REPORT_NAME = "report.html"
-TOP = 12  # rows per ranking table: a page, not a spreadsheet
+SUMMARY_TOP = 5  # objects per objective in the summary; the appendix ranks them all
+SUNBURST_INCHES = 5.6  # 672 px at 1:1: beside its objective's table on a 1280 px page
 
 
 def make_report(job: JobSpec, path: Path | None = None) -> Path:
@@ -44,31 +63,43 @@ def make_report(job: JobSpec, path: Path | None = None) -> Path:
     buf = read_buffer(buffer_path)
     target = path or job.output / REPORT_NAME
     check_writable(target.parent, [target.name])  # not a folder, not a FIFO, writable
-    cameras = [job.output / f"{c.name}.exr" for c in job.inspection_cameras]
-    cameras = [p for p in cameras if p.exists()]  # one that is no regular file is refused
-    previews, left_out = read_previews(job.output, job.output / "previews")
-    read = [buffer_path, job.output / PRIMAL_NAME, *cameras, *_job_files(job)]
-    read += [job.output / name for name in (*previews, *left_out)]
+    check_buffer_of_job(job, buf, buffer_path)
+    folder = job.output / "previews"
+    previews, broken = read_previews(job.output, folder)  # a FIFO among them: refused here
+    exrs = [job.output / f"{c.name}.exr" for c in job.inspection_cameras]
+    read = [buffer_path, job.output / PRIMAL_NAME, *exrs, *_job_files(job)]
+    read += [job.output / name for name in (*previews, *broken)]
     refuse_unsafe_outputs(
         [*read, *recorded_inputs(buf.provenance)],
         [target],
         where=str(target),
         hint="name another file with -o, e.g. report.html",
     )
-    visible = visible_objects(cameras) or None
+    cameras = job.projected_cameras()
+    visible = {c.name: _visible(job, buf, c) for c in cameras}
+    seen = {name: objects for name, objects in visible.items() if objects is not None}
+    sections = [_camera_section(job, buf, c, visible[c.name]) for c in cameras]
+    listed = {f for section in sections for f in section.files}
     content = ReportContent(
         title=f"sensaov report: {job.path.name}",
-        primal=_primal(job.output / PRIMAL_NAME),
-        sunbursts=tuple(_sunburst(buf, o.name) for o in buf.objectives),
+        question=_question(job, buf),
+        stamp=_stamp(job, buf),
+        primal=_primal(job.output / PRIMAL_NAME, buf),
+        objectives=tuple(_objective(job, buf, o.name, seen) for o in buf.objectives),
+        cameras=tuple(sections),
         rankings={
-            by: rankings(buf, by=by, top=TOP, visible=None if by == "type" else visible)
+            by: rankings(
+                buf,
+                by=by,
+                visible=None if by == "type" or not seen else seen,
+                untrusted=job.views.untrusted,
+            )
             for by in ("object", "type", "key")
-        },
-        previews=tuple(Picture(name, data) for name, data in previews.items()),
+        },  # fmt: skip
         params=buf.params,
         provenance=buf.provenance,
-        absent=_absent(job, job.output / "previews")
-        + tuple(f"{name} is not shown: {why}" for name, why in left_out.items()),
+        absent=_absent(job),
+        ignored=_ignored(folder, listed, broken),
     )
     write_report(target, content)
     return target
@@ -84,36 +115,183 @@ def _job_files(job: JobSpec) -> tuple[Path, ...]:
     return (*job.input_files(), *scene)
 
 
-def _absent(job: JobSpec, previews: Path) -> tuple[str, ...]:
+def _visible(job: JobSpec, buf: SensitivityBuffer, camera: CameraSpec) -> frozenset[str] | None:
+    """The objects ``camera``'s EXR shows, after checking it belongs; None without an EXR."""
+    path = job.output / f"{camera.name}.exr"
+    if not path.exists() and not path.is_symlink():  # a FIFO or a device: read_exr refuses it
+        return None
+    channels, header = read_exr(path)
+    remake = f"sensaov project {job.path}"
+    check_made_from(header, buf, str(path), remake=remake)
+    check_made_by(header, job, str(path), remake=remake)
+    return seen_names(channels, header, where=str(path))
+
+
+def _camera_section(
+    job: JobSpec, buf: SensitivityBuffer, camera: CameraSpec, visible: frozenset[str] | None
+) -> CameraSection:
+    folder = job.output / "previews"
+    manifest_path = folder / f"{file_token(camera.name)}.json"
+    if not manifest_path.is_file():
+        note = "no previews: run 'sensaov project JOB --png'"
+        return CameraSection(camera.name, visible, (), (), (), note)
+    manifest = _manifest(manifest_path)
+    remake = f"sensaov project {job.path} --png"
+    check_made_from({"sensaov/buffer_id": manifest.get("buffer_id")}, buf, str(manifest_path),
+                    remake=remake)  # fmt: skip
+    check_made_by({"sensaov/job_hash": manifest.get("job_hash")}, job, str(manifest_path),
+                  remake=remake)  # fmt: skip
+    headline: list[Picture] = []
+    more: list[Picture] = []
+    files: list[str] = []
+    for entry in manifest["files"]:
+        picture = _preview(folder, entry, buf, job, remake)
+        files.append(entry["file"])
+        (headline if _is_headline(job, entry) else more).append(picture)
+    return CameraSection(camera.name, visible, tuple(headline), tuple(more), tuple(files), "")
+
+
+def _manifest(path: Path) -> dict[str, Any]:
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(document.get("files"), list):
+            raise ValueError("no list of files")
+        return dict(document)
+    except (OSError, ValueError, AttributeError) as error:
+        raise StaleInputError(
+            f"cannot read this previews manifest: {error}",
+            where=str(path),
+            hint="re-run 'sensaov project JOB --png'",
+        ) from error
+
+
+def _preview(
+    folder: Path, entry: dict[str, Any], buf: SensitivityBuffer, job: JobSpec, remake: str
+) -> Picture:
+    path = folder / str(entry.get("file", ""))
+    if not path.resolve().is_relative_to(folder.resolve()) or not path.is_file():
+        raise StaleInputError("a preview its manifest lists is missing", where=str(path),
+                              hint=f"re-run '{remake}'")  # fmt: skip
+    try:
+        text = read_png_text(path)
+    except (OSError, ValueError) as error:
+        raise StaleInputError(f"cannot read this preview: {error}", where=str(path),
+                              hint=f"re-run '{remake}'") from error  # fmt: skip
+    check_made_from(text, buf, str(path), remake=remake)
+    check_made_by(text, job, str(path), remake=remake)
+    return Picture(_caption(entry), path.read_bytes(), kind=str(entry.get("kind", "")),
+                   objective=str(entry.get("objective", "")))  # fmt: skip
+
+
+def _is_headline(job: JobSpec, entry: dict[str, Any]) -> bool:
+    """The objective's first object channel (and its untrusted part): a report's headline."""
+    headline = next((c.name for c in job.channels if c.kind == "object"), None)
+    name = str(entry.get("pass_name", ""))
+    return entry.get("kind") == "layer" and headline is not None and (
+        name in (headline, f"{headline}_untrusted")
+    )  # fmt: skip
+
+
+def _caption(entry: dict[str, Any]) -> str:
+    kind = entry.get("kind")
+    if kind == "sheet":
+        return f"every pass of {entry.get('objective')} (contact sheet)"
+    if kind == "fig4":
+        return f"{entry.get('objective')}: texel panels of {entry.get('pass_name')}"
+    part = {"trusted": " (trusted gradients)", "untrusted": " (left out: untrusted)"}
+    shown = part.get(str(entry.get("part")), "")
+    return f"{entry.get('objective')}.{entry.get('pass_name')}{shown}"
+
+
+def _ignored(folder: Path, listed: set[str], broken: dict[str, str]) -> tuple[str, ...]:
+    """PNGs under ``previews`` that no camera's manifest lists: never shown, named, with the
+    reason when one is not a whole PNG (``broken`` is keyed by path under the output)."""
+    if not folder.is_dir():
+        return ()
+    found = sorted(
+        str(p.relative_to(folder)) for p in folder.rglob("*.png") if p.is_symlink() or p.is_file()
+    )
+    why = {str(Path(name).relative_to(folder.name)): reason for name, reason in broken.items()}
+    return tuple(
+        f"{name} ({why[name]})" if name in why else name for name in found if name not in listed
+    )
+
+
+def _objective(
+    job: JobSpec, buf: SensitivityBuffer, name: str, seen: dict[str, frozenset[str]]
+) -> ObjectiveSection:
+    (top,) = rankings(buf, by="object", objectives=[name], top=SUMMARY_TOP,
+                      visible=seen or None, untrusted=job.views.untrusted)  # fmt: skip
+    drawn = panels(buf, [name], untrusted=job.views.untrusted)
+    data = sunburst_bytes(drawn, fmt="png", order="object,type", encoding="l2 of θ·∂M/∂θ",
+                          provenance={"objective": name, "buffer_id": buffer_id(buf)},
+                          panel_inches=SUNBURST_INCHES)  # fmt: skip
+    sunburst = Picture(f"sunburst of {name}: objects → types → parameters (1:1)", data,
+                       kind="sunburst")  # fmt: skip
+    apart = {
+        row.name: tuple(p for p in buf.params if row.name in p.owners and not is_trusted(p))
+        for row in top.left_out
+    }
+    return ObjectiveSection(name, _definition(buf.objective(name).definition), top, sunburst, apart)
+
+
+def _definition(definition: dict[str, Any]) -> str:
+    kind = str(definition.get("type", definition.get("kind", "")))
+    words = {
+        "mean_luminance": "the mean Rec. 709 luminance of the objective camera's image",
+        "region_luminance": "the mean luminance of the region {region} of the image",
+        "l2_to_target": "the squared distance of the image to the target {target}",
+        "python": "the Python function {function}",
+    }
+    text = words.get(kind, kind)
+    try:
+        return text.format(**{k: definition.get(k) for k in ("region", "target", "function")})
+    except (KeyError, IndexError, ValueError):
+        return text
+
+
+def _question(job: JobSpec, buf: SensitivityBuffer) -> str:
+    names = ", ".join(o.name for o in buf.objectives)
+    return f"Which parts of {job.scene.name} matter for {names}?"
+
+
+def _stamp(job: JobSpec, buf: SensitivityBuffer) -> dict[str, str]:
+    made = buf.provenance
+    batches = buf.statistics.batches if buf.statistics is not None else 1
+    return {
+        "buffer id": buffer_id(buf),
+        "job version (run)": (run_version(buf) or "unrecorded")[:12],
+        "job hash": job.job_hash()[:12],
+        "made": str(made.get("created_utc", "?")),
+        "samples": f"{made.get('spp', '?')} spp, {batches} batch(es)",
+    }
+
+
+def _absent(job: JobSpec) -> tuple[str, ...]:
     """The views of the paper this page does not show, and why, said plainly."""
-    names = [p.name for p in previews.rglob("*.png")] if previews.is_dir() else []
-    lines = []
     kinds = {
         "texel (per-texel fields through UVs)": any(c.kind == "texel" for c in job.channels),
         "forward-mode and transport": bool(job.forward)
         or any(c.kind == "transport" for c in job.channels),
     }
-    for view, asked in kinds.items():
-        if not asked:
-            lines.append(f"{view} views: this job asks for none (docs/job-spec.md)")
-    if not names:
-        lines.append("no channel previews: run 'sensaov project JOB --png' first")
-    return tuple(lines)
+    return tuple(
+        f"{view} views: this job asks for none (docs/job-spec.md)"
+        for view, asked in kinds.items()
+        if not asked
+    )
 
 
-def _primal(path: Path) -> Picture | None:
-    if not path.exists():
+def _primal(path: Path, buf: SensitivityBuffer) -> Picture | None:
+    if not path.exists() and not path.is_symlink():  # a FIFO or a device: read_exr refuses it
         return None
-    channels, _ = read_exr(path)
+    channels, header = read_exr(path)
+    try:
+        recorded = provenance_id(json.loads(header[PROVENANCE_ATTRIBUTE]))
+    except (KeyError, TypeError, ValueError, AttributeError):
+        recorded = None  # no provenance, or not sensaov's: refused below
+    check_made_from({"sensaov/buffer_id": recorded}, buf, str(path), remake="sensaov run JOB")
     linear = [channels[c] for c in ("R", "G", "B") if c in channels]
     if len(linear) != 3:
         return None
     rgb = srgb_uint8(np.stack(linear, axis=-1))
-    return Picture(f"{path.name} (clipped to [0, 1], sRGB)", png_bytes(rgb))
-
-
-def _sunburst(buf: SensitivityBuffer, objective: str) -> Picture:
-    drawn = panels(buf, [objective])
-    data = sunburst_bytes(drawn, fmt="png", order="object,type", encoding="l2 of θ·∂M/∂θ",
-                          provenance={"objective": objective})  # fmt: skip
-    return Picture(f"sunburst of {objective} (objects → types → parameters)", data)
+    return Picture(f"{path.name} (clipped to [0, 1], sRGB)", png_bytes(rgb), kind="primal")

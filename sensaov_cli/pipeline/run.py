@@ -14,6 +14,7 @@ from typing import Any
 
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.forward_sidecar import forward_writer
+from sensaov_cli.buffer.identity import BUFFER_ID, RUN_VERSION, new_buffer_id
 from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer
 from sensaov_cli.errors import SensaovError, SpecError
@@ -21,7 +22,7 @@ from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
 from sensaov_cli.outputs.exr import exr_writer, image_channels, read_exr
 from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
-from sensaov_cli.pipeline.run_forward import plan_forward, run_forward
+from sensaov_cli.pipeline.run_forward import forward_bound, plan_forward, run_forward
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, batch_plan, integrator_plan, run_adjoint
 from sensaov_cli.render.loading import LoadedScene, load_scene, refuse_non_finite
@@ -117,7 +118,7 @@ def run_job(
     objectives = build_objectives(loaded.mi, whole.objectives, (height, width), allow_python)
     # An objective keeps its index in the whole job (its gradient seed) when a task picks it.
     objectives = [o for o in objectives if o.spec in job.objectives]
-    forward_passes = len(plan_forward(job, loaded))  # an entry selecting nothing fails here
+    plan_forward(job, loaded)  # an entry selecting nothing fails here, before any render
     if job.wants_forward and not forward_wanted:
         progress.note(
             "forward channels and transport layers are rendered by single-batch runs only, "
@@ -128,9 +129,10 @@ def run_job(
         spp, seed = batch_plan(spp, seed, task.shard[1])[task.shard[0] - 1]
         batches = 1
     passes = len(integrator_plan(loaded)) * len(objectives)
-    # Forward entries with transport layers push once more per objective; a transport
-    # channel's top objects are only known after the backward passes: not counted.
-    progress.plan(batches * (1 + passes) + (forward_passes if forward_wanted else 0) + 1)
+    # Every pass counts: a transport channel's top objects are only known after the backward
+    # passes, so its passes are planned at their most and the ones not needed skipped then.
+    planned_forward = forward_bound(job, len(objectives)) if forward_wanted else 0
+    progress.plan(batches * (1 + passes) + planned_forward + 1)
     result = run_adjoint(
         loaded,
         objectives,
@@ -146,9 +148,14 @@ def run_job(
     forward = None
     if forward_wanted:
         forward = run_forward(job, loaded, objectives, buffer, result.image, progress)
+        progress.skip(planned_forward - len(forward.passes) if forward else planned_forward)
+        # The buffer's times cover every pass of the run, forward passes included.
+        timed = {**buffer.provenance, "timings_s": dict(progress.timings),
+                 "wall_time_s": round(time.perf_counter() - started, 4)}  # fmt: skip
+        buffer = replace(buffer, provenance=timed, _copy_arrays=False)
     interrupts.check()  # a stop asked for during a kernel must not end in written files
     with progress.stage("write_s", f"writing {buffer_path.name} and {primal_path.name}"):
-        primal = exr_writer(image_channels(result.image), provenance_attributes(provenance))
+        primal = exr_writer(image_channels(result.image), provenance_attributes(buffer.provenance))
         files = [(buffer_path, buffer_writer(buffer)), (primal_path, primal)]
         if forward is not None:  # the forward sidecar is written with its buffer, or neither
             files.append((job.output / FORWARD_NAME, forward_writer(forward)))
@@ -253,6 +260,8 @@ def _provenance(
     width, height = loaded.resolution
     return {
         **made_by(" ".join(sys.argv)),
+        BUFFER_ID: new_buffer_id(),  # every output made from this buffer records it
+        RUN_VERSION: job.run_hash(),  # what run read of the job: project and report compare it
         "mitsuba_version": version("mitsuba"),
         "drjit_version": version("drjit"),
         "variant": loaded.variant,

@@ -56,6 +56,15 @@ def plan_forward(job: JobSpec, loaded: LoadedScene) -> list[_Group]:
     return groups
 
 
+def forward_bound(job: JobSpec, objectives: int) -> int:
+    """The most forward passes the job can need with ``objectives`` objectives: one per forward
+    entry, one per other objective for a transport entry, a transport channel's top objects for
+    every objective (fewer when objects score 0 or passes coincide: skipped after the run)."""
+    entries = sum(objectives if spec.transport else 1 for spec in job.forward)
+    tops = sum(c.top * objectives for c in job.channels if c.kind == "transport")
+    return entries + tops
+
+
 def run_forward(
     job: JobSpec,
     loaded: LoadedScene,

@@ -10,7 +10,7 @@ from sensaov_cli.outputs.overwrite import recorded_inputs, refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.outputs.sunburst_drawing import write_sunburst
 from sensaov_cli.views.sunburst_geometry import panels
-from sensaov_cli.vocabulary import Aggregate, Order, Weight
+from sensaov_cli.vocabulary import Aggregate, Order, Untrusted, Weight
 
 
 def draw_sunburst(
@@ -21,6 +21,7 @@ def draw_sunburst(
     order: Order,
     method: Aggregate,
     weight: Weight,
+    untrusted: Untrusted = "apart",
 ) -> Path:
     """Write one disc per objective (or per named objective) to ``output``."""
     loaded = read_buffer(buffer)
@@ -31,7 +32,9 @@ def draw_sunburst(
         where=str(output),
         hint="name another file with -o, e.g. sunburst.svg",
     )
-    drawn = panels(loaded, objectives or None, order=order, method=method, weight=weight)
+    drawn = panels(
+        loaded, objectives or None, order=order, method=method, weight=weight, untrusted=untrusted
+    )
     contribution = "θ·∂M/∂θ" if weight == "value" else "∂M/∂θ"
     provenance = {
         **made_by("sunburst"),
@@ -39,6 +42,7 @@ def draw_sunburst(
         "order": order,
         "aggregate": method,
         "weight": weight,
+        "untrusted": untrusted,
         "buffer_provenance": loaded.provenance,
     }
     write_sunburst(

@@ -10,7 +10,6 @@ not re-entrant, and one user's page sends one request at a time anyway.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import threading
 import time
@@ -19,13 +18,16 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sensaov_cli.buffer.identity import buffer_id
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import RequestError, UnknownNameError
 from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.outputs.view_images import exr_bytes, id_map_bytes, png_bytes, view_rgb
 from sensaov_cli.pipeline import project_texels
-from sensaov_cli.pipeline.project import OBJECTIVE_CAMERA, check_fingerprint, check_objects
+from sensaov_cli.pipeline.consistency import check_buffer_of_job
+from sensaov_cli.pipeline.project import check_fingerprint, check_objects
+from sensaov_cli.pipeline.view_job_scales import JobScales
 from sensaov_cli.pipeline.view_query import (
     PICK_KEYS,
     VIEW_KEYS,
@@ -52,6 +54,7 @@ META_FORMAT = "sensaov-view"
 META_VERSION = 1
 REST_SPP = 16  # what the page asks for once the mouse rests
 CACHED_PASSES = 8  # visibility passes kept: a pick or an id map reuses the view's own pass
+OBJECTIVE_POSE = "objective"  # the name project gives the objective camera too
 SAME_POSE = 1e-4  # relative: a camera this close to the objective camera is that camera
 
 
@@ -82,9 +85,10 @@ class ViewSession:
         self.tracer = ViewTracer(loaded.mi, loaded.scene, buffer.objects)
         self.bounds = scene_bounds(loaded.scene)
         self.cameras = _cameras(job, loaded, self.bounds)
-        self.buffer_id = _file_id(buffer_path)
+        self.buffer_id = buffer_id(buffer)  # the id project, report and rank --exr check
         self.saved: list[Path] = []
         self._lock = threading.Lock()
+        self.scales = JobScales(job, buffer, loaded, self._lock)
         self._passes: OrderedDict[tuple[Any, ...], VisibilityPass] = OrderedDict()
 
     @property
@@ -206,7 +210,8 @@ class ViewSession:
             notes = (source.note,) if source.note else ()
             shown = paint_image(source.data, visibility, request.look, source.unverified, notes)
             return visibility, shown
-        return visibility, paint_view(self.buffer, source, visibility, request.look)
+        shared = self.scales.of(source, request.look.sign)
+        return visibility, paint_view(self.buffer, source, visibility, request.look, shared)
 
     def visibility(self, request: ViewRequest, with_uv: bool = False) -> VisibilityPass:
         """The visibility pass of a request's camera, traced once and kept for picks (a pass
@@ -284,8 +289,10 @@ def open_session(
 ) -> ViewSession:
     """Read the buffer, prepare and load the scene once (with the job's inspection cameras)."""
     buffer = read_buffer(buffer_path)
-    prepared = prepare_scene(job, job.inspection_cameras)
+    prepared = prepare_scene(job, job.projected_cameras())  # project's cameras: its scales
     check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
+    if not force:
+        check_buffer_of_job(job, buffer, buffer_path, override="pass --force to view it anyway")
     with progress.stage("load_s", f"loading {job.scene.name}"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     check_objects(buffer, loaded, buffer_path)
@@ -298,15 +305,17 @@ def open_session(
                    where=str(job.path))  # fmt: skip
         for spp in (1, REST_SPP):  # the two kernels a page asks for, compiled before it asks
             session.tracer.trace(first.pose, first.size[0], first.size[1], spp)
+    with progress.stage("scales_s", "tracing the job's cameras for its shared scales"):
+        session.scales.warm()
     return session
 
 
 def _cameras(job: JobSpec, loaded: LoadedScene, bounds: tuple[Any, Any]) -> list[NamedPose]:
     """The objective camera first, then the job's other inspection cameras, as poses."""
     mi = loaded.mi
-    found = [NamedPose("objective", sensor_pose(mi, loaded.sensor, bounds), loaded.resolution)]
+    found = [NamedPose(OBJECTIVE_POSE, sensor_pose(mi, loaded.sensor, bounds), loaded.resolution)]
     for camera in job.inspection_cameras:
-        if camera.objective or camera.name == OBJECTIVE_CAMERA.name:
+        if camera.objective or camera.name == OBJECTIVE_POSE:
             continue
         sensor = loaded.inspection_sensors[camera.name]
         size = sensor.film().crop_size()
@@ -355,12 +364,3 @@ def _direction(pose: Pose) -> tuple[float, ...]:
 
 def _token(name: str) -> str:
     return "".join(c if c.isalnum() or c == "_" else "_" for c in name)
-
-
-def _file_id(path: Path) -> str:
-    """The first 16 hex digits of the buffer file's sha256: which buffer a view painted."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as stream:
-        for block in iter(lambda: stream.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()[:16]

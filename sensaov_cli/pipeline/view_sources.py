@@ -10,7 +10,7 @@ they are offered at that camera only, and say so.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -64,7 +64,11 @@ class Sources:
         self.buffer = buffer
         has_objects = any(c.kind == "object" for c in job.channels)
         specs = job.channels if has_objects else (OBJECTS, *job.channels)
-        self.painted = {(v.objective, v.pass_name): v for v in channel_values(buffer, specs)}
+        self.untrusted = job.views.untrusted
+        self.painted = {
+            (v.objective, v.pass_name): v
+            for v in channel_values(buffer, specs, untrusted=self.untrusted)
+        }
         self.images = _stored_images(job, buffer, buffer_path)
         self.texels = {
             (f.objective, f"{f.channel.name}_{texture_token(f.record.key)}_{panel}"): (
@@ -103,12 +107,11 @@ class Sources:
                 hint="globs match keys such as 'white.reflectance.value' or '*.alpha'",
             )
         spec = ChannelSpec(f"select_{len(self.painted)}", "select", select=glob)
-        for values in channel_values(self.buffer, (spec,)):
-            named = ChannelValues(
-                values.objective, channel, values.spec, values.selection, values.keys,
-                values.magnitudes, values.signed_sums, values.unverified,
-            )  # fmt: skip
-            self.painted[(values.objective, channel)] = named
+        for values in channel_values(self.buffer, (spec,), untrusted=self.untrusted):
+            part = values.pass_name[len(spec.name) :]  # "" or the untrusted part's suffix
+            self.painted[(values.objective, channel + part)] = replace(
+                values, pass_name=channel + part
+            )
         return self.painted[(objective, channel)]
 
 

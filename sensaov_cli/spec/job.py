@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from annotated_types import Ge, Le, Lt
+from annotated_types import Ge, Gt, Le, Lt
 
 from sensaov_cli.spec.cameras import PLACED, CameraSpec, InspectionCamera
 from sensaov_cli.spec.fields import (
@@ -33,6 +33,7 @@ from sensaov_cli.spec.fields import (
     JobFile,
     MaxDepth,
     Name,
+    Number,
     OutputDir,
     Region,
     Resolution,
@@ -57,9 +58,11 @@ from sensaov_cli.vocabulary import (
     Normalize,
     ObjectiveType,
     PoolKind,
+    ScaleScope,
     Sign,
     TexelUnits,
     Tonemap,
+    Untrusted,
     Variant,
     Weight,
 )
@@ -118,6 +121,37 @@ class ParameterSpec(Section):
             "object gets its own gradient; keep: leave shared BSDFs shared."
         ),
     ] = "split"
+
+
+@dataclass(frozen=True)
+class ViewsSpec(Section):
+    """How the headline views and the pictures read the buffer (docs/encoding.md)."""
+
+    untrusted: Annotated[
+        Untrusted,
+        Doc(
+            "apart: object and type views add up only gradients sensaov stands behind "
+            "(verified); the rest gets layers, rows and wedges of its own, named per object. "
+            "include: mix them in, marked."
+        ),
+    ] = "apart"
+    scale: Annotated[
+        ScaleScope,
+        Doc(
+            "shared: one display scale per (objective, channel) across every camera of the "
+            "job, for previews, contact sheets, the report and display layers; tile: each "
+            "camera its own scale, labelled so."
+        ),
+    ] = "shared"
+    percentile: Annotated[
+        Number,
+        Gt(50.0),
+        Le(100.0),
+        Doc(
+            "The display scale is this percentile of |value| over the pixels a layer paints "
+            "(non-zero), each camera weighted equally; larger values clip, and say so."
+        ),
+    ] = 95.0
 
 
 @dataclass(frozen=True)
@@ -278,6 +312,7 @@ class JobSpec(Section):
         unique_names("forward channel", "forward"),
         Doc("Forward-mode channels: one forward pass each (more with transport)."),
     ] = ()
+    views: ViewsSpec = ViewsSpec()
     output: Annotated[
         OutputDir, Doc("Output directory, relative to the job; null = out/<job stem>.")
     ]
@@ -286,6 +321,14 @@ class JobSpec(Section):
     def wants_forward(self) -> bool:
         """Whether the job asks for any forward pass: a forward channel or a transport one."""
         return bool(self.forward) or any(c.kind == "transport" for c in self.channels)
+
+    def projected_cameras(self) -> tuple[CameraSpec, ...]:
+        """The cameras ``project`` paints: the inspection cameras, with the objective camera
+        first unless one of them already is it."""
+        cameras = self.inspection_cameras
+        if any(camera.objective for camera in cameras):
+            return cameras
+        return (CameraSpec("objective", objective=True), *cameras)
 
     def input_files(self) -> tuple[Path, ...]:
         """The files the job itself names: the job file, objectives' masks and targets (the
@@ -306,6 +349,17 @@ class JobSpec(Section):
         """
         fields = _jsonable(dataclasses.asdict(self), self.path.parent)
         del fields["path"]
+        return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
+
+    def run_hash(self) -> str:
+        """sha256 of what ``sensaov run`` reads of the job: the :meth:`job_hash` fields less the
+        ones only later commands read (inspection cameras, placement and texel channels, views,
+        the output folder). A buffer records it as ``run_version``: ``project`` and ``report``
+        accept a buffer only from a job whose run_hash is the same (docs/buffer-format.md)."""
+        fields = _jsonable(dataclasses.asdict(self), self.path.parent)
+        for later in ("path", "inspection_cameras", "views", "output"):
+            del fields[later]
+        fields["channels"] = [c for c in fields["channels"] if c["kind"] == "transport"]
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
 
 

@@ -3,12 +3,17 @@
 Everything here is camera-independent except :func:`paint`: per-object values are computed once
 from the buffer and painted into any number of inspection cameras' visibility passes, which is
 the whole point of storing the buffer (no new differentiation per view).
+
+Under ``untrusted: apart`` (the default, :mod:`.headline`) each selection becomes two passes:
+``<pass>`` adds up the parameters the tool stands behind and ``<pass>_untrusted`` the rest, so a
+biased gradient never paints a headline layer; the second exists only when the selection holds
+such a parameter. Both belong to one scale group, ``<objective>/<channel>``.
 """
 
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import cast
 
 import numpy as np
@@ -17,7 +22,10 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.queries import per_object, select
 from sensaov_cli.errors import SpecError
 from sensaov_cli.spec.job import ChannelSpec
+from sensaov_cli.views.headline import check_untrusted, untrusted_keys, zero_valued
 from sensaov_cli.vocabulary import Aggregate, Weight
+
+UNTRUSTED_PASS = "_untrusted"  # the suffix of a selection's untrusted part
 
 
 @dataclass(frozen=True)
@@ -32,19 +40,61 @@ class ChannelValues:
     magnitudes: np.ndarray  # (n_objects,) aggregate per object (l2/rms ≥ 0, sum signed)
     signed_sums: np.ndarray  # (n_objects,) Σ c per object: the direction of a group's effect
     unverified: tuple[str, ...]  # selected keys whose gradient is not verified
+    part: str = "all"  # "trusted" / "untrusted" under untrusted: apart
+    # object -> its keys in the untrusted pass (on both parts: left out of one, held by the other)
+    left_out: dict[str, tuple[str, ...]] | None = None
+    zero_valued: dict[str, float] | None = None  # key -> raw Σ ∂M/∂θ, θ = 0 (weight value)
+
+    @property
+    def scale_group(self) -> str:
+        """The passes that share one display scale: one (objective, channel)."""
+        return f"{self.objective}/{self.spec.name}"
 
 
 def channel_values(
-    buf: SensitivityBuffer, channels: tuple[ChannelSpec, ...]
+    buf: SensitivityBuffer, channels: tuple[ChannelSpec, ...], *, untrusted: str = "apart"
 ) -> list[ChannelValues]:
-    """Every (objective, channel[, type]) pass the job asks for."""
+    """Every (objective, channel[, type]) pass the job asks for, split by trust (``apart``)."""
+    check_untrusted(untrusted)
     passes = []
     for objective in buf.objectives:
         for index, channel in enumerate(channels):
             if channel.kind in ("transport", "texel"):  # rendered by run / painted through UVs
                 continue
             for pass_name, selection, keys in _selections(buf, channel, index):
-                passes.append(_values(buf, objective.name, channel, pass_name, selection, keys))
+                passes += _parts(
+                    buf, objective.name, channel, pass_name, selection, keys, untrusted
+                )
+    return passes
+
+
+def _parts(
+    buf: SensitivityBuffer,
+    objective: str,
+    channel: ChannelSpec,
+    pass_name: str,
+    selection: str,
+    keys: tuple[str, ...],
+    untrusted: str,
+) -> list[ChannelValues]:
+    """One pass (``include``), or the trusted pass and, if any, the untrusted one (``apart``)."""
+    hidden = zero_valued(buf, objective, keys) if channel.weight == "value" else {}
+    zeros = {key: z.raw_signed for key, z in hidden.items()}
+    if untrusted == "include":
+        return [_values(buf, objective, channel, pass_name, selection, keys, "all", zeros)]
+    apart = untrusted_keys(buf, keys)
+    trusted = tuple(k for k in keys if k not in apart)
+    left_out = {o: tuple(k for k in apart if o in buf.param(k).owners) for o in buf.objects}
+    passes = [
+        replace(
+            _values(buf, objective, channel, pass_name, selection, trusted, "trusted", zeros),
+            left_out={o: ks for o, ks in left_out.items() if ks},
+        )
+    ]
+    if apart:
+        name, where = pass_name + UNTRUSTED_PASS, f"{selection};untrusted"
+        part = _values(buf, objective, channel, name, where, apart, "untrusted", zeros)
+        passes.append(replace(part, left_out=passes[0].left_out))  # what it holds, by object
     return passes
 
 
@@ -86,6 +136,8 @@ def _values(
     pass_name: str,
     selection: str,
     keys: tuple[str, ...],
+    part: str,
+    zeros: dict[str, float],
 ) -> ChannelValues:
     method, weight = cast(Aggregate, channel.aggregate), cast(Weight, channel.weight)
     magnitude = per_object(buf, objective, method=method, weight=weight, keys=keys)
@@ -102,4 +154,6 @@ def _values(
         np.array([magnitude[name] for name in buf.objects], np.float64),
         np.array([signed[name] for name in buf.objects], np.float64),
         unverified,
+        part,
+        zero_valued={key: raw for key, raw in zeros.items() if key in keys},
     )

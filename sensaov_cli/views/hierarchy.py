@@ -5,6 +5,11 @@ One table per objective whose every row carries what a reader needs to judge it:
 response, the parameter's value (key rows), the trust label and, when cameras are given, the
 cameras that do not see it (off-frame). The columns are documented in docs/rankings.md.
 
+Object and type rankings add up only the parameters the tool stands behind (``untrusted:
+apart``, the default, :mod:`.headline`): the rest is ranked apart, one ``left_out`` row per
+object or type that has any, under the same columns. A parameter whose value is exactly 0 is
+flagged (``zero_value``) with its raw gradient: value weighting scores it 0 whatever ∂M/∂θ is.
+
 The share is taken of Σc² over every ranked parameter, whatever ``--aggregate`` says: Σc² adds
 up over disjoint groups, so the shares of keys and of types each sum to 1, while an l2 or a
 signed sum would not (object shares may sum past 1: a shared parameter counts for each owner).
@@ -19,12 +24,15 @@ from dataclasses import dataclass, replace
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, key_stats, rank, scores
 from sensaov_cli.errors import QueryError
+from sensaov_cli.views.headline import ZeroValued, split_groups, zero_valued
 from sensaov_cli.views.summary import ranked_groups, weakest_trust
-from sensaov_cli.views.uncertainty import GroupError, Uncertainty
-from sensaov_cli.vocabulary import Aggregate, Cut, Grouping, Trust, Weight
+from sensaov_cli.views.uncertainty import GroupError, Significance, Uncertainty
+from sensaov_cli.vocabulary import Aggregate, Cut, Grouping, Trust, Untrusted, Weight
 
 RANKING_FORMAT = "sensaov-ranking"
-RANKING_VERSION = 2  # 2: standard errors, significance and stability
+# 2: standard errors, significance and stability; 3: Student-t significance, untrusted
+# parameters ranked apart (left_out), zero-valued parameters flagged, part and raw_signed
+RANKING_VERSION = 3
 # The grouping each cut reads: a key row is one parameter.
 GROUPING_OF: dict[Cut, Grouping] = {"key": "param", "object": "object", "type": "type"}
 
@@ -44,7 +52,10 @@ class RankRow:
     off_frame: tuple[str, ...] | None  # cameras that see none of its objects
     score_se: float | None = None  # standard errors, when the buffer has batch statistics
     signed_se: float | None = None
-    significant: bool | None = None  # |signed| > 2 signed_se: the sign is beyond noise
+    significant: bool | None = None  # |signed| > t · signed_se: the sign is beyond noise
+    part: str = "all"  # "trusted" / "untrusted" (left out) under untrusted: apart
+    zero_value: bool = False  # θ is 0 where ∂M/∂θ is not (a group: in one of its keys)
+    raw_signed: float | None = None  # Σ ∂M/∂θ, for a zero-valued key under weight "value"
 
 
 @dataclass(frozen=True)
@@ -61,6 +72,10 @@ class Ranking:
     batches: int | None = None  # batches behind the standard errors (None: no statistics)
     stability: float | None = None  # how often the top ``stability_top`` rows keep their order
     stability_top: int | None = None
+    left_out: tuple[RankRow, ...] = ()  # untrusted parts of objects or types, ranked apart
+    untrusted: str = "include"  # how untrusted parameters were treated: apart | include
+    significance: Significance | None = None  # the rule behind ``significant``
+    zero_valued: tuple[ZeroValued, ...] = ()  # every key value weighting hides
 
 
 def rankings(
@@ -72,22 +87,34 @@ def rankings(
     method: Aggregate = "l2",
     weight: Weight = "value",
     visible: Mapping[str, frozenset[str]] | None = None,
+    untrusted: Untrusted = "apart",
 ) -> tuple[Ranking, ...]:
     """The ranking of every objective (or of ``objectives``) at the cut ``by``.
 
-    ``visible`` maps a camera name to the objects it sees; each row then lists the cameras
-    that see none of its objects (for a key: none of its owners; a key with no owner is
-    off-frame everywhere). Types have no place in a frame, so ``by="type"`` refuses cameras.
+    With ``untrusted="apart"`` object and type rows add up trusted parameters only and the
+    untrusted rest of each group becomes a row of ``left_out``. ``visible`` maps a camera name
+    to the objects it sees; each row then lists the cameras that see none of its objects (for
+    a key: none of its owners; a key with no owner is off-frame everywhere).
+    Types have no place in a frame, so ``by="type"`` refuses cameras.
     """
     check_cut(by, cameras=visible is not None)
     names = [o.name for o in buf.objectives] if objectives is None else list(objectives)
     grouped = ranked_groups(buf)
+    cut = _Cut(by, method, weight, visible, "include" if by == "key" else untrusted)
     return tuple(
-        _ranking(
-            buf, name, grouped[GROUPING_OF[by]], grouped["param"], by, top, method, weight, visible
-        )
-        for name in names
+        _ranking(buf, name, grouped[GROUPING_OF[by]], grouped["param"], cut, top) for name in names
     )
+
+
+@dataclass(frozen=True)
+class _Cut:
+    """How one ranking is read: the cut, the score, cameras and the untrusted mode."""
+
+    by: Cut
+    method: Aggregate
+    weight: Weight
+    visible: Mapping[str, frozenset[str]] | None
+    untrusted: str
 
 
 def check_cut(by: str, *, cameras: bool) -> None:
@@ -103,45 +130,42 @@ def _ranking(
     objective: str,
     grouped: Mapping[str, Sequence[str]],
     flowing: Mapping[str, Sequence[str]],
-    by: Cut,
+    cut: _Cut,
     top: int | None,
-    method: Aggregate,
-    weight: Weight,
-    visible: Mapping[str, frozenset[str]] | None,
 ) -> Ranking:
-    stats = key_stats(buf, objective, flowing, weight=weight)
+    stats = key_stats(buf, objective, flowing, weight=cut.weight)
     total_sq = math.fsum(s.sum_sq for s in stats.values())
-    ordered = rank(scores(stats, grouped, method))
-    rows = tuple(
-        _row(
-            buf,
-            i,
-            name,
-            score,
-            [stats[k] for k in grouped[name]],
-            grouped[name],
-            by,
-            total_sq,
-            visible,
-        )
-        for i, (name, score) in enumerate(ordered if top is None else ordered[:top], 1)
-    )
-    noise = Uncertainty.of(buf, objective, method, weight)
-    stable: tuple[float, int] | None = None
-    if noise is not None:
-        rows = tuple(_with_errors(row, noise.error(grouped[row.name], row.score)) for row in rows)
-        stable = noise.stability(ordered, grouped)
+    split = split_groups(buf, grouped, cut.untrusted)
+    hidden = zero_valued(buf, objective, list(flowing)) if cut.weight == "value" else {}
+    noise = Uncertainty.of(buf, objective, cut.method, cut.weight)
+    part = "all" if cut.untrusted == "include" else "trusted"
+
+    def rows(groups: Mapping[str, Sequence[str]], part: str, limit: int | None) -> list[RankRow]:
+        ordered = rank(scores(stats, groups, cut.method))
+        made = [
+            _row(buf, i, name, score, groups[name], stats, total_sq, cut, hidden, part)
+            for i, (name, score) in enumerate(ordered if limit is None else ordered[:limit], 1)
+        ]
+        if noise is not None:
+            made = [_with_errors(row, noise.error(groups[row.name], row.score)) for row in made]
+        return made
+
+    stable = None if noise is None else noise.stability(rank(scores(stats, split.kept)), split.kept)
     return Ranking(
         objective=objective,
         objective_value=buf.objective(objective).value,
-        by=by,
-        rows=rows,
-        ranked=len(ordered),
+        by=cut.by,
+        rows=tuple(rows(split.kept, part, top)),
+        ranked=len(split.kept),
         total_signed=math.fsum(s.total for s in stats.values()),
         no_gradient=tuple(p for p in buf.params if p.trust == "no_gradient"),
         batches=None if noise is None else noise.batches,
         stability=None if stable is None else stable[0],
         stability_top=None if stable is None else stable[1],
+        left_out=tuple(rows(split.left_out, "untrusted", None)),
+        untrusted=cut.untrusted,
+        significance=None if noise is None else noise.significance,
+        zero_valued=tuple(hidden.values()),
     )
 
 
@@ -159,15 +183,18 @@ def _row(
     index: int,
     name: str,
     score: float,
-    stats: Sequence[KeyStats],
     keys: Sequence[str],
-    by: Cut,
+    stats: Mapping[str, KeyStats],
     total_sq: float,
-    visible: Mapping[str, frozenset[str]] | None,
+    cut: _Cut,
+    hidden: Mapping[str, ZeroValued],
+    part: str,
 ) -> RankRow:
-    signed = math.fsum(s.total for s in stats)
-    share = math.fsum(s.sum_sq for s in stats) / total_sq if total_sq else 0.0
-    objects = buf.param(name).owners if by == "key" else (name,)
+    group = [stats[k] for k in keys]
+    signed = math.fsum(s.total for s in group)
+    share = math.fsum(s.sum_sq for s in group) / total_sq if total_sq else 0.0
+    objects = buf.param(name).owners if cut.by == "key" else (name,)
+    zero = [hidden[k] for k in keys if k in hidden]
     return RankRow(
         rank=index,
         name=name,
@@ -175,9 +202,12 @@ def _row(
         signed=signed,
         share=share,
         sign="+" if signed > 0 else "-" if signed < 0 else "0",
-        value=_mean_value(buf, name) if by == "key" else None,
+        value=_mean_value(buf, name) if cut.by == "key" else None,
         trust=weakest_trust(buf, keys),
-        off_frame=None if visible is None else off_frame(objects, visible),
+        off_frame=None if cut.visible is None else off_frame(objects, cut.visible),
+        part=part,
+        zero_value=bool(zero),
+        raw_signed=zero[0].raw_signed if cut.by == "key" and zero else None,
     )
 
 

@@ -3,10 +3,11 @@
 The per-object values come from the buffer once (:mod:`.channels`); each camera move only
 brings a new :class:`~.coverage.VisibilityPass`, through which they are painted and encoded
 as the page asks: signed or magnitude, linear or compressive (a log tone map around a
-threshold at 1e-3 of the peak), on the job's shared scale or the view's own
-(:mod:`.view_scales`). What the view cannot stand behind travels with it: the coverage of
-objects whose value includes a gradient that is not verified (drawn hatched), the objects with
-a value that this view does not see, and the keys behind both.
+threshold at 1e-3 of the peak), on the job's shared scale (the one ``sensaov project``'s
+previews and display layers use) or the view's own (:mod:`.view_scales`). What the view cannot
+stand behind travels with it: the coverage of objects whose value includes a gradient that is
+not verified (drawn hatched), the objects with a value that this view does not see, and the
+keys behind both.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass
+from sensaov_cli.views.display_scale import DisplayScale, clipped_share, robust_scale
 from sensaov_cli.views.encoding import Encoding, Scale, encode_image, signed_object_values
 from sensaov_cli.views.texel_fields import TexelField
 from sensaov_cli.views.texel_passes import texel_passes, texture_footprint
@@ -68,9 +70,14 @@ class InspectionView:
 
 
 def paint_view(
-    buffer: SensitivityBuffer, values: ChannelValues, visibility: VisibilityPass, look: Look
+    buffer: SensitivityBuffer,
+    values: ChannelValues,
+    visibility: VisibilityPass,
+    look: Look,
+    shared: DisplayScale,
 ) -> InspectionView:
-    """``values`` painted into ``visibility``'s camera and encoded as ``look`` asks."""
+    """``values`` painted into ``visibility``'s camera and encoded as ``look`` asks; ``shared``
+    is the job's display scale of the channel under ``look.sign`` (``look.scale`` "shared")."""
     encoding = look.encoding(values)
     names = visibility.objects
     per_object = signed_object_values(
@@ -80,9 +87,9 @@ def paint_view(
     )
     painted = visibility.paint(np.array([per_object[name] for name in names]))
     if look.scale == "view":
-        scale = view_own_scale(encoding, per_object, visibility)
+        scale, rule = view_own_scale(encoding, painted), "p95 of |v| over this view's pixels"
     else:
-        scale = job_shared_scale(encoding, per_object)
+        scale, rule = job_shared_scale(encoding, shared), f"{shared.rule()}: the job's scale"
     display = np.clip(encode_image(painted, encoding, scale.threshold, scale.scale), -1.0, 1.0)
     doubtful = unverified_objects(buffer, values)
     mask = visibility.paint(np.array([1.0 if name in doubtful else 0.0 for name in names]))
@@ -95,8 +102,14 @@ def paint_view(
         stops=tuple((p, value_at(p, scale, encoding.tonemap)) for p in LEGEND_STOPS),
         unverified=values.unverified,
         invisible=tuple(sorted(n for n, v in per_object.items() if v and n not in seen)),
+        notes=(_clipped_note(rule, painted, peak_of(scale, encoding.tonemap)),),
     )
     return InspectionView(painted, display, visibility.coverage_hit, mask, legend)
+
+
+def _clipped_note(rule: str, painted: np.ndarray, peak: float) -> str:
+    """The scale's rule and the share of this view's painted pixels it saturates."""
+    return f"scale: {rule}; {clipped_share([painted], peak):.1%} of painted pixels above it"
 
 
 def unverified_objects(buffer: SensitivityBuffer, values: ChannelValues) -> frozenset[str]:
@@ -113,7 +126,7 @@ def paint_image(
 ) -> InspectionView:
     """A stored image of the objective camera (a forward or transport layer), resampled to
     ``visibility``'s size (nearest pixel) and encoded as ``look`` asks; both scales are the
-    image's own peak, since it is seen from one camera only."""
+    image's own (p95 of |v| over its non-zero pixels), since it is seen from one camera only."""
     rows = _nearest(image.shape[0], visibility.height)
     columns = _nearest(image.shape[1], visibility.width)
     values = np.asarray(image, np.float64)[np.ix_(rows, columns)]
@@ -121,7 +134,7 @@ def paint_image(
         values = np.abs(values)
     tonemap = _COMPRESSIVE[look.sign] if look.compressive else "none"
     encoding = Encoding(sign=look.sign, tonemap=tonemap, normalize="shared")
-    scale = job_shared_scale(encoding, {"peak": float(np.abs(image).max()) if image.size else 0.0})
+    scale = view_own_scale(encoding, np.asarray(image, np.float64))
     display = np.clip(encode_image(values, encoding, scale.threshold, scale.scale), -1.0, 1.0)
     legend = Legend(
         encoding=encoding.describe(),
@@ -157,7 +170,8 @@ def paint_texel(
                 if p.panel == panel]  # fmt: skip
     data = shown.data.sum(axis=2) if shown.data.ndim == 3 else shown.data
     if look.scale == "view":
-        scale = Scale(shown.scale.threshold, shown.preview_scale)
+        own = robust_scale({"view": [np.asarray(data, np.float64)]}, scope="tile").value
+        scale = Scale(shown.scale.threshold, own or 1.0)  # the view's p95, in encoded units
     else:
         scale = _panel_scale(field, panel, shown.scale)
     display = np.clip(np.asarray(data, np.float64) / scale.scale, -1.0, 1.0)

@@ -1,14 +1,14 @@
 """One pass painted into one camera: per-object values through the coverage, then encoded.
 
-The encoded image is what the EXR stores (its scale is camera-independent, so farm tasks that
-each render one camera agree). The preview scale is the camera's own: the largest value among
-the objects this camera sees, so an object no camera shows (an environment map, a point
-light, anything off-frame) never washes the picture out; those objects are listed instead.
+The encoded image is what the EXR stores; its encoding scale is camera-independent, so farm tasks
+that each render one camera agree. How a picture of it saturates is :mod:`.display_scale`'s
+business; here only the objects with a value that this camera does not see are listed (an
+environment map, a point light, anything off-frame), so a legend can name them.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,7 +28,6 @@ class PaintedPass:
     encoding: Encoding
     scale: Scale  # how ``data`` was encoded (recorded with the layer)
     data: np.ndarray  # (H, W) float32, encoded
-    preview_scale: float  # |data| at which a preview saturates, from what this camera sees
     invisible: tuple[str, ...]  # objects with a non-zero value that this camera does not see
 
 
@@ -44,8 +43,5 @@ def paint_pass(values: ChannelValues, visibility: VisibilityPass) -> PaintedPass
     scale = choose_scale(encoding, per_object, painted if encoding.normalize == "channel" else None)
     data = encode_image(painted, encoding, scale.threshold, scale.scale)
     seen = set(visibility.visible_objects)
-    shown = {name: value for name, value in per_object.items() if name in seen}
-    peak = choose_scale(replace(encoding, normalize="shared"), shown).scale
-    preview_scale = 1.0 if encoding.normalize == "channel" else peak / scale.scale
     invisible = tuple(sorted(n for n, value in per_object.items() if value and n not in seen))
-    return PaintedPass(encoding, scale, data, preview_scale, invisible)
+    return PaintedPass(encoding, scale, data, invisible)

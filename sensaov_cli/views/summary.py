@@ -5,6 +5,11 @@ thing. Every parameter carries its trust label (docs/verification.md) and ``"ver
 (label "verified"); objects and types carry the weakest label among their parameters. The
 text marks them (``!`` unverified or biased, ``?`` suspect) with their notes in a legend.
 
+Objects and types add up only the parameters the tool stands behind (``untrusted: apart``,
+:mod:`.headline`); each objective lists the rest under ``"left_out"``, by object and by type,
+with every key's label. Parameters whose value is exactly 0 are listed under ``"zero_valued"``
+with their raw gradient, and flagged (``"zero_value"``) where they are ranked.
+
 A parameter whose gradient is identically zero (label ``no_gradient``) is not a result: it is
 listed apart, under ``"no_gradient"`` with its reason, and left out of every score, and an
 object or type made only of such parameters is left out of its ranking.
@@ -18,10 +23,13 @@ from typing import Any
 
 from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, groups, key_stats, rank, scores
-from sensaov_cli.vocabulary import Aggregate, Grouping, Trust, Weight
+from sensaov_cli.views.headline import check_untrusted, split_groups, zero_valued
+from sensaov_cli.vocabulary import Aggregate, Grouping, Trust, Untrusted, Weight
 
 SUMMARY_FORMAT = "sensaov-summary"
-SUMMARY_VERSION = 2  # 2: trust labels, the "no_gradient" list, ranked counts
+# 2: trust labels, the "no_gradient" list, ranked counts; 3: objects and types of trusted
+# parameters only ("untrusted", "left_out"), "zero_valued", and "zero_value" on parameters
+SUMMARY_VERSION = 3
 
 _CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}
 # A group shows the weakest label among its ranked parameters.
@@ -30,9 +38,15 @@ _GROUPINGS: tuple[Grouping, ...] = ("param", "object", "type")
 
 
 def summary_dict(
-    buf: SensitivityBuffer, *, top: int = 8, method: Aggregate = "l2", weight: Weight = "value"
+    buf: SensitivityBuffer,
+    *,
+    top: int = 8,
+    method: Aggregate = "l2",
+    weight: Weight = "value",
+    untrusted: Untrusted = "apart",
 ) -> dict[str, Any]:
     """Per objective: M, its definition, the top parameters and objects, and every type's score."""
+    check_untrusted(untrusted)
     ranked = ranked_groups(buf)
     return {
         "format": SUMMARY_FORMAT,
@@ -54,7 +68,8 @@ def summary_dict(
         },
         "provenance": copy.deepcopy(buf.provenance),
         "objectives": [
-            _objective_summary(buf, o, ranked, top, method, weight) for o in buf.objectives
+            _objective_summary(buf, o, ranked, top, method, weight, untrusted)
+            for o in buf.objectives
         ],
     }
 
@@ -83,16 +98,43 @@ def _objective_summary(
     top: int,
     method: Aggregate,
     weight: Weight,
+    untrusted: Untrusted,
 ) -> dict[str, Any]:
     stats = key_stats(buf, objective.name, ranked["param"], weight=weight)  # one pass, 3 groupings
+    hidden = zero_valued(buf, objective.name, list(ranked["param"])) if weight == "value" else {}
+    objects = split_groups(buf, ranked["object"], untrusted)
+    types = split_groups(buf, ranked["type"], untrusted)
     return {
         "name": objective.name,
         "value": objective.value,
         "definition": copy.deepcopy(objective.definition),
         "grad_seed": objective.grad_seed,
-        "parameters": _parameters(buf, stats, ranked["param"], top, method),
-        "objects": _group_entries(buf, stats, ranked["object"], "name", method, top),
-        "types": _group_entries(buf, stats, ranked["type"], "type", method, None),
+        "untrusted": untrusted,
+        "ranked_objects": len(objects.kept),
+        "parameters": [
+            {
+                **entry,
+                "zero_value": entry["key"] in hidden,
+                "raw_signed": hidden[entry["key"]].raw_signed if entry["key"] in hidden else None,
+            }
+            for entry in _parameters(buf, stats, ranked["param"], top, method)
+        ],  # fmt: skip
+        "objects": _group_entries(buf, stats, objects.kept, "name", method, top, hidden),
+        "types": _group_entries(buf, stats, types.kept, "type", method, None, hidden),
+        "left_out": {
+            "objects": _left_out(buf, stats, objects.left_out, method),
+            "types": _left_out(buf, stats, types.left_out, method),
+        },
+        "zero_valued": [
+            {
+                "key": z.key,
+                "owners": list(z.owners),
+                "hidden": z.hidden,
+                "size": z.size,
+                "raw_signed": z.raw_signed,
+            }
+            for z in hidden.values()
+        ],  # fmt: skip
         "no_gradient": [
             {
                 "key": p.key,
@@ -141,6 +183,7 @@ def _group_entries(
     field: str,
     method: Aggregate,
     top: int | None,
+    hidden: Mapping[str, Any],
 ) -> list[dict[str, Any]]:
     # The signed sum beside every score, with its own rank: a texture's l2 is about
     # 1/sqrt(texels) of its sum, so l2 and sum can rank one group far apart (docs/encoding.md).
@@ -151,5 +194,21 @@ def _group_entries(
         trust = weakest_trust(buf, grouped[name])
         entries.append({field: name, "score": score, "signed": sums[name],
                         "signed_rank": sum_rank[name], "verified": trust == "verified",
-                        "trust": trust})  # fmt: skip
+                        "trust": trust,
+                        "zero_value": any(k in hidden for k in grouped[name])})  # fmt: skip
     return entries
+
+
+def _left_out(
+    buf: SensitivityBuffer,
+    stats: Mapping[str, KeyStats],
+    grouped: Mapping[str, Sequence[str]],
+    method: Aggregate,
+) -> list[dict[str, Any]]:
+    """The untrusted part of each group, largest first, with each key and its label."""
+    return [
+        {"name": name, "score": score, "signed": scores(stats, {name: grouped[name]}, "sum")[name],
+         "trust": weakest_trust(buf, grouped[name]),
+         "keys": [[k, buf.param(k).trust] for k in grouped[name]]}
+        for name, score in rank(scores(stats, grouped, method))
+    ]  # fmt: skip

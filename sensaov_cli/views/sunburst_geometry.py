@@ -8,6 +8,10 @@ with l2 (or rms) a parent's score is not the sum of its children's, so "proporti
 among siblings, which is what a reader compares. Angles are fractions of a turn, clockwise
 from the top, and numpy-free of drawing: :mod:`sensaov_cli.outputs.sunburst_drawing` draws them.
 
+As in the headline views (:mod:`.headline`), a ring-1 group (an object, or a type) holds only the
+parameters the tool stands behind; the rest of it gets a sibling wedge of its own, named
+``"<name> (untrusted)"`` and hatched (``untrusted: include`` mixes them in instead).
+
 As in the rankings, only parameters a gradient flows to are drawn (``no_gradient`` ones are
 listed apart), a parameter shared by several objects sits under each of its owners, one that
 no object owns sits under :data:`SCENE_WIDE`, and a group that scores exactly 0 gets no wedge.
@@ -22,9 +26,10 @@ from dataclasses import dataclass, replace
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, combine, key_stats, rank
 from sensaov_cli.errors import QueryError
+from sensaov_cli.views.headline import ZeroValued, apart_name, split_groups, zero_valued
 from sensaov_cli.views.summary import ranked_groups, weakest_trust
 from sensaov_cli.views.uncertainty import Uncertainty
-from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Trust, Weight
+from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Trust, Untrusted, Weight
 
 # The object ring's wedge for parameters no object owns (a sensor's, an integrator's): the
 # paper's "global exposure that never appears in the frame" must not vanish from the rings.
@@ -44,7 +49,7 @@ class Wedge:
     score: float  # the aggregate of the wedge's keys
     signed: float  # Σc of its keys: its sign colours the wedge
     trust: Trust  # the weakest label among its keys
-    significant: bool | None = None  # sign beyond 2 standard errors; None: no statistics
+    significant: bool | None = None  # sign beyond t standard errors; None: no statistics
 
     @property
     def label(self) -> str:
@@ -63,6 +68,7 @@ class Panel:
     value: float
     wedges: tuple[Wedge, ...]
     no_gradient: tuple[str, ...]  # no gradient flows: listed under the disc, never drawn
+    zero_valued: tuple[ZeroValued, ...] = ()  # θ = 0: no wedge, listed under the disc
 
 
 def panels(
@@ -72,6 +78,7 @@ def panels(
     order: Order = "object,type",
     method: Aggregate = "l2",
     weight: Weight = "value",
+    untrusted: Untrusted = "apart",
 ) -> tuple[Panel, ...]:
     """One panel per objective (all of the buffer's when ``objectives`` is None)."""
     names = [o.name for o in buf.objectives] if objectives is None else list(objectives)
@@ -80,8 +87,11 @@ def panels(
         Panel(
             name,
             buf.objective(name).value,
-            sunburst_wedges(buf, name, order=order, method=method, weight=weight),
+            sunburst_wedges(
+                buf, name, order=order, method=method, weight=weight, untrusted=untrusted
+            ),
             zero,
+            tuple(zero_valued(buf, name).values()) if weight == "value" else (),
         )
         for name in names
     )
@@ -108,6 +118,19 @@ def _by_key(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str,
 _LEVELS: dict[str, Level] = {"object": _by_object, "type": _by_type}
 
 
+def _apart(level: Level, mode: str) -> Level:
+    """``level`` whose groups keep their trusted keys, the rest a sibling ``(untrusted)``."""
+
+    def split(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
+        grouped = split_groups(buf, level(buf, keys), mode)
+        result = dict(grouped.kept)
+        for name, left_out in grouped.left_out.items():
+            result[apart_name(name, result)] = left_out
+        return result
+
+    return split
+
+
 def sunburst_wedges(
     buf: SensitivityBuffer,
     objective: str,
@@ -115,13 +138,15 @@ def sunburst_wedges(
     order: Order = "object,type",
     method: Aggregate = "l2",
     weight: Weight = "value",
+    untrusted: Untrusted = "apart",
 ) -> tuple[Wedge, ...]:
     """Every wedge of ``objective``'s sunburst, ring by ring, largest first within a parent."""
     if order not in ORDERS:
         raise QueryError(f"unknown order {order!r}", hint=f"use one of: {', '.join(ORDERS)}")
     keys = tuple(ranked_groups(buf)["param"])
     stats = key_stats(buf, objective, keys, weight=weight)
-    levels = [_LEVELS[name] for name in order.split(",")] + [_by_key]
+    first, second = order.split(",")
+    levels = [_apart(_LEVELS[first], untrusted), _LEVELS[second], _by_key]
     centre = _wedge(buf, stats, keys, 0, (), 0.0, 1.0, method)
     wedges = [centre]
     _children(buf, stats, centre, keys, levels, method, wedges)

@@ -35,7 +35,6 @@ class TexelPass:
     panel: str
     data: np.ndarray  # (H, W) or (H, W, 3) float32, encoded
     scale: Scale
-    preview_scale: float  # |data| at which a preview saturates
     metadata: dict[str, str]
 
 
@@ -71,7 +70,7 @@ def texel_passes(tf: TexelField, visibility: VisibilityPass, seen_by: Footprint)
     common = _common_metadata(tf, seen, notes)
     return [
         _object_panel(tf, visibility, is_owner, common),
-        _texel_panel(tf, seen_by, seen, common),
+        _texel_panel(tf, seen_by, common),
         _joint_panel(tf, seen_by, names, common),
     ]
 
@@ -126,22 +125,16 @@ def _object_panel(
         "scale": Scale(0.0, 1.0).describe(),
         "panel_scale": repr(peak),
     }
-    return TexelPass(_name(tf, "object"), "object", painted, Scale(0.0, 1.0), peak or 1.0, meta)
+    return TexelPass(_name(tf, "object"), "object", painted, Scale(0.0, 1.0), meta)
 
 
-def _texel_panel(
-    tf: TexelField, seen_by: Footprint, seen: np.ndarray, common: dict[str, str]
-) -> TexelPass:
+def _texel_panel(tf: TexelField, seen_by: Footprint, common: dict[str, str]) -> TexelPass:
     encoding = replace(Encoding.from_channel(tf.channel), aggregate="sum")
     field = np.abs(tf.pooled) if encoding.sign == "magnitude" else tf.pooled
     painted = seen_by.paint(field, np.ones(max(len(tf.record.owners), 1)))
     peak = float(np.abs(field).max()) if field.size else 0.0
     scale = choose_scale(encoding, {"texel_peak": peak}, painted)
     data = encode_image(_as_layer_data(painted), encoding, scale.threshold, scale.scale)
-    # Previews show the sum of a texel's components (scaling all of them together).
-    seen_peak = float(np.abs(field.sum(axis=2))[seen].max()) if seen.any() else 0.0
-    shown = choose_scale(replace(encoding, normalize="shared"), {"peak": seen_peak}).scale
-    preview = 1.0 if encoding.normalize == "channel" else shown / scale.scale
     unit = "per unit UV area" if tf.channel.units == "uv_area" else "per texel"
     meta = {
         **common,
@@ -151,7 +144,7 @@ def _texel_panel(
         "scale": scale.describe(),
         "panel_scale": repr(peak),
     }
-    return TexelPass(_name(tf, "texel"), "texel", data, scale, preview or 1.0, meta)
+    return TexelPass(_name(tf, "texel"), "texel", data, scale, meta)
 
 
 def _joint_panel(
@@ -175,7 +168,7 @@ def _joint_panel(
             filter(None, [meta["notes"], f"object value 0 for {', '.join(zero)}: painted 0"])
         )
     data = _as_layer_data(painted)
-    return TexelPass(_name(tf, "joint"), "joint", data, Scale(0.0, 1.0), 1.0, meta)
+    return TexelPass(_name(tf, "joint"), "joint", data, Scale(0.0, 1.0), meta)
 
 
 def _name(tf: TexelField, panel: str) -> str:

@@ -7,6 +7,11 @@ buffer when both passes ran at the same seed (forward/reverse duality), so every
 its own check: the residual |Σ_p T_p − ⟨g, v_S⟩| / |⟨g, v_S⟩| against
 :func:`~sensaov_cli.buffer.forward_sidecar.duality_tolerance` (1e-4, more where the buffer's float32
 sums over many samples round more).
+
+Two entries that push the same parameters at the same seed (a forward entry ``green.*`` and a
+transport channel's top object ``right_wall``, which owns it) are one pass: their layers would be
+bit-identical under two names, so each pass of each objective gives one layer, named after the
+first entry that asked for it, with the other names as ``aliases``.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ from __future__ import annotations
 import difflib
 import fnmatch
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -38,6 +43,8 @@ class ForwardView:
     seed: int
     unverified: tuple[str, ...]  # pushed keys whose buffer trust label is not verified
     failure: str
+    source: str = ""  # the job entry that asked for it
+    aliases: tuple[str, ...] = ()  # other entries' names for the same pass
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,6 +62,8 @@ class TransportView:
     residual: float  # |forward_sum − reverse| / |reverse| (absolute when reverse is 0)
     tolerance: float
     unverified: tuple[str, ...]
+    source: str = ""  # the job entry that asked for it: "forward[0]", "channels[4] (top 3 ...)"
+    aliases: tuple[str, ...] = ()  # other entries' names for the same pass
 
     @property
     def agrees(self) -> bool:
@@ -114,11 +123,24 @@ def unverified_keys(buffer: SensitivityBuffer, keys: Sequence[str]) -> tuple[str
     return tuple(k for k in keys if buffer.param(k).trust not in ("verified", "no_gradient"))
 
 
+def merged_layers(data: ForwardData, kind: str) -> list[tuple[ForwardLayer, tuple[str, ...]]]:
+    """The sidecar's layers of ``kind``, one per (objective, pass), with the names of the
+    others that repeat it."""
+    first: dict[tuple[str | None, int], ForwardLayer] = {}
+    aliases: dict[tuple[str | None, int], list[str]] = {}
+    for layer in data.layers:
+        if layer.kind == kind:
+            at = (layer.objective, layer.pass_index)
+            if at in first:
+                aliases[at].append(layer.name)
+            else:
+                first[at], aliases[at] = layer, []
+    return [(layer, tuple(aliases[at])) for at, layer in first.items()]
+
+
 def forward_views(buffer: SensitivityBuffer, data: ForwardData) -> list[ForwardView]:
     views = []
-    for layer in data.layers:
-        if layer.kind != "forward":
-            continue
+    for layer, aliases in merged_layers(data, "forward"):
         p = data.passes[layer.pass_index]
         image = None if p.image is None else _colour(p.image)
         views.append(
@@ -130,6 +152,8 @@ def forward_views(buffer: SensitivityBuffer, data: ForwardData) -> list[ForwardV
                 p.seed,
                 unverified_keys(buffer, p.keys),
                 p.failure,
+                layer.source,
+                aliases,
             )  # fmt: skip
         )
     return views
@@ -138,9 +162,9 @@ def forward_views(buffer: SensitivityBuffer, data: ForwardData) -> list[ForwardV
 def transport_views(buffer: SensitivityBuffer, data: ForwardData) -> list[TransportView]:
     """Every transport layer whose forward pass exists, with its duality residual."""
     return [
-        transport_view(buffer, data, layer)
-        for layer in data.layers
-        if layer.kind == "transport" and data.passes[layer.pass_index].image is not None
+        replace(transport_view(buffer, data, layer), aliases=aliases)
+        for layer, aliases in merged_layers(data, "transport")
+        if data.passes[layer.pass_index].image is not None
     ]
 
 
@@ -159,7 +183,7 @@ def transport_view(
     tolerance = duality_tolerance(width * height * int(buffer.provenance.get("spp", 1)))
     return TransportView(
         layer.objective, layer.name, per_pixel.astype(np.float32), p.keys, p.direction, p.seed,
-        forward_sum, reverse, residual, tolerance, unverified_keys(buffer, p.keys),
+        forward_sum, reverse, residual, tolerance, unverified_keys(buffer, p.keys), layer.source,
     )  # fmt: skip
 
 

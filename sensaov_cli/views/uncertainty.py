@@ -25,10 +25,9 @@ from sensaov_cli.buffer.statistics import (
     SUM_VALUE,
     pooled_stderr,
 )
+from sensaov_cli.buffer.student_t import SIGNIFICANCE_LEVEL, interval_factor
 from sensaov_cli.vocabulary import Aggregate, Weight
 
-# A sign is significant when |Σc| exceeds this many standard errors (about 95 %, two-sided).
-SIGNIFICANCE_Z = 2.0
 STABILITY_TOP = 3  # the ranking's top this many rows must keep their order
 RESAMPLES = 1000  # bootstrap resamples of the batches (seeded: the figure is reproducible)
 
@@ -37,10 +36,26 @@ RESAMPLES = 1000  # bootstrap resamples of the batches (seeded: the figure is re
 class GroupError:
     score_se: float
     signed_se: float
+    factor: float  # standard errors in the two-sided 95 % interval: Student's t at k - 1 dof
 
     def significant(self, signed: float) -> bool:
-        """Whether the sign of ``signed`` is beyond noise (|Σc| > SIGNIFICANCE_Z errors)."""
-        return abs(signed) > SIGNIFICANCE_Z * self.signed_se
+        """Whether the sign of ``signed`` is beyond noise: |Σc| > factor · SE, i.e. 0 lies
+        outside the 95 % interval (t with k − 1 degrees of freedom, docs/rankings.md)."""
+        return abs(signed) > self.factor * self.signed_se
+
+
+@dataclass(frozen=True)
+class Significance:
+    """The rule a ranking's ``significant`` column applies, recorded beside it."""
+
+    level: float  # two-sided coverage of the interval
+    batches: int
+    dof: int  # batches - 1
+    factor: float  # the t quantile: |Σc| > factor · SE is significant
+
+    @classmethod
+    def of(cls, batches: int) -> Significance:
+        return cls(SIGNIFICANCE_LEVEL, batches, batches - 1, interval_factor(batches))
 
 
 class Uncertainty:
@@ -54,6 +69,7 @@ class Uncertainty:
         self.index = {key: i for i, key in enumerate(buf.keys)}
         self.counts = {key: buf.values[key].size for key in buf.keys}
         self.method, self.weight = method, weight
+        self.significance = Significance.of(len(self.spp))
 
     @classmethod
     def of(
@@ -85,7 +101,9 @@ class Uncertainty:
     def error(self, keys: Sequence[str], score: float) -> GroupError:
         scores, signed = self.batch_values(keys, score)
         return GroupError(
-            float(pooled_stderr(scores, self.spp)), float(pooled_stderr(signed, self.spp))
+            float(pooled_stderr(scores, self.spp)),
+            float(pooled_stderr(signed, self.spp)),
+            self.significance.factor,
         )
 
     def stability(

@@ -3,33 +3,37 @@
 Each is one function so that the rule choosing it can change in one place. Both return the
 :class:`~.encoding.Scale` a channel is encoded with (its threshold for the log tone maps and
 the tone-mapped value at which colours saturate), and :func:`peak_of` turns that back into the
-channel's own units for the legend.
+channel's own units for the legend. The job's shared scale is the number
+:func:`~.display_scale.shared_channel_scale` gives, the one ``sensaov project`` records as
+``display_scale`` and paints its previews and display layers with (p95 of |v| over the pixels
+every inspection camera paints; docs/encoding.md), so the page and the files agree; the view's
+own scale applies the same rule to this view's pixels alone.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import replace
 
-from sensaov_cli.views.coverage import VisibilityPass
+import numpy as np
+
+from sensaov_cli.views.display_scale import DisplayScale, robust_scale
 from sensaov_cli.views.encoding import Encoding, Scale, choose_scale
 
 
-def job_shared_scale(encoding: Encoding, per_object: Mapping[str, float]) -> Scale:
-    """One scale for the (objective, channel) whatever the camera sees: the peak over every
-    object's value, so that every viewpoint shows the channel on the same colours (Fig. 6)."""
-    return choose_scale(replace(encoding, normalize="shared"), per_object)
+def job_shared_scale(encoding: Encoding, shared: DisplayScale) -> Scale:
+    """One scale for the (objective, channel) whatever the camera sees: ``shared``, the job's
+    display scale of it (:func:`~.display_scale.shared_channel_scale`), so that every viewpoint
+    shows the channel on the colours of ``project``'s previews and display layers (Fig. 6)."""
+    return choose_scale(replace(encoding, normalize="shared"), {"shared": shared.value})
 
 
-def view_own_scale(
-    encoding: Encoding, per_object: Mapping[str, float], visibility: VisibilityPass
-) -> Scale:
-    """This view's own scale: the peak over the objects it sees, so that an object off frame
-    (an environment light, a lamp behind the camera) never washes the picture out."""
-    seen = set(visibility.visible_objects)
-    shown = {name: value for name, value in per_object.items() if name in seen}
-    return choose_scale(replace(encoding, normalize="shared"), shown)
+def view_own_scale(encoding: Encoding, painted: np.ndarray) -> Scale:
+    """This view's own scale: the job's rule (:func:`~.display_scale.robust_scale`) over this
+    view's painted pixels alone, so neither an object off frame (an environment light, a lamp
+    behind the camera) nor a few bright pixels wash the picture out."""
+    own = robust_scale({"view": [painted]}, scope="tile")
+    return choose_scale(replace(encoding, normalize="shared"), {"own": own.value})
 
 
 def peak_of(scale: Scale, tonemap: str) -> float:

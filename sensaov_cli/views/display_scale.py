@@ -1,0 +1,212 @@
+"""Display scales: the |value| at which a picture of a sensitivity layer saturates (numpy only).
+
+Every picture of a layer (PNG previews, contact sheets, the report, the EXR's display layers)
+maps a signed value v to a colour on a diverging map that saturates at ±s. The scale s is chosen
+once per *scale group*, by default one (objective, channel) pair across every camera of the job
+(Fig. 6: "all three share one colour scale"), so the same object gets the same colour in every
+view and a channel's passes (the types of a ``type`` channel, the top objects of a ``transport``
+channel) compare with each other. The rule, recorded with every picture and layer:
+
+    s = the p-th percentile (default 95) of |v| over the pixels the group paints (v ≠ 0)
+        in every camera, each camera weighted equally whatever its resolution.
+
+Pixels with v = 0 (what a layer does not paint, what a camera does not see: a light outside the
+frame, an environment map) never count, so a scale is never set by what no camera shows; a
+percentile, not the maximum, so it is never set by a few pixels. Pixels above s saturate at the
+map's ends (still their sign's darkest colour, never hidden) and their share is recorded. A
+layer left apart for its untrusted gradients follows its group's scale; it sets the scale only
+when the group paints nothing else. :func:`shared_channel_scale` gives the scale of one
+(objective, channel) from the buffer and the cameras' visibility alone: ``sensaov view`` and
+``sensaov project`` compute the same number. Reasoning and figures: docs/encoding.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.spec.job import ChannelSpec
+from sensaov_cli.views.channels import channel_values
+from sensaov_cli.views.coverage import VisibilityPass
+from sensaov_cli.views.painting import paint_pass
+from sensaov_cli.vocabulary import SCALE_SCOPES
+
+DEFAULT_PERCENTILE = 95.0
+REC709_LUMA = (0.2126, 0.7152, 0.0722)
+# How a layer takes part in its group's scale: sets it, follows it (an untrusted part), or
+# has a fixed one (a texel channel's joint panel, whose unit is an even spread).
+REFERENCE, FOLLOWER = "reference", "follower"
+
+
+@dataclass(frozen=True)
+class DisplayScale:
+    """The |value| at which a group's pictures saturate, how it was chosen, what it clips."""
+
+    value: float  # 0.0 when the group paints nothing in any camera: drawn as all zero
+    scope: str  # "shared" (every camera), "tile" (this camera only) or "fixed"
+    percentile: float
+    cameras: tuple[str, ...]  # the cameras whose pixels were read
+    painted: int  # non-zero pixels read, all cameras together
+    clipped: float  # share of them above the scale, cameras weighted equally
+
+    def rule(self) -> str:
+        """The rule in one line, as legends and EXR metadata print it."""
+        if self.scope == "fixed":
+            return f"fixed at {self.value:g}"
+        if self.scope == "tile":
+            return f"p{self.percentile:g} of |v| over the non-zero pixels of {self.cameras[0]} only"
+        return (
+            f"p{self.percentile:g} of |v| over the non-zero pixels of {', '.join(self.cameras)} "
+            "(each camera weighted equally)"
+        )
+
+    def describe(self) -> str:
+        """``value=…;scope=…;percentile=…;clipped=…``: shortest round-trip floats."""
+        return (
+            f"value={self.value!r};scope={self.scope};percentile={self.percentile!r};"
+            f"clipped={self.clipped!r}"
+        )
+
+
+def signed_pixels(data: np.ndarray, kind: str = "") -> np.ndarray:
+    """One signed value per pixel of a layer: (H, W) as is; an RGB forward or transport image
+    by its Rec. 709 luminance; an RGB texel field by its components' sum (scaling them all)."""
+    if data.ndim == 2:
+        return np.asarray(data, np.float64)
+    rgb = np.asarray(data[..., :3], np.float64)
+    return rgb @ np.array(REC709_LUMA) if kind in ("forward", "transport") else rgb.sum(axis=2)
+
+
+def robust_scale(
+    pixels: Mapping[str, Sequence[np.ndarray]],
+    *,
+    percentile: float = DEFAULT_PERCENTILE,
+    scope: str = "shared",
+) -> DisplayScale:
+    """The scale of a group from its signed pixels per camera (``camera -> images``)."""
+    if scope not in SCALE_SCOPES:
+        raise ValueError(f"scope must be one of {SCALE_SCOPES}, got {scope!r}")
+    if not 0.0 < percentile <= 100.0:
+        raise ValueError(f"percentile must lie in (0, 100], got {percentile}")
+    magnitudes = {camera: _painted(images) for camera, images in pixels.items()}
+    active = {camera: m for camera, m in magnitudes.items() if m.size}
+    value = _weighted_percentile(list(active.values()), percentile) if active else 0.0
+    clipped = [float(np.count_nonzero(m > value)) / m.size for m in active.values()]
+    return DisplayScale(
+        value=value,
+        scope=scope,
+        percentile=float(percentile),
+        cameras=tuple(pixels),
+        painted=int(sum(m.size for m in active.values())),
+        clipped=float(np.mean(clipped)) if clipped else 0.0,
+    )
+
+
+def fixed_scale(value: float, pixels: Mapping[str, Sequence[np.ndarray]]) -> DisplayScale:
+    """A scale set by what the layer means (e.g. 1 = an even spread), with what it clips."""
+    magnitudes = [m for m in (_painted(images) for images in pixels.values()) if m.size]
+    clipped = [float(np.count_nonzero(m > value)) / m.size for m in magnitudes]
+    return DisplayScale(
+        float(value), "fixed", 100.0, tuple(pixels), int(sum(m.size for m in magnitudes)),
+        float(np.mean(clipped)) if clipped else 0.0,
+    )  # fmt: skip
+
+
+def clipped_share(images: Sequence[np.ndarray], value: float) -> float:
+    """The share of ``images``' non-zero pixels above ``value`` (one camera's, in legends)."""
+    magnitudes = _painted(images)
+    return float(np.count_nonzero(magnitudes > value)) / magnitudes.size if magnitudes.size else 0.0
+
+
+def group_scales(
+    layers: Mapping[str, Sequence[tuple[str, str, np.ndarray]]],
+    *,
+    percentile: float = DEFAULT_PERCENTILE,
+    scope: str = "shared",
+    fixed: Mapping[str, float] | None = None,
+) -> dict[tuple[str, str], DisplayScale]:
+    """The scale of every (camera, group) from ``camera -> [(group, role, signed pixels)]``.
+
+    Under ``shared`` every camera of a group gets the one scale of all cameras together;
+    under ``tile`` each camera its own. A group in ``fixed`` gets that value everywhere. The
+    ``reference`` layers of a group set its scale; its ``follower`` layers (untrusted parts)
+    only when the group has no reference pixel at all.
+    """
+    groups = {group for entries in layers.values() for group, _, _ in entries}
+    scales: dict[tuple[str, str], DisplayScale] = {}
+    for group in sorted(groups):
+        by_role = {
+            role: {
+                camera: [data for g, r, data in entries if g == group and r == role]
+                for camera, entries in layers.items()
+            }
+            for role in (REFERENCE, FOLLOWER)
+        }
+        chosen = by_role[REFERENCE]
+        if not any(_painted(images).size for images in chosen.values()):
+            chosen = by_role[FOLLOWER]
+        cameras = [
+            camera for camera, entries in layers.items() if any(g == group for g, _, _ in entries)
+        ]
+        for camera in cameras:
+            scope_pixels = chosen if scope == "shared" else {camera: chosen[camera]}
+            if fixed and group in fixed:
+                scales[(camera, group)] = fixed_scale(fixed[group], scope_pixels)
+            else:
+                scales[(camera, group)] = robust_scale(
+                    scope_pixels, percentile=percentile, scope=scope
+                )
+    return scales
+
+
+def shared_channel_scale(
+    buf: SensitivityBuffer,
+    channel: ChannelSpec,
+    objective: str,
+    visibilities: Mapping[str, VisibilityPass],
+    *,
+    untrusted: str = "apart",
+    percentile: float = DEFAULT_PERCENTILE,
+) -> DisplayScale:
+    """The job's shared display scale of one (objective, channel) of kind object, type or
+    select, from the buffer and every camera's visibility pass (``camera -> pass``): the number
+    ``sensaov project`` records as ``display_scale`` on each of that channel's layers."""
+    if channel.kind not in ("object", "type", "select"):
+        raise ValueError(f"channel {channel.name!r} is a {channel.kind} channel: not painted")
+    passes = [v for v in channel_values(buf, (channel,), untrusted=untrusted)
+              if v.objective == objective]  # fmt: skip
+    layers = {
+        camera: [
+            (
+                values.scale_group,
+                FOLLOWER if values.part == "untrusted" else REFERENCE,
+                signed_pixels(paint_pass(values, visibility).data),
+            )
+            for values in passes
+        ]  # fmt: skip
+        for camera, visibility in visibilities.items()
+    }
+    scales = group_scales(layers, percentile=percentile)
+    return scales[(next(iter(visibilities)), f"{objective}/{channel.name}")]
+
+
+def _painted(images: Sequence[np.ndarray]) -> np.ndarray:
+    """|v| of every non-zero pixel of ``images``, flattened, float64."""
+    if not images:
+        return np.zeros(0)
+    flat = np.concatenate([np.abs(np.asarray(image, np.float64)).ravel() for image in images])
+    return flat[flat > 0]
+
+
+def _weighted_percentile(magnitudes: Sequence[np.ndarray], percentile: float) -> float:
+    """The percentile of the union of ``magnitudes``, each array weighted 1/len (equal cameras):
+    the smallest value whose cumulative weight reaches ``percentile`` % of the total."""
+    values = np.concatenate(magnitudes)
+    weights = np.concatenate([np.full(m.size, 1.0 / m.size) for m in magnitudes])
+    order = np.argsort(values, kind="stable")
+    cumulative = np.cumsum(weights[order]) / len(magnitudes)
+    index = int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12))
+    return float(values[order][min(index, values.size - 1)])

@@ -1,0 +1,112 @@
+"""The headline views' groups: parameters the tool stands behind in, the rest shown apart.
+
+The same views weight each gradient by its value (θ·∂M/∂θ), so a parameter whose value is
+exactly 0 scores 0 whatever its gradient: :func:`zero_valued` finds them, so every view can
+flag them with their raw gradient instead of ranking them as parameters that do not matter.
+
+An object's or a type's score in a headline view (the ``objects`` and ``types`` layers, the
+ranked objects and types, the sunburst's rings) is a sum over its parameters. A parameter whose
+gradient is not ``verified`` (``unverified``, ``biased``, ``suspect``) is a number the tool
+cannot stand behind, so by default (``untrusted: apart``) it is left out of its group and shown
+apart: its own layer, its own rows, its own hatched wedge, named per object. A parameter with
+``no_gradient`` adds exactly 0 and stays in. ``untrusted: include`` mixes everything in, with a
+mark, as before. The rule is documented in docs/encoding.md ("Trusted numbers").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.errors import QueryError
+from sensaov_cli.vocabulary import UNTRUSTED_MODES, Trust
+
+# Labels whose numbers a headline view adds up: verified, and no_gradient (exactly 0 anyway).
+TRUSTED: tuple[Trust, ...] = ("verified", "no_gradient")
+# How the part left out of a group is named where one list holds both (sunburst wedges).
+APART_SUFFIX = " (untrusted)"
+
+
+def is_trusted(record: ParamRecord) -> bool:
+    return record.trust in TRUSTED
+
+
+def untrusted_keys(buf: SensitivityBuffer, keys: Sequence[str]) -> tuple[str, ...]:
+    """The keys among ``keys`` whose gradient the tool does not stand behind."""
+    return tuple(k for k in keys if not is_trusted(buf.param(k)))
+
+
+def check_untrusted(mode: str) -> None:
+    if mode not in UNTRUSTED_MODES:
+        raise QueryError(
+            f"unknown untrusted mode {mode!r}", hint=f"use one of: {', '.join(UNTRUSTED_MODES)}"
+        )
+
+
+@dataclass(frozen=True)
+class SplitGroups:
+    """Groups (objects or types) split by trust: what a headline view adds up, and the rest."""
+
+    kept: dict[str, tuple[str, ...]]  # name -> keys a headline score adds up
+    left_out: dict[str, tuple[str, ...]]  # name -> untrusted keys, shown apart (never empty)
+
+
+def split_groups(
+    buf: SensitivityBuffer, grouped: Mapping[str, Sequence[str]], mode: str
+) -> SplitGroups:
+    """``grouped`` split by trust under ``mode`` (``apart`` or ``include``).
+
+    Under ``apart`` a group keeps its trusted keys; a group left with none (every parameter of
+    it is untrusted) is dropped from ``kept``, while a group that never had a key (an object
+    with nothing selected) keeps its empty row. Under ``include`` nothing is left out.
+    """
+    check_untrusted(mode)
+    if mode == "include":
+        return SplitGroups({name: tuple(keys) for name, keys in grouped.items()}, {})
+    kept: dict[str, tuple[str, ...]] = {}
+    left_out: dict[str, tuple[str, ...]] = {}
+    for name, keys in grouped.items():
+        apart = untrusted_keys(buf, keys)
+        trusted = tuple(k for k in keys if k not in apart)
+        if trusted or not keys:
+            kept[name] = trusted
+        if apart:
+            left_out[name] = apart
+    return SplitGroups(kept, left_out)
+
+
+def apart_name(name: str, taken: Mapping[str, object]) -> str:
+    """``name`` + APART_SUFFIX, made unique against ``taken`` (an object may be named so)."""
+    candidate = name + APART_SUFFIX
+    while candidate in taken:
+        candidate += "'"
+    return candidate
+
+
+@dataclass(frozen=True)
+class ZeroValued:
+    """A parameter that value weighting hides: θ is exactly 0 where ∂M/∂θ is not."""
+
+    key: str
+    owners: tuple[str, ...]
+    hidden: int  # components with θ = 0 and ∂M/∂θ ≠ 0
+    size: int  # components in all
+    raw_signed: float  # Σ ∂M/∂θ over the parameter: the response per unit of θ
+
+
+def zero_valued(
+    buf: SensitivityBuffer, objective: str, keys: Sequence[str] | None = None
+) -> dict[str, ZeroValued]:
+    """The parameters among ``keys`` (default all) whose value-weighted score hides a gradient."""
+    found = {}
+    for key in buf.keys if keys is None else keys:
+        value, grad = buf.value(key), buf.grad(objective, key)
+        hidden = int(np.count_nonzero((value == 0) & (grad != 0)))
+        if hidden:
+            raw = float(grad.astype(np.float64).sum())
+            record = buf.param(key)
+            found[key] = ZeroValued(key, record.owners, hidden, int(value.size), raw)
+    return found
