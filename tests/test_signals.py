@@ -254,11 +254,12 @@ def test_sigterm_at_random_points_of_a_large_view(tmp_path: Path) -> None:
     the scene load and the end of the view: exit 143 within 1 s of the signal each time."""
     job = write_job(tmp_path, render={**RENDER, "spp": 2}, inspection_cameras=[LARGE_CAMERA])
     assert sensaov("run", "-q", str(job)).returncode == 0
-    process = _project_loading(job)
-    started = time.perf_counter()
-    _, whole = process.communicate(timeout=120)
-    assert process.returncode == 0, whole
-    window = time.perf_counter() - started  # the load, both views and the writes
+    for _ in range(2):  # the window of a warm run (kernels compiled), as every run below is
+        process = _project_loading(job)
+        started = time.perf_counter()
+        _, whole = process.communicate(timeout=120)
+        assert process.returncode == 0, whole
+        window = time.perf_counter() - started  # the load, both views and the writes
     waits, codes = [], []
     for delay in np.random.default_rng(21).uniform(0.0, 0.8 * window, 10):
         process = _project_loading(job)
