@@ -63,7 +63,8 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
     ownership = ownership_of(mi, scene, prepared.instances)
     params = mi.traverse(scene)
     sources = {Path(name).name: prepared.path.parent / name for name in prepared.bitmap_files}
-    selected, excluded, textures = select(mi, parameters, params, ownership, sources)
+    media = None if prepared.integrator == "prbvolpath" else prepared.scene_integrator
+    selected, excluded, textures = select(mi, parameters, params, ownership, sources, media)
     size = sensor.film().crop_size()
     return LoadedScene(
         mi=mi,

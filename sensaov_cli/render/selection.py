@@ -62,6 +62,19 @@ PLUGIN_NAMES = {
     "ConstantBackgroundEmitter": "constant",
     "EnvironmentMapEmitter": "envmap",
     "DirectionalEmitter": "directional",
+    "DirectionalArea": "directionalarea",
+    "Projector": "projector",
+    "SunskyEmitter": "sunsky",
+    "TimedSunskyEmitter": "timed_sunsky",
+    "TwoSidedBRDF": "twosided",
+    "BumpMap": "bumpmap",
+    "NormalMap": "normalmap",
+    "PolarizedPlastic": "pplastic",
+    "HomogeneousMedium": "homogeneous",
+    "HeterogeneousMedium": "heterogeneous",
+    "HGPhaseFunction": "hg",
+    "IsotropicPhaseFunction": "isotropic",
+    "RayleighPhaseFunction": "rayleigh",
 }
 GEOMETRY_FIELDS = ("to_world", "position", "direction", "faces")
 
@@ -123,11 +136,17 @@ def select(
     params: Any,
     ownership: Ownership,
     sources: dict[str, Path],
+    media: str | None = None,
 ) -> tuple[tuple[ParamRecord, ...], tuple[ExcludedParam, ...], dict[str, TextureSource]]:
+    """The selected records, the parameters left out and why, and the bitmap behind each
+    texture. ``media``: None where the scene's integrator renders media, else that integrator
+    (its media are not in the image, so their parameters are left out)."""
     selected, excluded, textures = [], [], {}
     for key in params.keys():
         _, _, node, flags = params.properties[key]
         reason = _exclusion_reason(mi, parameters, key, params[key], node, flags)
+        if reason is None and media is not None and _in_medium(mi, node, params.hierarchy):
+            reason = f"medium parameter: the scene's '{media}' integrator renders no media"
         owners = ownership.of(node) if reason is None else ()
         if reason is None and not owners:
             reason = "owned by no object in the scene"
@@ -156,6 +175,8 @@ def _exclusion_reason(
 
     if flags & int(mi.ParamFlags.NonDifferentiable):
         return "not differentiable (Mitsuba flags it NonDifferentiable)"
+    if flags & int(mi.ParamFlags.ReadOnly):
+        return "read-only (Mitsuba flags it ReadOnly: it is computed from other parameters)"
     if not (dr.is_array_v(value) and dr.is_diff_v(value) and dr.is_float_v(value)):
         return "not a differentiable floating-point value"
     if isinstance(node, mi.Sensor | mi.Film | mi.Sampler):
@@ -221,6 +242,17 @@ def _slot_and_holder(
     if levels == 0 or len(parts) <= levels:
         return parts[-1], node
     return parts[-1 - levels], holder
+
+
+def _in_medium(mi: ModuleType, node: Any, hierarchy: Any) -> bool:
+    """Whether ``node`` is a medium, its phase function, or a volume or texture inside one."""
+    holder = node
+    while isinstance(holder, mi.Texture | mi.Volume):
+        parent = hierarchy.get(holder)
+        if parent is None:
+            break
+        holder = parent[0]
+    return isinstance(holder, mi.Medium | mi.PhaseFunction)
 
 
 def value_shape(array: Any) -> tuple[int, ...]:

@@ -42,12 +42,8 @@ from pathlib import Path
 from sensaov_cli.errors import SceneError, SpecError
 from sensaov_cli.render.scene import naming
 from sensaov_cli.render.scene.expand import ExpandedScene, SceneArgument, expand_scene
-from sensaov_cli.render.scene.rewrite import (
-    bitmap_options,
-    bitmaps_as_float,
-    renders_other_transport,
-    replace_integrator,
-)
+from sensaov_cli.render.scene.integrator import IntegratorPlan, plan_integrator
+from sensaov_cli.render.scene.rewrite import bitmap_options, bitmaps_as_float
 from sensaov_cli.render.scene.sensors import (
     add_inspection_sensor,
     check_film_size,
@@ -70,6 +66,7 @@ class SceneChange:
     what: str
     why: str
     where: str  # the user's file:line it concerns ("" where the scene says nothing)
+    alters_image: bool = False  # M is measured on another image than the scene renders
 
 
 @dataclass(frozen=True)
@@ -91,15 +88,29 @@ class PreparedScene:
     files: tuple[Path, ...]  # every file the scene reads
     search_path: tuple[Path, ...]  # folders Mitsuba resolves names still relative against
     line_sources: tuple[str | None, ...]  # line of `text` -> the user's file:line it came from
-    scene_integrator: str  # the integrator type the scene asks for
-    integrator: str  # the replay integrator that differentiates it
+    integration: IntegratorPlan  # the scene's integrator and depth, and the replay's
     fingerprint: str  # sha256 of every file the scene reads and of the job's arguments
     changes: tuple[SceneChange, ...]  # what was rewritten and why
 
     @property
+    def scene_integrator(self) -> str:
+        """The integrator type the scene renders with (a wrapper's nested one)."""
+        return self.integration.scene_kind
+
+    @property
+    def integrator(self) -> str:
+        """The replay integrator that differentiates it: prb, or prbvolpath for media."""
+        return self.integration.replay
+
+    @property
     def replaced_integrator(self) -> str | None:
         """The scene's integrator when it renders other light transport than the replay."""
-        return self.scene_integrator if renders_other_transport(self.scene_integrator) else None
+        return None if self.integration.same_transport else self.integration.scene_kind
+
+    @property
+    def image_changes(self) -> tuple[SceneChange, ...]:
+        """The changes after which M is measured on another image than the scene renders."""
+        return tuple(change for change in self.changes if change.alters_image)
 
     @property
     def argument_values(self) -> dict[str, str]:
@@ -137,7 +148,7 @@ def prepare_scene(job: JobSpec, cameras: tuple[CameraSpec, ...] = ()) -> Prepare
 def prepare_xml(
     path: Path,
     *,
-    max_depth: int,
+    max_depth: int | None,
     camera: CameraSpec,
     resolution: tuple[int, int] | None,
     shared: str,
@@ -165,7 +176,7 @@ def _rewrite(
     expanded: ExpandedScene,
     named: dict[str, ET.Element],
     *,
-    max_depth: int,
+    max_depth: int | None,
     camera: CameraSpec,
     resolution: tuple[int, int] | None,
     shared: str,
@@ -175,8 +186,8 @@ def _rewrite(
     root = expanded.root
     own_sensors = sensor_ids(root)
     changes = [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
-    kind, replay = replace_integrator(root, max_depth)
-    changes.append(_integrator_change(kind, replay, max_depth))
+    integration = plan_integrator(root, max_depth)
+    changes += [SceneChange(c.what, c.why, c.where, c.alters_image) for c in integration.changes]
     converted = [t for t in root.iter("texture") if _loads_as_integers(t)]
     bitmaps = bitmaps_as_float(root)
     changes += [SceneChange(f"bitmap {_file_of(t)} loaded as float", _EIGHT_BIT, where(t))
@@ -208,8 +219,7 @@ def _rewrite(
         files=expanded.files,
         search_path=expanded.search_path,
         line_sources=line_sources,
-        scene_integrator=kind,
-        integrator=replay,
+        integration=integration,
         fingerprint=_fingerprint(expanded.files, _job_arguments(expanded), path.parent),
         changes=tuple(changes),
     )
@@ -217,13 +227,6 @@ def _rewrite(
 
 _UNNAMED = "Mitsuba keys an unnamed object by its memory address, new on every run"
 _EIGHT_BIT = "format = variant: an 8-bit texture would load as integers, which get no gradient"
-
-
-def _integrator_change(kind: str, replay: str, max_depth: int) -> SceneChange:
-    why = "path replay differentiates in constant memory"
-    if renders_other_transport(kind):
-        why += f"; '{kind}' renders other light transport, so M is measured on another image"
-    return SceneChange(f"integrator {kind!r} -> {replay!r} (max_depth {max_depth})", why, "")
 
 
 def _file_of(texture: ET.Element) -> str:
