@@ -37,6 +37,7 @@ from sensaov_cli.render.fdcheck import (
 )
 from sensaov_cli.render.loading import load_job_scene
 from sensaov_cli.render.objectives import build_objectives
+from sensaov_cli.render.trust import TABLE, Context
 from sensaov_cli.spec.load import load_job
 
 RES, SPP, SEEDS = 32, 32, 8  # same-seed checks
@@ -84,6 +85,7 @@ class Case:
     include: tuple[str, ...] = ("object.bsdf.*",)
     independent: tuple[str, ...] = ()  # key suffixes checked with independent seeds
     kind: bool = True  # False: a condition the self-checks catch, not evidence for its kind
+    composite: bool = False  # shown with its contexts in the composites' table
     ad_spp: int = IND_SPP  # independent checks of small or noisy derivatives need more
     fd_spp: int = IND_FD_SPP
 
@@ -98,6 +100,27 @@ def _bitmap(name: str, file: str) -> str:
     )
 
 
+ROUGH_PLASTIC = _bsdf(
+    "roughplastic",
+    '<float name="alpha" value="0.3"/>',
+    RGB.format("diffuse_reflectance", "0.3, 0.5, 0.2"),
+)
+CONDUCTOR = _bsdf("conductor", RGB.format("eta", "0.2, 0.9, 1.1"), RGB.format("k", "3.9, 2.4, 2.2"))
+ROUGH_CONDUCTOR = _bsdf(
+    "roughconductor",
+    '<float name="alpha" value="0.3"/>',
+    RGB.format("eta", "0.2, 0.9, 1.1"),
+    RGB.format("k", "3.9, 2.4, 2.2"),
+)
+OPACITY = '<float name="opacity" value="0.6"/>'
+BUMP = (
+    '<texture type="bitmap" name="bump"><string name="filename" value="tex.exr"/>'
+    '<boolean name="raw" value="true"/></texture><float name="scale" value="0.5"/>'
+)
+NORMALS = (
+    '<texture type="bitmap" name="normalmap"><string name="filename" value="normals.exr"/>'
+    '<boolean name="raw" value="true"/></texture>'
+)
 # Parameters that change which lobe is sampled (plastics, blends, Fresnel-weighted choices,
 # principled's lobe weights): checked with independent seeds. Roughness changes sampled
 # directions continuously, so a shared seed still gives nearby paths: same seed, more seeds.
@@ -196,6 +219,49 @@ CASES = (
         include=("object.bsdf.weight.value", "object.bsdf.bsdf_0.*"),
         independent=("weight.value",),
     ),
+    *(
+        Case(name, bsdf, independent=independent, composite=True)
+        for name, bsdf, independent in (
+            (
+                "blendbsdf (roughplastic + smooth conductor), bitmap weight",
+                _bsdf("blendbsdf", _bitmap("weight", "tex.exr"), ROUGH_PLASTIC, CONDUCTOR),
+                ("weight.data", "alpha", "eta"),
+            ),
+            (
+                "blendbsdf (diffuse + smooth conductor)",
+                _bsdf("blendbsdf", '<float name="weight" value="0.4"/>', DIFFUSE, CONDUCTOR),
+                ("weight.value",),
+            ),
+            (
+                "blendbsdf (diffuse + roughconductor), all",
+                _bsdf("blendbsdf", '<float name="weight" value="0.4"/>', DIFFUSE, ROUGH_CONDUCTOR),
+                ("weight.value", "alpha.value"),
+            ),
+            ("mask (diffuse)", _bsdf("mask", OPACITY, DIFFUSE), ("opacity.value",)),
+            ("mask (smooth conductor)", _bsdf("mask", OPACITY, CONDUCTOR), ("opacity.value",)),
+            ("twosided (smooth conductor)", _bsdf("twosided", CONDUCTOR), ()),
+            (
+                "bumpmap (roughconductor)",
+                _bsdf("bumpmap", BUMP, ROUGH_CONDUCTOR),
+                ("nested_texture.data", "alpha.value"),
+            ),
+            (
+                "bumpmap (smooth conductor)",
+                _bsdf("bumpmap", BUMP, CONDUCTOR),
+                ("nested_texture.data",),
+            ),
+            (
+                "normalmap (roughconductor)",
+                _bsdf("normalmap", NORMALS, ROUGH_CONDUCTOR),
+                ("normalmap.data", "alpha.value"),
+            ),
+            (
+                "normalmap (smooth conductor)",
+                _bsdf("normalmap", NORMALS, CONDUCTOR),
+                ("normalmap.data",),
+            ),
+        )
+    ),
     Case("area, uniform", include=("light.emitter.*",)),
     Case(
         "area, bitmap",
@@ -247,6 +313,10 @@ def write_case(case: Case, folder: Path) -> Path:
     import mitsuba as mi
 
     mi.Bitmap(0.2 + 0.6 * rng.random((8, 8, 3), dtype=np.float32)).write(str(folder / "tex.exr"))
+    tilt = rng.normal(0, 0.25, (8, 8, 2)).astype(np.float32)  # unit normals, tilted at random
+    normals = np.concatenate([tilt, np.ones((8, 8, 1), np.float32)], axis=2)
+    normals /= np.linalg.norm(normals, axis=2, keepdims=True)
+    mi.Bitmap(0.5 + 0.5 * normals).write(str(folder / "normals.exr"))
     sky = 0.3 + rng.random((8, 16, 3), dtype=np.float32)
     sky[1:3, 3:5] = 20.0  # a small sun, so the map is not flat
     mi.Bitmap(sky).write(str(folder / "sky.exr"))
@@ -272,7 +342,10 @@ def label(check: GradientCheck) -> str:
     return "no_gradient" if check.adjoint == 0 else "biased"
 
 
-def measure(case: Case) -> list[tuple[Case, GradientCheck, bool]]:
+Row = tuple[Case, GradientCheck, bool, tuple[Context, ...]]
+
+
+def measure(case: Case) -> list[Row]:
     with tempfile.TemporaryDirectory(prefix="sensaov-trust-") as tmp:
         job = load_job(write_case(case, Path(tmp)))
         loaded = load_job_scene(job)
@@ -291,11 +364,11 @@ def measure(case: Case) -> list[tuple[Case, GradientCheck, bool]]:
                 )
             else:
                 check = check_parameter(loaded, objective, info, spp=SPP, seeds=list(range(SEEDS)))
-            rows.append((case, check, independent))
+            rows.append((case, check, independent, loaded.contexts[info.key]))
         return rows
 
 
-def row(case: Case, c: GradientCheck, independent: bool) -> str:
+def row(case: Case, c: GradientCheck, independent: bool, contexts: tuple[Context, ...]) -> str:
     how = (
         f"independent seeds, AD {case.ad_spp} spp, FD {case.fd_spp} spp"
         if independent
@@ -304,20 +377,42 @@ def row(case: Case, c: GradientCheck, independent: bool) -> str:
     seeds = IND_SEEDS if independent else SEEDS
     error = f"{c.relative_error:.1e}" if c.finite_difference else "n/a"
     noise = c.standard_error / max(abs(c.finite_difference), 1e-30)
+    prefix = f"{_contexts(contexts)} | " if case.composite else ""
     return (
-        f"| {c.plugin} | {c.type} | {case.name}: `{c.key}` | {c.adjoint:+.4e} | "
+        f"| {prefix}{c.plugin} | {c.type} | {case.name}: `{c.key}` | {c.adjoint:+.4e} | "
         f"{c.finite_difference:+.4e} | {error} | {noise:.1e} | {how} | {seeds} | {label(c)} |"
     )
 
 
-def kinds(rows: list[tuple[Case, GradientCheck, bool]]) -> dict[tuple[str, str], str]:
+def _contexts(contexts: tuple[Context, ...]) -> str:
+    return ", ".join(f"{c} {role} ({children})" for c, role, children in contexts) or "none"
+
+
+def kinds(rows: list[Row]) -> dict[tuple[str, str], str]:
+    """Each kind's label: the weakest of its rows outside composites with a smooth child (there
+    the composite decides, below)."""
     worst: dict[tuple[str, str], str] = {}
-    for case, check, _ in rows:
-        if not case.kind:
+    for case, check, _, contexts in rows:
+        if not case.kind or any(children == "smooth" for *_, children in contexts):
             continue
         kind = (check.plugin, check.type)
         labels = [worst.get(kind, "verified"), label(check)]
         worst[kind] = min(labels, key=WORST_FIRST.index)
+    return dict(sorted(worst.items()))
+
+
+def composites(rows: list[Row], kind_labels: dict[tuple[str, str], str]) -> dict[Context, str]:
+    """Each context's label: the weakest of the rows in it whose own kind is verified (a row
+    whose kind is known biased says nothing about the composite)."""
+    worst: dict[Context, str] = {}
+    for case, check, _, contexts in rows:
+        kind = (check.plugin, check.type)
+        own = kind_labels.get(kind) or (TABLE[kind].trust if kind in TABLE else None)
+        if not case.kind or own != "verified":  # --only: kinds not measured now, as trust.py
+            continue
+        for context in contexts:
+            labels = [worst.get(context, "verified"), label(check)]
+            worst[context] = min(labels, key=WORST_FIRST.index)
     return dict(sorted(worst.items()))
 
 
@@ -338,20 +433,29 @@ def main() -> None:
         f"Dr.Jit {version('drjit')}, llvm_ad_rgb, {RES}x{RES}, M = mean luminance, "
         f"{time.perf_counter() - start:.0f} s on {os.cpu_count()} CPU cores."
     )
+    columns = (
+        "| plugin | type | case: parameter | adjoint | finite diff. | rel. error | "
+        "std. err. (rel.) | method | seeds | label |"
+    )
     for kind in (True, False):
         if not kind:
             print("\nConditions the run-time self-checks catch (not evidence for a kind):")
-        print()
-        print(
-            "| plugin | type | case: parameter | adjoint | finite diff. | rel. error | "
-            "std. err. (rel.) | method | seeds | label |"
-        )
-        print("|---|---|---|---|---|---|---|---|---|---|")
-        print("\n".join(row(*r) for r in rows if r[0].kind == kind))
+        print(f"\n{columns}\n|---|---|---|---|---|---|---|---|---|---|")
+        print("\n".join(row(*r) for r in rows if r[0].kind == kind and not r[0].composite))
     print(
         "\nThe labels, the weakest of each kind's rows:\n\n| plugin | type | label |\n|---|---|---|"
     )
-    print("\n".join(f"| {p} | {t} | {lab} |" for (p, t), lab in kinds(rows).items()))
+    labels = kinds(rows)
+    print("\n".join(f"| {p} | {t} | {lab} |" for (p, t), lab in labels.items()))
+    print("\nComposites: each parameter with the composites its gradient passes (role, children):")
+    print(f"\n| composites {columns}\n|---|---|---|---|---|---|---|---|---|---|---|")
+    print("\n".join(row(*r) for r in rows if r[0].composite))
+    print(
+        "\nThe composites' labels, the weakest of the rows in each whose own kind is verified:"
+        "\n\n| composite | role | children | label |\n|---|---|---|---|"
+    )
+    for (composite, role, children), lab in composites(rows, labels).items():
+        print(f"| {composite} | {role} | {children} | {lab} |")
 
 
 if __name__ == "__main__":

@@ -242,11 +242,14 @@ def test_delta_lobes_take_path_and_get_a_gradient(mixed) -> None:  # noqa: ANN00
         assert labels(result)[key].trust == "verified", labels(result)[key]
 
 
-def test_without_the_path_pass_delta_lobes_get_no_gradient(
-    mixed_job: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.setattr(adjoint, "gradient_integrator", lambda plugin: "prb")
-    _, result = run(mixed_job)
+def test_without_the_path_pass_delta_lobes_get_no_gradient(mixed_job: Path) -> None:
+    job = load_job(mixed_job)
+    loaded = load_job_scene(job)
+    loaded.routes = dict.fromkeys(loaded.routes, "prb")
+    objectives = build_objectives(loaded.mi, job.objectives, (16, 16), False)
+    result = adjoint.run_adjoint(
+        loaded, objectives, spp=16, seed=0, deterministic=True, progress=Progress(quiet=True)
+    )
     eta = labels(result)["mirror.bsdf.eta.value"]
     assert (eta.trust, eta.note) == ("no_gradient", DELTA_LOBE_REASON)
     assert result.provenance["self_checks"]["no_gradient"] == sorted(

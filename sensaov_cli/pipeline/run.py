@@ -129,9 +129,7 @@ def run_job(
     # Forward entries with transport layers push once more per objective; a transport
     # channel's top objects are only known after the backward passes: not counted.
     measured = prepared.integration.scene_image is not None
-    progress.plan(
-        batches * (1 + passes) + (forward_passes if forward_wanted else 0) + 1 + measured
-    )
+    progress.plan(batches * (1 + passes) + (forward_passes if forward_wanted else 0) + 1 + measured)
     effects = _note_depth_effect(prepared, loaded, objectives, job.render.seed, progress)
     result = run_adjoint(
         loaded,

@@ -28,6 +28,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 from sensaov_cli.errors import SceneError
+from sensaov_cli.render.scene.changes import Change
 from sensaov_cli.render.scene.naming import child_value
 from sensaov_cli.render.scene.source import where
 
@@ -46,14 +47,6 @@ _LEGACY = frozenset(
 )  # fmt: skip
 KEPT_SETTINGS = ("hide_emitters", "rr_depth")
 UNBOUNDED = -1
-
-
-@dataclass(frozen=True)
-class Change:
-    what: str
-    why: str
-    where: str
-    alters_image: bool = False
 
 
 @dataclass(frozen=True)

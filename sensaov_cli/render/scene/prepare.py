@@ -41,6 +41,7 @@ from pathlib import Path
 
 from sensaov_cli.errors import SceneError, SpecError
 from sensaov_cli.render.scene import naming
+from sensaov_cli.render.scene.changes import Change
 from sensaov_cli.render.scene.expand import ExpandedScene, SceneArgument, expand_scene
 from sensaov_cli.render.scene.integrator import IntegratorPlan, plan_integrator
 from sensaov_cli.render.scene.rewrite import bitmap_options, bitmaps_as_float
@@ -59,14 +60,7 @@ from sensaov_cli.spec.job import CameraSpec, JobSpec
 _CHUNK = 1 << 20  # files are hashed a MiB at a time, never read whole
 
 
-@dataclass(frozen=True)
-class SceneChange:
-    """One thing sensaov changed in the scene before Mitsuba loads it, and why."""
-
-    what: str
-    why: str
-    where: str  # the user's file:line it concerns ("" where the scene says nothing)
-    alters_image: bool = False  # M is measured on another image than the scene renders
+SceneChange = Change  # what the scene stage hands on: what, why, where, alters_image
 
 
 @dataclass(frozen=True)
@@ -185,9 +179,10 @@ def _rewrite(
 ) -> PreparedScene:
     root = expanded.root
     own_sensors = sensor_ids(root)
-    changes = [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
+    changes = list(expanded.changes)  # old formats upgraded, each with its line
+    changes += [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
     integration = plan_integrator(root, max_depth)
-    changes += [SceneChange(c.what, c.why, c.where, c.alters_image) for c in integration.changes]
+    changes += integration.changes
     converted = [t for t in root.iter("texture") if _loads_as_integers(t)]
     bitmaps = bitmaps_as_float(root)
     changes += [SceneChange(f"bitmap {_file_of(t)} loaded as float", _EIGHT_BIT, where(t))
