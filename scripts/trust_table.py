@@ -37,7 +37,8 @@ from sensaov_cli.render.fdcheck import (
 )
 from sensaov_cli.render.loading import load_job_scene
 from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.trust import TABLE, Context
+from sensaov_cli.render.runtime import import_mitsuba
+from sensaov_cli.render.trust import COMPOSITES, TABLE, Context
 from sensaov_cli.spec.load import load_job
 
 RES, SPP, SEEDS = 32, 32, 8  # same-seed checks
@@ -45,7 +46,7 @@ IND_SPP, IND_FD_SPP, IND_SEEDS = 32, 1024, 12  # independent-seed checks
 WORST_FIRST = ("no_gradient", "biased", "suspect", "unverified", "verified")
 
 STAGE = """<scene version="3.0.0">
-  <integrator type="path"><integer name="max_depth" value="5"/></integrator>
+  <integrator type="{integrator}"><integer name="max_depth" value="5"/></integrator>
   <sensor type="perspective" id="sensor">
     <float name="fov" value="40"/>
     <transform name="to_world">
@@ -88,6 +89,7 @@ class Case:
     composite: bool = False  # shown with its contexts in the composites' table
     ad_spp: int = IND_SPP  # independent checks of small or noisy derivatives need more
     fd_spp: int = IND_FD_SPP
+    integrator: str = "path"  # "volpath" for media: sensaov differentiates them with prbvolpath
 
 
 def _bsdf(kind: str, *children: str) -> str:
@@ -136,7 +138,7 @@ CASES = (
             '"reflectance"><rgb name="color0" value="0.7, 0.5, 0.3"/></texture>',
         ),
     ),
-    Case("twosided diffuse", _bsdf("twosided", DIFFUSE)),
+    Case("twosided diffuse", _bsdf("twosided", DIFFUSE), composite=True),
     Case(
         "plastic (smooth)",
         _bsdf(
@@ -218,49 +220,95 @@ CASES = (
         ),
         include=("object.bsdf.weight.value", "object.bsdf.bsdf_0.*"),
         independent=("weight.value",),
+        composite=True,
     ),
-    *(
-        Case(name, bsdf, independent=independent, composite=True)
-        for name, bsdf, independent in (
-            (
-                "blendbsdf (roughplastic + smooth conductor), bitmap weight",
-                _bsdf("blendbsdf", _bitmap("weight", "tex.exr"), ROUGH_PLASTIC, CONDUCTOR),
-                ("weight.data", "alpha", "eta"),
-            ),
-            (
-                "blendbsdf (diffuse + smooth conductor)",
-                _bsdf("blendbsdf", '<float name="weight" value="0.4"/>', DIFFUSE, CONDUCTOR),
-                ("weight.value",),
-            ),
-            (
-                "blendbsdf (diffuse + roughconductor), all",
-                _bsdf("blendbsdf", '<float name="weight" value="0.4"/>', DIFFUSE, ROUGH_CONDUCTOR),
-                ("weight.value", "alpha.value"),
-            ),
-            ("mask (diffuse)", _bsdf("mask", OPACITY, DIFFUSE), ("opacity.value",)),
-            ("mask (smooth conductor)", _bsdf("mask", OPACITY, CONDUCTOR), ("opacity.value",)),
-            ("twosided (smooth conductor)", _bsdf("twosided", CONDUCTOR), ()),
-            (
-                "bumpmap (roughconductor)",
-                _bsdf("bumpmap", BUMP, ROUGH_CONDUCTOR),
-                ("nested_texture.data", "alpha.value"),
-            ),
-            (
-                "bumpmap (smooth conductor)",
-                _bsdf("bumpmap", BUMP, CONDUCTOR),
-                ("nested_texture.data",),
-            ),
-            (
-                "normalmap (roughconductor)",
-                _bsdf("normalmap", NORMALS, ROUGH_CONDUCTOR),
-                ("normalmap.data", "alpha.value"),
-            ),
-            (
-                "normalmap (smooth conductor)",
-                _bsdf("normalmap", NORMALS, CONDUCTOR),
-                ("normalmap.data",),
-            ),
-        )
+    # Composites, each over a rough and a smooth child (docs/verification.md, "Composites").
+    Case(
+        "blendbsdf (roughplastic + smooth conductor), bitmap weight",
+        _bsdf("blendbsdf", _bitmap("weight", "tex.exr"), ROUGH_PLASTIC, CONDUCTOR),
+        independent=("weight.data", "alpha", "eta"),
+        composite=True,
+    ),
+    Case(
+        "blendbsdf (diffuse + smooth conductor)",
+        _bsdf("blendbsdf", '<float name="weight" value="0.4"/>', DIFFUSE, CONDUCTOR),
+        independent=("weight.value",),
+        composite=True,
+    ),
+    Case(
+        "blendbsdf (diffuse + roughconductor), children",
+        _bsdf("blendbsdf", '<float name="weight" value="0.4"/>', DIFFUSE, ROUGH_CONDUCTOR),
+        include=("object.bsdf.bsdf_*",),
+        independent=("alpha.value",),
+        composite=True,
+        ad_spp=1024,
+        fd_spp=4096,
+    ),
+    Case(
+        "mask (diffuse)",
+        _bsdf("mask", OPACITY, DIFFUSE),
+        independent=("opacity.value",),
+        composite=True,
+    ),  # fmt: skip
+    Case(
+        "mask (smooth conductor)",
+        _bsdf("mask", OPACITY, CONDUCTOR),
+        independent=("opacity.value",),
+        composite=True,
+    ),  # fmt: skip
+    Case("twosided (smooth conductor)", _bsdf("twosided", CONDUCTOR), composite=True),
+    Case(
+        "bumpmap (roughconductor)",
+        _bsdf("bumpmap", BUMP, ROUGH_CONDUCTOR),
+        independent=("nested_texture.data", "alpha.value"),
+        composite=True,
+    ),
+    Case(
+        "bumpmap (smooth conductor)",
+        _bsdf("bumpmap", BUMP, CONDUCTOR),
+        independent=("nested_texture.data",),
+        composite=True,
+    ),  # fmt: skip
+    Case(
+        "normalmap (roughconductor)",
+        _bsdf("normalmap", NORMALS, ROUGH_CONDUCTOR),
+        independent=("normalmap.data", "alpha.value"),
+        composite=True,
+    ),
+    Case(
+        "normalmap (smooth conductor)",
+        _bsdf("normalmap", NORMALS, CONDUCTOR),
+        independent=("normalmap.data",),
+        composite=True,
+        ad_spp=256,
+        fd_spp=4096,
+    ),
+    # Media, differentiated by prbvolpath (the scene renders them with volpath).
+    Case(
+        "homogeneous medium in a null sphere",
+        '<bsdf type="null"/><medium type="homogeneous" name="interior">'
+        '<rgb name="albedo" value="0.8, 0.7, 0.6"/><float name="sigma_t" value="1.5"/>'
+        '<phase type="hg"><float name="g" value="0.3"/></phase></medium>',
+        include=("object.interior_medium.*",),
+        independent=("sigma_t.value.value", "g"),
+        integrator="volpath",
+        ad_spp=256,
+        fd_spp=4096,
+    ),
+    Case(
+        "heterogeneous medium in a null sphere",
+        '<bsdf type="null"/><medium type="heterogeneous" name="interior">'
+        '<volume type="gridvolume" name="sigma_t"><string name="filename" value="density.vol"/>'
+        '<transform name="to_world"><translate value="-0.5"/><scale value="1.4"/></transform>'
+        '</volume><volume type="gridvolume" name="albedo">'
+        '<string name="filename" value="albedo.vol"/>'
+        '<transform name="to_world"><translate value="-0.5"/><scale value="1.4"/></transform>'
+        '</volume><float name="scale" value="1.5"/></medium>',
+        include=("object.interior_medium.*",),
+        independent=("sigma_t.data",),
+        integrator="volpath",
+        ad_spp=256,
+        fd_spp=4096,
     ),
     Case("area, uniform", include=("light.emitter.*",)),
     Case(
@@ -310,7 +358,7 @@ CASES = (
 def write_case(case: Case, folder: Path) -> Path:
     """The case's scene, its textures and a job selecting its parameters, in ``folder``."""
     rng = np.random.default_rng(1)
-    import mitsuba as mi
+    mi = import_mitsuba("llvm_ad_rgb")  # VolumeGrid needs a variant (Bitmap does not)
 
     mi.Bitmap(0.2 + 0.6 * rng.random((8, 8, 3), dtype=np.float32)).write(str(folder / "tex.exr"))
     tilt = rng.normal(0, 0.25, (8, 8, 2)).astype(np.float32)  # unit normals, tilted at random
@@ -320,7 +368,13 @@ def write_case(case: Case, folder: Path) -> Path:
     sky = 0.3 + rng.random((8, 16, 3), dtype=np.float32)
     sky[1:3, 3:5] = 20.0  # a small sun, so the map is not flat
     mi.Bitmap(sky).write(str(folder / "sky.exr"))
-    (folder / "scene.xml").write_text(STAGE.format(res=RES, bsdf=case.bsdf, lights=case.lights))
+    grid = 0.5 + rng.random((6, 6, 6, 1), dtype=np.float32)  # a heterogeneous medium's density
+    mi.VolumeGrid(grid).write(str(folder / "density.vol"))
+    mi.VolumeGrid(0.4 + 0.5 * rng.random((6, 6, 6, 3), dtype=np.float32)).write(
+        str(folder / "albedo.vol")
+    )
+    text = STAGE.format(res=RES, bsdf=case.bsdf, lights=case.lights, integrator=case.integrator)
+    (folder / "scene.xml").write_text(text)
     job = {
         "version": 1,
         "scene": "scene.xml",
@@ -389,11 +443,10 @@ def _contexts(contexts: tuple[Context, ...]) -> str:
 
 
 def kinds(rows: list[Row]) -> dict[tuple[str, str], str]:
-    """Each kind's label: the weakest of its rows outside composites with a smooth child (there
-    the composite decides, below)."""
+    """Each kind's label: the weakest of its rows outside the composites' cases."""
     worst: dict[tuple[str, str], str] = {}
-    for case, check, _, contexts in rows:
-        if not case.kind or any(children == "smooth" for *_, children in contexts):
+    for case, check, *_ in rows:
+        if not case.kind or case.composite:
             continue
         kind = (check.plugin, check.type)
         labels = [worst.get(kind, "verified"), label(check)]
@@ -402,14 +455,14 @@ def kinds(rows: list[Row]) -> dict[tuple[str, str], str]:
 
 
 def composites(rows: list[Row], kind_labels: dict[tuple[str, str], str]) -> dict[Context, str]:
-    """Each context's label: the weakest of the rows in it whose own kind is verified (a row
-    whose kind is known biased says nothing about the composite)."""
+    """Each context's label: the weakest of the rows in it that are a composite's own parameter
+    or whose own kind is verified (a row of a kind known biased says nothing of the composite)."""
     worst: dict[Context, str] = {}
     for case, check, _, contexts in rows:
         kind = (check.plugin, check.type)
         own = kind_labels.get(kind) or (TABLE[kind].trust if kind in TABLE else None)
-        if not case.kind or own != "verified":  # --only: kinds not measured now, as trust.py
-            continue
+        if not case.composite or (own != "verified" and check.plugin not in COMPOSITES):
+            continue  # (--only: a kind not measured in this run reads as trust.py has it)
         for context in contexts:
             labels = [worst.get(context, "verified"), label(check)]
             worst[context] = min(labels, key=WORST_FIRST.index)

@@ -204,4 +204,20 @@ def test_8000_parameters_are_read_and_ranked_in_linear_time(tmp_path: Path) -> N
         assert len(names(path)) == 3  # header, values, grads_000
         ranked_seconds(path)  # warm: imports, caches
         seconds[count] = min(ranked_seconds(path) for _ in range(3))
-    assert seconds[8000] < 2.0 and seconds[8000] < 25 * seconds[800], seconds
+    # linear: about 10x for 10x the parameters; quadratic was 100x (the min of 3 tames a busy
+    # machine, the margin does the rest)
+    assert seconds[8000] < 3.0 and seconds[8000] < 40 * seconds[800], seconds
+
+
+def test_a_buffer_of_textures_only_still_has_its_packed_members(tmp_path: Path) -> None:
+    buffer = interior()
+    only = [p for p in buffer.params if p.is_texture]
+    textures = SensitivityBuffer(
+        provenance={}, objects=buffer.objects, params=tuple(only), objectives=buffer.objectives,
+        values={p.key: buffer.value(p.key) for p in only},
+        grads={o: {p.key: buffer.grad(o, p.key) for p in only} for o in OBJECTIVES},
+    )  # fmt: skip
+    path = tmp_path / "buffer.npz"
+    write_buffer(path, textures)
+    assert "values" in names(path)
+    assert read_buffer(path).keys == textures.keys

@@ -152,42 +152,60 @@ def unpack(
     ``array(name, shape)`` reads a member, checking its declared shape first.
     """
     entries = _entries(storage, params, len(objectives), with_stderr)
-    size = int(storage["packed"])
-    names = {"values"} | {packed_member("grads", j) for j in range(len(objectives))}
-    flat = {"values": array("values", (size,))}
-    for j in range(len(objectives)):
-        flat[f"grads{j}"] = array(packed_member("grads", j), (size,))
-        if with_stderr:
-            names.add(packed_member("stderrs", j))
-            flat[f"stderrs{j}"] = array(packed_member("stderrs", j), (size,))
-    shared: dict[str, np.ndarray] = {}
-
-    def texture(kind: str, index: int | None, shape: tuple[int, ...]) -> np.ndarray:
-        if index is None:  # all zero: one read-only array per shape, shared
-            return shared.setdefault(repr(shape), _zeros(shape))
-        name = texture_member(kind, index)
-        names.add(name)
-        return array(name, shape)
-
+    members = _Members(array, int(storage["packed"]))
+    kinds = [("grads", "texgrad")] + [("stderrs", "texstderr")] * with_stderr
+    members.member("values", (members.size,))  # the packed members exist even if empty
+    for kind, _ in kinds:
+        for j in range(len(objectives)):
+            members.member(packed_member(kind, j), (members.size,))
     values: dict[str, np.ndarray] = {}
-    grads: dict[str, dict[str, np.ndarray]] = {name: {} for name in objectives}
-    stderr: dict[str, dict[str, np.ndarray]] = {name: {} for name in objectives}
+    found: dict[str, dict[str, dict[str, np.ndarray]]] = {
+        kind: {name: {} for name in objectives} for kind, _ in kinds
+    }
     for p, entry in zip(params, entries, strict=True):
-        if "offset" in entry:
-            start, count = entry["offset"], math.prod(p.shape)
-            values[p.key] = flat["values"][start : start + count].reshape(p.shape)
+        values[p.key] = members.value(entry, p.shape)
+        for (kind, texture), field in zip(kinds, ("grads", "stderrs"), strict=False):
             for j, name in enumerate(objectives):
-                grads[name][p.key] = flat[f"grads{j}"][start : start + count].reshape(p.shape)
-                if with_stderr:
-                    errors = flat[f"stderrs{j}"][start : start + count]
-                    stderr[name][p.key] = errors.reshape(p.shape)
-            continue
-        values[p.key] = texture("texture", entry["value"], p.shape)
-        for j, name in enumerate(objectives):
-            grads[name][p.key] = texture("texgrad", entry["grads"][j], p.shape)
-            if with_stderr:
-                stderr[name][p.key] = texture("texstderr", entry["stderrs"][j], p.shape)
-    return values, grads, stderr if with_stderr else None, names
+                found[kind][name][p.key] = members.of(entry, field, j, kind, texture, p.shape)
+    stderr = found["stderrs"] if with_stderr else None
+    return values, found["grads"], stderr, members.names
+
+
+class _Members:
+    """Format 4's members as the storage names them: a packed member's slice, or a texture's
+    own member (all-zero arrays shared, one read-only array per shape)."""
+
+    def __init__(self, array: Callable[[str, tuple[int, ...]], np.ndarray], size: int) -> None:
+        self.read, self.size = array, size
+        self.names: set[str] = set()
+        self.cache: dict[str, np.ndarray] = {}
+        self.zeros: dict[tuple[int, ...], np.ndarray] = {}
+
+    def member(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        if name not in self.cache:
+            self.cache[name] = self.read(name, shape)
+            self.names.add(name)
+        return self.cache[name]
+
+    def value(self, entry: dict[str, Any], shape: tuple[int, ...]) -> np.ndarray:
+        if "offset" in entry:
+            return self._slice("values", entry["offset"], shape)
+        return self.member(texture_member("texture", entry["value"]), shape)
+
+    def of(
+        self, entry: dict[str, Any], field: str, j: int, kind: str, texture: str,
+        shape: tuple[int, ...],
+    ) -> np.ndarray:  # fmt: skip
+        if "offset" in entry:
+            return self._slice(packed_member(kind, j), entry["offset"], shape)
+        index = entry[field][j]
+        if index is None:  # all zero
+            return self.zeros.setdefault(shape, _zeros(shape))
+        return self.member(texture_member(texture, index), shape)
+
+    def _slice(self, name: str, start: int, shape: tuple[int, ...]) -> np.ndarray:
+        flat = self.member(name, (self.size,))
+        return flat[start : start + math.prod(shape)].reshape(shape)
 
 
 def _zeros(shape: tuple[int, ...]) -> np.ndarray:

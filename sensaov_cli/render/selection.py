@@ -167,7 +167,12 @@ def select(
     children = _bsdf_children(mi, params.hierarchy)
     for key in params.keys():
         _, _, node, flags = params.properties[key]
-        reason = _exclusion_reason(mi, parameters, key, params[key], node, flags)
+        try:
+            value = params[key]
+        except Exception as exc:  # noqa: BLE001 - Mitsuba's own read fails (hair's unset sigma_a)
+            excluded.append(ExcludedParam(key, f"Mitsuba cannot read its value ({exc!s:.80})"))
+            continue
+        reason = _exclusion_reason(mi, parameters, key, value, node, flags)
         if reason is None and media is not None and _in_medium(mi, node, params.hierarchy):
             reason = f"medium parameter: the scene's '{media}' integrator renders no media"
         owners = ownership.of(node) if reason is None else ()
@@ -236,7 +241,11 @@ def _describe(
     ptype = TYPE_ALIASES.get(ptype, ptype)
     is_texture = is_texture_node and parts[-1] == "data"
     contexts = _composition(mi, holder, ptype, params.hierarchy, children)
-    trust, note = _weakest(verification_status(plugin, ptype), composite_status(contexts))
+    # A composite's own parameter (a blend's weight) is measured in its context: its children.
+    own: tuple[Trust, str] = (
+        ("verified", "") if plugin in COMPOSITES else verification_status(plugin, ptype)
+    )
+    trust, note = _weakest(own, composite_status(contexts))
     shape = value_shape(np.asarray(params[key]))
     if is_texture_node and "spectral" in mi.variant() and shape[-1:] == (3,):
         trust, note = "unverified", SPECTRAL_COEFFICIENTS_NOTE

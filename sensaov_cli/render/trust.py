@@ -69,7 +69,6 @@ def _noisy(kind: str) -> Entry:
 # one row per parameter checked; the label of a kind is the weakest of its rows.
 TABLE: dict[tuple[str, str], Entry] = {
     ("area", "radiance"): VERIFIED,
-    ("blendbsdf", "weight"): VERIFIED,
     ("conductor", "eta"): VERIFIED,  # through path, like every parameter of a smooth BSDF
     ("conductor", "k"): VERIFIED,
     ("conductor", "specular"): VERIFIED,
