@@ -1,4 +1,4 @@
-"""Figure 13: a real interior's buffer, its size and `sensaov rank` on it (numpy only).
+"""Figure 14: a real interior's buffer, its size and `sensaov rank` on it (numpy only).
 
 Bitterli's kitchen (295 meshes, 11 image files) made a 410 MB buffer at 140x80 in format 3:
 splitting its shared BSDFs turned the 11 images into 40 texture copies, each stored with its
@@ -96,7 +96,7 @@ def version_3_size(buffer: SensitivityBuffer) -> float:
 def interior(ws: Workspace, s: Settings, log: Log) -> Figure:
     side = 64 if s.quick else KITCHEN_SIDE
     figure = Figure(
-        13,
+        14,
         "A real interior's buffer: size, and `sensaov rank` on it",
         "`sensaov rank` on the kitchen-sized buffer ≤ 0.5 s, on 8,000 parameters ≤ 1 s; a "
         "100,000-member zip refused ≤ 1 s",
@@ -140,7 +140,7 @@ def interior(ws: Workspace, s: Settings, log: Log) -> Figure:
         Row("sensaov rank --by object (8,000 parameters)", t["many"], "s", Goal("<=", 1.0)),
         Row("sensaov rank, 100,000-member zip (refused)", t["forged"], "s", Goal("<=", 1.0)),
     ]
-    log("figure 13: done")
+    log("figure 14: done")
     return figure
 
 

@@ -21,6 +21,7 @@ from bench import (
     fig_process,
     fig_project,
     fig_texels,
+    fig_view,
     machine,
     settings,
 )
@@ -106,7 +107,8 @@ def plan(
         (10, lambda: [fig_farm.farm(ws, s, log)]),
         (11, lambda: [fig_forward.forward_cost(ws, s, log)]),
         (12, lambda: [fig_texels.texel_cost(ws, s, log)]),
-        (13, lambda: [fig_interior.interior(ws, s, log)]),
+        (13, lambda: [fig_view.view_latency(ws, s, log)]),
+        (14, lambda: [fig_interior.interior(ws, s, log)]),
     ]
 
 
