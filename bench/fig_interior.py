@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import notes
 from bench.fig_process import SENSAOV
 from bench.jobs import Workspace
 from bench.results import Figure, Goal, Row, fmt
@@ -109,6 +110,7 @@ def interior(ws: Workspace, s: Settings, log: Log) -> Figure:
         "and with a buffer of 8,000 colours; the 100,000-member zip is the kitchen's buffer "
         "with 100,000 extra members.",
     )
+    figure.why_missed = notes.INTERIOR
     buffer = kitchen(side)
     path = ws.root / "interior" / "buffer.npz"
     path.parent.mkdir(parents=True, exist_ok=True)
