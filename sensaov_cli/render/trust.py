@@ -78,6 +78,12 @@ TABLE: dict[tuple[str, str], Entry] = {
     ("diffuse", "reflectance"): VERIFIED,  # uniform, bitmap, checkerboard, twosided, blended
     ("directional", "radiance"): VERIFIED,
     ("envmap", "radiance"): VERIFIED,  # data (through our own leaf) and scale
+    # media, differentiated by prbvolpath (a medium in a null sphere, rendered by volpath)
+    ("heterogeneous", "albedo"): VERIFIED,
+    ("heterogeneous", "sigma_t"): VERIFIED,
+    ("hg", "g"): VERIFIED,
+    ("homogeneous", "albedo"): VERIFIED,
+    ("homogeneous", "sigma_t"): VERIFIED,
     ("plastic", "reflectance"): Entry("biased", f"{_PATH_PLASTIC}: 6 % too high, measured"),
     ("plastic", "specular"): Entry("biased", f"{_PATH_PLASTIC}: 60 % too low, measured"),
     ("point", "radiance"): VERIFIED,
@@ -139,9 +145,14 @@ _BLEND_WEIGHT = (
     "which it does not differentiate; measured with the wrong sign against finite differences"
 )
 _BUMP_SMOOTH = (
-    f"known biased: a bump or normal map over a smooth (delta) BSDF turns the mirror direction; "
-    f"neither {MITSUBA}'s prb nor path differentiates that (measured: 1 % of the finite "
-    "difference)"
+    f"known biased: a bump map over a smooth (delta) BSDF turns the mirror direction; neither "
+    f"{MITSUBA}'s prb nor path differentiates that (measured: -4e-4 against +0.16 from finite "
+    "differences)"
+)
+_NORMAL_SMOOTH = (
+    "not verified: a normal map over a smooth (delta) BSDF turns the mirror direction, which "
+    f"{MITSUBA}'s path differentiates only in part; measured at 35 % of the finite difference, "
+    "too noisy to call (12 seeds, AD 256 spp, FD 4096 spp)"
 )
 COMPOSITE_TABLE: dict[Context, Entry] = {
     ("blendbsdf", "weight", "rough"): VERIFIED,
@@ -159,7 +170,7 @@ COMPOSITE_TABLE: dict[Context, Entry] = {
     ("bumpmap", "child", "rough"): VERIFIED,
     ("bumpmap", "child", "smooth"): VERIFIED,
     ("normalmap", "normal", "rough"): VERIFIED,
-    ("normalmap", "normal", "smooth"): Entry("biased", _BUMP_SMOOTH),
+    ("normalmap", "normal", "smooth"): Entry("unverified", _NORMAL_SMOOTH),
     ("normalmap", "child", "rough"): VERIFIED,
     ("normalmap", "child", "smooth"): VERIFIED,
 }
