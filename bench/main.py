@@ -15,6 +15,7 @@ from bench import (
     fig_buffer,
     fig_farm,
     fig_forward,
+    fig_interior,
     fig_objectives,
     fig_passes,
     fig_process,
@@ -107,6 +108,7 @@ def plan(
         (11, lambda: [fig_forward.forward_cost(ws, s, log)]),
         (12, lambda: [fig_texels.texel_cost(ws, s, log)]),
         (13, lambda: [fig_view.view_latency(ws, s, log)]),
+        (14, lambda: [fig_interior.interior(ws, s, log)]),
     ]
 
 

@@ -132,3 +132,14 @@ LIVE_VIEW = (
     "milliseconds at 256², 1 spp, and a kernel compiled anew on a move would show in the "
     "'kernels compiled' row."
 )
+
+
+INTERIOR = (
+    "`sensaov rank` on the kitchen-sized buffer is start-up (imports), reading and checking "
+    "every array (the 'read_buffer' row: 170 MB, CRC and finite counts) and one float64 pass "
+    "over each texture gradient that is not all zero (24 of 640²×3). A one-off profile on this "
+    "shared machine (load ≈ 7, commit cebc467) put them at 0.25–0.38 s, 0.31–0.50 s and "
+    "0.49 s. Fix: store each parameter's two sums (Σc, Σc², with and without the value "
+    "weight) in the header when the buffer is written, and read texture members only when a "
+    "view needs their texels; `rank` then reads the header alone."
+)

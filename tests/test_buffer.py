@@ -302,12 +302,12 @@ def _duplicate_member(p: Path) -> None:
     """A second member of the same name: np.load would silently read one of them."""
     with zipfile.ZipFile(p, "a") as zf, warnings.catch_warnings():
         warnings.simplefilter("ignore")  # zipfile warns about the duplicate name
-        zf.writestr("value_000000.npy", _npy(np.array([9, 9, 9], "<f4")))
+        zf.writestr("values.npy", _npy(np.array([9, 9, 9, 9], "<f4")))
 
 
 def _missing_array(p: Path) -> None:
     members = _members(p)
-    del members["grad_001_000002.npy"]
+    del members["grads_001.npy"]
     _write_members(p, members)
 
 
@@ -317,13 +317,13 @@ def _shape_mismatch(p: Path) -> None:
 
 def _float64_array(p: Path) -> None:
     members = _members(p)
-    members["value_000000.npy"] = _npy(np.zeros(3, np.float64))
+    members["values.npy"] = _npy(np.zeros(4, np.float64))
     _write_members(p, members)
 
 
 def _nan_in_file(p: Path) -> None:
     members = _members(p)
-    members["grad_000_000000.npy"] = _npy(np.full(3, np.nan, np.float32))
+    members["grads_000.npy"] = _npy(np.full(4, np.nan, np.float32))
     _write_members(p, members)
 
 
@@ -373,17 +373,17 @@ def test_unknown_version_says_so(saved: Path) -> None:
 # --- the format itself: a change to it must show up here ------------------------------------
 
 
-def test_file_layout_is_version_3(saved: Path) -> None:
+def test_file_layout_is_version_4(saved: Path) -> None:
     with np.load(saved, allow_pickle=False) as npz:
         names = sorted(npz.files)
         header = json.loads(str(npz["header"]))
-    assert names == sorted(
-        ["header", "value_000000", "value_000001", "value_000002"]
-        + [f"grad_{j:03d}_{i:06d}" for j in range(2) for i in range(3)]
-    )
+    assert names == [
+        "grads_000", "grads_001", "header", "texgrad_00000", "texgrad_00001", "texture_00000",
+        "values",
+    ]  # fmt: skip
     assert header == {
         "format": "sensaov-buffer",
-        "format_version": 3,
+        "format_version": 4,
         "provenance": {"tool": "sensaov 0.1.0", "spp": 16, "seeds": [1, 2], "scene": "cbox.xml"},
         "objects": ["floor", "light", "wall", "white"],
         "params": [
@@ -404,7 +404,12 @@ def test_file_layout_is_version_3(saved: Path) -> None:
              "grad_seed": 8, "array": 1},
         ],
         "statistics": None,
+        "storage": {"packed": 4, "params": [
+            {"offset": 0}, {"value": 0, "grads": [0, 1]}, {"offset": 3},
+        ]},
     }  # fmt: skip
+    with np.load(saved) as npz:
+        assert npz["values"].shape == (4,) and npz["texture_00000"].shape == (4, 5, 3)
 
 
 def _write_by_hand(path: Path, version: int, label: dict) -> None:

@@ -186,6 +186,8 @@ def test_an_unexpected_error_is_an_internal_error(
         "sensaov: error: internal error: ZeroDivisionError: last line "
         "(run with -vv for the traceback); no output was replaced\n"
     )
+    verbose = runner.invoke(main, ["-vv", "validate", "whatever.yaml"])
+    assert "Traceback" in verbose.stderr and "run with -vv" not in verbose.stderr
 
 
 def test_check_table_says_biased_where_the_trust_table_does() -> None:

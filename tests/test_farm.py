@@ -14,6 +14,7 @@ from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.statistics import pooled_stderr
 
 from .conftest import sensaov
+from .test_buffer_storage import write_version_3
 
 SHARDS = 4
 OBJECTIVES = [
@@ -155,11 +156,6 @@ def _provenance(field: str, value: object) -> Callable[[dict], None]:
     return lambda header: header["provenance"].__setitem__(field, value)
 
 
-def _as_version_2(header: dict) -> None:
-    header["format_version"] = 2
-    header.pop("statistics")
-
-
 def _other_parameters(header: dict) -> None:
     header["params"][0]["key"] = "renamed.key"
 
@@ -172,7 +168,7 @@ def _other_parameters(header: dict) -> None:
         ("scene", "another scene"),
         ("job", "another job"),
         ("parameters", "other parameters"),
-        ("version", "format version 2"),
+        ("version", "format version 3"),
         ("count", "shard of 3"),
         ("not_a_shard", "not a shard"),
     ],
@@ -183,7 +179,6 @@ def test_merge_refuses_mismatched_shards(farm: Path, tmp_path: Path, case: str, 
         "scene": _provenance("scene_fingerprint", "0" * 16),
         "job": _provenance("job_hash", "f" * 16),
         "parameters": _other_parameters,
-        "version": _as_version_2,
         "count": _provenance("task", {"shard": {"index": 3, "count": 3}, "objectives": None}),
         "not_a_shard": _provenance("task", {"shard": None, "objectives": None}),
     }
@@ -191,6 +186,10 @@ def test_merge_refuses_mismatched_shards(farm: Path, tmp_path: Path, case: str, 
         given = [paths[0], paths[1], paths[3]]
     elif case == "duplicate":
         given = [*paths, paths[2]]
+    elif case == "version":  # the same shard, as sensaov wrote it before format 4
+        older = tmp_path / "x.npz"
+        write_version_3(older, read_buffer(paths[2]))
+        given = [*paths[:2], older, paths[3]]
     else:
         given = [*paths[:2], _copy_with_header(paths[2], tmp_path / "x.npz", spoil[case]), paths[3]]
     out = tmp_path / "merged.npz"

@@ -136,3 +136,21 @@ def test_unknown_names_suggest_the_closest(buf: SensitivityBuffer) -> None:
 def test_bad_options_are_query_errors(buf: SensitivityBuffer, kwargs: dict) -> None:
     with pytest.raises(QueryError):
         ranking(buf, "m", **kwargs)
+
+
+def test_copies_sharing_arrays_and_zero_gradients_are_counted_by_hand() -> None:
+    """Format 4 hands texture copies one shared array and untouched ones a shared zero array:
+    key_stats sums each shared pair once, yet every key keeps its own count."""
+    texture, grad, zeros = np.array([1.0, 2.0, 4.0]), np.array([1.0, -1.0, 0.5]), np.zeros(3)
+    keys = ("a.tex.data", "b.tex.data", "c.tex.data")
+    params = tuple(ParamRecord(k, "reflectance", (k[0],), (3,), True, "bitmap", (), "verified", "")
+                   for k in keys)  # fmt: skip
+    buf = SensitivityBuffer(
+        provenance={}, objects=("a", "b", "c"), params=params,
+        objectives=(ObjectiveRecord("m", {}, 1.0, 0),),
+        values=dict.fromkeys(keys, texture),
+        grads={"m": dict(zip(keys, (grad, grad, zeros), strict=True))},
+    )  # fmt: skip
+    # θ·dM/dθ = [1, -2, 2]: Σ = 1, Σ² = 9 for a and b; 0 for c
+    assert per_object(buf, "m", method="sum") == pytest.approx({"a": 1.0, "b": 1.0, "c": 0.0})
+    assert aggregate(buf, "m", keys, method="rms") == pytest.approx(math.sqrt(18 / 9))

@@ -85,6 +85,17 @@ def runner(monkeypatch: pytest.MonkeyPatch) -> CliRunner:
     return CliRunner()
 
 
+def raw_arrays(npz: Any, header: dict, p: dict, j: int) -> tuple[np.ndarray, np.ndarray]:
+    """A parameter's value and objective j's gradient, from format 4's storage."""
+    where = header["storage"]["params"][p["array"]]
+    if "offset" in where:
+        at = slice(where["offset"], where["offset"] + int(np.prod(p["shape"])))
+        return npz["values"][at], npz[f"grads_{j:03d}"][at]
+    g = where["grads"][j]
+    grad = np.zeros(p["shape"], np.float32) if g is None else npz[f"texgrad_{g:05d}"]
+    return npz[f"texture_{where['value']:05d}"], grad
+
+
 def direct(
     path: Path, objective: str, by: str, method: str, weight: str, part: str = "trusted"
 ) -> list[dict]:
@@ -97,8 +108,8 @@ def direct(
         params = [p for p in header["params"] if p["trust"] != "no_gradient"]
         c = {}
         for p in params:
-            grad = npz[f"grad_{j:03d}_{p['array']:06d}"].astype(np.float64).ravel()
-            value = npz[f"value_{p['array']:06d}"].astype(np.float64).ravel()
+            value, grad = raw_arrays(npz, header, p, j)  # as docs/buffer-format.md reads them
+            grad, value = grad.astype(np.float64).ravel(), value.astype(np.float64).ravel()
             c[p["key"]] = grad * value if weight == "value" else grad
             c[p["key"] + "/mean"] = value.mean()
     total_sq = sum(float(c[k] @ c[k]) for k in (p["key"] for p in params))

@@ -220,9 +220,9 @@ def test_a_volumetric_scene_keeps_its_media(tmp_path: Path) -> None:
 
 
 def test_an_integrator_rendering_other_transport_is_reported(tmp_path: Path) -> None:
-    integrator, replaced = integrator_of(tmp_path, '<integrator type="direct"/>')
+    integrator, replaced = integrator_of(tmp_path, '<integrator type="depth"/>')
     assert integrator is not None and integrator.get("type") == "prb"
-    assert replaced == "direct"
+    assert replaced == "depth"
 
 
 def test_spectral_colour_coefficients_are_not_trusted(tmp_path: Path) -> None:

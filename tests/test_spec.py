@@ -134,7 +134,7 @@ def test_full_job_parses_to_the_expected_dataclasses(tmp_path: Path) -> None:
 def test_defaults(tmp_path: Path) -> None:
     spec = load_job(write_fixture(tmp_path, MINIMAL_JOB))
     assert spec.variant == "auto"
-    assert spec.render == RenderSpec(spp=64, max_depth=6, seed=0, resolution=None)
+    assert spec.render == RenderSpec(spp=64, max_depth=None, seed=0, resolution=None)
     assert spec.render == RenderSpec()
     assert spec.parameters == ParameterSpec(("*",), (), "split") == ParameterSpec()
     assert spec.objective_camera == CameraSpec("objective")

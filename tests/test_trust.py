@@ -28,6 +28,8 @@ from sensaov_cli.render.selfcheck import (
     tolerance,
 )
 from sensaov_cli.render.trust import (
+    COMPOSITE_TABLE,
+    COMPOSITES,
     DELTA_LOBE_REASON,
     NO_FLOW_REASON,
     PRINCIPLED_LOBE_REASON,
@@ -79,8 +81,33 @@ def test_each_documented_label_is_the_weakest_of_its_measurements() -> None:
 
 
 def test_only_verified_kinds_go_without_a_note() -> None:
-    for kind, entry in TABLE.items():
+    for kind, entry in [*TABLE.items(), *COMPOSITE_TABLE.items()]:
         assert (entry.note == "") == (entry.trust == "verified"), kind
+
+
+def test_composite_labels_are_the_documented_ones() -> None:
+    labels = _markdown_rows(_measured(), "| composite | role | children | label |")
+    documented = {(c, role, children): label for c, role, children, label in labels}
+    assert documented == {context: entry.trust for context, entry in COMPOSITE_TABLE.items()}
+
+
+def test_each_composite_label_is_the_weakest_of_its_evidence() -> None:
+    """A row counts for its composites where it is a composite's own parameter or its own kind
+    is verified (a row of a kind known biased says nothing of the composite)."""
+    measured = _measured().split("Composites: each parameter")[1]
+    header = next(line for line in measured.splitlines() if line.startswith("| composites |"))
+    kinds = {kind: entry.trust for kind, entry in TABLE.items()}
+    weakest: dict[tuple[str, ...], str] = {}
+    for cells in _markdown_rows(measured, header):
+        contexts, plugin, ptype, label = cells[0], cells[1], cells[2], cells[-1]
+        if kinds.get((plugin, ptype)) != "verified" and plugin not in COMPOSITES:
+            continue
+        for context in contexts.split(", "):
+            name, role, children = context.replace("(", "").replace(")", "").split()
+            key = (name, role, children)
+            weakest[key] = min(weakest.get(key, "verified"), label, key=WORST_FIRST.index)
+    labels = _markdown_rows(_measured(), "| composite | role | children | label |")
+    assert weakest == {(c, role, children): label for c, role, children, label in labels}
 
 
 # --- the self-checks on plain arrays --------------------------------------------------------
@@ -242,11 +269,14 @@ def test_delta_lobes_take_path_and_get_a_gradient(mixed) -> None:  # noqa: ANN00
         assert labels(result)[key].trust == "verified", labels(result)[key]
 
 
-def test_without_the_path_pass_delta_lobes_get_no_gradient(
-    mixed_job: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.setattr(adjoint, "gradient_integrator", lambda plugin: "prb")
-    _, result = run(mixed_job)
+def test_without_the_path_pass_delta_lobes_get_no_gradient(mixed_job: Path) -> None:
+    job = load_job(mixed_job)
+    loaded = load_job_scene(job)
+    loaded.routes = dict.fromkeys(loaded.routes, "prb")
+    objectives = build_objectives(loaded.mi, job.objectives, (16, 16), False)
+    result = adjoint.run_adjoint(
+        loaded, objectives, spp=16, seed=0, deterministic=True, progress=Progress(quiet=True)
+    )
     eta = labels(result)["mirror.bsdf.eta.value"]
     assert (eta.trust, eta.note) == ("no_gradient", DELTA_LOBE_REASON)
     assert result.provenance["self_checks"]["no_gradient"] == sorted(

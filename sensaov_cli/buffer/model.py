@@ -2,7 +2,7 @@
 
 One reverse-mode pass per objective fills it; every view afterwards is a re-projection of the
 stored buffer, never a second differentiation. The file is a plain ``.npz`` readable with
-``np.load(path, allow_pickle=False)``; its layout (format version 2) is specified in
+``np.load(path, allow_pickle=False)``; its layout (format version 4) is specified in
 ``docs/buffer-format.md``. This module needs numpy only: loading a buffer never imports Mitsuba.
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import math
 import operator
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import InitVar, dataclass, field
 from types import MappingProxyType
 from typing import Any
@@ -27,7 +27,7 @@ from sensaov_cli.errors import (
 from sensaov_cli.vocabulary import TRUSTS, Trust
 
 FORMAT_NAME = "sensaov-buffer"
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 HEADER_MEMBER = "header"
 
 
@@ -36,12 +36,17 @@ def _require(ok: bool, message: str) -> None:
         raise BufferContentError(message)
 
 
+# The checks below run for every parameter on every read (8,000 of them in a large scene):
+# messages are built only when a check fails.
+
+
 def _str_tuple(items: Any, what: str) -> tuple[str, ...]:
-    ok = isinstance(items, Iterable) and not isinstance(items, str)
-    _require(ok, f"{what} must be a sequence of strings, got {items!r}")
-    items = tuple(items)
-    _require(all(isinstance(s, str) for s in items), f"{what} must hold strings only")
-    return items
+    if isinstance(items, Iterable) and not isinstance(items, str):
+        items = tuple(items)
+        if all(isinstance(s, str) for s in items):
+            return items
+        raise BufferContentError(f"{what} must hold strings only")
+    raise BufferContentError(f"{what} must be a sequence of strings, got {items!r}")
 
 
 def _shape(items: Any, what: str) -> tuple[int, ...]:
@@ -51,7 +56,10 @@ def _shape(items: Any, what: str) -> tuple[int, ...]:
         ok = len(dims) == len(items) and all(d >= 0 for d in dims)
     except TypeError:
         ok = False
-    _require(ok, f"{what} must be a sequence of non-negative integers, got {items!r}")
+    if not ok:
+        raise BufferContentError(
+            f"{what} must be a sequence of non-negative integers, got {items!r}"
+        )
     return dims
 
 
@@ -86,10 +94,11 @@ class ParamRecord:
             value = getattr(self, name)
             _require(isinstance(value, str) and value != "", f"parameter {name} must be a string")
         what = f"parameter {self.key!r}"
-        _require(isinstance(self.plugin, str), f"{what}: plugin must be a string")
-        _require(isinstance(self.note, str), f"{what}: note must be a string")
-        _require(isinstance(self.is_texture, bool), f"{what}: is_texture must be a bool")
-        _require(self.trust in TRUSTS, f"{what}: trust {self.trust!r} is not one of {TRUSTS}")
+        for name, kind in (("plugin", str), ("note", str), ("is_texture", bool)):
+            if not isinstance(getattr(self, name), kind):
+                raise BufferContentError(f"{what}: {name} must be a {kind.__name__}")
+        if self.trust not in TRUSTS:
+            raise BufferContentError(f"{what}: trust {self.trust!r} is not one of {TRUSTS}")
         object.__setattr__(self, "owners", _str_tuple(self.owners, f"{what}: owners"))
         object.__setattr__(self, "flags", _str_tuple(self.flags, f"{what}: flags"))
         object.__setattr__(self, "shape", _shape(self.shape, f"{what}: shape"))
@@ -139,28 +148,38 @@ class ObjectiveRecord:
 
 
 def _frozen_array(
-    data: Any, shape: tuple[int, ...], what: str, copy: bool
+    data: Any, shape: tuple[int, ...], what: Callable[[], str], copy: bool, count: bool = True
 ) -> tuple[np.ndarray, int]:
     """A read-only, C-contiguous float32 copy of ``data`` and its count of NaN/inf components.
 
     With ``copy=False`` an array that is already native float32 and C-contiguous is frozen in
-    place; only :meth:`SensitivityBuffer.load` asks for that, for arrays nothing else holds.
+    place; only the reader asks for that, for arrays nothing else holds. With ``count=False``
+    the count is 0: the reader has checked every member it read to be finite already.
+    ``what()`` names the array in a message, built only on failure.
     """
     try:
-        arr = np.asarray(data)
+        arr = data if isinstance(data, np.ndarray) else np.asarray(data)
     except (TypeError, ValueError) as exc:
-        raise BufferContentError(f"{what} is not an array: {exc}") from exc
-    _require(arr.dtype.kind in "fiu", f"{what} has dtype {arr.dtype}; expected real numbers")
-    _require(arr.shape == shape, f"{what} has shape {arr.shape}; the record says {shape}")
+        raise BufferContentError(f"{what()} is not an array: {exc}") from exc
+    if arr.dtype.kind not in "fiu":
+        raise BufferContentError(f"{what()} has dtype {arr.dtype}; expected real numbers")
+    if arr.shape != shape:
+        raise BufferContentError(f"{what()} has shape {arr.shape}; the record says {shape}")
     arr = np.array(arr, dtype=np.float32, order="C", copy=True if copy else None)
     arr.flags.writeable = False
-    return arr, int(arr.size - np.count_nonzero(np.isfinite(arr)))
+    return arr, int(arr.size - np.count_nonzero(np.isfinite(arr))) if count else 0
+
+
+def _named(what: str, record: ParamRecord) -> Callable[[], str]:
+    """``what`` of a parameter, as a message names it (built only when one is needed)."""
+    return lambda: f"{what} of {record.key!r}"
 
 
 def _check_unique(kind: str, names: Sequence[str]) -> None:
     seen: set[str] = set()
     for name in names:
-        _require(name not in seen, f"{kind} {name!r} appears twice")
+        if name in seen:
+            raise BufferContentError(f"{kind} {name!r} appears twice")
         seen.add(name)
 
 
@@ -210,7 +229,10 @@ class SensitivityBuffer:
         known_objects = set(objects)
         for p in self.params:
             unknown = [o for o in p.owners if o not in known_objects]
-            _require(not unknown, f"parameter {p.key!r} is owned by unknown objects {unknown}")
+            if unknown:
+                raise BufferContentError(
+                    f"parameter {p.key!r} is owned by unknown objects {unknown}"
+                )
         set_(self, "_by_key", MappingProxyType({p.key: p for p in self.params}))
         set_(self, "_by_name", MappingProxyType({o.name: o for o in self.objectives}))
         set_(self, "values", MappingProxyType(self._checked_values(self.values, _copy_arrays)))
@@ -232,19 +254,23 @@ class SensitivityBuffer:
             given = statistics.stderr[name]
             _check_no_extra(f"standard errors of {name!r}", given, self._by_key)
             for p in self.params:
-                _require(p.key in given, f"objective {name!r} has no standard error for {p.key!r}")
-                arr, bad = _frozen_array(
-                    given[p.key], p.shape, f"standard error of {p.key!r}", False
-                )
-                _require(bad == 0 and bool((arr >= 0).all()), f"bad standard error of {p.key!r}")
+                if p.key not in given:
+                    raise BufferContentError(
+                        f"objective {name!r} has no standard error for {p.key!r}"
+                    )
+                arr, bad = _frozen_array(given[p.key], p.shape, _named("standard error", p), False)
+                if bad or not (arr >= 0).all():
+                    raise BufferContentError(f"bad standard error of {p.key!r}")
 
     def _checked_values(self, values: Mapping[str, Any], copy: bool) -> dict[str, np.ndarray]:
         _check_no_extra("values", values, self._by_key)
         checked = {}
         for p in self.params:
-            _require(p.key in values, f"parameter {p.key!r} has no value")
-            arr, bad = _frozen_array(values[p.key], p.shape, f"value of {p.key!r}", copy)
-            _require(bad == 0, f"value of {p.key!r} has {bad} components NaN or infinite")
+            if p.key not in values:
+                raise BufferContentError(f"parameter {p.key!r} has no value")
+            arr, bad = _frozen_array(values[p.key], p.shape, _named("value", p), copy, copy)
+            if bad:
+                raise BufferContentError(f"value of {p.key!r} has {bad} components NaN or infinite")
             checked[p.key] = arr
         return checked
 
@@ -257,9 +283,10 @@ class SensitivityBuffer:
             _check_no_extra(f"gradients of {o.name!r}", given, self._by_key)
             per_key = {}
             for p in self.params:
-                _require(p.key in given, f"objective {o.name!r} has no gradient for {p.key!r}")
-                what = f"gradient of {o.name!r} for {p.key!r}"
-                arr, bad = _frozen_array(given[p.key], p.shape, what, copy)
+                if p.key not in given:
+                    raise BufferContentError(f"objective {o.name!r} has no gradient for {p.key!r}")
+                what = _named(f"gradient of {o.name!r}", p)
+                arr, bad = _frozen_array(given[p.key], p.shape, what, copy, copy)
                 if bad:
                     raise NonFiniteGradientError(o.name, p.key, bad, arr.size)
                 per_key[p.key] = arr

@@ -1,8 +1,13 @@
-"""The buffer's file format (version 3): a plain ``.npz`` of one JSON header and numbered arrays.
+"""The buffer's file format (version 4): a plain ``.npz`` of one JSON header and its arrays.
 
-Specified in ``docs/buffer-format.md``. Kept apart from the container so that the format, its
-validation and its error messages can be read in one place. Version 2 files (no statistics) and
-version 1 files (a boolean ``verified`` per parameter instead of the ``trust`` label) are read.
+Specified in ``docs/buffer-format.md``. Kept apart from the container (archive.py) so that the
+format, its validation and its error messages can be read in one place. Per version:
+
+- 4 (written): the header's ``storage`` says where each array is: parameters that are not
+  textures packed into one array per objective, each distinct texture array once, all-zero
+  texture gradients not stored (layouts.py);
+- 3: one member per parameter and objective (``value_…``, ``grad_…``), ``statistics``;
+- 2: no statistics; 1: a boolean ``verified`` per parameter instead of the ``trust`` label.
 """
 
 from __future__ import annotations
@@ -20,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from sensaov_cli.buffer.archive import Archive, ArchiveError, archive_writer
+from sensaov_cli.buffer.layouts import LayoutError, pack, per_parameter, unpack
 from sensaov_cli.buffer.model import (
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -41,19 +48,6 @@ def buffer_writer(buffer: SensitivityBuffer) -> Callable[[Path], None]:
     return archive_writer(_members(buffer))
 
 
-def archive_writer(members: dict[str, np.ndarray]) -> Callable[[Path], None]:
-    """A function writing named arrays as an .npz (the buffer's and its sidecars' container)."""
-
-    def write(tmp: Path) -> None:
-        # What np.savez does, spelled out: stored (uncompressed) members, no pickles, zip64.
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
-            for name, arr in members.items():
-                with zf.open(f"{name}.npy", "w", force_zip64=True) as out:
-                    np.lib.format.write_array(out, arr, allow_pickle=False)
-
-    return write
-
-
 def read_buffer(path: Path | str) -> SensitivityBuffer:
     """Read a buffer; any unreadable or inconsistent file raises BufferFormatError."""
     return _load(Path(path))[0]
@@ -65,6 +59,12 @@ def read_buffer_versioned(path: Path) -> tuple[SensitivityBuffer, int]:
 
 
 def _members(buffer: SensitivityBuffer) -> dict[str, np.ndarray]:
+    statistics = buffer.statistics
+    names = [o.name for o in buffer.objectives]
+    storage, arrays = pack(
+        buffer.params, names, buffer.values, buffer.grads,
+        statistics.stderr if statistics is not None else None,
+    )  # fmt: skip
     header = {
         "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
@@ -72,18 +72,13 @@ def _members(buffer: SensitivityBuffer) -> dict[str, np.ndarray]:
         "objects": list(buffer.objects),
         "params": [_param_json(p, i) for i, p in enumerate(buffer.params)],
         "objectives": [_objective_json(o, j) for j, o in enumerate(buffer.objectives)],
-        "statistics": _statistics_json(buffer.statistics),
+        "statistics": _statistics_json(statistics),
+        "storage": storage,  # version 4: where each array is (layouts.py)
     }
-    members = {HEADER_MEMBER: np.array(json.dumps(header, allow_nan=False))}
-    for i, p in enumerate(buffer.params):
-        members[value_member(i)] = buffer.values[p.key]
-        for j, o in enumerate(buffer.objectives):
-            members[grad_member(j, i)] = buffer.grads[o.name][p.key]
-    if buffer.statistics is not None:
-        for j, o in enumerate(buffer.objectives):
-            members[batch_sums_member(j)] = buffer.statistics.batch_sums[o.name]
-            for i, p in enumerate(buffer.params):
-                members[stderr_member(j, i)] = buffer.statistics.stderr[o.name][p.key]
+    members = {HEADER_MEMBER: np.array(json.dumps(header, allow_nan=False))} | arrays
+    for j, name in enumerate(names):
+        if statistics is not None:
+            members[batch_sums_member(j)] = statistics.batch_sums[name]
     return members
 
 
@@ -98,21 +93,6 @@ def _statistics_json(statistics: Statistics | None) -> dict[str, Any] | None:
     }
 
 
-def value_member(param_index: int) -> str:
-    """The npz member holding the value of parameter number ``param_index``."""
-    return f"value_{param_index:06d}"
-
-
-def grad_member(objective_index: int, param_index: int) -> str:
-    """The npz member holding d(objective)/d(parameter) for the given header indices."""
-    return f"grad_{objective_index:03d}_{param_index:06d}"
-
-
-def stderr_member(objective_index: int, param_index: int) -> str:
-    """The npz member holding the standard error of a gradient (version 3, with statistics)."""
-    return f"stderr_{objective_index:03d}_{param_index:06d}"
-
-
 def batch_sums_member(objective_index: int) -> str:
     """The npz member holding an objective's per-parameter batch scalars (P, k, 4) float64."""
     return f"batchsums_{objective_index:03d}"
@@ -122,7 +102,7 @@ _PARAM_FIELDS = tuple(f.name for f in fields(ParamRecord))
 _OBJECTIVE_FIELDS = tuple(f.name for f in fields(ObjectiveRecord))
 # Version 1 stored a boolean "verified" where version 2 stores the "trust" label.
 _V1_PARAM_FIELDS = tuple("verified" if name == "trust" else name for name in _PARAM_FIELDS)
-_READABLE_VERSIONS = (1, 2, FORMAT_VERSION)
+_READABLE_VERSIONS = (1, 2, 3, FORMAT_VERSION)
 
 
 def _param_json(p: ParamRecord, index: int) -> dict[str, Any]:
@@ -155,9 +135,13 @@ def _load(path: Path) -> tuple[SensitivityBuffer, int]:
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):  # a FIFO would block, a device never end
             raise _Malformed("not a regular file", _FOREIGN)
-        _require_zip(path)
-        with np.load(path, allow_pickle=False) as npz:
-            return _read_npz(npz)
+        data = path.read_bytes()
+        _require_zip(data)
+        return _read_archive(Archive(data))
+    except (ArchiveError, LayoutError) as exc:
+        raise BufferFormatError(
+            f"inconsistent buffer: {exc}", where=str(path), hint=_REGENERATE
+        ) from exc
     except _Malformed as exc:
         raise BufferFormatError(str(exc), where=str(path), hint=exc.hint) from exc
     except SensaovError as exc:  # the arrays read, but construction found them inconsistent
@@ -176,43 +160,47 @@ def _load(path: Path) -> tuple[SensitivityBuffer, int]:
         ) from exc
 
 
-def _require_zip(path: Path) -> None:
-    with open(path, "rb") as f:
-        magic = f.read(4)
+def _require_zip(data: bytes) -> None:
+    magic = data[:4]
     if not magic:
         raise _Malformed("not a sensaov buffer: the file is empty", _FOREIGN)
     if magic not in _ZIP_MAGICS:
         raise _Malformed("not a sensaov buffer: not an .npz (zip) archive", _FOREIGN)
 
 
-def _read_npz(npz: Any) -> tuple[SensitivityBuffer, int]:
-    names = [name.removesuffix(".npy") for name in npz.zip.namelist()]
-    duplicates = sorted({name for name in names if names.count(name) > 1})
-    if duplicates:  # np.load would silently read one of them
-        raise _Malformed(f"inconsistent buffer: archive members appear twice: {duplicates[:5]}")
-    members = set(npz.files)
+def _read_archive(archive: Archive) -> tuple[SensitivityBuffer, int]:
+    members = set(archive.members)
     if HEADER_MEMBER not in members:
         raise _Malformed(f"not a sensaov buffer: the archive has no {HEADER_MEMBER!r}", _FOREIGN)
-    _declared(npz, HEADER_MEMBER, None)  # a header claiming gigabytes is not read
-    header = _read_header(npz[HEADER_MEMBER])
+    _declared(archive, HEADER_MEMBER, None)  # a header claiming gigabytes is not read
+    header = _read_header(archive.array(HEADER_MEMBER))
     version = header["format_version"]
     params = [_param_from_json(entry, i, version) for i, entry in enumerate(header["params"])]
     objectives = [_objective_from_json(e, j) for j, e in enumerate(header["objectives"])]
-    statistics = header.get("statistics")
-    expected = {HEADER_MEMBER} | {value_member(i) for i in range(len(params))}
-    expected |= {grad_member(j, i) for j in range(len(objectives)) for i in range(len(params))}
-    if statistics is not None:
+    entry = header.get("statistics")
+
+    def array(name: str, shape: tuple[int, ...]) -> np.ndarray:
+        if name not in members:
+            raise _Malformed(f"inconsistent buffer: missing array {name!r}")
+        _declared(archive, name, shape)
+        arr = archive.array(name)
+        if arr.dtype.kind != "f" or arr.dtype.itemsize != 4:
+            raise _Malformed(f"inconsistent buffer: array {name!r} is {arr.dtype}, not float32")
+        if not np.isfinite(arr).all():  # once per member: the model does not count again
+            raise _Malformed(f"inconsistent buffer: array {name!r} holds NaN or infinity")
+        return arr
+
+    names = [o.name for o in objectives]
+    if version >= 4:
+        layout = unpack(header["storage"], params, names, entry is not None, array)
+    else:
+        layout = per_parameter(params, names, entry is not None, array)
+    values, grads, stderr, used = layout
+    expected = {HEADER_MEMBER} | used
+    if entry is not None:
         expected |= {batch_sums_member(j) for j in range(len(objectives))}
-        expected |= {
-            stderr_member(j, i) for j in range(len(objectives)) for i in range(len(params))
-        }
-    if members != expected or len(names) != len(members):
+    if members != expected:
         raise _Malformed(f"inconsistent buffer: {_differences('arrays', expected, members)}")
-    values = {p.key: _read_array(npz, value_member(i), p) for i, p in enumerate(params)}
-    grads = {
-        o.name: {p.key: _read_array(npz, grad_member(j, i), p) for i, p in enumerate(params)}
-        for j, o in enumerate(objectives)
-    }
     buffer = SensitivityBuffer(
         provenance=header["provenance"],
         objects=tuple(header["objects"]),
@@ -220,14 +208,18 @@ def _read_npz(npz: Any) -> tuple[SensitivityBuffer, int]:
         objectives=tuple(objectives),
         values=values,
         grads=grads,
-        statistics=_read_statistics(npz, statistics, params, objectives),
-        _copy_arrays=False,  # fresh arrays from read_array: freezing them in place halves the peak
+        statistics=_read_statistics(archive, entry, params, objectives, stderr),
+        _copy_arrays=False,  # views of the file's bytes, read once: frozen in place
     )
     return buffer, version
 
 
 def _read_statistics(
-    npz: Any, entry: Any, params: list[ParamRecord], objectives: list[ObjectiveRecord]
+    archive: Archive,
+    entry: Any,
+    params: list[ParamRecord],
+    objectives: list[ObjectiveRecord],
+    stderr: Any,
 ) -> Statistics | None:
     if entry is None:
         return None
@@ -244,8 +236,10 @@ def _read_statistics(
         raise _Malformed("malformed header: statistics.objective_values must map to number lists")
     sums = {}
     for j, o in enumerate(objectives):
-        _declared(npz, batch_sums_member(j), (len(params), len(entry["spp"]), 4))
-        arr = npz[batch_sums_member(j)]
+        if batch_sums_member(j) not in archive.members:
+            raise _Malformed(f"inconsistent buffer: missing array {batch_sums_member(j)!r}")
+        _declared(archive, batch_sums_member(j), (len(params), len(entry["spp"]), 4))
+        arr = archive.array(batch_sums_member(j))
         if arr.dtype != np.float64:
             raise _Malformed(f"inconsistent buffer: {batch_sums_member(j)!r} is not float64")
         sums[o.name] = arr
@@ -254,10 +248,7 @@ def _read_statistics(
         spp=tuple(entry["spp"]),
         seeds=tuple(entry["seeds"]),
         objective_values={k: tuple(float(x) for x in v) for k, v in values.items()},
-        stderr={
-            o.name: {p.key: _read_array(npz, stderr_member(j, i), p) for i, p in enumerate(params)}
-            for j, o in enumerate(objectives)
-        },
+        stderr=stderr,
         batch_sums=sums,
     )
 
@@ -271,13 +262,18 @@ def _is_number(value: Any) -> bool:
 
 
 def _differences(kind: str, expected: set[str], found: set[str]) -> str:
-    missing, extra = sorted(expected - found), sorted(found - expected)
+    """What is missing and what is extra: counts, and the first few names (a message of a
+    forged archive stays one short line)."""
     parts = []
-    if missing:
-        parts.append(f"missing {kind} {missing}")
-    if extra:
-        parts.append(f"unknown {kind} {extra}")
+    for what, names in (("missing", expected - found), ("unknown", found - expected)):
+        if names:
+            shown = sorted(names)[:_SHOWN_NAMES]
+            more = f" and {len(names) - len(shown)} more" if len(names) > len(shown) else ""
+            parts.append(f"{what} {kind} {shown}{more}")
     return ", ".join(parts)
+
+
+_SHOWN_NAMES = 5
 
 
 def _read_header(member: np.ndarray) -> dict[str, Any]:
@@ -302,10 +298,11 @@ def _read_header(member: np.ndarray) -> dict[str, Any]:
         if not isinstance(header.get(name), kind):
             raise _Malformed(f"malformed header: {name!r} must be a JSON {kind.__name__}")
     allowed = set(kinds) | {"format", "format_version"}
-    if version >= 3:  # "statistics" (null or an object) is required from version 3 on
-        if "statistics" not in header:
-            raise _Malformed("malformed header: missing field 'statistics'")
-        allowed.add("statistics")
+    for field, since in (("statistics", 3), ("storage", 4)):  # required from their version on
+        if version >= since:
+            if field not in header:
+                raise _Malformed(f"malformed header: missing field {field!r}")
+            allowed.add(field)
     extra = sorted(set(header) - allowed)
     if extra:  # no version allows others (docs/buffer-format.md)
         raise _Malformed(f"malformed header: unknown field(s) {', '.join(map(repr, extra))}")
@@ -342,15 +339,10 @@ def _objective_from_json(entry: Any, index: int) -> ObjectiveRecord:
 _MAX_HEADER_BYTES = 1 << 28
 
 
-def _declared(npz: Any, name: str, shape: tuple[int, ...] | None) -> None:
+def _declared(archive: Archive, name: str, shape: tuple[int, ...] | None) -> None:
     """Check a member's npy header before reading it: its declared shape (for an array) or
     its declared size (for the header), so a forged size cannot allocate memory."""
-    with npz.zip.open(f"{name}.npy") as stream:
-        version = np.lib.format.read_magic(stream)
-        if version == (1, 0):
-            declared, _, dtype = np.lib.format.read_array_header_1_0(stream)
-        else:
-            declared, _, dtype = np.lib.format.read_array_header_2_0(stream)
+    declared, dtype = archive.declared(name)
     if shape is None:
         if dtype.itemsize * int(np.prod(declared)) > _MAX_HEADER_BYTES:
             raise _Malformed(f"inconsistent buffer: {name!r} declares {dtype.itemsize} bytes")
@@ -359,17 +351,3 @@ def _declared(npz: Any, name: str, shape: tuple[int, ...] | None) -> None:
             f"inconsistent buffer: array {name!r} has shape {tuple(declared)}, its record "
             f"declares {shape}"
         )
-
-
-def _read_array(npz: Any, name: str, record: ParamRecord) -> np.ndarray:
-    _declared(npz, name, record.shape)
-    arr = npz[name]
-    if not isinstance(arr, np.ndarray) or arr.dtype.kind != "f" or arr.dtype.itemsize != 4:
-        found = getattr(arr, "dtype", type(arr).__name__)
-        raise _Malformed(f"inconsistent buffer: array {name!r} is {found}, not float32")
-    if arr.shape != record.shape:
-        raise _Malformed(
-            f"inconsistent buffer: array {name!r} has shape {arr.shape}, {record.key!r} "
-            f"declares {record.shape}"
-        )
-    return arr

@@ -213,8 +213,9 @@ def _os_failure(err: OSError) -> tuple[str, int] | None:
     return f"{where}cannot write or read: {what}{hint}", code
 
 
-def _reported(err: BaseException) -> tuple[str, int]:
-    """The one line and the exit code of a failure; "internal error" is left for bugs."""
+def _reported(err: BaseException, verbose: int = 0) -> tuple[str, int]:
+    """The one line and the exit code of a failure; "internal error" is left for bugs (with a
+    hint to ask for the traceback, unless it was asked for and printed above)."""
     if isinstance(err, SensaovError):
         return str(err), err.exit_code
     if isinstance(err, MemoryError):
@@ -223,9 +224,9 @@ def _reported(err: BaseException) -> tuple[str, int]:
     if known is not None:
         return known
     detail = str(err).strip().splitlines()
+    hint = "" if verbose >= 2 else " (run with -vv for the traceback)"
     return (
-        f"internal error: {type(err).__name__}: {detail[-1] if detail else ''} "
-        "(run with -vv for the traceback)",
+        f"internal error: {type(err).__name__}: {detail[-1] if detail else ''}{hint}",
         EXIT_JOB_FAILED,
     )
 
@@ -313,6 +314,6 @@ def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
                 _stopped(earlier)
             if verbose >= 2:
                 traceback.print_exc()
-            _fail(*_reported(err), earlier)
+            _fail(*_reported(err, verbose), earlier)
 
     return wrapper

@@ -81,7 +81,8 @@ class ParameterInventory:
     excluded: tuple[ExcludedParam, ...]
     split: dict[str, tuple[str, ...]]
     textures: dict[str, TextureSource]
-    changes: tuple[tuple[str, str, str], ...]  # what sensaov changed in the scene: what, why, where
+    # what sensaov changed in the scene: what, why, where, and whether it alters the image
+    changes: tuple[tuple[str, str, str, bool], ...]
 
 
 def params_dict(loaded: ParameterInventory) -> dict[str, Any]:
@@ -95,7 +96,8 @@ def params_dict(loaded: ParameterInventory) -> dict[str, Any]:
         "excluded": [asdict(item) for item in loaded.excluded],
         "split_bsdfs": {name: list(shapes) for name, shapes in loaded.split.items()},
         "scene_changes": [
-            {"what": what, "why": why, "where": where} for what, why, where in loaded.changes
+            {"what": what, "why": why, "where": where, "alters_image": alters}
+            for what, why, where, alters in loaded.changes
         ],
     }
 
@@ -173,8 +175,11 @@ def _changes(loaded: ParameterInventory) -> list[str]:
     if not loaded.changes:
         return []
     lines = ["", "what sensaov changed in the scene before loading it (your files are untouched):"]
-    for what, why, where in loaded.changes:
-        lines.append(f"  - {what}{f' ({where})' if where else ''}: {why}")
+    for what, why, where, alters in loaded.changes:
+        mark = "!" if alters else "-"  # M is measured on another image than the scene's
+        lines.append(f"  {mark} {what}{f' ({where})' if where else ''}: {why}")
+    if any(alters for *_, alters in loaded.changes):
+        lines.append("  (!: the image differentiated is not the one the scene renders)")
     return lines
 
 

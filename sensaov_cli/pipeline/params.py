@@ -19,5 +19,5 @@ def parameter_inventory(job: JobSpec) -> ParameterInventory:
         excluded=loaded.excluded,
         split=prepared.split,
         textures=loaded.textures,
-        changes=tuple((c.what, c.why, c.where) for c in prepared.changes),
+        changes=tuple((c.what, c.why, c.where, c.alters_image) for c in prepared.changes),
     )

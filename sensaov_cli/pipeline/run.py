@@ -25,10 +25,11 @@ from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.pipeline.run_forward import forward_bound, plan_forward, run_forward
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, batch_plan, integrator_plan, run_adjoint
+from sensaov_cli.render.image_effect import ImageEffect, depth_effect
 from sensaov_cli.render.loading import LoadedScene, load_scene, refuse_non_finite
 from sensaov_cli.render.memory import check_render
-from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.scene import prepare_scene
+from sensaov_cli.render.objectives import Objective, build_objectives
+from sensaov_cli.render.scene import PreparedScene, prepare_scene
 from sensaov_cli.spec.job import JobSpec
 
 BUFFER_NAME = "buffer.npz"
@@ -101,7 +102,7 @@ def run_job(
         progress.note(
             f"the scene's '{prepared.replaced_integrator}' integrator renders other light "
             f"transport than the path replay sensaov differentiates (full paths up to "
-            f"max_depth {job.render.max_depth}): M is measured on that image"
+            f"max_depth {_depth(prepared.integration.max_depth)}): M is measured on that image"
         )
     scene_spp = prepared.sample_count
     if scene_spp is not None and scene_spp != job.render.spp:
@@ -132,7 +133,9 @@ def run_job(
     # Every pass counts: a transport channel's top objects are only known after the backward
     # passes, so its passes are planned at their most and the ones not needed skipped then.
     planned_forward = forward_bound(job, len(objectives)) if forward_wanted else 0
-    progress.plan(batches * (1 + passes) + planned_forward + 1)
+    measured = prepared.integration.scene_image is not None  # the depth effect's pass
+    progress.plan(batches * (1 + passes) + planned_forward + 1 + measured)
+    effects = _note_depth_effect(prepared, loaded, objectives, job.render.seed, progress)
     result = run_adjoint(
         loaded,
         objectives,
@@ -144,6 +147,7 @@ def run_job(
     )
     provenance = _provenance(whole, loaded, result, progress.timings, time.perf_counter() - started)
     provenance["task"] = task.describe()
+    provenance["image_effects"] = [asdict(effect) for effect in effects]
     buffer = _make_buffer(job, loaded, result, provenance)
     forward = None
     if forward_wanted:
@@ -177,6 +181,36 @@ def _check_memory(job: JobSpec, width: int, height: int) -> None:
         setting=f"render.spp = {job.render.spp} at {width}x{height}",
         where=str(job.path),
     )
+
+
+def _depth(depth: int) -> str:
+    return "unbounded" if depth < 0 else str(depth)
+
+
+def _note_depth_effect(
+    prepared: PreparedScene,
+    loaded: LoadedScene,
+    objectives: list[Objective],
+    seed: int,
+    progress: Progress,
+) -> list[ImageEffect]:
+    """Warn that the job's max_depth changes the scene's image, by how much M changes."""
+    plan = prepared.integration
+    if plan.scene_image is None:
+        return []
+    with progress.stage("depth_effect_s", "measuring what the job's max_depth changes"):
+        effects = depth_effect(loaded, objectives, plan.scene_image, seed)
+    figures = ", ".join(
+        f"{e.objective!r} {e.value:.4g} against {e.scene_value:.4g} ({e.relative:+.1%})"
+        for e in effects
+    )
+    progress.note(
+        f"the job's render.max_depth {_depth(plan.max_depth)} replaces the scene's "
+        f"{_depth(plan.scene_max_depth)}: M is measured on another image than the scene "
+        f"renders ({figures} at {effects[0].spp if effects else 0} spp, one seed); leave "
+        "max_depth out of the job to differentiate the scene's own image"
+    )
+    return effects
 
 
 def _make_buffer(
@@ -280,7 +314,8 @@ def _provenance(
         "scene_integrator_replaced": loaded.prepared.replaced_integrator,
         "scene_changes": [asdict(change) for change in loaded.prepared.changes],
         **result.provenance,  # which integrator differentiated what; the self-checks' figures
-        "max_depth": job.render.max_depth,
+        "max_depth": loaded.prepared.integration.max_depth,  # -1: unbounded
+        "scene_max_depth": loaded.prepared.integration.scene_max_depth,
         "spp": result.spp,  # this task's: a shard renders its share of render.spp
         "job_spp": job.render.spp,
         "primal_seed": result.provenance["batches"][0]["seed"],

@@ -194,7 +194,7 @@ def _provenance(job: JobSpec, runner: _Passes) -> dict[str, object]:
         **made_by(" ".join(sys.argv)),
         "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "spp": job.render.spp,
-        "max_depth": job.render.max_depth,
+        "max_depth": runner.loaded.prepared.integration.max_depth,
         "backward_s": runner.backward_s,
         "forward_s": [round(p.seconds, 4) for p in runner.passes],
     }

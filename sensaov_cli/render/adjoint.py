@@ -6,7 +6,8 @@ from the primal seed so that, for objectives that are non-linear in the image, t
 noise is independent of the primal's (an unbiased product of two estimates).
 
 prb cannot differentiate smooth (delta) BSDF lobes: their parameters take a second backward
-pass of Mitsuba's ``path`` integrator (``trust.gradient_integrator``), with gradients enabled
+pass of Mitsuba's ``path`` integrator (``loaded.routes``, from ``trust.gradient_integrator``:
+smooth BSDFs and composites with a smooth lobe), with gradients enabled
 on those parameters only, its samples split into chunks that bound its memory. After the
 passes, :mod:`~sensaov_cli.render.selfcheck` labels what the gradients themselves show to be
 wrong (docs/verification.md).
@@ -28,7 +29,6 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
 from sensaov_cli.render.selfcheck import self_check
-from sensaov_cli.render.trust import gradient_integrator
 
 SEED_STRIDE = 0x9E3779B1  # golden-ratio stride: distinct, reproducible seeds per objective
 # Mitsuba's path integrator differentiates by recording the whole render in the AD graph:
@@ -129,7 +129,7 @@ def integrator_plan(loaded: LoadedScene) -> dict[str, set[str]]:
     """Integrator name -> the selected keys it differentiates (prb first); empty ones left out."""
     plan: dict[str, set[str]] = {"prb": set(), "path": set()}
     for info in loaded.selected:
-        plan[gradient_integrator(info.plugin)].add(info.key)
+        plan[loaded.routes[info.key]].add(info.key)
     return {name: keys for name, keys in plan.items() if keys}
 
 

@@ -33,7 +33,6 @@ from sensaov_cli.render.adjoint import (
 from sensaov_cli.render.forward import adjoint_images, forward_image
 from sensaov_cli.render.loading import LoadedScene, assign
 from sensaov_cli.render.objectives import Objective
-from sensaov_cli.render.trust import gradient_integrator
 from sensaov_cli.vocabulary import Trust
 
 # Same-seed central differences with ε = 1e-2 · max(1, |θ|): their curvature error is
@@ -170,7 +169,7 @@ def _image_difference(
 
 def image_like_backward(loaded: LoadedScene, info: ParamRecord, spp: int, seed: int) -> np.ndarray:
     """The image the backward pass of ``info`` at ``seed`` replays (path: its chunks)."""
-    if gradient_integrator(info.plugin) == "prb":
+    if loaded.routes[info.key] == "prb":
         return np.array(render_primal(loaded, spp, seed), np.float32)
     path = path_integrator(loaded)
     width, height = loaded.resolution

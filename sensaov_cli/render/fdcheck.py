@@ -30,7 +30,6 @@ from sensaov_cli.render.adjoint import (
 )
 from sensaov_cli.render.loading import LoadedScene, assign
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-from sensaov_cli.render.trust import gradient_integrator
 from sensaov_cli.vocabulary import Trust
 
 RELATIVE_TOLERANCE = 0.05  # agreement of the means, relative to the finite difference
@@ -97,7 +96,7 @@ def adjoint_along(
 ) -> float:
     """<dM/dθ, v> from a primal and a backward pass at ``seed``, as a run computes it."""
     _, adjoint_image = value_and_adjoint(loaded.mi, objective, render_primal(loaded, spp, seed))
-    integrator = gradient_integrator(info.plugin)
+    integrator = loaded.routes[info.key]
     grads = backward_pass(loaded, integrator, {info.key}, adjoint_image, spp, seed)
     return float((grads[info.key] * v).sum())
 
@@ -106,7 +105,7 @@ def objective_like_backward(
     loaded: LoadedScene, objective: Objective, info: ParamRecord, spp: int, seed: int
 ) -> float:
     """M rendered with the samples the backward pass of ``info`` at ``seed`` uses."""
-    if gradient_integrator(info.plugin) == "prb":
+    if loaded.routes[info.key] == "prb":
         image = render_primal(loaded, spp, seed)
     else:  # path's chunks, each its share of spp (adjoint._path_backward)
         path = path_integrator(loaded)

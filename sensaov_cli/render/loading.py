@@ -21,6 +21,7 @@ from sensaov_cli.errors import SceneError
 from sensaov_cli.render.runtime import import_mitsuba
 from sensaov_cli.render.scene import PreparedScene, prepare_scene
 from sensaov_cli.render.selection import ownership_of, select
+from sensaov_cli.render.trust import Context
 from sensaov_cli.spec.job import CameraSpec, JobSpec, ParameterSpec
 
 
@@ -37,6 +38,8 @@ class LoadedScene:
     selected: tuple[ParamRecord, ...]  # exactly the records the buffer stores
     excluded: tuple[ExcludedParam, ...]
     textures: dict[str, TextureSource]  # texture parameter key -> its bitmap file
+    routes: dict[str, str]  # key -> "prb" (the scene's replay) or "path" (trust.py)
+    contexts: dict[str, tuple[Context, ...]]  # key -> the composite BSDFs it sits in (trust.py)
     objects: tuple[str, ...]
     resolution: tuple[int, int]
     inspection_sensors: dict[str, Any]  # inspection camera name -> its own sensor
@@ -66,7 +69,8 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
     ownership = ownership_of(mi, scene, prepared.instances)
     params = mi.traverse(scene)
     sources = {Path(name).name: prepared.path.parent / name for name in prepared.bitmap_files}
-    selected, excluded, textures = select(mi, parameters, params, ownership, sources)
+    media = None if prepared.integrator == "prbvolpath" else prepared.scene_integrator
+    selection = select(mi, parameters, params, ownership, sources, media)
     size = sensor.film().crop_size()
     return LoadedScene(
         mi=mi,
@@ -75,9 +79,11 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
         sensor=sensor,
         integrator=scene.integrator(),
         variant=mi.variant(),
-        selected=selected,
-        excluded=excluded,
-        textures=textures,
+        selected=selection.selected,
+        excluded=selection.excluded,
+        textures=selection.textures,
+        routes=selection.routes,
+        contexts=selection.contexts,
         objects=ownership.objects,
         resolution=(int(size[0]), int(size[1])),
         inspection_sensors={name: sensors[sid] for name, sid in prepared.inspection_ids.items()},

@@ -19,13 +19,23 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
-from sensaov_cli.render.trust import verification_status
+from sensaov_cli.render.trust import (
+    COMPOSITES,
+    WEAKEST_FIRST,
+    Context,
+    composite_status,
+    gradient_integrator,
+    verification_status,
+)
 from sensaov_cli.spec.job import ParameterSpec
+from sensaov_cli.vocabulary import Trust
 
 # The slot a parameter fills, whatever its storage ("white.reflectance.value" and
 # "wall.bsdf.reflectance.data" are both reflectance): the paper's horizontal cut.
 TYPE_ALIASES = {
     "alpha": "roughness",
+    "nested_texture": "bump",  # a bumpmap's height map
+    "normalmap": "normal",  # a normalmap's normals
     "alpha_u": "roughness",
     "alpha_v": "roughness",
     "diffuse_reflectance": "reflectance",
@@ -62,8 +72,32 @@ PLUGIN_NAMES = {
     "ConstantBackgroundEmitter": "constant",
     "EnvironmentMapEmitter": "envmap",
     "DirectionalEmitter": "directional",
+    "DirectionalArea": "directionalarea",
+    "Projector": "projector",
+    "SunskyEmitter": "sunsky",
+    "TimedSunskyEmitter": "timed_sunsky",
+    "TwoSidedBRDF": "twosided",
+    "BumpMap": "bumpmap",
+    "NormalMap": "normalmap",
+    "PolarizedPlastic": "pplastic",
+    "HomogeneousMedium": "homogeneous",
+    "HeterogeneousMedium": "heterogeneous",
+    "HGPhaseFunction": "hg",
+    "IsotropicPhaseFunction": "isotropic",
+    "RayleighPhaseFunction": "rayleigh",
 }
 GEOMETRY_FIELDS = ("to_world", "position", "direction", "faces")
+
+
+@dataclass(frozen=True)
+class Selection:
+    """What :func:`select` found: the records the buffer stores and what was left out."""
+
+    selected: tuple[ParamRecord, ...]
+    excluded: tuple[ExcludedParam, ...]
+    textures: dict[str, TextureSource]  # texture parameter key -> its bitmap file
+    routes: dict[str, str]  # key -> the integrator whose backward pass differentiates it
+    contexts: dict[str, tuple[Context, ...]]  # key -> the composites its gradient passes
 
 
 @dataclass(frozen=True)
@@ -123,22 +157,37 @@ def select(
     params: Any,
     ownership: Ownership,
     sources: dict[str, Path],
-) -> tuple[tuple[ParamRecord, ...], tuple[ExcludedParam, ...], dict[str, TextureSource]]:
-    selected, excluded, textures = [], [], {}
+    media: str | None = None,
+) -> Selection:
+    """The selected records, the parameters left out and why, the bitmap behind each texture
+    and the integrator each is differentiated by. ``media``: None where the scene's integrator
+    renders media, else that integrator (its media are not in the image, so their parameters
+    are left out)."""
+    selected, excluded, textures, routes, composition = [], [], {}, {}, {}
+    children = _bsdf_children(mi, params.hierarchy)
     for key in params.keys():
         _, _, node, flags = params.properties[key]
-        reason = _exclusion_reason(mi, parameters, key, params[key], node, flags)
+        try:
+            value = params[key]
+        except Exception as exc:  # noqa: BLE001 - Mitsuba's own read fails (hair's unset sigma_a)
+            excluded.append(ExcludedParam(key, f"Mitsuba cannot read its value ({exc!s:.80})"))
+            continue
+        reason = _exclusion_reason(mi, parameters, key, value, node, flags)
+        if reason is None and media is not None and _in_medium(mi, node, params.hierarchy):
+            reason = f"medium parameter: the scene's '{media}' integrator renders no media"
         owners = ownership.of(node) if reason is None else ()
         if reason is None and not owners:
             reason = "owned by no object in the scene"
         if reason is None:
-            record = _describe(mi, key, params, owners)
+            record, contexts = _describe(mi, key, params, owners, children)
             selected.append(record)
+            routes[key] = gradient_integrator(record.plugin, contexts)
+            composition[key] = contexts
             if record.is_texture:
                 textures[key] = _texture_source(mi, params.properties[key][2], sources)
         else:
             excluded.append(ExcludedParam(key, reason))
-    return tuple(selected), tuple(excluded), textures
+    return Selection(tuple(selected), tuple(excluded), textures, routes, composition)
 
 
 def _explicitly_included(key: str, include: tuple[str, ...]) -> bool:
@@ -156,6 +205,8 @@ def _exclusion_reason(
 
     if flags & int(mi.ParamFlags.NonDifferentiable):
         return "not differentiable (Mitsuba flags it NonDifferentiable)"
+    if flags & int(mi.ParamFlags.ReadOnly):
+        return "read-only (Mitsuba flags it ReadOnly: it is computed from other parameters)"
     if not (dr.is_array_v(value) and dr.is_diff_v(value) and dr.is_float_v(value)):
         return "not a differentiable floating-point value"
     if isinstance(node, mi.Sensor | mi.Film | mi.Sampler):
@@ -174,7 +225,13 @@ def _exclusion_reason(
     return None
 
 
-def _describe(mi: ModuleType, key: str, params: Any, owners: tuple[str, ...]) -> ParamRecord:
+def _describe(
+    mi: ModuleType,
+    key: str,
+    params: Any,
+    owners: tuple[str, ...],
+    children: dict[int, list[Any]],
+) -> tuple[ParamRecord, tuple[Context, ...]]:
     _, _, node, flags = params.properties[key]
     parts = key.split(".")
     is_texture_node = isinstance(node, mi.Texture)
@@ -183,12 +240,17 @@ def _describe(mi: ModuleType, key: str, params: Any, owners: tuple[str, ...]) ->
     ptype = _EMITTER_SLOT_TYPES.get(slot, slot) if isinstance(holder, mi.Emitter) else slot
     ptype = TYPE_ALIASES.get(ptype, ptype)
     is_texture = is_texture_node and parts[-1] == "data"
-    trust, note = verification_status(plugin, ptype)
+    contexts = _composition(mi, holder, ptype, params.hierarchy, children)
+    # A composite's own parameter (a blend's weight) is measured in its context: its children.
+    own: tuple[Trust, str] = (
+        ("verified", "") if plugin in COMPOSITES else verification_status(plugin, ptype)
+    )
+    trust, note = _weakest(own, composite_status(contexts))
     shape = value_shape(np.asarray(params[key]))
     if is_texture_node and "spectral" in mi.variant() and shape[-1:] == (3,):
         trust, note = "unverified", SPECTRAL_COEFFICIENTS_NOTE
     flag_names = ("discontinuous",) if flags & int(mi.ParamFlags.Discontinuous) else ()
-    return ParamRecord(
+    record = ParamRecord(
         key=key,
         type=ptype,
         owners=owners,
@@ -199,6 +261,42 @@ def _describe(mi: ModuleType, key: str, params: Any, owners: tuple[str, ...]) ->
         trust=trust,
         note=note,
     )
+    return record, contexts
+
+
+def _weakest(*statuses: tuple[Trust, str]) -> tuple[Trust, str]:
+    """The weakest label of ``statuses`` and the notes of all that are not verified."""
+    trust = min((t for t, _ in statuses), key=WEAKEST_FIRST.index)
+    notes = [note for t, note in statuses if t != "verified" and note]
+    return trust, "; ".join(dict.fromkeys(notes))
+
+
+def _bsdf_children(mi: ModuleType, hierarchy: Any) -> dict[int, list[Any]]:
+    """id(BSDF) -> the BSDFs nested in it (Mitsuba's hierarchy maps a node to its parent)."""
+    children: dict[int, list[Any]] = {}
+    for node, (parent, *_) in hierarchy.items():
+        if isinstance(node, mi.BSDF) and isinstance(parent, mi.BSDF):
+            children.setdefault(id(parent), []).append(node)
+    return children
+
+
+def _composition(
+    mi: ModuleType, holder: Any, ptype: str, hierarchy: Any, children: dict[int, list[Any]]
+) -> tuple[Context, ...]:
+    """A context for each composite BSDF the parameter's gradient passes (trust.py): the
+    holder itself (its own slot is the role) and every composite it sits in ("child")."""
+    contexts = []
+    node = holder
+    delta = int(mi.BSDFFlags.Delta)
+    while isinstance(node, mi.BSDF):
+        composite = _plugin_name(node)
+        if composite in COMPOSITES:
+            smooth = any(int(c.flags()) & delta for c in children.get(id(node), ()))
+            role = ptype if node is holder else "child"
+            contexts.append((composite, role, "smooth" if smooth else "rough"))
+        parent = hierarchy.get(node)
+        node = parent[0] if parent is not None else None
+    return tuple(contexts)
 
 
 def _slot_and_holder(
@@ -221,6 +319,17 @@ def _slot_and_holder(
     if levels == 0 or len(parts) <= levels:
         return parts[-1], node
     return parts[-1 - levels], holder
+
+
+def _in_medium(mi: ModuleType, node: Any, hierarchy: Any) -> bool:
+    """Whether ``node`` is a medium, its phase function, or a volume or texture inside one."""
+    holder = node
+    while isinstance(holder, mi.Texture | mi.Volume):
+        parent = hierarchy.get(holder)
+        if parent is None:
+            break
+        holder = parent[0]
+    return isinstance(holder, mi.Medium | mi.PhaseFunction)
 
 
 def value_shape(array: Any) -> tuple[int, ...]:

@@ -73,7 +73,13 @@ class RenderSpec(Section):
     """How the objective camera's image is rendered and differentiated."""
 
     spp: Annotated[int, STRICT, Ge(1), Lt(2**32), Doc("Samples per pixel (32-bit).")] = 64
-    max_depth: Annotated[MaxDepth, Doc("Longest path; -1 = unbounded.")] = 6
+    max_depth: Annotated[
+        MaxDepth | None,
+        Doc(
+            "Longest path; -1 = unbounded; null = the scene's own (its integrator's max_depth, "
+            "or that integrator's default)."
+        ),
+    ] = None
     seed: Annotated[int, STRICT, Ge(0), Lt(2**31), Doc("Sampler seed.")] = 0
     resolution: Annotated[
         Resolution | None,

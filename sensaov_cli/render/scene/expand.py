@@ -9,24 +9,21 @@ would: the reference is ``src/core/parser.cpp`` (``parse_xml_node``, ``substitut
   file first, then in the folders of the files that include that one and the ``<path>``
   folders declared so far; cycles are refused (Mitsuba would only stop at its depth limit,
   which is kept: 15).
-- ``$name`` substitution runs on every attribute in document order with one parameter table
-  shared by all files: job arguments first, ``<default>`` adds a name only if it is absent
-  (so defaults leak out of included files), plain substring replacement longest name first,
-  ``\\$`` escapes a dollar. A ``$`` left over is an error at its file and line, and so is a
-  job argument the scene never uses (Mitsuba refuses both).
+- ``$name`` substitution runs on every attribute in document order (arguments.py).
 - ``<path>`` adds a search folder; ``<alias>`` is resolved into the ``<ref>``s that use it.
 - Plugin file names (meshes, bitmaps, envmaps) are resolved the way Mitsuba resolves them at
   instantiation: against the main file's folder and the main file's ``<path>`` folders, never
   an included file's folder. A ``<spectrum filename>`` is resolved when it is read, with the
   folders of the files that include its file (measured: not its own file's folder). Found
   names are made absolute, so a scene loaded from a string resolves them the same.
-- Files of a format version below 2.0 get Mitsuba's upgrade (scene_upgrade.py).
+- Files of a format version below 2.0 get Mitsuba's upgrade (upgrade.py), and what 3.9.1
+  lacks of 0.5/0.6 is upgraded or refused (legacy.py). Missing files, unknown elements and
+  plugins, unsupported old properties are gathered and reported together (changes.py).
 """
 
 from __future__ import annotations
 
 import os
-import re
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -34,7 +31,10 @@ from pathlib import Path
 
 from sensaov_cli.errors import SceneError
 from sensaov_cli.limits import regular_file
+from sensaov_cli.render.scene.arguments import Parameters, SceneArgument, shorten
+from sensaov_cli.render.scene.changes import Change, Refusals
 from sensaov_cli.render.scene.declared_sizes import check_declared_size
+from sensaov_cli.render.scene.legacy import refuse_unknown_plugins, srgb_element
 from sensaov_cli.render.scene.source import (
     OBJECT_TAGS,
     is_object,
@@ -51,16 +51,6 @@ _KNOWN_TAGS = OBJECT_TAGS | frozenset(
     "boolean integer float string point vector rgb spectrum transform"
     " translate rotate scale lookat matrix ref include alias default path".split()
 )
-_SHOWN = 60  # characters of a long value shown in a message
-_PARAMETER_NAME = re.compile(r"[A-Za-z0-9_]*")
-
-
-@dataclass(frozen=True)
-class SceneArgument:
-    """A ``$name`` the scene was expanded with: its value and where it came from."""
-
-    value: str
-    origin: str  # "job", or the file:line of the scene's <default>
 
 
 @dataclass(frozen=True)
@@ -69,92 +59,24 @@ class ExpandedScene:
     files: tuple[Path, ...]  # every file the scene reads (XML first); names not found as written
     search_path: tuple[Path, ...]  # where Mitsuba looks for names still relative, first wins
     arguments: dict[str, SceneArgument]
+    changes: tuple[Change, ...]  # what reading it changed: old formats upgraded
 
 
 def expand_scene(path: Path, scene_args: Mapping[str, object]) -> ExpandedScene:
-    expansion = _Expansion(_Parameters(scene_args))
+    expansion = _Expansion(Parameters(scene_args))
     main = _Context(path, [path.parent.absolute()], ())
     root = expansion.file(main)
     if root.tag != "scene":
         raise SceneError(f"root element is <{root.tag}>, expected <scene>", where=where(root))
     expansion.finish(root, main)
+    expansion.refusals.raise_all(str(path))  # every missing file and unsupported property
     return ExpandedScene(
         root,
         tuple(dict.fromkeys(expansion.files)),
         tuple(dict.fromkeys(main.resolver)),
         expansion.parameters.arguments(),
+        tuple(expansion.changes),
     )
-
-
-@dataclass
-class _Parameter:
-    key: str  # "$name"
-    value: str
-    origin: str
-    used: bool  # Mitsuba's flag: a job argument never used is an error, a default never is
-    substituted: bool = False
-
-
-class _Parameters:
-    """Mitsuba's SortedParameters: one table for the main file and all its includes."""
-
-    def __init__(self, scene_args: Mapping[str, object]) -> None:
-        # Mitsuba turns every keyword argument into text with Python's str().
-        given = [_Parameter(f"${k}", str(v), "job", False) for k, v in scene_args.items()]
-        self.table = sorted(given, key=lambda p: -len(p.key))
-
-    def default(self, name: str, value: str, origin: str) -> None:
-        if any(p.key == f"${name}" for p in self.table):
-            return  # job arguments and earlier defaults win
-        new = _Parameter(f"${name}", value, origin, True)
-        shorter = (i for i, p in enumerate(self.table) if len(new.key) > len(p.key))
-        self.table.insert(next(shorter, len(self.table)), new)  # longest names first
-
-    def substitute(self, value: str, origin: str) -> str:
-        for param in self.table:
-            pos = value.find(param.key)
-            while pos != -1:
-                if pos > 0 and value[pos - 1] == "\\":
-                    pos += len(param.key)
-                else:
-                    value = value[:pos] + param.value + value[pos + len(param.key) :]
-                    param.used = param.substituted = True
-                    pos += len(param.value)
-                pos = value.find(param.key, pos)
-        _refuse_unresolved(value, origin)
-        return value.replace("\\$", "$")
-
-    def arguments(self) -> dict[str, SceneArgument]:
-        """The arguments the scene text actually used, with their values."""
-        return {p.key[1:]: SceneArgument(p.value, p.origin) for p in self.table if p.substituted}
-
-    def refuse_unused(self, path: Path) -> None:
-        unused = [p.key[1:] for p in self.table if p.origin == "job" and not p.used]
-        if unused:
-            known = sorted(p.key[1:] for p in self.table if p.used)
-            raise SceneError(
-                f"scene argument {unused[0]!r} is not used by the scene",
-                where=str(path),
-                hint=f"arguments the scene has: {', '.join(known) or 'none'}",
-            )
-
-
-def _refuse_unresolved(value: str, origin: str) -> None:
-    for pos, char in enumerate(value):
-        if char != "$" or (pos > 0 and value[pos - 1] == "\\"):
-            continue
-        name = _PARAMETER_NAME.match(value, pos + 1)
-        name_text = shorten(name.group() if name else "")
-        if not name_text:
-            raise SceneError(
-                "a '$' that names no scene argument", where=origin, hint="write \\$ for a '$'"
-            )
-        raise SceneError(
-            f"scene argument ${name_text} has no value",
-            where=origin,
-            hint=f"set it in the job (scene_args: {{{name_text}: ...}}) "
-            f'or give the scene a <default name="{name_text}" value="..."/>',
-        )
 
 
 @dataclass
@@ -178,12 +100,14 @@ class _Context:
 
 @dataclass
 class _Expansion:
-    parameters: _Parameters
+    parameters: Parameters
     ids: dict[str, str] = field(default_factory=dict)  # id -> where it is defined
     aliases: dict[str, str] = field(default_factory=dict)  # alias -> the id it stands for
     files: list[Path] = field(default_factory=list)
     filenames: list[ET.Element] = field(default_factory=list)  # resolved once <path>s are known
     legacy: set[str] = field(default_factory=set)  # files older than format 2.0
+    refusals: Refusals = field(default_factory=Refusals)  # gathered: one pass reports all
+    changes: list[Change] = field(default_factory=list)
 
     def file(self, context: _Context) -> ET.Element:
         root = read_xml(context.path)
@@ -203,11 +127,13 @@ class _Expansion:
         for ref in root.iter("ref"):
             ref.set("id", self.aliases.get(ref.get("id", ""), ref.get("id", "")))
         for element in self.filenames:
-            resolved = _existing(element.get("value", ""), main.resolver, where(element))
-            check_declared_size(resolved, where(element))  # a gigapixel, a billion vertices
-            self.files.append(resolved)
-            element.set("value", str(resolved))
-        upgrade_legacy(root, self.legacy)
+            with self.refusals.gathered():
+                resolved = _existing(element.get("value", ""), main.resolver, where(element))
+                check_declared_size(resolved, where(element))  # a gigapixel, a billion vertices
+                self.files.append(resolved)
+                element.set("value", str(resolved))
+        upgrade_legacy(root, self.legacy, self.changes, self.refusals)
+        refuse_unknown_plugins(root, self.refusals)
 
     def _attributes(self, element: ET.Element) -> None:
         for key, value in user_attributes(element):
@@ -218,12 +144,17 @@ class _Expansion:
         self, parent: ET.Element, element: ET.Element, context: _Context, at_root: bool
     ) -> None:
         self._attributes(element)
+        if element.tag == "srgb" and str(context.path) in self.legacy:
+            change = srgb_element(element, self.refusals)
+            self.changes += [change] if change is not None else []
         if element.tag not in _KNOWN_TAGS:
-            raise SceneError(
+            self.refusals.add(
                 f"<{element.tag}> is not an element Mitsuba 3 reads",
-                where=where(element),
+                where(element),
                 hint=_TAG_HINTS.get(element.tag, "see Mitsuba's scene format documentation"),
             )
+            parent.remove(element)
+            return
         handler = _DIRECTIVES.get(element.tag)
         if handler is not None:
             index = list(parent).index(element)
@@ -255,14 +186,19 @@ class _Expansion:
         self.ids[identifier] = where(element)
 
     def _spectrum_file(self, element: ET.Element, context: _Context) -> None:
-        resolved = _existing(element.get("filename", ""), context.resolver, where(element))
-        self.files.append(resolved)
-        element.set("filename", str(resolved))
+        with self.refusals.gathered():
+            resolved = _existing(element.get("filename", ""), context.resolver, where(element))
+            self.files.append(resolved)
+            element.set("filename", str(resolved))
 
     def _include(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
         name = _required(element, "filename")
         folders = context.here()
-        path = _existing(name, folders, where(element), what="included file")
+        try:
+            path = _existing(name, folders, where(element), what="included file")
+        except SceneError as exc:  # gathered: the rest of the scene is still checked
+            self.refusals.found.append(exc)
+            return []
         _refuse_nesting(path, context.chain, where(element))
         root = self.file(_Context(path, folders, context.chain))
         if root.get("type", "scene") == "scene":
@@ -372,11 +308,6 @@ def _exists(path: Path, origin: str) -> bool:
         raise SceneError(
             f'cannot look for "{shorten(str(path))}": {exc.strerror or exc}', where=origin
         ) from exc
-
-
-def shorten(value: str) -> str:
-    """A value as a message shows it: at most 60 characters and an ellipsis."""
-    return value if len(value) <= _SHOWN else value[:_SHOWN] + "…"
 
 
 def _refuse_nesting(path: Path, chain: tuple[Path, ...], origin: str) -> None:

@@ -3,13 +3,14 @@
 Mitsuba keys an object without an id by its memory address (``object_<pointer>``), new on
 every run, so every unnamed object gets an id before loading. The id comes from what the scene
 says about the object, so people recognise it: a mesh's file stem (``blob`` for
-``meshes/blob.ply``; a ``serialized`` sub-mesh adds its ``shape_index``), the id of the area
-emitter it carries (the id moves to the shape: the shape is the object sensaov reports, and
-the user named it), ``<type>_light`` for a shape carrying an unnamed area emitter, the BSDF it
-refs (``white_rectangle``), an instance's shapegroup and index (``pot_group_2``), an
-emitter's type (``point_light``). A name already taken gets a suffix (``_1``, ``_2``, …), so it
-never clashes with an id the user wrote. Names depend only on the scene text, so two loads of
-one scene agree.
+``meshes/blob.ply``; a ``serialized`` sub-mesh adds its ``shape_index``; a generic, numbered
+stem adds the id of its material: ``Mesh262_Walls`` for ``models/Mesh262.obj`` using
+``Walls``), the id of the area emitter it carries (the id moves to the shape: the shape is
+the object sensaov reports, and the user named it), ``<type>_light`` for a shape carrying an
+unnamed area emitter, the BSDF it refs (``white_rectangle``), an instance's shapegroup and
+index (``pot_group_2``), an emitter's type (``point_light``). A name already taken gets a
+suffix (``_1``, ``_2``, …), so it never clashes with an id the user wrote. Names depend only
+on the scene text, so two loads of one scene agree.
 """
 
 from __future__ import annotations
@@ -23,6 +24,13 @@ from sensaov_cli.render.scene.source import is_object
 _NAMED_TAGS = ("shape", "emitter", "bsdf", "texture", "sensor", "medium", "volume")
 _MESH_TYPES = ("obj", "ply", "serialized")
 _MATERIAL_SUFFIX = re.compile(r"[_-](mat|mtl|material|bsdf)$", re.IGNORECASE)
+# Mesh file stems that say nothing about the object (exporters number them: Bitterli's
+# interiors ship models/Mesh000.obj ... Mesh294.obj): the material's id is added to them.
+_GENERIC_STEM = re.compile(
+    r"(mesh|object|obj|shape|geometry|geom|model|part|node|poly|polysurface|surface|untitled"
+    r"|group|default|primitive|prim|submesh|piece)?[\W_]*\d*",
+    re.IGNORECASE,
+)
 
 
 def child_value(element: ET.Element, name: str) -> str | None:
@@ -99,18 +107,24 @@ def _base_name(element: ET.Element, ids: dict[str, ET.Element]) -> str:
     if element.tag != "shape":
         return f"{kind}_{element.tag}"
     filename = child_value(element, "filename")
+    bsdfs = refs_to(element, "bsdf", ids)
     if kind in _MESH_TYPES and filename:
         stem = PurePath(filename).stem
         index = child_value(element, "shape_index")
-        return f"{stem}_{index}" if kind == "serialized" and index else stem
+        stem = f"{stem}_{index}" if kind == "serialized" and index else stem
+        if _GENERIC_STEM.fullmatch(stem) and bsdfs and bsdfs[0].get("id"):
+            return f"{stem}_{_material_word(bsdfs[0].get('id', ''))}"  # Mesh262_Walls
+        return stem
     if any(child.tag == "emitter" for child in element):  # an area light is written inline
         return f"{kind}_light"
-    bsdfs = refs_to(element, "bsdf", ids)
     if bsdfs and bsdfs[0].get("id"):
-        # "floor_mat" on a rectangle: "floor_rectangle" (the material word adds nothing)
-        material = _MATERIAL_SUFFIX.sub("", bsdfs[0].get("id", "")) or bsdfs[0].get("id")
-        return f"{material}_{kind}"
+        return f"{_material_word(bsdfs[0].get('id', ''))}_{kind}"
     return kind
+
+
+def _material_word(bsdf_id: str) -> str:
+    """ "floor_mat" -> "floor": the material word adds nothing to an object's name."""
+    return _MATERIAL_SUFFIX.sub("", bsdf_id) or bsdf_id
 
 
 def _sanitize(name: str) -> str:

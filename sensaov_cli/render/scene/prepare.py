@@ -41,13 +41,10 @@ from pathlib import Path
 
 from sensaov_cli.errors import SceneError, SpecError
 from sensaov_cli.render.scene import naming
+from sensaov_cli.render.scene.changes import Change
 from sensaov_cli.render.scene.expand import ExpandedScene, SceneArgument, expand_scene
-from sensaov_cli.render.scene.rewrite import (
-    bitmap_options,
-    bitmaps_as_float,
-    renders_other_transport,
-    replace_integrator,
-)
+from sensaov_cli.render.scene.integrator import IntegratorPlan, plan_integrator
+from sensaov_cli.render.scene.rewrite import bitmap_options, bitmaps_as_float
 from sensaov_cli.render.scene.sensors import (
     add_inspection_sensor,
     check_film_size,
@@ -64,13 +61,7 @@ from sensaov_cli.spec.job import CameraSpec, JobSpec
 _CHUNK = 1 << 20  # files are hashed a MiB at a time, never read whole
 
 
-@dataclass(frozen=True)
-class SceneChange:
-    """One thing sensaov changed in the scene before Mitsuba loads it, and why."""
-
-    what: str
-    why: str
-    where: str  # the user's file:line it concerns ("" where the scene says nothing)
+SceneChange = Change  # what the scene stage hands on: what, why, where, alters_image
 
 
 @dataclass(frozen=True)
@@ -92,15 +83,29 @@ class PreparedScene:
     files: tuple[Path, ...]  # every file the scene reads
     search_path: tuple[Path, ...]  # folders Mitsuba resolves names still relative against
     line_sources: tuple[str | None, ...]  # line of `text` -> the user's file:line it came from
-    scene_integrator: str  # the integrator type the scene asks for
-    integrator: str  # the replay integrator that differentiates it
+    integration: IntegratorPlan  # the scene's integrator and depth, and the replay's
     fingerprint: str  # sha256 of every file the scene reads and of the job's arguments
     changes: tuple[SceneChange, ...]  # what was rewritten and why
 
     @property
+    def scene_integrator(self) -> str:
+        """The integrator type the scene renders with (a wrapper's nested one)."""
+        return self.integration.scene_kind
+
+    @property
+    def integrator(self) -> str:
+        """The replay integrator that differentiates it: prb, or prbvolpath for media."""
+        return self.integration.replay
+
+    @property
     def replaced_integrator(self) -> str | None:
         """The scene's integrator when it renders other light transport than the replay."""
-        return self.scene_integrator if renders_other_transport(self.scene_integrator) else None
+        return None if self.integration.same_transport else self.integration.scene_kind
+
+    @property
+    def image_changes(self) -> tuple[SceneChange, ...]:
+        """The changes after which M is measured on another image than the scene renders."""
+        return tuple(change for change in self.changes if change.alters_image)
 
     @property
     def argument_values(self) -> dict[str, str]:
@@ -138,7 +143,7 @@ def prepare_scene(job: JobSpec, cameras: tuple[CameraSpec, ...] = ()) -> Prepare
 def prepare_xml(
     path: Path,
     *,
-    max_depth: int,
+    max_depth: int | None,
     camera: CameraSpec,
     resolution: tuple[int, int] | None,
     shared: str,
@@ -166,7 +171,7 @@ def _rewrite(
     expanded: ExpandedScene,
     named: dict[str, ET.Element],
     *,
-    max_depth: int,
+    max_depth: int | None,
     camera: CameraSpec,
     resolution: tuple[int, int] | None,
     shared: str,
@@ -176,9 +181,10 @@ def _rewrite(
     root = expanded.root
     refuse_non_finite(root)  # Mitsuba loads nan and inf; the run would blame the objective
     own_sensors = sensor_ids(root)
-    changes = [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
-    kind, replay = replace_integrator(root, max_depth)
-    changes.append(_integrator_change(kind, replay, max_depth))
+    changes = list(expanded.changes)  # old formats upgraded, each with its line
+    changes += [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
+    integration = plan_integrator(root, max_depth)
+    changes += integration.changes
     converted = [t for t in root.iter("texture") if _loads_as_integers(t)]
     bitmaps = bitmaps_as_float(root)
     changes += [SceneChange(f"bitmap {_file_of(t)} loaded as float", _EIGHT_BIT, where(t))
@@ -210,8 +216,7 @@ def _rewrite(
         files=expanded.files,
         search_path=expanded.search_path,
         line_sources=line_sources,
-        scene_integrator=kind,
-        integrator=replay,
+        integration=integration,
         fingerprint=_fingerprint(expanded.files, _job_arguments(expanded), path.parent),
         changes=tuple(changes),
     )
@@ -219,13 +224,6 @@ def _rewrite(
 
 _UNNAMED = "Mitsuba keys an unnamed object by its memory address, new on every run"
 _EIGHT_BIT = "format = variant: an 8-bit texture would load as integers, which get no gradient"
-
-
-def _integrator_change(kind: str, replay: str, max_depth: int) -> SceneChange:
-    why = "path replay differentiates in constant memory"
-    if renders_other_transport(kind):
-        why += f"; '{kind}' renders other light transport, so M is measured on another image"
-    return SceneChange(f"integrator {kind!r} -> {replay!r} (max_depth {max_depth})", why, "")
 
 
 def _file_of(texture: ET.Element) -> str:

@@ -1,10 +1,7 @@
-"""What sensaov changes in an expanded scene so that Mitsuba differentiates it (pure XML).
+"""What sensaov changes in an expanded scene's bitmaps so that Mitsuba differentiates them.
 
-- every integrator is replaced by ``prb`` (``prbvolpath`` for a ``volpath`` scene, so media
-  stay in the image) with the job's ``max_depth`` and the scene's ``hide_emitters`` and
-  ``rr_depth`` (``path`` costs memory that grows with spp under AD; ``prb`` is
-  constant-memory, MITSUBA-NOTES); an integrator that renders other light transport
-  (``direct``, ``aov``, …) is reported, since the objective then sees another image;
+(The integrator is replaced in integrator.py, unnamed objects named in naming.py.)
+
 - bitmap textures, nested ones too, load as float (``format = variant``) so their texels
   receive gradients (8-bit textures load as non-differentiable integers by default); envmaps
   load their images as float already and take no ``format``.
@@ -21,35 +18,6 @@ from pathlib import Path
 from sensaov_cli.render.scene.naming import child_value
 
 DEFAULT_FILTER, DEFAULT_WRAP = "bilinear", "repeat"
-# The user's integrator -> the path-replay one that differentiates the same light transport:
-# volumetric path tracers keep their media (prb ignores them), everything else becomes prb.
-_REPLAY_OF = {"volpath": "prbvolpath", "volpathmis": "prbvolpath", "prbvolpath": "prbvolpath"}
-# What sensaov replaces without changing the image the objective sees (max_depth is the job's).
-_SAME_TRANSPORT = frozenset({"path", "prb", "prb_basic", "direct_projective", *_REPLAY_OF})
-# Integrator settings that change the image and that prb and prbvolpath take as they are.
-_KEPT_SETTINGS = ("hide_emitters", "rr_depth")
-
-
-def replace_integrator(root: ET.Element, max_depth: int) -> tuple[str, str]:
-    """Put the replay integrator in place of the scene's: (the scene's type, the replay's)."""
-    found = root.findall("integrator")
-    user = found[0] if found else None
-    kind = user.get("type", "path") if user is not None else "path"
-    for element in found:
-        root.remove(element)
-    replay = _REPLAY_OF.get(kind, "prb")
-    integrator = ET.Element("integrator", {"type": replay})
-    ET.SubElement(integrator, "integer", {"name": "max_depth", "value": str(max_depth)})
-    for setting in user.iter() if user is not None else ():
-        if setting is not user and setting.get("name") in _KEPT_SETTINGS:
-            ET.SubElement(integrator, setting.tag, dict(setting.attrib))
-    root.insert(0, integrator)
-    return kind, replay
-
-
-def renders_other_transport(kind: str) -> bool:
-    """Whether the scene's integrator renders another image than the replay integrator."""
-    return kind not in _SAME_TRANSPORT
 
 
 def bitmaps_as_float(root: ET.Element) -> tuple[str, ...]:

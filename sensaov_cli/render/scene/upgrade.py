@@ -5,25 +5,32 @@ Mitsuba upgrades each object by the version of the file it was read from
 text there is a single version left, so the upgrade is applied here, per object, and the
 merged text carries a version that needs none: property names camelCase -> snake_case,
 ``diffuse.diffuse_reflectance`` -> ``reflectance``, ``uoffset``/``voffset``/``uscale``/
-``vscale`` -> a ``to_uv`` transform. Nothing else changes between versions.
+``vscale`` -> a ``to_uv`` transform. That is all Mitsuba 3 does; what else 3.9.1 lacks of
+0.5/0.6 is upgraded (or refused) by legacy.py.
 """
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
+from sensaov_cli.render.scene.changes import Change, Refusals
+from sensaov_cli.render.scene.legacy import upgrade_object
 from sensaov_cli.render.scene.source import is_object, new_element, source_file
 
 _UV_NAMES = ("uoffset", "voffset", "uscale", "vscale")
 
 
-def upgrade_legacy(root: ET.Element, legacy_files: set[str]) -> None:
-    """Upgrade every object read from one of ``legacy_files`` (paths as read)."""
+def upgrade_legacy(
+    root: ET.Element, legacy_files: set[str], changes: list[Change], refusals: Refusals
+) -> None:
+    """Upgrade every object read from one of ``legacy_files`` (paths as read): Mitsuba's own
+    renaming, then what 3.9.1 lacks of 0.5/0.6 (legacy.py), listed in ``changes``."""
     if not legacy_files:
         return
     for element in list(root.iter()):
         if is_object(element) and source_file(element) in legacy_files:
             _upgrade(element)
+            upgrade_object(element, changes, refusals)
 
 
 def snake_case(name: str) -> str:
