@@ -373,7 +373,7 @@ def test_unknown_version_says_so(saved: Path) -> None:
 # --- the format itself: a change to it must show up here ------------------------------------
 
 
-def test_file_layout_is_version_3(saved: Path) -> None:
+def test_file_layout_is_version_4(saved: Path) -> None:
     with np.load(saved, allow_pickle=False) as npz:
         names = sorted(npz.files)
         header = json.loads(str(npz["header"]))
@@ -383,19 +383,20 @@ def test_file_layout_is_version_3(saved: Path) -> None:
     )
     assert header == {
         "format": "sensaov-buffer",
-        "format_version": 3,
+        "format_version": 4,
         "provenance": {"tool": "sensaov 0.1.0", "spp": 16, "seeds": [1, 2], "scene": "cbox.xml"},
         "objects": ["floor", "light", "wall", "white"],
         "params": [
             {"key": "white.bsdf.reflectance.value", "type": "reflectance", "owners": ["white"],
              "shape": [3], "is_texture": False, "plugin": "diffuse", "flags": [],
-             "trust": "verified", "note": "", "array": 0},
+             "trust": "verified", "note": "", "estimator": "reverse", "array": 0},
             {"key": "mat.reflectance.data", "type": "reflectance", "owners": ["floor", "wall"],
              "shape": [4, 5, 3], "is_texture": True, "plugin": "diffuse", "flags": [],
-             "trust": "verified", "note": "", "array": 1},
+             "trust": "verified", "note": "", "estimator": "reverse", "array": 1},
             {"key": "floor.bsdf.alpha.value", "type": "roughness", "owners": ["floor"],
              "shape": [1], "is_texture": False, "plugin": "roughplastic",
-             "flags": ["discontinuous"], "trust": "biased", "note": "known biased", "array": 2},
+             "flags": ["discontinuous"], "trust": "biased", "note": "known biased",
+             "estimator": "reverse", "array": 2},
         ],
         "objectives": [
             {"name": "brightness", "definition": {"kind": "mean_luminance", "region": [0, 0, 8, 8]},
@@ -404,6 +405,7 @@ def test_file_layout_is_version_3(saved: Path) -> None:
              "grad_seed": 8, "array": 1},
         ],
         "statistics": None,
+        "repairs": {},
     }  # fmt: skip
 
 
@@ -418,13 +420,16 @@ def _write_by_hand(path: Path, version: int, label: dict) -> None:
     }  # fmt: skip
     if version >= 3:
         header["statistics"] = None
+    if version >= 4:
+        header["repairs"] = {}
+        header["params"][0]["estimator"] = "reverse"
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         zf.writestr("header.npy", _npy(np.array(json.dumps(header))))
         zf.writestr("value_000000.npy", _npy(np.array([1, 2, 3], ">f4")))
         zf.writestr("grad_000_000000.npy", _npy(np.array([0.5, 0, -1], "<f4")))
 
 
-@pytest.mark.parametrize("version", [2, 3])
+@pytest.mark.parametrize("version", [2, 3, 4])
 def test_reads_a_file_written_from_the_spec(tmp_path: Path, version: int) -> None:
     """docs/buffer-format.md is enough to write a buffer without sensaov's writer."""
     path = tmp_path / "by-hand.npz"

@@ -150,6 +150,9 @@ def _provenance(field: str, value: object) -> Callable[[dict], None]:
 def _as_version_2(header: dict) -> None:
     header["format_version"] = 2
     header.pop("statistics")
+    header.pop("repairs")
+    for param in header["params"]:
+        param.pop("estimator")
 
 
 def _other_parameters(header: dict) -> None:

@@ -74,8 +74,8 @@ def row_of(text: str, key: str) -> str:
 
 
 # The text of make_buffer() before trust labels existed (with the signed sum and its rank
-# beside each object's and type's score since texel channels): a buffer with no suspect and
-# no zero-gradient parameter must still print exactly this.
+# beside each object's and type's score since texel channels, and each parameter's estimator
+# since repairs): a buffer with no suspect and no zero-gradient parameter must print this.
 BEFORE_LABELS = """\
 sensitivity buffer: 3 parameters, 4 objects, 1 objective · scene scenes/cbox.xml · variant llvm_ad_rgb · spp 16
 scores: l2 of theta * dM/dtheta over each group's components
@@ -83,10 +83,10 @@ signed: their plain sum; > 0 means increasing the parameter raises M
 
 objective 'brightness'   M = 0.125
   parameters (top 3 of 3)
-    #        score     signed  type         key                          owners
-    1  !  5.00e-01  -5.00e-01  roughness    floor.bsdf.alpha.value       floor
-    2     4.00e-02  +4.00e-02  radiance     lamp.emitter.radiance.value  lamp
-    3     3.00e-03  +5.00e-03  reflectance  wall.bsdf.reflectance.value  wall
+    #        score     signed  type         estimator  key                          owners
+    1  !  5.00e-01  -5.00e-01  roughness    reverse    floor.bsdf.alpha.value       floor
+    2     4.00e-02  +4.00e-02  radiance     reverse    lamp.emitter.radiance.value  lamp
+    3     3.00e-03  +5.00e-03  reflectance  reverse    wall.bsdf.reflectance.value  wall
   objects (top 4 of 4)
     #        score     signed  #sum  object
     1  !  5.00e-01  -5.00e-01     1  floor
@@ -146,7 +146,7 @@ def test_zero_gradient_is_listed_apart_not_ranked() -> None:
 
 def test_zero_gradient_in_json_and_out_of_every_score() -> None:
     summary = json.loads(json.dumps(summary_dict(with_gold_ball(), top=10)))
-    assert (summary["format"], summary["format_version"]) == ("sensaov-summary", 2)
+    assert (summary["format"], summary["format_version"]) == ("sensaov-summary", 3)
     assert summary["counts"]["parameters"] == 4 and summary["counts"]["ranked_parameters"] == 3
     (objective,) = summary["objectives"]
     assert [p["key"] for p in objective["no_gradient"]] == [GOLD]
@@ -188,7 +188,7 @@ def test_scores_have_three_significant_digits(buf: SensitivityBuffer) -> None:
 
 def test_signed_method_shows_the_sign(buf: SensitivityBuffer) -> None:
     text = summary_text(buf, method="sum")
-    assert re.search(r"-5\.00e-01\s+roughness\s+floor\.bsdf\.alpha\.value", text)
+    assert re.search(r"-5\.00e-01\s+roughness\s+reverse\s+floor\.bsdf\.alpha\.value", text)
     assert re.search(r"\+4\.00e-02\s+radiance", text)
 
 

@@ -1,8 +1,9 @@
-"""The buffer's file format (version 3): a plain ``.npz`` of one JSON header and numbered arrays.
+"""The buffer's file format (version 4): a plain ``.npz`` of one JSON header and numbered arrays.
 
 Specified in ``docs/buffer-format.md``. Kept apart from the container so that the format, its
-validation and its error messages can be read in one place. Version 2 files (no statistics) and
-version 1 files (a boolean ``verified`` per parameter instead of the ``trust`` label) are read.
+validation and its error messages can be read in one place. Version 3 files (no estimators, no
+repairs), version 2 files (no statistics either) and version 1 files (a boolean ``verified``
+per parameter instead of the ``trust`` label) are read.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from sensaov_cli.buffer.model import (
     ParamRecord,
     SensitivityBuffer,
 )
+from sensaov_cli.buffer.repairs import repair_json, repairs_from_json
 from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import BufferFormatError, SensaovError
 
@@ -73,6 +75,7 @@ def _members(buffer: SensitivityBuffer) -> dict[str, np.ndarray]:
         "params": [_param_json(p, i) for i, p in enumerate(buffer.params)],
         "objectives": [_objective_json(o, j) for j, o in enumerate(buffer.objectives)],
         "statistics": _statistics_json(buffer.statistics),
+        "repairs": {key: repair_json(r) for key, r in buffer.repairs.items()},
     }
     members = {HEADER_MEMBER: np.array(json.dumps(header, allow_nan=False))}
     for i, p in enumerate(buffer.params):
@@ -120,9 +123,10 @@ def batch_sums_member(objective_index: int) -> str:
 
 _PARAM_FIELDS = tuple(f.name for f in fields(ParamRecord))
 _OBJECTIVE_FIELDS = tuple(f.name for f in fields(ObjectiveRecord))
-# Version 1 stored a boolean "verified" where version 2 stores the "trust" label.
-_V1_PARAM_FIELDS = tuple("verified" if name == "trust" else name for name in _PARAM_FIELDS)
-_READABLE_VERSIONS = (1, 2, FORMAT_VERSION)
+# Version 4 added "estimator"; version 1 stored a boolean "verified" where 2 stores "trust".
+_V3_PARAM_FIELDS = tuple(name for name in _PARAM_FIELDS if name != "estimator")
+_V1_PARAM_FIELDS = tuple("verified" if name == "trust" else name for name in _V3_PARAM_FIELDS)
+_READABLE_VERSIONS = (1, 2, 3, FORMAT_VERSION)
 
 
 def _param_json(p: ParamRecord, index: int) -> dict[str, Any]:
@@ -196,7 +200,10 @@ def _read_npz(npz: Any) -> tuple[SensitivityBuffer, int]:
     _declared(npz, HEADER_MEMBER, None)  # a header claiming gigabytes is not read
     header = _read_header(npz[HEADER_MEMBER])
     version = header["format_version"]
-    params = [_param_from_json(entry, i, version) for i, entry in enumerate(header["params"])]
+    path_keys = _path_keys(header["provenance"]) if version < 4 else set()
+    params = [
+        _param_from_json(entry, i, version, path_keys) for i, entry in enumerate(header["params"])
+    ]
     objectives = [_objective_from_json(e, j) for j, e in enumerate(header["objectives"])]
     statistics = header.get("statistics")
     expected = {HEADER_MEMBER} | {value_member(i) for i in range(len(params))}
@@ -221,6 +228,7 @@ def _read_npz(npz: Any) -> tuple[SensitivityBuffer, int]:
         values=values,
         grads=grads,
         statistics=_read_statistics(npz, statistics, params, objectives),
+        repairs=repairs_from_json(header.get("repairs", {})),  # none before version 4
         _copy_arrays=False,  # fresh arrays from read_array: freezing them in place halves the peak
     )
     return buffer, version
@@ -302,10 +310,12 @@ def _read_header(member: np.ndarray) -> dict[str, Any]:
         if not isinstance(header.get(name), kind):
             raise _Malformed(f"malformed header: {name!r} must be a JSON {kind.__name__}")
     allowed = set(kinds) | {"format", "format_version"}
-    if version >= 3:  # "statistics" (null or an object) is required from version 3 on
-        if "statistics" not in header:
-            raise _Malformed("malformed header: missing field 'statistics'")
-        allowed.add("statistics")
+    # "statistics" (null or an object) is required from version 3 on, "repairs" from 4 on
+    for field, since in (("statistics", 3), ("repairs", 4)):
+        if version >= since:
+            if field not in header:
+                raise _Malformed(f"malformed header: missing field {field!r}")
+            allowed.add(field)
     extra = sorted(set(header) - allowed)
     if extra:  # no version allows others (docs/buffer-format.md)
         raise _Malformed(f"malformed header: unknown field(s) {', '.join(map(repr, extra))}")
@@ -324,10 +334,21 @@ def _entry(entry: Any, names: tuple[str, ...], index: int, where: str) -> dict[s
     return {name: entry[name] for name in names}
 
 
-def _param_from_json(entry: Any, index: int, version: int) -> ParamRecord:
-    if version >= 2:
+def _path_keys(provenance: dict[str, Any]) -> set[str]:
+    """Keys a version 1-3 buffer's provenance says Mitsuba's path differentiated."""
+    keys = (provenance.get("gradient_integrators") or {}).get("path")
+    return {k for k in keys if isinstance(k, str)} if isinstance(keys, list) else set()
+
+
+def _param_from_json(entry: Any, index: int, version: int, path_keys: set[str]) -> ParamRecord:
+    """A parameter record; before version 4 its estimator is the backward pass's integrator."""
+    if version >= 4:
         return ParamRecord(**_entry(entry, _PARAM_FIELDS, index, "params"))
-    fields_ = _entry(entry, _V1_PARAM_FIELDS, index, "params")
+    fields_ = _entry(entry, _V3_PARAM_FIELDS if version >= 2 else _V1_PARAM_FIELDS, index, "params")
+    by_path = isinstance(fields_.get("key"), str) and fields_["key"] in path_keys
+    fields_["estimator"] = "reverse-path" if by_path else "reverse"
+    if version >= 2:
+        return ParamRecord(**fields_)
     verified = fields_.pop("verified")
     if not isinstance(verified, bool):
         raise _Malformed(f"malformed header: params[{index}].verified must be a bool")

@@ -209,6 +209,7 @@ def render_text(summary: dict[str, Any]) -> str:
     lines.append(f"scores: {agg['method']} of {agg['contribution']} over each group's components")
     if agg["method"] != "sum":
         lines.append("signed: their plain sum; > 0 means increasing the parameter raises M")
+    lines += _repairs_lines(prov.get("repairs"))
     if counts.get("batches"):
         lines.append(
             f"standard errors from {counts['batches']} batches: 'sensaov rank BUFFER --by "
@@ -244,10 +245,12 @@ def _objective_lines(objective: dict[str, Any], method: str, counts: dict[str, i
     lines = [f"objective {objective['name']!r}   M = {objective['value']:.4g}"]
 
     lines.append(f"  parameters (top {len(params)} of {counts['ranked_parameters']})")
-    headers = ["#", "", "score", *([] if signed else ["signed"]), "type", "key", "owners"]
+    headers = ["#", "", "score", *([] if signed else ["signed"]), "type", "estimator", "key",
+               "owners"]  # fmt: skip
     rows = [
         [str(i), _mark(p["trust"]), _fmt(p["score"], signed),
-         *([] if signed else [_fmt(p["signed"], True)]), p["type"], p["key"], _owners(p["owners"])]
+         *([] if signed else [_fmt(p["signed"], True)]), p["type"], p["estimator"], p["key"],
+         _owners(p["owners"])]
         for i, p in enumerate(params, 1)
     ]  # fmt: skip
     lines.extend(_indented(headers, rows, numeric={0, 2} if signed else {0, 2, 3}))
@@ -257,6 +260,41 @@ def _objective_lines(objective: dict[str, Any], method: str, counts: dict[str, i
     lines.append("  types")
     lines.extend(_group_table("type", "type", types, signed))
     lines.extend(_legend(objective))
+    lines.extend(_repaired_legend(objective))
+    return lines
+
+
+def _repairs_lines(figures: Any) -> list[str]:
+    """What the run repaired by finite differences, and what it left labelled (and why)."""
+    if not isinstance(figures, dict) or not (
+        figures.get("repaired") or figures.get("not_repaired")
+    ):
+        return []
+    repaired = figures.get("repaired") or []
+    lines = [
+        f"repairs: {_count(len(repaired), 'parameter')} known wrong in reverse mode, by central "
+        f"differences ({len(figures.get('seeds') or [])} seeds x {figures.get('spp')} spp, "
+        f"{figures.get('renders')} renders, {figures.get('seconds', 0):.1f} s)"
+    ]
+    for key, why in (figures.get("not_repaired") or {}).items():
+        lines.append(printable(f"  not repaired, still labelled: {key}: {why}"))
+    return lines
+
+
+def _repaired_legend(objective: dict[str, Any]) -> list[str]:
+    """Each repaired parameter shown: its signed sum with its own standard error."""
+    shown = [p for p in objective["parameters"] if "signed_se" in p]
+    if not shown:
+        return []
+    lines = [
+        "  finite-difference = repaired (reverse mode is known wrong there), ± its seeds' error:"
+    ]
+    for p in shown:
+        sign = "" if p["significant"] else "; sign not significant"
+        lines.append(
+            printable(f"      {p['key']}: {p['signed']:+.2e} ± {p['signed_se']:.1e} "
+                      f"({p['seeds']} seeds{sign})")
+        )  # fmt: skip
     return lines
 
 

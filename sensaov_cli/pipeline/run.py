@@ -26,6 +26,7 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, batch_plan, integrator_plan, run_adjoint
 from sensaov_cli.render.loading import LoadedScene, load_scene
 from sensaov_cli.render.objectives import build_objectives
+from sensaov_cli.render.repair import repair
 from sensaov_cli.render.scene import prepare_scene
 from sensaov_cli.spec.job import JobSpec
 
@@ -137,6 +138,11 @@ def run_job(
         progress=progress,
         batches=batches,
     )
+    forward_stages = forward_passes if forward_wanted else 0
+    result = repair(
+        loaded, objectives, result, job.repair, seed=seed, batches=batches, progress=progress,
+        stages_after=forward_stages + 1,
+    )  # fmt: skip
     provenance = _provenance(whole, loaded, result, progress.timings, time.perf_counter() - started)
     provenance["task"] = task.describe()
     buffer = _make_buffer(job, loaded, result, provenance)
@@ -178,6 +184,7 @@ def _make_buffer(
         values=result.values,
         grads=result.grads,
         statistics=result.statistics,
+        repairs=result.repairs,
     )
 
 

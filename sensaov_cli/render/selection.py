@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
-from sensaov_cli.render.trust import verification_status
+from sensaov_cli.render.trust import gradient_integrator, verification_status
 from sensaov_cli.spec.job import ParameterSpec
 
 # The slot a parameter fills, whatever its storage ("white.reflectance.value" and
@@ -198,6 +198,7 @@ def _describe(mi: ModuleType, key: str, params: Any, owners: tuple[str, ...]) ->
         flags=flag_names,
         trust=trust,
         note=note,
+        estimator="reverse-path" if gradient_integrator(plugin) == "path" else "reverse",
     )
 
 

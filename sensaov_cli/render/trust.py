@@ -123,6 +123,45 @@ TABLE: dict[tuple[str, str], Entry] = {
 }
 
 
+# --- repairs: where the reverse-mode gradient is known wrong, finite differences instead ------
+
+COMPOSITE_REASON = (
+    f"composite over a smooth (delta) lobe: {MITSUBA}'s prb differentiates it through eval(), "
+    "which omits that lobe"
+)
+
+
+@dataclass(frozen=True)
+class RepairEntry:
+    """How a kind's finite-difference repair (render/repair.py) was measured to do."""
+
+    trust: Trust  # the label a repaired gradient of this kind gets
+    step: float  # relative step ε / max(1, |θ|) it was measured with, and uses
+    note: str = ""
+
+
+REPAIR_STEP = 0.01  # the step of a kind not listed below
+# (plugin, type) -> the repair's label and step, measured against independent central
+# differences (docs/verification.md "Repairs", scripts/repair_table.py). A kind not listed is
+# still repaired where its gradient is known wrong, and labelled unverified.
+REPAIRS: dict[tuple[str, str], RepairEntry] = {
+    ("blendbsdf", "weight"): RepairEntry("verified", 0.05),
+    ("diffuse", "reflectance"): RepairEntry("verified", 0.05),  # components at 0: one-sided
+    ("plastic", "reflectance"): RepairEntry("verified", 0.05),
+    ("roughplastic", "eta"): RepairEntry("verified", 0.01),
+    ("roughplastic", "roughness"): RepairEntry("verified", 0.01),
+}
+
+
+def repair_entry(plugin: str, ptype: str) -> RepairEntry:
+    """The measured repair of a kind, or an unverified one at the default step."""
+    found = REPAIRS.get((plugin, ptype))
+    if found is not None:
+        return found
+    note = f"{plugin} {ptype}: its finite-difference repair is not measured for this kind"
+    return RepairEntry("unverified", REPAIR_STEP, note)
+
+
 def known_zero_reason(
     plugin: str, ptype: str, key: str, integrator: str, all_zero: bool
 ) -> str | None:

@@ -16,12 +16,16 @@ import copy
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import numpy as np
+
 from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, groups, key_stats, rank, scores
 from sensaov_cli.vocabulary import Aggregate, Grouping, Trust, Weight
 
 SUMMARY_FORMAT = "sensaov-summary"
-SUMMARY_VERSION = 2  # 2: trust labels, the "no_gradient" list, ranked counts
+# 2: trust labels, the "no_gradient" list, ranked counts; 3: each parameter's estimator, and a
+# repaired one's own standard error
+SUMMARY_VERSION = 3
 
 _CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}
 # A group shows the weakest label among its ranked parameters.
@@ -85,12 +89,15 @@ def _objective_summary(
     weight: Weight,
 ) -> dict[str, Any]:
     stats = key_stats(buf, objective.name, ranked["param"], weight=weight)  # one pass, 3 groupings
+    params = _parameters(buf, stats, ranked["param"], top, method)
+    for entry in params:
+        entry.update(repair_error(buf, objective.name, entry["key"], entry["signed"], weight))
     return {
         "name": objective.name,
         "value": objective.value,
         "definition": copy.deepcopy(objective.definition),
         "grad_seed": objective.grad_seed,
-        "parameters": _parameters(buf, stats, ranked["param"], top, method),
+        "parameters": params,
         "objects": _group_entries(buf, stats, ranked["object"], "name", method, top),
         "types": _group_entries(buf, stats, ranked["type"], "type", method, None),
         "no_gradient": [
@@ -129,9 +136,27 @@ def _parameters(
                 "verified": p.verified,
                 "trust": p.trust,
                 "note": p.note,
+                "estimator": p.estimator,
             }
         )
     return entries
+
+
+def repair_error(
+    buf: SensitivityBuffer, objective: str, key: str, signed: float, weight: Weight
+) -> dict[str, Any]:
+    """A repaired parameter's own standard error of its signed sum, the significance of its
+    sign and its seed count (buffer/repairs.py); {} for any other parameter."""
+    repair = buf.repairs.get(key)
+    if repair is None:
+        return {}
+    theta = buf.value(key) if weight == "value" else np.ones(buf.param(key).shape)
+    error = repair.signed_error(objective, theta)
+    return {
+        "signed_se": error,
+        "significant": repair.significant(signed, error),
+        "seeds": len(repair.seeds),
+    }
 
 
 def _group_entries(
