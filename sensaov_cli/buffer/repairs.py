@@ -78,6 +78,17 @@ class Repair:
         sums = np.asarray(self.estimates[objective]) @ weights.astype(np.float64).ravel()
         return float(sums.std(ddof=1) / math.sqrt(len(sums)))
 
+    def norm_error(self, objective: str, weights: np.ndarray) -> float:
+        """Standard error of ‖w · g‖ to first order: each seed's projection on the mean (the
+        linearisation the batch statistics use, buffer/statistics.py)."""
+        rows = np.asarray(self.estimates[objective]) * weights.astype(np.float64).ravel()
+        mean = rows.mean(axis=0)
+        norm = float(np.linalg.norm(mean))
+        if norm == 0:
+            return 0.0
+        projections = rows @ mean / norm
+        return float(projections.std(ddof=1) / math.sqrt(len(projections)))
+
     def significant(self, signed: float, error: float) -> bool:
         """Whether |signed| is beyond noise: Student's t at 95 % with seeds − 1 dof."""
         return abs(signed) > t_975(len(self.seeds)) * error

@@ -22,7 +22,7 @@ from sensaov_cli.vocabulary import Aggregate, Weight
 # The columns of a row, in JSON, CSV and text order (CSV puts "objective" first).
 COLUMNS = (
     "rank", "name", "score", "signed", "share", "sign", "value", "trust", "off_frame",
-    "score_se", "signed_se", "significant",
+    "score_se", "signed_se", "significant", "estimator",
 )  # fmt: skip
 _MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
 _CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}
@@ -111,7 +111,7 @@ def _table(r: Ranking) -> list[str]:
         return ["    (none)"]
     cameras = any(row.off_frame is not None for row in r.rows)
     values = r.by == "key"  # only a parameter has a value; groups leave the column out
-    errors = r.batches is not None
+    errors = r.batches is not None or any(row.signed_se is not None for row in r.rows)
     headers = [
         "#",
         "",
@@ -122,6 +122,7 @@ def _table(r: Ranking) -> list[str]:
         "sign",
         "share",
         *(["value"] * values),
+        "estimator",
         r.by,
         *(["off-frame"] * cameras),
     ]
@@ -136,6 +137,7 @@ def _table(r: Ranking) -> list[str]:
             row.sign + ("" if row.significant is not False else "?"),
             f"{100 * row.share:.1f}%",
             *([_value(row.value)] * values),
+            row.estimator,
             row.name,
             *([", ".join(row.off_frame or ()) or "-"] * cameras),
         ]
@@ -164,6 +166,11 @@ def _legend(r: Ranking) -> list[str]:
     if r.batches is not None:
         lines.append(
             f"  ±: standard error from {r.batches} batches; ? = sign within 2 standard errors"
+        )
+    elif any(row.signed_se is not None for row in r.rows):
+        lines.append(
+            "  ±: a repaired (finite-difference) parameter's standard error over its seeds; "
+            "? = sign within Student's t (95 %) of it; others: no error measured (-)"
         )
         if r.stability is not None:
             lines.append(

@@ -165,8 +165,11 @@ def _ranking_table(r: Ranking) -> str:
 
 
 def _trust_table(params: Sequence[ParamRecord]) -> str:
-    rows = [[p.key, p.type, p.plugin, ", ".join(p.owners) or "-", p.trust, p.note] for p in params]
-    return _table(["key", "type", "plugin", "owners", "trust", "note"], rows, set())
+    rows = [
+        [p.key, p.type, p.plugin, ", ".join(p.owners) or "-", p.trust, p.estimator, p.note]
+        for p in params
+    ]
+    return _table(["key", "type", "plugin", "owners", "trust", "estimator", "note"], rows, set())
 
 
 def _provenance(provenance: Mapping[str, Any]) -> str:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import unicodedata
 from collections import defaultdict
 from collections.abc import Collection, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, SensitivityBuffer, TextureSource
@@ -77,6 +77,8 @@ class ParameterInventory:
     split: dict[str, tuple[str, ...]]
     textures: dict[str, TextureSource]
     changes: tuple[tuple[str, str, str], ...]  # what sensaov changed in the scene: what, why, where
+    # key -> why run repairs it by finite differences (budget permitting): render/repair_plan
+    repairs: dict[str, str] = field(default_factory=dict)
 
 
 def params_dict(loaded: ParameterInventory) -> dict[str, Any]:
@@ -85,7 +87,12 @@ def params_dict(loaded: ParameterInventory) -> dict[str, Any]:
         "variant": loaded.variant,
         "objects": list(loaded.objects),
         "selected": [
-            _selected_entry(info, loaded.textures.get(info.key)) for info in loaded.selected
+            {
+                **_selected_entry(info, loaded.textures.get(info.key)),
+                "estimator": info.estimator,
+                "repair": loaded.repairs.get(info.key),
+            }
+            for info in loaded.selected
         ],
         "excluded": [asdict(item) for item in loaded.excluded],
         "split_bsdfs": {name: list(shapes) for name, shapes in loaded.split.items()},
@@ -118,6 +125,8 @@ def params_text(loaded: ParameterInventory, *, show_all: bool = False) -> str:
             notes.append("texture, 8-bit -> float" if converted else "texture")
         if not info.verified:
             notes.append(_PARAMS_NOTES[info.trust])
+        if info.key in loaded.repairs:
+            notes.append("REPAIRED" if not info.is_texture else "NOT REPAIRED (texture)")
         shape = "x".join(str(n) for n in info.shape)
         rows.append(
             (info.key, info.type, ",".join(info.owners), info.plugin, shape, ", ".join(notes))
@@ -125,6 +134,7 @@ def params_text(loaded: ParameterInventory, *, show_all: bool = False) -> str:
     lines = [f"{len(loaded.selected)} parameters selected over {len(loaded.objects)} objects"]
     lines += format_table(rows)
     lines += _unverified_legend(loaded)
+    lines += _repairs_legend(loaded)
     lines += _textures(loaded)
     lines += _split(loaded)
     lines += _changes(loaded)
@@ -140,6 +150,17 @@ def _unverified_legend(loaded: ParameterInventory) -> list[str]:
         if notes
         else []
     )
+
+
+def _repairs_legend(loaded: ParameterInventory) -> list[str]:
+    if not loaded.repairs:
+        return []
+    return [
+        "",
+        "REPAIRED: known wrong in reverse mode; run computes them again by central differences "
+        "(repair.budget permitting; textures never: two renders per texel) - "
+        'docs/verification.md, "Repairs"',
+    ]
 
 
 def _textures(loaded: ParameterInventory) -> list[str]:

@@ -106,28 +106,29 @@ def _differences(
     chosen: RepairPlan,
     target: Target,
 ) -> Repair:
-    """Every seed's estimate of every component, for every objective."""
+    """Every seed's estimate of every component, for every objective. Each side is set once
+    and rendered at every seed (setting a roughplastic recomputes its tables: 14 ms)."""
     started = time.perf_counter()
     shape = result.values[target.key].shape
     theta = result.values[target.key].astype(np.float32).ravel()
     measure = _Objectives(loaded, objectives, chosen.spp)
     rows = np.zeros((len(chosen.seeds), target.components, len(objectives)))
     try:
-        for s, seed in enumerate(chosen.seeds):
-            for c in range(target.components):
-                eps = target.step * max(1.0, abs(float(theta[c])))
-                sides = []
-                for multiple in (1, 2) if c in target.one_sided else (1, -1):
-                    moved = theta.copy()
-                    moved[c] += multiple * eps
-                    assign(loaded, target.key, moved.reshape(shape))
-                    sides.append(measure(seed))
-                if c in target.one_sided:
-                    assign(loaded, target.key, theta.reshape(shape))
-                    base = measure.at_base(seed)
-                    rows[s, c] = (4 * sides[0] - sides[1] - 3 * base) / (2 * eps)
-                else:
-                    rows[s, c] = (sides[0] - sides[1]) / (2 * eps)
+        for c in range(target.components):
+            eps = target.step * max(1.0, abs(float(theta[c])))
+            one_sided = c in target.one_sided
+            sides = []
+            for multiple in (1, 2) if one_sided else (1, -1):
+                moved = theta.copy()
+                moved[c] += multiple * eps
+                assign(loaded, target.key, moved.reshape(shape))
+                sides.append(np.array([measure(seed) for seed in chosen.seeds]))
+            if one_sided:
+                assign(loaded, target.key, theta.reshape(shape))
+                base = np.array([measure.at_base(seed) for seed in chosen.seeds])
+                rows[:, c] = (4 * sides[0] - sides[1] - 3 * base) / (2 * eps)
+            else:
+                rows[:, c] = (sides[0] - sides[1]) / (2 * eps)
     finally:
         assign(loaded, target.key, theta.reshape(shape))
     names = [o.spec.name for o in objectives]

@@ -10,9 +10,10 @@ would need two renders for each of thousands of texels.
 The cost is counted in samples. The run's own passes cost about ``pixels × spp × (1 + 2 P)``
 (a primal, and P backward passes of about two primals each); ``repair.budget`` times that is
 what the differences may render. Each repaired component costs two renders per seed (a base
-render per seed is shared by the one-sided ones); the renders' spp is what fits, at most the
-job's. When not even one sample per pixel fits, the parameters that matter least (the reverse
-mode's |θ·∂M/∂θ|, then |∂M/∂θ|) are left out, labelled as before and named.
+render per seed is shared by the one-sided ones), each its samples plus RENDER_OVERHEAD; the
+renders' spp is what fits, at most the job's. When not even one sample per pixel fits, the
+parameters that matter least (the reverse mode's |θ·∂M/∂θ|, then |∂M/∂θ|) are left out,
+labelled as before and named.
 """
 
 from __future__ import annotations
@@ -36,6 +37,11 @@ from sensaov_cli.spec.job import RepairSpec
 
 # A parameter with more components is not repaired by differences (two renders each).
 MAX_COMPONENTS = 16
+# What a difference render costs besides its samples, in samples: setting the parameter
+# (Mitsuba recomputes a roughplastic's tables: 14 ms) and tracing the integrator (9 ms) come to
+# about as much as 2^15 samples at the 1.8 M samples/s of 2 CPU cores (measured on the
+# interior, 128x128: 38 ms for 3 spp, 19 ms for 1).
+RENDER_OVERHEAD = 1 << 15
 TEXTURE_REASON = "a texture: finite differences would take two renders per texel"
 
 
@@ -82,6 +88,17 @@ def candidates(
         elif _over_smooth_lobe(loaded, record):
             found[record.key] = COMPOSITE_REASON
     return found
+
+
+def planned(loaded: LoadedScene) -> dict[str, str]:
+    """Before any render (``sensaov params``): key -> why a run would repair it, budget
+    permitting; zero components are read from the values, as the self-checks will."""
+    zeros = {}
+    for record in loaded.selected:
+        value = np.asarray(loaded.params[record.key])
+        if record.type in THROUGHPUT_TYPES and not record.is_texture and np.any(value == 0):
+            zeros[record.key] = int(np.count_nonzero(value == 0))
+    return candidates(loaded, loaded.selected, zeros)
 
 
 def _over_smooth_lobe(loaded: LoadedScene, record: ParamRecord) -> bool:
@@ -131,12 +148,13 @@ def plan(
     targets.sort(key=lambda t: t.priority, reverse=True)
     fd_spp = 0
     while targets:
-        fd_spp = min(spp, budget // max(pixels * len(seeds) * renders_per_seed(targets), 1))
+        renders = len(seeds) * renders_per_seed(targets)
+        fd_spp = min(spp, (budget // renders - RENDER_OVERHEAD) // pixels)
         if fd_spp >= 1:
             break
         dropped = targets.pop()
         skipped[dropped.key] = f"over the repair budget (repair.budget {settings.budget:g})"
-    samples = fd_spp * pixels * len(seeds) * renders_per_seed(targets)
+    samples = (fd_spp * pixels + RENDER_OVERHEAD) * len(seeds) * renders_per_seed(targets)
     return RepairPlan(tuple(targets), skipped, fd_spp, tuple(seeds), budget, samples)
 
 

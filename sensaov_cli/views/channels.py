@@ -8,7 +8,7 @@ the whole point of storing the buffer (no new differentiation per view).
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import cast
 
 import numpy as np
@@ -32,6 +32,7 @@ class ChannelValues:
     magnitudes: np.ndarray  # (n_objects,) aggregate per object (l2/rms ≥ 0, sum signed)
     signed_sums: np.ndarray  # (n_objects,) Σ c per object: the direction of a group's effect
     unverified: tuple[str, ...]  # selected keys whose gradient is not verified
+    estimators: dict[str, str] = field(default_factory=dict)  # key -> what computed its gradient
 
 
 def channel_values(
@@ -102,4 +103,5 @@ def _values(
         np.array([magnitude[name] for name in buf.objects], np.float64),
         np.array([signed[name] for name in buf.objects], np.float64),
         unverified,
+        {k: buf.param(k).estimator for k in keys},
     )

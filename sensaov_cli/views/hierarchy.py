@@ -16,15 +16,17 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, key_stats, rank, scores
 from sensaov_cli.errors import QueryError
 from sensaov_cli.views.summary import ranked_groups, weakest_trust
 from sensaov_cli.views.uncertainty import GroupError, Uncertainty
-from sensaov_cli.vocabulary import Aggregate, Cut, Grouping, Trust, Weight
+from sensaov_cli.vocabulary import ESTIMATORS, Aggregate, Cut, Grouping, Trust, Weight
 
 RANKING_FORMAT = "sensaov-ranking"
-RANKING_VERSION = 2  # 2: standard errors, significance and stability
+RANKING_VERSION = 3  # 2: standard errors, significance and stability; 3: estimators
 # The grouping each cut reads: a key row is one parameter.
 GROUPING_OF: dict[Cut, Grouping] = {"key": "param", "object": "object", "type": "type"}
 
@@ -45,6 +47,8 @@ class RankRow:
     score_se: float | None = None  # standard errors, when the buffer has batch statistics
     signed_se: float | None = None
     significant: bool | None = None  # |signed| > 2 signed_se: the sign is beyond noise
+    # what produced the gradients: a key's estimator, a group's distinct ones joined by "+"
+    estimator: str = "reverse"
 
 
 @dataclass(frozen=True)
@@ -131,6 +135,8 @@ def _ranking(
     if noise is not None:
         rows = tuple(_with_errors(row, noise.error(grouped[row.name], row.score)) for row in rows)
         stable = noise.stability(ordered, grouped)
+    elif by == "key":  # without batches, a repaired parameter still has its own seeds' error
+        rows = tuple(_with_repair_error(buf, objective, row, method, weight) for row in rows)
     return Ranking(
         objective=objective,
         objective_value=buf.objective(objective).value,
@@ -142,6 +148,27 @@ def _ranking(
         batches=None if noise is None else noise.batches,
         stability=None if stable is None else stable[0],
         stability_top=None if stable is None else stable[1],
+    )
+
+
+def _with_repair_error(
+    buf: SensitivityBuffer, objective: str, row: RankRow, method: Aggregate, weight: Weight
+) -> RankRow:
+    repair = buf.repairs.get(row.name)
+    if repair is None:
+        return row
+    theta = buf.value(row.name) if weight == "value" else np.ones(buf.param(row.name).shape)
+    signed_se = repair.signed_error(objective, theta)
+    score_se = {
+        "sum": signed_se,
+        "l2": repair.norm_error(objective, theta),
+        "rms": repair.norm_error(objective, theta) / math.sqrt(max(theta.size, 1)),
+    }[method]
+    return replace(
+        row,
+        score_se=score_se,
+        signed_se=signed_se,
+        significant=repair.significant(row.signed, signed_se),
     )
 
 
@@ -178,7 +205,14 @@ def _row(
         value=_mean_value(buf, name) if by == "key" else None,
         trust=weakest_trust(buf, keys),
         off_frame=None if visible is None else off_frame(objects, visible),
+        estimator=estimators(buf, keys),
     )
+
+
+def estimators(buf: SensitivityBuffer, keys: Sequence[str]) -> str:
+    """The distinct estimators of ``keys``' gradients, in vocabulary order, joined by "+"."""
+    found = {buf.param(k).estimator for k in keys}
+    return "+".join(e for e in ESTIMATORS if e in found) or "-"
 
 
 def _mean_value(buf: SensitivityBuffer, key: str) -> float | None:
