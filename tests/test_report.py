@@ -227,8 +227,9 @@ class Inventory:
     textures: dict[str, object] = {}
     changes: tuple[tuple[str, str, str], ...] = ()
 
-    def __init__(self, records: tuple[ParamRecord, ...]) -> None:
+    def __init__(self, records: tuple[ParamRecord, ...], repairs: dict | None = None) -> None:
         self.selected = records
+        self.repairs = repairs or {}
 
 
 def test_params_shows_every_label() -> None:
@@ -238,6 +239,16 @@ def test_params_shows_every_label() -> None:
     assert "UNVERIFIED" not in row_of_params(text, WALL) and f"  - {NO_FLOW}" in text
     entries = {e["key"]: e for e in params_dict(inventory)["selected"]}
     assert (entries[GOLD]["trust"], entries[GOLD]["verified"]) == ("no_gradient", False)
+    assert entries[ALPHA]["estimator"] == "reverse" and entries[ALPHA]["repair"] is None
+
+
+def test_params_says_what_run_will_repair() -> None:
+    inventory = Inventory(with_gold_ball().params, {ALPHA: "biased: known biased"})
+    text = params_text(inventory)
+    assert "REPAIRED" in row_of_params(text, ALPHA) and "REPAIRED" not in row_of_params(text, WALL)
+    assert "run computes them again by central differences" in text
+    entries = {e["key"]: e for e in params_dict(inventory)["selected"]}
+    assert entries[ALPHA]["repair"] == "biased: known biased"
 
 
 def row_of_params(text: str, key: str) -> str:
