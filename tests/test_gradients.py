@@ -119,13 +119,13 @@ def test_disagreement_needs_students_t_for_few_seeds() -> None:
     import numpy as np
 
     from sensaov_cli.buffer.model import ParamRecord
-    from sensaov_cli.render.fdcheck import _judge, disagreement_sigmas
+    from sensaov_cli.render.fdcheck import disagreement_sigmas, judge
 
     info = ParamRecord("k", "roughness", (), (1,), False, "roughdielectric", (), "verified", "")
     noise = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0]) * 1e-4 * np.sqrt(6 * 5 / 6)
     error = float(noise.std(ddof=1) / np.sqrt(6))
     fd = np.full(6, -5e-3)
     for sigmas, verdict in ((4.7, "inconclusive"), (8.0, "disagrees")):
-        check = _judge(info, fd + noise + sigmas * error, fd)
+        check = judge(info, fd + noise + sigmas * error, fd)
         assert check.verdict == verdict, (sigmas, check)
     assert disagreement_sigmas(6) == 6.87 and disagreement_sigmas(100) == 3.29

@@ -162,6 +162,25 @@ def repair_entry(plugin: str, ptype: str) -> RepairEntry:
     return RepairEntry("unverified", REPAIR_STEP, note)
 
 
+# --- checks: which kinds one seed checks -----------------------------------------------------
+
+# (plugin, type, is_texture) of kinds whose value does not steer sampling: a difference at the
+# reverse pass's own seed reproduces its gradient to float precision (the trust table's
+# same-seed rows: relative error <= 1e-4), so `sensaov check` compares them at one seed. Others
+# (roughness, eta of rough or plastic BSDFs, lobe and blend weights, importance-sampled emitter
+# textures) are compared on average over seeds. A kind missing here is compared over seeds.
+SAME_SEED_EXACT = frozenset(
+    {("diffuse", "reflectance", False), ("diffuse", "reflectance", True),
+     ("conductor", "eta", False), ("conductor", "k", False), ("conductor", "specular", False),
+     ("roughconductor", "eta", False), ("roughconductor", "k", False),
+     ("dielectric", "specular", False), ("dielectric", "transmittance", False),
+     ("thindielectric", "transmittance", False), ("principled", "reflectance", False),
+     ("area", "radiance", False), ("point", "radiance", False),
+     ("directional", "radiance", False), ("constant", "radiance", False),
+     ("spot", "radiance", False), ("spot", "radiance", True), ("envmap", "radiance", False)}
+)  # fmt: skip
+
+
 def known_zero_reason(
     plugin: str, ptype: str, key: str, integrator: str, all_zero: bool
 ) -> str | None:
