@@ -3,8 +3,9 @@
 Where Mitsuba's reverse-mode gradient of a parameter is known to be wrong (docs/verification.md,
 "Repairs"), ``sensaov run`` stores central differences with common random numbers in its place:
 per seed s and component c, (M(θ + ε e_c; s) − M(θ − ε e_c; s)) / 2ε, both sides rendered with
-the same samples; a component at exactly 0 of a throughput weight (which cannot go below 0)
-takes the one-sided (−3 M(θ; s) + 4 M(θ + ε e_c; s) − M(θ + 2ε e_c; s)) / 2ε, as accurate.
+the same samples; a component within a step of a bound (a throughput weight at 0, a blend
+weight at 0 or 1) takes the one-sided (−3 M(θ; s) + 4 M(θ + h e_c; s) − M(θ + 2h e_c; s)) / 2h,
+h = ±ε away from the bound, as accurate.
 A :class:`Repair` keeps every seed's estimate, so the stored gradient's standard error and its
 sign's significance come from its own spread, and the reverse-mode gradient it replaced (duality
 with forward mode holds for that one). numpy only; the header's JSON form is here too.
@@ -42,7 +43,8 @@ class Repair:
     step: float  # relative step: ε = step · max(1, |θ_c|) per component
     spp: tuple[int, ...]  # samples per pixel of each seed's renders
     seeds: tuple[int, ...]  # one per estimate
-    one_sided: tuple[int, ...]  # flat indices of components differenced one-sided (value 0)
+    # (flat index, +1 or -1) of components differenced one-sided, away from a bound
+    one_sided: tuple[tuple[int, int], ...]
     estimates: Mapping[str, np.ndarray]  # objective -> (seeds, components) float64
     reverse: Mapping[str, np.ndarray]  # objective -> (components,) the gradient it replaced
     seconds: float  # wall time of its renders
@@ -59,7 +61,10 @@ class Repair:
         for name, estimates in self.estimates.items():
             _require(np.shape(estimates)[0] == count, f"repair of {name!r}: one row per seed")
             _require(bool(np.isfinite(estimates).all()), f"repair of {name!r}: not finite")
-        _require(all(0 <= i < self.components for i in self.one_sided), "one_sided out of range")
+        _require(
+            all(0 <= i < self.components and sign in (1, -1) for i, sign in self.one_sided),
+            f"one_sided {self.one_sided!r}: (index, +1 or -1) pairs within the parameter",
+        )
 
     @property
     def components(self) -> int:
@@ -106,7 +111,7 @@ def repair_json(repair: Repair) -> dict[str, Any]:
         "step": repair.step,
         "spp": list(repair.spp),
         "seeds": list(repair.seeds),
-        "one_sided": list(repair.one_sided),
+        "one_sided": [list(pair) for pair in repair.one_sided],
         "estimates": {k: np.asarray(v, np.float64).tolist() for k, v in repair.estimates.items()},
         "reverse": {k: np.asarray(v, np.float64).tolist() for k, v in repair.reverse.items()},
         "seconds": repair.seconds,
@@ -130,7 +135,7 @@ def repair_from_json(entry: Any, where: str) -> Repair:
             step=float(entry["step"]),
             spp=tuple(_integers(entry["spp"])),
             seeds=tuple(_integers(entry["seeds"])),
-            one_sided=tuple(_integers(entry["one_sided"])),
+            one_sided=tuple(_pair(p) for p in _list(entry["one_sided"])),
             estimates={str(k): np.asarray(v, np.float64) for k, v in _dict(entry, "estimates")},
             reverse={str(k): np.asarray(v, np.float64) for k, v in _dict(entry, "reverse")},
             seconds=float(entry["seconds"]),
@@ -145,6 +150,19 @@ def _integers(items: Any) -> list[int]:
     ):
         raise ValueError(f"expected a list of integers, got {items!r}")
     return items
+
+
+def _list(items: Any) -> list[Any]:
+    if not isinstance(items, list):
+        raise ValueError(f"expected a list, got {items!r}")
+    return items
+
+
+def _pair(item: Any) -> tuple[int, int]:
+    index, sign = _integers(item) if isinstance(item, list) and len(item) == 2 else (None, None)
+    if index is None or sign is None:
+        raise ValueError(f"one_sided entries are [index, sign] pairs, got {item!r}")
+    return index, sign
 
 
 def _dict(entry: Mapping[str, Any], name: str) -> list[tuple[str, Any]]:

@@ -3,9 +3,10 @@
 After a run's backward passes and self-checks, every parameter :mod:`.repair_plan` picks is
 differentiated again by finite differences with common random numbers: per seed s and
 component c, (M(θ + ε e_c; s) − M(θ − ε e_c; s)) / 2ε, both sides rendered with the same
-samples, so that the noise they share cancels; a component at 0 of a throughput weight takes
-(−3 M(θ; s) + 4 M(θ + ε e_c; s) − M(θ + 2ε e_c; s)) / 2ε. ε = step · max(1, |θ_c|), the step
-measured for the kind (trust.REPAIRS). The mean over seeds replaces the stored gradient; the
+samples, so that the noise they share cancels; a component within a step of a bound (0 for a
+throughput weight, 0 or 1 for a blend weight) takes (−3 M(θ; s) + 4 M(θ + h e_c; s) −
+M(θ + 2h e_c; s)) / 2h, h = ±ε away from it. ε = step · max(1, |θ_c|), the step measured for
+the kind (trust.REPAIRS). The mean over seeds replaces the stored gradient; the
 seeds' spread is its standard error (buffer/repairs.py). With ``render.batches: k`` the seeds
 are dealt to the batches, so the buffer's batch statistics cover the repaired gradients too.
 
@@ -114,21 +115,21 @@ def _differences(
     measure = _Objectives(loaded, objectives, chosen.spp)
     rows = np.zeros((len(chosen.seeds), target.components, len(objectives)))
     try:
+        away = dict(target.one_sided)  # component -> the sign of h, away from its bound
         for c in range(target.components):
-            eps = target.step * max(1.0, abs(float(theta[c])))
-            one_sided = c in target.one_sided
+            h = target.step * max(1.0, abs(float(theta[c]))) * away.get(c, 1)
             sides = []
-            for multiple in (1, 2) if one_sided else (1, -1):
+            for multiple in (1, 2) if c in away else (1, -1):
                 moved = theta.copy()
-                moved[c] += multiple * eps
+                moved[c] += multiple * h
                 assign(loaded, target.key, moved.reshape(shape))
                 sides.append(np.array([measure(seed) for seed in chosen.seeds]))
-            if one_sided:
+            if c in away:
                 assign(loaded, target.key, theta.reshape(shape))
                 base = np.array([measure.at_base(seed) for seed in chosen.seeds])
-                rows[:, c] = (4 * sides[0] - sides[1] - 3 * base) / (2 * eps)
+                rows[:, c] = (4 * sides[0] - sides[1] - 3 * base) / (2 * h)
             else:
-                rows[:, c] = (sides[0] - sides[1]) / (2 * eps)
+                rows[:, c] = (sides[0] - sides[1]) / (2 * h)
     finally:
         assign(loaded, target.key, theta.reshape(shape))
     names = [o.spec.name for o in objectives]

@@ -8,7 +8,8 @@ through ``eval()``, which omits that lobe. Textures are never repaired: a differ
 would need two renders for each of thousands of texels.
 
 The cost is counted in samples. The run's own passes cost about ``pixels × spp × (1 + 2 P)``
-(a primal, and P backward passes of about two primals each); ``repair.budget`` times that is
+(a primal, and P backward passes of about two primals each) plus their fixed costs
+(RENDER_OVERHEAD, BACKWARD_OVERHEAD); ``repair.budget`` times that is
 what the differences may render. Each repaired component costs two renders per seed (a base
 render per seed is shared by the one-sided ones), each its samples plus RENDER_OVERHEAD; the
 renders' spp is what fits, at most the job's. When not even one sample per pixel fits, the
@@ -37,12 +38,21 @@ from sensaov_cli.spec.job import RepairSpec
 
 # A parameter with more components is not repaired by differences (two renders each).
 MAX_COMPONENTS = 16
-# What a difference render costs besides its samples, in samples: setting the parameter
-# (Mitsuba recomputes a roughplastic's tables: 14 ms) and tracing the integrator (9 ms) come to
-# about as much as 2^15 samples at the 1.8 M samples/s of 2 CPU cores (measured on the
-# interior, 128x128: 38 ms for 3 spp, 19 ms for 1).
+# What a render costs besides its samples, in samples: setting the parameter (Mitsuba
+# recomputes a roughplastic's tables: 14 ms) and tracing the integrator (9 ms) come to about
+# as much as 2^15 samples at the 1.8 M samples/s of 2 CPU cores (measured on the interior,
+# 128x128: 38 ms for 3 spp, 19 ms for 1). A backward pass costs about 8 times that besides its
+# samples (200-400 ms at 24x24 to 128x128 on cbox, against 30-50 ms for a primal).
 RENDER_OVERHEAD = 1 << 15
+BACKWARD_OVERHEAD = 8 * RENDER_OVERHEAD
 TEXTURE_REASON = "a texture: finite differences would take two renders per texel"
+# Where a difference must not step past a bound: a throughput weight below 0 ends Mitsuba's
+# replayed path, a blend weight is clamped to [0, 1]. Components within a step of one are
+# differenced one-sided, away from it.
+BOUNDS: dict[str, tuple[float | None, float | None]] = {
+    **{kind: (0.0, None) for kind in THROUGHPUT_TYPES},
+    "weight": (0.0, 1.0),
+}
 
 
 @dataclass(frozen=True)
@@ -52,7 +62,7 @@ class Target:
     key: str
     reason: str
     components: int
-    one_sided: tuple[int, ...]  # components at 0 of a throughput weight: forward differences
+    one_sided: tuple[tuple[int, int], ...]  # (component, ±1): one-sided, away from a bound
     step: float
     priority: tuple[float, float]  # reverse mode's max |θ·∂M/∂θ| and |∂M/∂θ| over objectives
 
@@ -119,7 +129,7 @@ def renders_per_seed(targets: Sequence[Target]) -> int:
 
 def run_samples(pixels: int, spp: int, passes: int) -> int:
     """What the run's own passes cost, in samples: a primal and P backward passes of ~2."""
-    return pixels * spp * (1 + 2 * passes)
+    return pixels * spp * (1 + 2 * passes) + RENDER_OVERHEAD + BACKWARD_OVERHEAD * passes
 
 
 def plan(
@@ -167,11 +177,13 @@ def _target(
 ) -> Target:
     step = settings.step or repair_entry(record.plugin, record.type).step
     flat = value.astype(np.float64).ravel()
-    # A throughput weight cannot go below 0 (Mitsuba's replay ends a path at 0): a component
-    # within one step of 0 takes forward differences.
-    low = record.type in THROUGHPUT_TYPES
-    one_sided = (
-        tuple(int(i) for i in np.flatnonzero(flat < step * np.maximum(1, flat))) if low else ()
+    low, high = BOUNDS.get(record.type, (None, None))
+    eps = step * np.maximum(1.0, np.abs(flat))
+    one_sided = tuple(
+        (int(i), 1 if low is not None and flat[i] - eps[i] < low else -1)
+        for i in range(flat.size)
+        if (low is not None and flat[i] - eps[i] < low)
+        or (high is not None and flat[i] + eps[i] > high)
     )
     weighted = max(
         (float(np.abs(flat * g[record.key].ravel()).sum()) for g in grads.values()), default=0.0
