@@ -440,6 +440,22 @@ def test_reads_a_file_written_from_the_spec(tmp_path: Path, version: int) -> Non
     assert loaded.param("lamp.emitter.radiance.value").trust == "suspect"
 
 
+def test_a_version_3_file_reads_its_estimators_from_the_provenance(tmp_path: Path) -> None:
+    """Before version 4 the estimator is the backward pass's integrator, as recorded."""
+    path = tmp_path / "v3.npz"
+    _write_by_hand(path, 3, {"trust": "verified"})
+    assert read_buffer(path).param("lamp.emitter.radiance.value").estimator == "reverse"
+    with zipfile.ZipFile(path) as zf:
+        items = [(i.filename, zf.read(i)) for i in zf.infolist()]
+    header = json.loads(str(np.load(io.BytesIO(items[0][1]))[()]))
+    header["provenance"]["gradient_integrators"] = {"path": ["lamp.emitter.radiance.value"]}
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("header.npy", _npy(np.array(json.dumps(header))))
+        for name, data in items[1:]:
+            zf.writestr(name, data)
+    assert read_buffer(path).param("lamp.emitter.radiance.value").estimator == "reverse-path"
+
+
 @pytest.mark.parametrize(("verified", "trust"), [(True, "verified"), (False, "unverified")])
 def test_reads_a_version_1_file(tmp_path: Path, verified: bool, trust: str) -> None:
     """Version 1 stored a boolean "verified"; it reads as the label it meant."""

@@ -51,7 +51,7 @@ class Repair:
 
     def __post_init__(self) -> None:
         count = len(self.seeds)
-        _require(count >= 2 and len(self.spp) == count, "a repair needs >= 2 seeds, spp each")
+        _require(count >= 1 and len(self.spp) == count, "a repair needs seeds, spp for each")
         _require(self.step > 0 and math.isfinite(self.step), f"repair step {self.step!r}")
         _require(min(self.spp) >= 1, f"repair spp {self.spp!r}")
         sizes = {np.shape(e)[1:] for e in self.estimates.values()}
@@ -73,8 +73,14 @@ class Repair:
     def mean(self, objective: str) -> np.ndarray:
         return np.asarray(self.estimates[objective]).mean(axis=0)
 
+    @property
+    def has_error(self) -> bool:
+        """Whether its own seeds give a standard error (a shard's share may be one seed: its
+        merge has them all, and batch statistics beside)."""
+        return len(self.seeds) >= 2
+
     def stderr(self, objective: str) -> np.ndarray:
-        """Per component, the standard error of the mean over seeds."""
+        """Per component, the standard error of the mean over seeds (needs has_error)."""
         rows = np.asarray(self.estimates[objective])
         return rows.std(axis=0, ddof=1) / math.sqrt(len(rows))
 

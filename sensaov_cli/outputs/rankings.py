@@ -167,16 +167,16 @@ def _legend(r: Ranking) -> list[str]:
         lines.append(
             f"  ±: standard error from {r.batches} batches; ? = sign within 2 standard errors"
         )
-    elif any(row.signed_se is not None for row in r.rows):
-        lines.append(
-            "  ±: a repaired (finite-difference) parameter's standard error over its seeds; "
-            "? = sign within Student's t (95 %) of it; others: no error measured (-)"
-        )
         if r.stability is not None:
             lines.append(
                 f"  the top {r.stability_top} keep their order in {100 * r.stability:.0f}% "
                 "of bootstrap resamples of the batches"
             )
+    elif any(row.signed_se is not None for row in r.rows):
+        lines.append(
+            "  ±: a repaired (finite-difference) parameter's standard error over its seeds; "
+            "? = sign within Student's t (95 %) of it; others: no error measured (-)"
+        )
     if any(row.off_frame for row in r.rows):
         lines.append("  off-frame: the cameras that see none of its objects")
     if r.no_gradient:

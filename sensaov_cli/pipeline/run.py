@@ -139,9 +139,13 @@ def run_job(
         batches=batches,
     )
     forward_stages = forward_passes if forward_wanted else 0
+    # The repairs' plan is the whole job's: a shard renders its batch's share of the seeds.
     result = repair(
-        loaded, objectives, result, job.repair, seed=seed, batches=batches, progress=progress,
-        stages_after=forward_stages + 1,
+        loaded, objectives, result, job.repair, seed=job.render.seed, spp=job.render.spp,
+        batches=task.shard[1] if task.shard else batches,
+        shard=task.shard[0] - 1 if task.shard else None,
+        passes=len(integrator_plan(loaded)) * len(whole.objectives),
+        progress=progress, stages_after=forward_stages + 1,
     )  # fmt: skip
     provenance = _provenance(whole, loaded, result, progress.timings, time.perf_counter() - started)
     provenance["task"] = task.describe()

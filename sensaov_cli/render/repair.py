@@ -45,28 +45,38 @@ def repair(
     settings: RepairSpec,
     *,
     seed: int,
-    batches: int,
+    spp: int,
+    batches: int = 1,
+    shard: int | None = None,
+    passes: int | None = None,
     progress: Progress,
     stages_after: int = 0,
 ) -> AdjointResult:
-    """``result`` with every known-wrong gradient the budget allows computed again
-    (``stages_after``: the command's progress stages that follow, for the percentage)."""
+    """``result`` with every known-wrong gradient the budget allows computed again.
+
+    ``seed``, ``spp`` and ``batches`` are the whole job's (its primal seed, render.spp, and
+    render.batches or the shard count): the plan, its seeds and their spp are the job's, so
+    shard i renders exactly the seeds batch i-1 of a run with as many batches does, and their
+    merge is that run's buffer. ``shard``: this task's batch index (0-based), or None;
+    ``passes``: the whole job's backward passes per batch (default: this run's, which an
+    ``--objective`` task has fewer of). ``stages_after``: the progress stages that follow."""
     zeros = result.provenance.get("self_checks", {}).get("zero_components", {})
     reasons = candidates(loaded, result.params, zeros)
     count = max(settings.seeds, batches)  # with batches, at least one seed each
     width, height = loaded.resolution
-    chosen = plan(
+    whole = plan(
         reasons, result.params, result.values, result.grads, settings,
-        pixels=width * height, spp=result.spp,
-        passes=len(integrator_plan(loaded)) * len(objectives),
+        pixels=width * height, spp=spp,
+        passes=passes or len(integrator_plan(loaded)) * len(objectives),
         seeds=[derived_seed(seed, "repair", i) for i in range(count)],
     )  # fmt: skip
+    chosen = whole if shard is None else replace(whole, seeds=whole.seeds[shard::batches])
     progress.plan(len(chosen.targets) + stages_after)
     repairs = {}
     for index, target in enumerate(chosen.targets, 1):
         label = (
             f"repair {index}/{len(chosen.targets)} {target.key}: differences over "
-            f"{count} seeds at {chosen.spp} spp"
+            f"{len(chosen.seeds)} seeds at {chosen.spp} spp"
         )
         with progress.stage(f"repair_{index}_s", label):
             repairs[target.key] = _differences(loaded, objectives, result, chosen, target)
@@ -159,10 +169,12 @@ def _stored(
             for name in grads:
                 grads[name][key] = fixed.mean(name).astype(np.float32).reshape(shape)
             continue
+        # float32 per batch, as a shard stores it: the merge of shards gives the same bits
         per_batch = {
-            name: [rows[b::batches].mean(axis=0).reshape(shape) for b in range(batches)]
+            name: [rows[b::batches].mean(axis=0).astype(np.float32).reshape(shape)
+                   for b in range(batches)]
             for name, rows in fixed.estimates.items()
-        }
+        }  # fmt: skip
         theta = result.values[key].astype(np.float64)
         statistics, means = with_batch_estimates(statistics, keys, key, per_batch, theta)
         for name, mean in means.items():

@@ -155,7 +155,7 @@ def _with_repair_error(
     buf: SensitivityBuffer, objective: str, row: RankRow, method: Aggregate, weight: Weight
 ) -> RankRow:
     repair = buf.repairs.get(row.name)
-    if repair is None:
+    if repair is None or not repair.has_error:
         return row
     theta = buf.value(row.name) if weight == "value" else np.ones(buf.param(row.name).shape)
     signed_se = repair.signed_error(objective, theta)

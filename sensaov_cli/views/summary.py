@@ -148,7 +148,7 @@ def repair_error(
     """A repaired parameter's own standard error of its signed sum, the significance of its
     sign and its seed count (buffer/repairs.py); {} for any other parameter."""
     repair = buf.repairs.get(key)
-    if repair is None:
+    if repair is None or not repair.has_error:
         return {}
     theta = buf.value(key) if weight == "value" else np.ones(buf.param(key).shape)
     error = repair.signed_error(objective, theta)
