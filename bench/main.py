@@ -19,6 +19,7 @@ from bench import (
     fig_passes,
     fig_process,
     fig_project,
+    fig_repairs,
     fig_texels,
     machine,
     settings,
@@ -105,6 +106,8 @@ def plan(
         (10, lambda: [fig_farm.farm(ws, s, log)]),
         (11, lambda: [fig_forward.forward_cost(ws, s, log)]),
         (12, lambda: [fig_texels.texel_cost(ws, s, log)]),
+        (13, lambda: [fig_repairs.repair_cost(ws, s, log)]),
+        (14, lambda: [fig_repairs.check_cost(ws, s, log)]),
     ]
 
 
