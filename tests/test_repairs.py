@@ -207,7 +207,7 @@ def test_plan_leaves_textures_and_spends_the_budget_on_what_matters_most() -> No
     assert [t.key for t in enough.targets] == ["big", "small"] and enough.spp == 16
     assert enough.skipped == {"tex": TEXTURE_REASON}
     assert enough.samples <= enough.budget_samples
-    tight = planned(0.7)  # one parameter fits at 1 spp, not two
+    tight = planned(0.45)  # one parameter fits at 1 spp, not two
     assert [t.key for t in tight.targets] == ["big"] and tight.spp >= 1
     assert tight.skipped["small"].startswith("over the repair budget")
     assert planned(0).targets == ()

@@ -41,10 +41,10 @@ MAX_COMPONENTS = 16
 # What a render costs besides its samples, in samples: setting the parameter (Mitsuba
 # recomputes a roughplastic's tables: 14 ms) and tracing the integrator (9 ms) come to about
 # as much as 2^15 samples at the 1.8 M samples/s of 2 CPU cores (measured on the interior,
-# 128x128: 38 ms for 3 spp, 19 ms for 1). A backward pass costs about 8 times that besides its
-# samples (200-400 ms at 24x24 to 128x128 on cbox, against 30-50 ms for a primal).
+# 128x128: 38 ms for 3 spp, 19 ms for 1). A backward pass costs about 2^19 besides its
+# samples (200-400 ms on cbox from 24x24 to 128x128, against 30-50 ms for a primal).
 RENDER_OVERHEAD = 1 << 15
-BACKWARD_OVERHEAD = 8 * RENDER_OVERHEAD
+BACKWARD_OVERHEAD = 1 << 19
 TEXTURE_REASON = "a texture: finite differences would take two renders per texel"
 # Where a difference must not step past a bound: a throughput weight below 0 ends Mitsuba's
 # replayed path, a blend weight is clamped to [0, 1]. Components within a step of one are
