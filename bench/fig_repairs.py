@@ -1,9 +1,9 @@
-"""Figures 13 and 14: what repairs cost a run, and `sensaov check` against `sensaov run`.
+"""Figures 15 and 16: what repairs cost a run, and `sensaov check` against `sensaov run`.
 
-13: ``sensaov run`` of ``configs/interior.yaml`` as shipped (the default ``repair.budget``)
+15: ``sensaov run`` of ``configs/interior.yaml`` as shipped (the default ``repair.budget``)
 against the same job with ``repair.budget: 0``, whole processes interleaved; and whether the
 repaired run's headline view (the ranked summary) shows any number not labelled verified.
-14: ``sensaov check configs/cbox.yaml`` with the README's arguments (none) against ``sensaov
+16: ``sensaov check configs/cbox.yaml`` with the README's arguments (none) against ``sensaov
 run configs/cbox.yaml`` (which writes the buffer the check's duality column reads), each run
 followed by its check in the same round; and the check's progress lines.
 """
@@ -35,7 +35,7 @@ def _timed(command: list[str], record: list[ChildRun]) -> Callable[[], float]:
 
 def repair_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
     figure = Figure(
-        13,
+        15,
         "Repairs: `sensaov run configs/interior.yaml` / the same without repairs",
         "≤ 2.0×; no unverified number in the summary",
         "Whole-process wall time of `sensaov run JOB -q --json` on a copy of "
@@ -82,7 +82,7 @@ def repair_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
             ", ".join(unverified) or "none",
         )
     )
-    log("figure 13: done")
+    log("figure 15: done")
     return figure
 
 
@@ -100,7 +100,7 @@ def _unverified_rows(summary: dict) -> list[str]:
 
 def check_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
     figure = Figure(
-        14,
+        16,
         "`sensaov check configs/cbox.yaml` (the README's example) / `sensaov run` of it",
         "≤ 5×; progress printed",
         "Whole-process wall time of `sensaov check JOB` (the README's arguments: none) against "
@@ -138,5 +138,5 @@ def check_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
             "lines 'sensaov: check: …' on stderr, one per render",
         )
     )
-    log("figure 14: done")
+    log("figure 16: done")
     return figure

@@ -67,7 +67,7 @@ class Workspace:
 
         Repairs are off unless asked for: the other figures measure the passes they measured
         before repairs existed (figure 1 compares with a script that repairs nothing), and
-        figure 13 measures what repairs cost."""
+        figure 15 measures what repairs cost."""
         job: dict[str, Any] = {
             "version": 1,
             "scene": str(scene),

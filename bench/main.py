@@ -21,6 +21,7 @@ from bench import (
     fig_project,
     fig_repairs,
     fig_texels,
+    fig_view,
     machine,
     settings,
 )
@@ -106,8 +107,9 @@ def plan(
         (10, lambda: [fig_farm.farm(ws, s, log)]),
         (11, lambda: [fig_forward.forward_cost(ws, s, log)]),
         (12, lambda: [fig_texels.texel_cost(ws, s, log)]),
-        (13, lambda: [fig_repairs.repair_cost(ws, s, log)]),
-        (14, lambda: [fig_repairs.check_cost(ws, s, log)]),
+        (13, lambda: [fig_view.view_latency(ws, s, log)]),
+        (15, lambda: [fig_repairs.repair_cost(ws, s, log)]),
+        (16, lambda: [fig_repairs.check_cost(ws, s, log)]),
     ]
 
 

@@ -123,3 +123,12 @@ STARTUP = (
     "slowest imports; an import of mitsuba or drjit on these paths is a bug (they take "
     "≈ 0.2 s by themselves)."
 )
+
+
+LIVE_VIEW = (
+    "A live view is one primary-visibility pass plus numpy work on its pixels: the histogram "
+    "of each pixel's samples, painting, the colour map and the PNG. Past the goal, profile "
+    "`ViewSession.view` (cProfile) before changing the kernel: the trace itself is a few "
+    "milliseconds at 256², 1 spp, and a kernel compiled anew on a move would show in the "
+    "'kernels compiled' row."
+)

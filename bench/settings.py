@@ -23,6 +23,8 @@ class Settings:
     memory_resolution: int
     memory_spp: tuple[int, int]
     io_texture: int  # side of the RGB gradient of figure 9
+    live_view: int = 256  # side of figure 13's live views (the issue's 256²)
+    live_views: int = 60  # timed views of figure 13, each from a new camera
 
     def describe(self) -> str:
         kind = "quick (development only: numbers mean nothing)" if self.quick else "full"
@@ -75,4 +77,6 @@ def quick(variant: str) -> Settings:
         memory_resolution=32,
         memory_spp=(4, 16),
         io_texture=256,
+        live_view=64,
+        live_views=8,
     )

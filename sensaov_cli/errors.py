@@ -171,3 +171,15 @@ class PreviewError(SensaovError):
 
 class FingerprintMismatch(SpecError):
     """The buffer was computed on another version of the scene."""
+
+
+class RequestError(SensaovError):
+    """A request to ``sensaov view``'s server with a bad value: answered HTTP 400, one line."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
+class ServerError(SensaovError):
+    """``sensaov view`` cannot listen where it was told to (the port is taken, no such host)."""
+
+    exit_code = EXIT_BAD_INPUT

@@ -34,6 +34,7 @@ COMMANDS = (
     "rank",
     "sunburst",
     "report",
+    "view",
 )
 CLI_MODULES = [f"sensaov_cli.cli.{m.name}" for m in pkgutil.iter_modules(sensaov_cli.cli.__path__)]
 

@@ -30,6 +30,7 @@ from sensaov_cli.cli import (  # noqa: E402
     schema,
     sunburst,
     validate,
+    view,
 )
 from sensaov_cli.cli.options import EXIT_CODES_EPILOG  # noqa: E402
 
@@ -63,6 +64,7 @@ main.add_command(merge.merge)
 main.add_command(rank.rank)
 main.add_command(sunburst.sunburst)
 main.add_command(report.report)
+main.add_command(view.view)
 
 __all__ = ["main"]
 

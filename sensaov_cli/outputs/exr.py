@@ -47,6 +47,21 @@ def exr_writer(
     return write
 
 
+def encode_exr(channels: dict[str, np.ndarray], attributes: dict[str, str]) -> bytes:
+    """The EXR ``write_exr`` would write, as bytes in memory (an HTTP answer, no file)."""
+    import io
+
+    import OpenEXR
+
+    pixels = {name: np.ascontiguousarray(data, dtype=np.float32) for name, data in channels.items()}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header.update(attributes)
+    stream = io.BytesIO()
+    with OpenEXR.File(header, pixels) as exr:
+        exr.write(stream)
+    return stream.getvalue()
+
+
 def _os_error(message: str) -> OSError:
     """OpenEXR's message as the OSError it reports ("... No space left on device.")."""
     for code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EROFS):

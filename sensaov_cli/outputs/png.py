@@ -21,8 +21,11 @@ _SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _MAX_KEYWORD = 79  # bytes, by the PNG specification
 
 
-def encode_png(rgb_uint8: np.ndarray, text: Mapping[str, str] | None = None) -> bytes:
-    """An (H, W, 3) uint8 image as PNG bytes (8-bit RGB, no interlace), with ``text`` chunks."""
+def encode_png(
+    rgb_uint8: np.ndarray, text: Mapping[str, str] | None = None, level: int = 6
+) -> bytes:
+    """An (H, W, 3) uint8 image as PNG bytes (8-bit RGB, no interlace), with ``text`` chunks;
+    ``level`` is zlib's compression level."""
     height, width = rgb_uint8.shape[:2]
     rows = np.zeros((height, 1 + width * 3), np.uint8)  # filter byte 0 ("none") per row
     rows[:, 1:] = np.ascontiguousarray(rgb_uint8).reshape(height, width * 3)
@@ -30,7 +33,7 @@ def encode_png(rgb_uint8: np.ndarray, text: Mapping[str, str] | None = None) -> 
     for key, value in (text or {}).items():
         keyword = key.encode("latin-1", "replace")[:_MAX_KEYWORD]
         chunks.append(_chunk(b"tEXt", keyword + b"\0" + value.encode("latin-1", "replace")))
-    chunks.append(_chunk(b"IDAT", zlib.compress(rows.tobytes(), 6)))
+    chunks.append(_chunk(b"IDAT", zlib.compress(rows.tobytes(), level)))
     chunks.append(_chunk(b"IEND", b""))
     return _SIGNATURE + b"".join(chunks)
 

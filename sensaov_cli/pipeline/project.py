@@ -62,7 +62,7 @@ def project_job(
     buffer = read_buffer(buffer_path)
     chosen = _cameras(job, tuple(dict.fromkeys(cameras)))  # a camera named twice renders once
     prepared = prepare_scene(job, tuple(chosen))
-    _check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
+    check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
     check_writable(job.output, [f"{camera.name}.exr" for camera in chosen])
     refuse_unsafe_outputs(
         (*job.input_files(), *prepared.files, buffer_path),
@@ -75,7 +75,7 @@ def project_job(
     project_texels.check_texel_channels(job, buffer)
     with progress.stage("load_s", f"loading {job.scene.name} with {len(chosen)} camera(s)"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
-    _check_objects(buffer, loaded, buffer_path)
+    check_objects(buffer, loaded, buffer_path)
     texels = project_texels.project_fields(job, buffer, loaded, buffer_path, progress)
     views = []
     for camera in chosen:
@@ -89,7 +89,7 @@ def project_job(
     return views
 
 
-def _check_fingerprint(
+def check_fingerprint(
     job: JobSpec, buffer: SensitivityBuffer, path: Path, fingerprint: str, force: bool
 ) -> None:
     if buffer.provenance.get("scene_fingerprint") != fingerprint and not force:
@@ -100,7 +100,7 @@ def _check_fingerprint(
         )
 
 
-def _check_objects(buffer: SensitivityBuffer, loaded: LoadedScene, path: Path) -> None:
+def check_objects(buffer: SensitivityBuffer, loaded: LoadedScene, path: Path) -> None:
     missing = sorted(set(buffer.objects) - set(loaded.objects))
     if missing:
         raise FingerprintMismatch(

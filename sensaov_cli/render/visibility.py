@@ -59,7 +59,7 @@ def trace(
         instance: Any = dr.reinterpret_array(mi.UInt32, si.instance)  # stubs say object
         shape: Any = dr.reinterpret_array(mi.UInt32, si.shape)
         registry = dr.select(instance != 0, instance, shape)
-        table = mi.Int32(_object_of_registry_id(mi, scene, objects))
+        table = mi.Int32(object_of_registry_id(mi, scene, objects))
         hit = si.is_valid() & (registry < dr.width(table))
         index = dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)
         if with_uv:  # one kernel for both: converting them apart would trace every ray twice
@@ -81,7 +81,7 @@ def trace(
     )
 
 
-def _object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> np.ndarray:
+def object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> np.ndarray:
     """A table from shape registry id (what a hit reports) to object index in ``objects``."""
     import drjit as dr
 

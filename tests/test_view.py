@@ -1,0 +1,433 @@
+"""``sensaov view``: the HTTP interface, the free camera, the page.
+
+One buffer of the demo job (configs/cbox.yaml, made small: 24x24 at 4 spp, its forward layers
+kept) serves every test. The acceptance test runs the real command in a process of its own and
+stops it with SIGTERM; the others talk to one in-process server. The page test drives headless
+Chromium and skips, saying why, where Chromium or its driver is absent.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.error
+import urllib.request
+import zlib
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from sensaov_cli.buffer.npz import read_buffer
+from sensaov_cli.buffer.queries import per_object
+from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED, RequestError
+from sensaov_cli.outputs.exr import read_exr
+from sensaov_cli.pipeline.view import ViewSession, open_session
+from sensaov_cli.pipeline.view_query import single_values, view_request
+from sensaov_cli.pipeline.view_server import ViewServer
+from sensaov_cli.progress import Progress
+from sensaov_cli.render.viewpoint import Pose, ViewTracer, sensor_pose
+from sensaov_cli.spec.cameras import LookAt
+from sensaov_cli.spec.load import load_job
+
+from .conftest import ROOT, sensaov
+from .webdriver import Browser, browser_missing, free_port
+
+CBOX = ROOT / "configs" / "cbox.yaml"
+STOP_BOUND_S = 3.0
+SHOTS = os.environ.get("SENSAOV_SHOTS")  # a folder to keep the page test's screenshots in
+
+
+@pytest.fixture(scope="module")
+def small_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """configs/cbox.yaml at 24x24 and 4 spp, written elsewhere, with its buffer made."""
+    folder = tmp_path_factory.mktemp("view")
+    data = yaml.safe_load(CBOX.read_text())
+    data["scene"] = str(ROOT / "scenes" / "cbox" / "scene.xml")
+    data["variant"] = "llvm_ad_rgb"
+    data["render"].update(spp=4, resolution=[24, 24])
+    data["output"] = str(folder / "out")
+    job = folder / "job.yaml"
+    job.write_text(yaml.safe_dump(data, sort_keys=False))
+    result = sensaov("run", "-q", str(job))
+    assert result.returncode == 0, result.stderr
+    return job
+
+
+@pytest.fixture(scope="module")
+def session(small_job: Path) -> ViewSession:
+    job = load_job(small_job)
+    return open_session(
+        job, buffer_path=job.output / "buffer.npz", force=False, progress=Progress(quiet=True)
+    )
+
+
+@pytest.fixture(scope="module")
+def server(session: ViewSession) -> Iterator[ViewServer]:
+    saved: list[str] = []
+    running = ViewServer(("127.0.0.1", 0), saved.append, None)
+    running.attach(session)
+    thread = threading.Thread(target=running.serve_forever, kwargs={"poll_interval": 0.05})
+    thread.start()
+    yield running
+    running.shutdown()
+    running.server_close()
+    thread.join()
+
+
+def get(url: str, headers: dict[str, str] | None = None, method: str = "GET") -> tuple:
+    """(status, headers, body) of a request; HTTP errors are answers too."""
+    request = urllib.request.Request(url, headers=headers or {}, method=method)
+    try:
+        with urllib.request.urlopen(request, timeout=60) as answer:
+            return answer.status, dict(answer.headers), answer.read()
+    except urllib.error.HTTPError as error:
+        return error.code, dict(error.headers), error.read()
+
+
+def png_pixels(data: bytes) -> np.ndarray:
+    """Decode the 8-bit RGB, filter-0 PNGs the server writes (enough for these tests)."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat, size = 8, b"", (0, 0)
+    while pos < len(data):
+        length = int.from_bytes(data[pos : pos + 4], "big")
+        kind, body = data[pos + 4 : pos + 8], data[pos + 8 : pos + 8 + length]
+        if kind == b"IHDR":
+            size = (int.from_bytes(body[:4], "big"), int.from_bytes(body[4:8], "big"))
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + length
+    width, height = size
+    rows = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(height, 1 + 3 * width)
+    return rows[:, 1:].reshape(height, width, 3)
+
+
+def project_point(camera: dict[str, Any], point: tuple[float, float, float]) -> tuple[int, int]:
+    """The pixel of a pinhole camera (``fov`` horizontal, as Mitsuba's look_at) that sees
+    ``point``, computed here independently of the server's ray code."""
+    origin, target, up = (np.array(camera[k], float) for k in ("origin", "target", "up"))
+    forward = (target - origin) / np.linalg.norm(target - origin)
+    left = np.cross(up, forward)
+    left /= np.linalg.norm(left)
+    true_up = np.cross(forward, left)
+    d = np.array(point) - origin
+    tan_x = math.tan(math.radians(camera["fov"]) / 2)
+    tan_y = tan_x * camera["height"] / camera["width"]
+    sx = -np.dot(d, left) / np.dot(d, forward) / tan_x
+    sy = np.dot(d, true_up) / np.dot(d, forward) / tan_y
+    return int((sx + 1) / 2 * camera["width"]), int((1 - sy) / 2 * camera["height"])
+
+
+def test_view_command_serves_meta_two_views_and_a_pick_then_stops(small_job: Path) -> None:
+    """The acceptance test: the real command on the demo job, as a user starts it."""
+    buffer = load_job(small_job).output / "buffer.npz"
+    port = free_port()
+    process = subprocess.Popen(
+        [sys.executable, "-m", "sensaov_cli", "view", str(CBOX), "--buffer", str(buffer),
+         "--port", str(port)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert process.stdout is not None
+        url = process.stdout.readline().strip()
+        assert url == f"http://127.0.0.1:{port}/", process.stderr.read() if process.stderr else ""
+        status, _, body = get(url + "api/meta")
+        meta = json.loads(body)
+        assert status == 200 and meta["objectives"] == ["mean_luma", "back_wall_luma"]
+        assert meta["channels"][0] == "objects" and "walls" in meta["channels"]
+        assert [c["name"] for c in meta["cameras"]] == ["objective", "overhead"]
+        assert meta["bounds"]["max"] == [1.0, 1.0, 1.0] and len(meta["buffer_id"]) == 16
+        views = []
+        for origin in ("0,0,3.9", "2.5,1,2.5"):
+            status, headers, body = get(url + f"api/view?channel=objects&origin={origin}&spp=4")
+            assert status == 200 and headers["Content-Type"] == "image/png"
+            views.append(png_pixels(body))
+        assert views[0].shape == views[1].shape == (256, 256, 3)
+        assert np.mean(np.any(views[0] != views[1], axis=2)) > 0.2  # other viewpoint, other image
+        objective = {**meta["cameras"][0], "width": 256, "height": 256}
+        x, y = project_point(objective, (0.3, 0.6, -1.0))  # a point on the back wall
+        status, _, body = get(url + f"api/pick?x={x}&y={y}")
+        pick = json.loads(body)
+        assert status == 200 and pick["object"] == "back_wall", pick
+        assert pick["position"][2] == pytest.approx(-1.0, abs=1e-3)
+        assert [p["key"] for p in pick["parameters"]] == ["back_wall.bsdf.reflectance.value"]
+        process.send_signal(signal.SIGTERM)
+        start = time.monotonic()
+        _, err = process.communicate(timeout=30)
+        assert time.monotonic() - start < STOP_BOUND_S
+        assert process.returncode == EXIT_TERMINATED
+        assert err.strip().splitlines()[-1] == (
+            "sensaov: error: stopped by SIGTERM; no output was replaced"
+        )
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+
+
+def test_ctrl_c_stops_the_server_with_130(small_job: Path) -> None:
+    process = subprocess.Popen(
+        [sys.executable, "-m", "sensaov_cli", "view", str(small_job), "--port", "0", "-q"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert process.stdout is not None
+    url = process.stdout.readline().strip()
+    assert get(url + "api/meta")[0] == 200
+    process.send_signal(signal.SIGINT)
+    start = time.monotonic()
+    _, err = process.communicate(timeout=30)
+    assert time.monotonic() - start < STOP_BOUND_S and process.returncode == EXIT_INTERRUPTED
+    assert err.strip().splitlines() == ["sensaov: error: stopped by SIGINT; no output was replaced"]
+
+
+def test_a_taken_port_and_a_missing_buffer_are_one_line_of_bad_input(
+    small_job: Path, tmp_path: Path
+) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = sensaov("view", str(small_job), "--port", str(port))
+    assert result.returncode == EXIT_BAD_INPUT and result.stdout == ""
+    assert result.stderr.splitlines() == [
+        f"sensaov: error: cannot listen on 127.0.0.1:{port}: Address already in use (choose "
+        "another --port (0 picks a free one)); no output was replaced"
+    ]
+    missing = tmp_path / "none.npz"
+    result = sensaov("view", str(small_job), "--port", "0", "--buffer", str(missing))
+    assert result.returncode == EXIT_BAD_INPUT
+    assert len(result.stderr.splitlines()) == 1 and str(missing) in result.stderr
+
+
+def test_a_view_paints_the_buffer_values_and_a_pick_lists_the_gradients(
+    server: ViewServer, session: ViewSession
+) -> None:
+    """The EXR layer holds the objects' aggregates from the buffer at fully covered pixels, and
+    a pick reports the stored value and gradient of each of the object's parameters."""
+    buffer = read_buffer(session.buffer_path)
+    scores = per_object(buffer, "mean_luma", method="l2", weight="value")
+    sums = per_object(buffer, "mean_luma", method="sum", weight="value")
+    status, _, body = get(server.url + "api/view?channel=objects&format=exr&spp=4&width=64")
+    assert status == 200
+    exr = Path(session.job.output) / "view-test.exr"
+    exr.write_bytes(body)
+    channels, header = read_exr(exr)
+    exr.unlink()
+    layer = channels["mean_luma.objects.Y"]
+    status, _, ids = get(server.url + "api/view?channel=objects&format=ids&spp=4&width=64")
+    index = np.frombuffer(ids, "<i4").reshape(layer.shape)
+    query = {"channel": "objects", "spp": "4", "width": "64"}
+    visibility = session.visibility(session.request(query))
+    full = visibility.rank_coverage[..., 0] == 1.0
+    for i, name in enumerate(buffer.objects):
+        where = full & (index == i)
+        if where.any():
+            expected = math.copysign(scores[name], sums[name])
+            assert layer[where] == pytest.approx(expected, rel=1e-5), name
+    assert "normalize=shared" in header["sensaov/encoding"]
+    _, _, body = get(server.url + "api/pick?object=right_wall")
+    pick = json.loads(body)
+    row = pick["parameters"][0]
+    assert row["key"] == "green.reflectance.value"
+    assert row["value"] == pytest.approx(buffer.value(row["key"]).tolist())
+    assert row["gradient"] == pytest.approx(buffer.grad("mean_luma", row["key"]).tolist())
+    assert row["trust"] == "verified" and pick["object_rank"] >= 1
+
+
+@pytest.mark.parametrize(
+    ("query", "reason"),
+    [
+        ("fov=180", "fov 180 is outside (0, 180) degrees"),
+        ("origin=0,0,0&target=0,0,0", "bad camera: target must differ from origin"),
+        ("up=0,0,1", "bad camera: up must not be zero or parallel to target - origin"),
+        ("origin=1,2", "origin must be three finite numbers x,y,z, got '1,2'"),
+        ("origin=1,nan,2", "origin must be three finite numbers x,y,z, got '1,nan,2'"),
+        ("width=0", "width 0 is outside [1, 2048]"),
+        ("spp=x", "spp must be an integer, got 'x'"),
+        ("sign=both", "sign must be one of signed, magnitude, got 'both'"),
+        ("spp=1&spp=2", "parameter 'spp' is given 2 times"),
+        ("zoom=2", "unknown parameter 'zoom'"),
+        ("channel=nope", "no channel 'nope' in the buffer"),
+        ("objective=nope", "no objective 'nope' in the buffer"),
+        ("channel=select:nothing*", "select query 'nothing*' matches no parameter"),
+        ("channel=forward.light&origin=1,1,3", "channel 'forward.light' is a forward layer"),
+    ],
+)
+def test_bad_values_get_400_and_one_line(server: ViewServer, query: str, reason: str) -> None:
+    status, headers, body = get(server.url + "api/view?" + query)
+    assert status == 400 and headers["Content-Type"].startswith("text/plain")
+    text = body.decode()
+    assert text.startswith(reason) and text.count("\n") == 1
+
+
+def test_a_pick_outside_the_image_and_an_unknown_page_are_refused(server: ViewServer) -> None:
+    assert get(server.url + "api/pick?x=256&y=0")[0] == 400
+    assert get(server.url + "api/pick?x=1")[0] == 400
+    assert get(server.url + "nope")[0] == 404
+
+
+def test_forward_layers_are_served_at_the_objective_camera_only(server: ViewServer) -> None:
+    status, headers, body = get(server.url + "api/view?channel=forward.green_wall&format=exr")
+    assert status == 200
+    legend = json.loads(headers["X-Sensaov-Legend"])
+    assert legend["scale_mode"] == "image" and legend["peak"] > 0
+    status, headers, _ = get(server.url + "api/view?channel=transport_green_wall&width=32")
+    (note,) = json.loads(headers["X-Sensaov-Legend"])["notes"]
+    assert status == 200 and note.startswith("duality residual") and note.endswith("agrees")
+
+
+def test_a_texel_field_is_painted_through_the_hit_uvs_of_a_new_viewpoint(
+    server: ViewServer, session: ViewSession
+) -> None:
+    """The checker wall's texel panel lands on the checker wall only, from a moved camera."""
+    camera = "origin=1.5,0.3,3&spp=4&width=64"
+    channel = "texels_checker_reflectance_texel"
+    status, headers, body = get(server.url + f"api/view?channel={channel}&{camera}&format=exr")
+    assert status == 200, body
+    exr = Path(session.job.output) / "texel-test.exr"
+    exr.write_bytes(body)
+    channels, _ = read_exr(exr)
+    exr.unlink()
+    layer = channels[f"mean_luma.{channel}.Y"]
+    _, _, ids = get(server.url + f"api/view?{camera}&format=ids")
+    index = np.frombuffer(ids, "<i4").reshape(layer.shape)
+    wall = index == session.buffer.objects.index("left_wall")
+    assert wall.sum() > 100 and np.count_nonzero(layer[wall]) > 0.9 * wall.sum()
+    near = np.pad(wall, 1)  # pixels beside the wall may hold some of its coverage
+    near = np.any([near[1 + dy : near.shape[0] - 1 + dy, 1 + dx : near.shape[1] - 1 + dx]
+                   for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)  # fmt: skip
+    assert not np.any(layer[~near])
+    assert "fixed by the job's texel channel" in json.loads(headers["X-Sensaov-Legend"])["encoding"]
+
+
+def test_other_hosts_and_cross_site_saves_are_refused(server: ViewServer) -> None:
+    """DNS rebinding sends a foreign Host header; a cross-site form cannot set X-Sensaov."""
+    host, port = server.server_address[:2]
+    connection = http.client.HTTPConnection(str(host), port, timeout=30)
+    connection.request("GET", "/api/meta", headers={"Host": f"evil.example:{port}"})
+    assert connection.getresponse().status == 403
+    status, _, _ = get(server.url + "api/camera?name=v", method="POST")
+    assert status == 403
+
+
+def test_a_moved_camera_reuses_the_compiled_kernel(session: ViewSession) -> None:
+    """Every number of the camera is opaque: new poses, sizes and spp compile nothing."""
+    import drjit as dr
+
+    tracer: ViewTracer = session.tracer
+    first = session.objective_camera.pose
+    tracer.trace(first, 32, 32, 1)
+    moved = Pose(LookAt((2.0, 1.0, 3.0), (0.1, 0.0, 0.0), (0.0, 1.0, 0.0)), 55.0)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()  # empty it
+        for width, height, spp in ((32, 32, 1), (48, 20, 1), (32, 32, 16)):
+            tracer.trace(moved, width, height, spp)
+        launched = [k for k in dr.kernel_history() if "cache_hit" in k]
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert launched and all(k["cache_hit"] for k in launched)
+
+
+def test_rays_match_mitsubas_perspective_sensor(session: ViewSession) -> None:
+    """A viewpoint saved as a look_at camera renders what the live view showed."""
+    mi = session.loaded.mi
+    look = LookAt((1.0, 0.5, 3.0), (0.1, -0.2, 0.0), (0.0, 1.0, 0.2))
+    transform = mi.ScalarTransform4f().look_at(origin=look.origin, target=look.target, up=look.up)
+    sensor = mi.load_dict({"type": "perspective", "fov": 50.0, "to_world": transform,
+                           "film": {"type": "hdrfilm", "width": 40, "height": 30}})  # fmt: skip
+    film = mi.Point2f(mi.Float([0.1, 0.9, 0.5, 0.3]), mi.Float([0.2, 0.7, 0.5, 0.95]))
+    theirs, _ = sensor.sample_ray(0.0, 0.5, film, mi.Point2f(0.5, 0.5))
+    from sensaov_cli.render.viewpoint import _frame
+
+    ours = session.tracer._ray(_frame(Pose(look, 50.0), 40, 30), film)
+    assert np.array(ours.d) == pytest.approx(np.array(theirs.d), abs=1e-6)
+    assert np.array(ours.o) == pytest.approx(np.array(theirs.o), abs=1e-6)
+    pose = sensor_pose(mi, sensor, session.bounds)
+    assert pose.look_at.origin == pytest.approx(look.origin, abs=1e-6) and pose.fov == 50.0
+
+
+def test_a_saved_viewpoint_projects_to_the_view_it_was_saved_from(
+    server: ViewServer, session: ViewSession
+) -> None:
+    camera = "origin=2,1.2,3&target=0,0,-0.2&up=0,1,0&fov=45&width=40&height=30"
+    status, _, body = get(server.url + f"api/camera?{camera}&name=corner")
+    entry = yaml.safe_load(json.loads(body)["yaml"])[0]
+    assert status == 200 and entry["look_at"]["origin"] == [2.0, 1.2, 3.0]
+    saving = {"X-Sensaov": "save"}
+    status, _, body = get(server.url + f"api/camera?{camera}&name=corner", saving, "POST")
+    assert status == 200, body
+    copy = Path(json.loads(body)["path"])
+    assert copy.parent == session.job.output
+    job = load_job(copy)
+    assert job.scene == session.job.scene and job.output == session.job.output
+    assert [c.name for c in job.inspection_cameras][-1] == "corner"
+    status, _, body = get(server.url + f"api/camera?{camera}&name=corner", saving, "POST")
+    assert status == 400 and b"already has an inspection camera named 'corner'" in body
+    done = sensaov("project", "-q", str(copy), "--camera", "corner", "--beauty-spp", "0")
+    assert done.returncode == 0, done.stderr
+    channels, header = read_exr(session.job.output / "corner.exr")
+    _, _, ids = get(server.url + f"api/view?{camera}&format=ids&spp=16")
+    live = np.frombuffer(ids, "<i4").reshape(30, 40)
+    manifest = json.loads(header["cryptomatte/" + _crypto_key(header) + "/manifest"])
+    by_id = {np.uint32(int(h, 16)).view(np.float32): name for name, h in manifest.items()}
+    top = channels["CryptoObject00.R"]
+    names = np.array([by_id.get(v, "") for v in top.ravel()]).reshape(top.shape)
+    objects = np.array(["", *session.buffer.objects])[live + 1]
+    assert np.mean(names == objects) > 0.97  # same camera; only edge pixels may differ
+
+
+def _crypto_key(header: dict[str, Any]) -> str:
+    return next(k.split("/")[1] for k, v in header.items() if k.endswith("/name") and
+                v == "CryptoObject")  # fmt: skip
+
+
+def test_view_query_defaults_to_the_objective_camera(session: ViewSession) -> None:
+    first = session.objective_camera
+    request = view_request({}, first.pose, 1.0, "mean_luma", "objects")
+    assert request.pose == first.pose and (request.width, request.height, request.spp) == (
+        256, 256, 1)  # fmt: skip
+    with pytest.raises(RequestError, match="unknown parameter 'x'"):
+        single_values({"x": ["1"]}, ("y",))
+
+
+@pytest.mark.skipif(browser_missing() is not None, reason=str(browser_missing()))
+def test_the_page_orbits_on_a_drag_and_shows_a_clicked_object(
+    server: ViewServer, tmp_path: Path
+) -> None:
+    shots = Path(SHOTS) if SHOTS else tmp_path
+    shots.mkdir(parents=True, exist_ok=True)
+    browser = Browser()
+    status = "return document.getElementById('status').textContent"
+    camera = "return document.getElementById('camera-text').textContent"
+    try:
+        browser.get(server.url)
+        browser.wait_for(status + ".includes('16 spp')")
+        before = browser.script(camera)
+        browser.screenshot(shots / "view-objective.png")
+        browser.drag("#stage", (0, 0), [(25, 4)] * 6)
+        browser.wait_for(camera + f" !== {json.dumps(before)}")
+        browser.wait_for(status + ".includes('16 spp')")
+        assert "(moved)" in browser.script(camera)
+        browser.click("#stage", (0, -60))  # the back wall, above the boxes
+        picked = browser.wait_for(
+            "const p = document.getElementById('pick-object'); return p && p.textContent"
+        )
+        assert picked in server.session.buffer.objects
+        assert browser.script("return document.querySelectorAll('#sunburst path.hot').length") >= 1
+        browser.wait_for("return document.getElementById('overlay').width > 0")
+        browser.screenshot(shots / "view-orbited-picked.png")
+    finally:
+        browser.close()
+    assert (shots / "view-orbited-picked.png").stat().st_size > 10_000
