@@ -61,8 +61,13 @@ class Workspace:
         deterministic: bool = False,
         exclude: tuple[str, ...] = (),
         inspection: tuple[dict[str, Any], ...] = (),
+        repair_budget: float = 0.0,
     ) -> Path:
-        """Write ``<root>/<name>.yaml`` and return its path; outputs go to ``<root>/out/<name>``."""
+        """Write ``<root>/<name>.yaml`` and return its path; outputs go to ``<root>/out/<name>``.
+
+        Repairs are off unless asked for: the other figures measure the passes they measured
+        before repairs existed (figure 1 compares with a script that repairs nothing), and
+        figure 15 measures what repairs cost."""
         job: dict[str, Any] = {
             "version": 1,
             "scene": str(scene),
@@ -75,11 +80,24 @@ class Workspace:
                 "deterministic": deterministic,
             },
             "parameters": {"include": ["*"], "exclude": list(exclude), "shared": "split"},
+            "repair": {"budget": repair_budget},
             "objectives": objectives or [MEAN_LUMA],
             "inspection_cameras": list(inspection),
             "channels": list(CHANNELS),
             "output": str(self.root / "out" / name),
         }
+        path = self.root / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(job, sort_keys=False))
+        return path
+
+    def config_copy(self, name: str, config: Path, **overrides: Any) -> Path:
+        """A shipped job (``configs/*.yaml``) as it is, its scene by absolute path, its outputs
+        in ``<root>/out/<name>``; ``overrides`` replace top-level keys (``render`` is merged)."""
+        job = yaml.safe_load(config.read_text())
+        job["scene"] = str((config.parent / job["scene"]).resolve())
+        job["output"] = str(self.root / "out" / name)
+        job["render"] = {**job.get("render", {}), **overrides.pop("render", {})}
+        job.update(overrides)
         path = self.root / f"{name}.yaml"
         path.write_text(yaml.safe_dump(job, sort_keys=False))
         return path

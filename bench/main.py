@@ -20,6 +20,7 @@ from bench import (
     fig_passes,
     fig_process,
     fig_project,
+    fig_repairs,
     fig_texels,
     fig_view,
     machine,
@@ -109,6 +110,8 @@ def plan(
         (12, lambda: [fig_texels.texel_cost(ws, s, log)]),
         (13, lambda: [fig_view.view_latency(ws, s, log)]),
         (14, lambda: [fig_interior.interior(ws, s, log)]),
+        (15, lambda: [fig_repairs.repair_cost(ws, s, log)]),
+        (16, lambda: [fig_repairs.check_cost(ws, s, log)]),
     ]
 
 

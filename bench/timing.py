@@ -90,6 +90,7 @@ class ChildRun:
     seconds: float  # whole-process wall time of the command, start-up included
     max_rss_bytes: int  # the command's own peak resident set
     stdout: str
+    stderr: str = ""
 
 
 class ChildFailed(RuntimeError):
@@ -120,4 +121,6 @@ def run_child(command: Sequence[str]) -> ChildRun:
                 f"{' '.join(command)} exited with {result['returncode']}:\n"
                 f"{err.read_text()[-2000:]}"
             )
-        return ChildRun(result["seconds"], result["max_rss_bytes"], out.read_text())
+        return ChildRun(
+            result["seconds"], result["max_rss_bytes"], out.read_text(), err.read_text()
+        )

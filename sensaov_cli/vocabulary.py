@@ -43,6 +43,10 @@ TexelUnits = Literal["texel", "uv_area"]
 # differences | not checked | known to be wrong | identically 0 (never ranked) | failed a
 # run-time self-check.
 Trust = Literal["verified", "unverified", "biased", "no_gradient", "suspect"]
+# Which estimator produced a stored gradient (docs/verification.md, "Repairs"): the scene's prb
+# backward pass | Mitsuba's path backward pass (smooth lobes) | central differences with common
+# random numbers, where both are known wrong | a merge of shards that did not all agree.
+Estimator = Literal["reverse", "reverse-path", "finite-difference", "mixed"]
 
 WEIGHTS: tuple[str, ...] = get_args(Weight)
 SIGNS: tuple[str, ...] = get_args(Sign)
@@ -55,3 +59,4 @@ ORDERS: tuple[str, ...] = get_args(Order)
 UNTRUSTED_MODES: tuple[str, ...] = get_args(Untrusted)
 SCALE_SCOPES: tuple[str, ...] = get_args(ScaleScope)
 TRUSTS: tuple[str, ...] = get_args(Trust)
+ESTIMATORS: tuple[str, ...] = get_args(Estimator)

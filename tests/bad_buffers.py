@@ -120,6 +120,33 @@ MAKERS: dict[str, Callable[[Path, Path], None]] = {
     "extra member": lambda good, bad: write_members(
         bad, [*members(good), ("extra.npy", _npy(np.zeros(3, np.float32)))]
     ),
+    # version 4: estimators and repair records (docs/buffer-format.md)
+    "unknown estimator": _header_edit(_set(("params", 0, "estimator"), "guess")),
+    "repairs not an object": _header_edit(_set(("repairs",), [])),
+    "repaired without a record": _header_edit(
+        _set(("params", 0, "estimator"), "finite-difference")
+    ),
+    "repair of a reverse parameter": _header_edit(
+        _set(("repairs",), {"box.bsdf.reflectance.value": {"reason": "x"}})
+    ),
+    "repair with a NaN estimate": _header_edit(
+        lambda h: h.update(
+            repairs={
+                "box.bsdf.reflectance.value": {
+                    "reason": "biased",
+                    "step": 0.05,
+                    "spp": [4, 4],
+                    "seeds": [1, 2],
+                    "one_sided": [],
+                    "estimates": {"m": [[1, 2, 3], [1, 2, "nan"]]},
+                    "reverse": {"m": [1, 2, 3]},
+                    "seconds": 0.1,
+                }
+            },
+            params=[{**h["params"][0], "estimator": "finite-difference"}],
+        )
+    ),  # fmt: skip
+    "no repairs field": _header_edit(lambda h: h.pop("repairs")),
 }
 
 # The reader of format 3 (issue 13) refuses these; the format-2 reader accepts them.

@@ -389,13 +389,14 @@ def test_file_layout_is_version_4(saved: Path) -> None:
         "params": [
             {"key": "white.bsdf.reflectance.value", "type": "reflectance", "owners": ["white"],
              "shape": [3], "is_texture": False, "plugin": "diffuse", "flags": [],
-             "trust": "verified", "note": "", "array": 0},
+             "trust": "verified", "note": "", "estimator": "reverse", "array": 0},
             {"key": "mat.reflectance.data", "type": "reflectance", "owners": ["floor", "wall"],
              "shape": [4, 5, 3], "is_texture": True, "plugin": "diffuse", "flags": [],
-             "trust": "verified", "note": "", "array": 1},
+             "trust": "verified", "note": "", "estimator": "reverse", "array": 1},
             {"key": "floor.bsdf.alpha.value", "type": "roughness", "owners": ["floor"],
              "shape": [1], "is_texture": False, "plugin": "roughplastic",
-             "flags": ["discontinuous"], "trust": "biased", "note": "known biased", "array": 2},
+             "flags": ["discontinuous"], "trust": "biased", "note": "known biased",
+             "estimator": "reverse", "array": 2},
         ],
         "objectives": [
             {"name": "brightness", "definition": {"kind": "mean_luminance", "region": [0, 0, 8, 8]},
@@ -407,6 +408,7 @@ def test_file_layout_is_version_4(saved: Path) -> None:
         "storage": {"packed": 4, "params": [
             {"offset": 0}, {"value": 0, "grads": [0, 1]}, {"offset": 3},
         ]},
+        "repairs": {},
     }  # fmt: skip
     with np.load(saved) as npz:
         assert npz["values"].shape == (4,) and npz["texture_00000"].shape == (4, 5, 3)
@@ -423,13 +425,16 @@ def _write_by_hand(path: Path, version: int, label: dict) -> None:
     }  # fmt: skip
     if version >= 3:
         header["statistics"] = None
+    if version >= 4:
+        header["repairs"] = {}
+        header["params"][0]["estimator"] = "reverse"
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         zf.writestr("header.npy", _npy(np.array(json.dumps(header))))
         zf.writestr("value_000000.npy", _npy(np.array([1, 2, 3], ">f4")))
         zf.writestr("grad_000_000000.npy", _npy(np.array([0.5, 0, -1], "<f4")))
 
 
-@pytest.mark.parametrize("version", [2, 3])
+@pytest.mark.parametrize("version", [2, 3, 4])
 def test_reads_a_file_written_from_the_spec(tmp_path: Path, version: int) -> None:
     """docs/buffer-format.md is enough to write a buffer without sensaov's writer."""
     path = tmp_path / "by-hand.npz"
@@ -438,6 +443,22 @@ def test_reads_a_file_written_from_the_spec(tmp_path: Path, version: int) -> Non
     assert loaded.value("lamp.emitter.radiance.value").tolist() == [1, 2, 3]
     assert loaded.grad("m", "lamp.emitter.radiance.value").tolist() == [0.5, 0, -1]
     assert loaded.param("lamp.emitter.radiance.value").trust == "suspect"
+
+
+def test_a_version_3_file_reads_its_estimators_from_the_provenance(tmp_path: Path) -> None:
+    """Before version 4 the estimator is the backward pass's integrator, as recorded."""
+    path = tmp_path / "v3.npz"
+    _write_by_hand(path, 3, {"trust": "verified"})
+    assert read_buffer(path).param("lamp.emitter.radiance.value").estimator == "reverse"
+    with zipfile.ZipFile(path) as zf:
+        items = [(i.filename, zf.read(i)) for i in zf.infolist()]
+    header = json.loads(str(np.load(io.BytesIO(items[0][1]))[()]))
+    header["provenance"]["gradient_integrators"] = {"path": ["lamp.emitter.radiance.value"]}
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("header.npy", _npy(np.array(json.dumps(header))))
+        for name, data in items[1:]:
+            zf.writestr(name, data)
+    assert read_buffer(path).param("lamp.emitter.radiance.value").estimator == "reverse-path"
 
 
 @pytest.mark.parametrize(("verified", "trust"), [(True, "verified"), (False, "unverified")])

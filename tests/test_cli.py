@@ -111,6 +111,7 @@ def _gradient_check(verified: bool, verdict: str) -> SimpleNamespace:
         finite_difference=2.0,
         standard_error=0.01,
         verdict=verdict,
+        method="seeds",
     )
 
 
@@ -138,18 +139,29 @@ def test_check_command_exits_1_when_the_table_is_contradicted(
 
     calls: list[dict[str, object]] = []
 
-    def fake_check_gradients(loaded: object, built: object, **options: object) -> list:
-        calls.append(options)
+    plan = SimpleNamespace(skipped=(("c", "known biased"),))
+
+    def fake_plan(loaded: object, keys: list[str] | None, full: bool) -> SimpleNamespace:
+        calls.append({"keys": keys, "full": full})
+        return plan
+
+    def fake_audit(loaded: object, built: object, given: object, **options: object) -> list:
+        calls.append({"plan": given, "spp": options["spp"], "seeds": list(options["seeds"])})
         return [_gradient_check(True, "disagrees")]
 
     # The scene is prepared and loaded for real; the renders of the check are faked.
-    monkeypatch.setattr(sensaov_cli.pipeline.check, "check_gradients", fake_check_gradients)
+    monkeypatch.setattr(sensaov_cli.pipeline.check, "plan_audit", fake_plan)
+    monkeypatch.setattr(sensaov_cli.pipeline.check, "audit", fake_audit)
     args = ["--seeds", "3", "--key", "a", "--key", "b", "--buffer", "/nonexistent/buffer.npz"]
     result = runner.invoke(main, ["check", str(REPO / "configs/cbox.yaml"), *args])
     assert result.exit_code == EXIT_JOB_FAILED, result.output
     assert "CONTRADICTS THE TABLE" in result.stdout
+    assert "not measured: c: known biased" in result.stdout
     assert "no buffer at /nonexistent/buffer.npz: duality column skipped" in result.stderr
-    assert calls == [{"spp": 64, "seeds": [0, 1, 2], "keys": ["a", "b"]}]
+    assert calls == [
+        {"keys": ["a", "b"], "full": False},
+        {"plan": plan, "spp": 64, "seeds": [0, 1, 2]},
+    ]
 
 
 def test_check_refuses_an_unknown_objective(runner: CliRunner) -> None:

@@ -93,6 +93,18 @@ def test_merge_equals_one_run_with_as_many_batches(
             )
 
 
+def test_shards_repair_their_share_and_the_merge_holds_every_seed(farm: Path, merged: Path):
+    """Each shard renders its batch's share of the repair's seeds (one of 4 here); the merge
+    has all four, the same as one run's, and its batch statistics cover the repairs."""
+    shards = [read_buffer(p) for p in shard_paths(farm)]
+    result = read_buffer(merged)
+    key = "blue_plastic.alpha"
+    assert [len(s.repairs[key].seeds) for s in shards] == [1, 1, 1, 1]
+    assert result.param(key).estimator == "finite-difference" and result.param(key).verified
+    assert result.repairs[key].seeds == tuple(s.repairs[key].seeds[0] for s in shards)
+    assert result.statistics.stderr["mean_luma"][key] > 0
+
+
 def test_merged_and_an_independent_run_agree_within_the_standard_errors(
     merged: Path, job_writer: Callable[..., Path]
 ) -> None:

@@ -11,6 +11,7 @@ and Russian-roulette decisions past depth 5 that flip with the throughput. Measu
 from __future__ import annotations
 
 import dataclasses
+import io
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -18,13 +19,14 @@ from types import ModuleType
 import numpy as np
 import pytest
 
+from sensaov_cli.progress import Progress
 from sensaov_cli.render import adjoint
 from sensaov_cli.render.fdcheck import check_gradients, check_parameter
+from sensaov_cli.render.gradient_audit import SAME_SEED_TOLERANCE, audit, plan_audit
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
 from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
 from sensaov_cli.spec.load import load_job
 
-SAME_SEED_TOLERANCE = 2e-3
 # Kinds whose sampling does not depend on θ: at the same seed they agree on every run.
 SAME_SEED_KINDS = {
     ("diffuse", "reflectance"),  # uniform and bitmap textures
@@ -119,13 +121,58 @@ def test_disagreement_needs_students_t_for_few_seeds() -> None:
     import numpy as np
 
     from sensaov_cli.buffer.model import ParamRecord
-    from sensaov_cli.render.fdcheck import _judge, disagreement_sigmas
+    from sensaov_cli.render.fdcheck import disagreement_sigmas, judge
 
     info = ParamRecord("k", "roughness", (), (1,), False, "roughdielectric", (), "verified", "")
     noise = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0]) * 1e-4 * np.sqrt(6 * 5 / 6)
     error = float(noise.std(ddof=1) / np.sqrt(6))
     fd = np.full(6, -5e-3)
     for sigmas, verdict in ((4.7, "inconclusive"), (8.0, "disagrees")):
-        check = _judge(info, fd + noise + sigmas * error, fd)
+        check = judge(info, fd + noise + sigmas * error, fd)
         assert check.verdict == verdict, (sigmas, check)
     assert disagreement_sigmas(6) == 6.87 and disagreement_sigmas(100) == 3.29
+
+
+# --- sensaov check's plan: one seed where it suffices (render/gradient_audit.py) -------------
+
+
+def test_check_plans_one_seed_where_the_value_does_not_steer_sampling(tiny) -> None:  # noqa: ANN001
+    _, loaded, _ = tiny
+    plan = plan_audit(loaded, None, full=False)
+    one = {(i.plugin, i.type) for i in plan.one_seed}
+    many = {(i.plugin, i.type) for i in plan.seeds}
+    assert {("diffuse", "reflectance"), ("area", "radiance")} <= one
+    assert {("roughdielectric", "eta"), ("roughdielectric", "roughness")} <= many
+    assert {key for key, _ in plan.skipped} == {"blue_plastic.alpha", "blue_plastic.eta"}
+    full = plan_audit(loaded, None, full=True)
+    assert full.one_seed == () and full.skipped == ()
+    named = plan_audit(loaded, ["blue_plastic.eta"], full=False)  # named: measured
+    assert [i.key for i in named.seeds] == ["blue_plastic.eta"] and named.skipped == ()
+
+
+def test_one_seed_agrees_to_float_precision_and_says_so_as_it_goes(tiny) -> None:  # noqa: ANN001
+    _, loaded, objective = tiny
+    keys = ["green.reflectance.value", "checker.reflectance.data", "glass.eta"]
+    plan = plan_audit(loaded, keys, full=False)
+    stream = io.StringIO()
+    checks = audit(loaded, objective, plan, spp=16, seeds=[0, 1], progress=Progress(stream=stream))
+    by_key = {c.key: c for c in checks}
+    for key in keys[:2]:
+        check = by_key[key]
+        assert (check.method, check.verdict) == ("same seed", "agrees"), check
+        assert check.relative_error < SAME_SEED_TOLERANCE
+    assert by_key["glass.eta"].method == "seeds"
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 2 + 3 + 1  # two adjoint passes, three differences at seed 1, one at 2
+    assert all(line.startswith("sensaov: check: seed ") for line in lines)
+
+
+def test_one_seed_verdicts() -> None:
+    from sensaov_cli.buffer.model import ParamRecord
+    from sensaov_cli.render.gradient_audit import _one_seed  # noqa: PLC2701 - the rule itself
+
+    info = ParamRecord("k", "reflectance", (), (3,), False, "diffuse", (), "verified", "")
+    assert _one_seed(info, [1.0005], [1.0], 0.1).verdict == "agrees"
+    assert _one_seed(info, [1.02], [1.0], 0.1).verdict == "inconclusive"
+    assert _one_seed(info, [1.2], [1.0], 0.1).verdict == "disagrees"
+    assert _one_seed(info, [1e-7], [0.0], 0.1).verdict == "agrees"  # within M's rounding

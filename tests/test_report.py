@@ -75,8 +75,9 @@ def row_of(text: str, key: str) -> str:
 
 
 # The text of make_buffer() before trust labels existed (with the signed sum and its rank
-# beside each object's and type's score since texel channels), read with untrusted parameters
-# mixed in: only the legend changed since, to say the label the table says.
+# beside each object's and type's score since texel channels, and each parameter's estimator
+# since repairs), read with untrusted parameters mixed in: only the legend changed since, to
+# say the label the table says.
 BEFORE_LABELS = """\
 sensitivity buffer: 3 parameters, 4 objects, 1 objective · scene scenes/cbox.xml · variant llvm_ad_rgb · spp 16
 scores: l2 of theta * dM/dtheta over each group's components
@@ -84,10 +85,10 @@ signed: their plain sum; > 0 means increasing the parameter raises M
 
 objective 'brightness'   M = 0.125
   parameters (top 3 of 3)
-    #        score     signed  type         key                          owners
-    1  !  5.00e-01  -5.00e-01  roughness    floor.bsdf.alpha.value       floor
-    2     4.00e-02  +4.00e-02  radiance     lamp.emitter.radiance.value  lamp
-    3     3.00e-03  +5.00e-03  reflectance  wall.bsdf.reflectance.value  wall
+    #        score     signed  type         estimator  key                          owners
+    1  !  5.00e-01  -5.00e-01  roughness    reverse    floor.bsdf.alpha.value       floor
+    2     4.00e-02  +4.00e-02  radiance     reverse    lamp.emitter.radiance.value  lamp
+    3     3.00e-03  +5.00e-03  reflectance  reverse    wall.bsdf.reflectance.value  wall
   objects (top 4 of 4)
     #        score     signed  #sum  object
     1  !  5.00e-01  -5.00e-01     1  floor
@@ -222,7 +223,7 @@ def test_scores_have_three_significant_digits(buf: SensitivityBuffer) -> None:
 
 def test_signed_method_shows_the_sign(buf: SensitivityBuffer) -> None:
     text = summary_text(buf, method="sum")
-    assert re.search(r"-5\.00e-01\s+roughness\s+floor\.bsdf\.alpha\.value", text)
+    assert re.search(r"-5\.00e-01\s+roughness\s+reverse\s+floor\.bsdf\.alpha\.value", text)
     assert re.search(r"\+4\.00e-02\s+radiance", text)
 
 
@@ -262,8 +263,9 @@ class Inventory:
     textures: dict[str, object] = {}
     changes: tuple[tuple[str, str, str], ...] = ()
 
-    def __init__(self, records: tuple[ParamRecord, ...]) -> None:
+    def __init__(self, records: tuple[ParamRecord, ...], repairs: dict | None = None) -> None:
         self.selected = records
+        self.repairs = repairs or {}
 
 
 def test_params_shows_every_label() -> None:
@@ -274,6 +276,16 @@ def test_params_shows_every_label() -> None:
     assert f"  - BIASED: {BIASED}" in text  # the heading no longer calls biased unverified
     entries = {e["key"]: e for e in params_dict(inventory)["selected"]}
     assert (entries[GOLD]["trust"], entries[GOLD]["verified"]) == ("no_gradient", False)
+    assert entries[ALPHA]["estimator"] == "reverse" and entries[ALPHA]["repair"] is None
+
+
+def test_params_says_what_run_will_repair() -> None:
+    inventory = Inventory(with_gold_ball().params, {ALPHA: "biased: known biased"})
+    text = params_text(inventory)
+    assert "REPAIRED" in row_of_params(text, ALPHA) and "REPAIRED" not in row_of_params(text, WALL)
+    assert "run computes them again by central differences" in text
+    entries = {e["key"]: e for e in params_dict(inventory)["selected"]}
+    assert entries[ALPHA]["repair"] == "biased: known biased"
 
 
 def row_of_params(text: str, key: str) -> str:

@@ -142,5 +142,6 @@ def test_layers_record_sums_scales_pool_and_lookup(outputs: dict[str, Path]) -> 
     assert float(texel["signed_sum"]) == pytest.approx(float(texel["pooled_sum"]), rel=1e-9)
     assert float(texel["panel_scale"]) > 0 and "kind=none" in texel["pool"]
     assert json.loads(texel["unverified"]) == []
+    assert set(json.loads(texel["estimators"]).values()) == {"reverse"}
     domain = outputs["nearest_clamp_rotated"] / "textures"
     assert sorted(p.suffix for p in domain.iterdir()) == [".exr", ".exr", ".png", ".png"]

@@ -33,6 +33,7 @@ from sensaov_cli.render.trust import (
     DELTA_LOBE_REASON,
     NO_FLOW_REASON,
     PRINCIPLED_LOBE_REASON,
+    REPAIRS,
     SPOT_TEXTURE_REASON,
     TABLE,
 )
@@ -108,6 +109,37 @@ def test_each_composite_label_is_the_weakest_of_its_evidence() -> None:
             weakest[key] = min(weakest.get(key, "verified"), label, key=WORST_FIRST.index)
     labels = _markdown_rows(_measured(), "| composite | role | children | label |")
     assert weakest == {(c, role, children): label for c, role, children, label in labels}
+
+
+def _repairs_measured() -> str:
+    doc = DOC.read_text()
+    return doc.split("<!-- repair_table.py begins -->")[1].split("<!-- repair_table.py ends -->")[0]
+
+
+def test_repair_labels_are_the_documented_ones() -> None:
+    labels = _markdown_rows(_repairs_measured(), "| plugin | type | label |")
+    documented = {(plugin, ptype): label for plugin, ptype, label in labels}
+    assert documented == {kind: entry.trust for kind, entry in REPAIRS.items()}
+
+
+def test_a_repair_is_verified_only_where_every_row_is_within_3_standard_errors() -> None:
+    measured = _repairs_measured()
+    header = next(
+        line for line in measured.splitlines() if line.startswith("| plugin | type | par")
+    )
+    rows = _markdown_rows(measured, header)
+    assert rows, "docs/verification.md has no measured repair rows"
+    earned: dict[tuple[str, str], str] = {}
+    for cells in rows:
+        z_crn, z_independent = cells[7], cells[9]
+        assert z_crn, f"{cells[2]}: no common-random-numbers reference"
+        within = all(abs(float(z)) <= 3 for z in (z_crn, z_independent) if z)
+        kind = (cells[0], cells[1])
+        still = within and earned.get(kind, "verified") == "verified"
+        earned[kind] = "verified" if still else "unverified"
+    assert earned == {kind: entry.trust for kind, entry in REPAIRS.items()}
+    for kind, entry in REPAIRS.items():  # an unverified repair says why
+        assert (entry.note == "") == (entry.trust == "verified"), kind
 
 
 # --- the self-checks on plain arrays --------------------------------------------------------

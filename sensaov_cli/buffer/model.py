@@ -18,13 +18,14 @@ from typing import Any
 
 import numpy as np
 
+from sensaov_cli.buffer.repairs import Repair
 from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import (
     BufferContentError,
     NonFiniteGradientError,
     UnknownNameError,
 )
-from sensaov_cli.vocabulary import TRUSTS, Trust
+from sensaov_cli.vocabulary import ESTIMATORS, TRUSTS, Estimator, Trust
 
 FORMAT_NAME = "sensaov-buffer"
 FORMAT_VERSION = 4
@@ -84,6 +85,9 @@ class ParamRecord:
     flags: tuple[str, ...]
     trust: Trust  # docs/verification.md; only "verified" gradients are shown without a mark
     note: str  # why it is not verified: the known reason, or a self-check's figures
+    # What produced the stored gradient (docs/verification.md, "Repairs"); "finite-difference"
+    # comes with a Repair record in the buffer.
+    estimator: Estimator = "reverse"
 
     @property
     def verified(self) -> bool:
@@ -99,6 +103,10 @@ class ParamRecord:
                 raise BufferContentError(f"{what}: {name} must be a {kind.__name__}")
         if self.trust not in TRUSTS:
             raise BufferContentError(f"{what}: trust {self.trust!r} is not one of {TRUSTS}")
+        if self.estimator not in ESTIMATORS:
+            raise BufferContentError(
+                f"{what}: estimator {self.estimator!r} is not one of {ESTIMATORS}"
+            )
         object.__setattr__(self, "owners", _str_tuple(self.owners, f"{what}: owners"))
         object.__setattr__(self, "flags", _str_tuple(self.flags, f"{what}: flags"))
         object.__setattr__(self, "shape", _shape(self.shape, f"{what}: shape"))
@@ -204,6 +212,8 @@ class SensitivityBuffer:
     values: Mapping[str, np.ndarray]
     grads: Mapping[str, Mapping[str, np.ndarray]]
     statistics: Statistics | None = None  # standard errors, from >= 2 batches or shards
+    # key -> how its gradient was repaired: every "finite-difference" parameter has one
+    repairs: Mapping[str, Repair] = field(default_factory=dict)
     _by_key: Mapping[str, ParamRecord] = field(init=False)
     _by_name: Mapping[str, ObjectiveRecord] = field(init=False)
     _copy_arrays: InitVar[bool] = True
@@ -239,6 +249,26 @@ class SensitivityBuffer:
         set_(self, "grads", MappingProxyType(self._checked_grads(self.grads, _copy_arrays)))
         if self.statistics is not None:
             self._check_statistics(self.statistics)
+        set_(self, "repairs", MappingProxyType(self._checked_repairs(self.repairs)))
+
+    def _checked_repairs(self, repairs: Mapping[str, Repair]) -> dict[str, Repair]:
+        _check_no_extra("repairs", repairs, self._by_key)
+        names = sorted(o.name for o in self.objectives)
+        for p in self.params:
+            repair = repairs.get(p.key)
+            if repair is None:
+                needed = p.estimator == "finite-difference"
+                _require(not needed, f"parameter {p.key!r} is repaired but has no repair record")
+                continue
+            _require(isinstance(repair, Repair), f"repair of {p.key!r} must be a Repair")
+            _require(
+                p.estimator in ("finite-difference", "mixed"),
+                f"parameter {p.key!r} has a repair record but estimator {p.estimator!r}",
+            )
+            _require(sorted(repair.estimates) == names, f"repair of {p.key!r}: objectives differ")
+            size = int(np.prod(p.shape))
+            _require(repair.components == size, f"repair of {p.key!r} has the wrong size")
+        return dict(repairs)
 
     def _check_statistics(self, statistics: Statistics) -> None:
         _require(isinstance(statistics, Statistics), "statistics must be a Statistics")
@@ -319,6 +349,15 @@ class SensitivityBuffer:
 
     def grad(self, objective: str, key: str) -> np.ndarray:
         return self.grads[self.objective(objective).name][self.param(key).key]
+
+    def reverse_grad(self, objective: str, key: str) -> np.ndarray:
+        """The reverse-mode gradient the run computed: for a repaired parameter, the one its
+        repair replaced (what forward mode is the dual of), else the stored one."""
+        repair = self.repairs.get(self.param(key).key)
+        if repair is None:
+            return self.grad(objective, key)
+        flat = np.asarray(repair.reverse[self.objective(objective).name], np.float32)
+        return flat.reshape(self.param(key).shape)
 
     def types(self) -> tuple[str, ...]:
         """The distinct parameter types, sorted."""

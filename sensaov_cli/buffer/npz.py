@@ -5,7 +5,8 @@ format, its validation and its error messages can be read in one place. Per vers
 
 - 4 (written): the header's ``storage`` says where each array is: parameters that are not
   textures packed into one array per objective, each distinct texture array once, all-zero
-  texture gradients not stored (layouts.py);
+  texture gradients not stored (layouts.py); each parameter's ``estimator`` and the header's
+  ``repairs`` say which gradients central differences replaced (repairs.py);
 - 3: one member per parameter and objective (``value_…``, ``grad_…``), ``statistics``;
 - 2: no statistics; 1: a boolean ``verified`` per parameter instead of the ``trust`` label.
 """
@@ -35,6 +36,7 @@ from sensaov_cli.buffer.model import (
     ParamRecord,
     SensitivityBuffer,
 )
+from sensaov_cli.buffer.repairs import repair_json, repairs_from_json
 from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import BufferFormatError, SensaovError
 
@@ -74,6 +76,7 @@ def _members(buffer: SensitivityBuffer) -> dict[str, np.ndarray]:
         "objectives": [_objective_json(o, j) for j, o in enumerate(buffer.objectives)],
         "statistics": _statistics_json(statistics),
         "storage": storage,  # version 4: where each array is (layouts.py)
+        "repairs": {key: repair_json(r) for key, r in buffer.repairs.items()},  # version 4
     }
     members = {HEADER_MEMBER: np.array(json.dumps(header, allow_nan=False))} | arrays
     for j, name in enumerate(names):
@@ -100,8 +103,9 @@ def batch_sums_member(objective_index: int) -> str:
 
 _PARAM_FIELDS = tuple(f.name for f in fields(ParamRecord))
 _OBJECTIVE_FIELDS = tuple(f.name for f in fields(ObjectiveRecord))
-# Version 1 stored a boolean "verified" where version 2 stores the "trust" label.
-_V1_PARAM_FIELDS = tuple("verified" if name == "trust" else name for name in _PARAM_FIELDS)
+# Version 4 added "estimator"; version 1 stored a boolean "verified" where 2 stores "trust".
+_V3_PARAM_FIELDS = tuple(name for name in _PARAM_FIELDS if name != "estimator")
+_V1_PARAM_FIELDS = tuple("verified" if name == "trust" else name for name in _V3_PARAM_FIELDS)
 _READABLE_VERSIONS = (1, 2, 3, FORMAT_VERSION)
 
 
@@ -175,7 +179,10 @@ def _read_archive(archive: Archive) -> tuple[SensitivityBuffer, int]:
     _declared(archive, HEADER_MEMBER, None)  # a header claiming gigabytes is not read
     header = _read_header(archive.array(HEADER_MEMBER))
     version = header["format_version"]
-    params = [_param_from_json(entry, i, version) for i, entry in enumerate(header["params"])]
+    path_keys = _path_keys(header["provenance"]) if version < 4 else set()
+    params = [
+        _param_from_json(entry, i, version, path_keys) for i, entry in enumerate(header["params"])
+    ]
     objectives = [_objective_from_json(e, j) for j, e in enumerate(header["objectives"])]
     entry = header.get("statistics")
 
@@ -209,6 +216,7 @@ def _read_archive(archive: Archive) -> tuple[SensitivityBuffer, int]:
         values=values,
         grads=grads,
         statistics=_read_statistics(archive, entry, params, objectives, stderr),
+        repairs=repairs_from_json(header.get("repairs", {})),  # none before version 4
         _copy_arrays=False,  # views of the file's bytes, read once: frozen in place
     )
     return buffer, version
@@ -298,7 +306,8 @@ def _read_header(member: np.ndarray) -> dict[str, Any]:
         if not isinstance(header.get(name), kind):
             raise _Malformed(f"malformed header: {name!r} must be a JSON {kind.__name__}")
     allowed = set(kinds) | {"format", "format_version"}
-    for field, since in (("statistics", 3), ("storage", 4)):  # required from their version on
+    # required from their version on
+    for field, since in (("statistics", 3), ("storage", 4), ("repairs", 4)):
         if version >= since:
             if field not in header:
                 raise _Malformed(f"malformed header: missing field {field!r}")
@@ -321,10 +330,21 @@ def _entry(entry: Any, names: tuple[str, ...], index: int, where: str) -> dict[s
     return {name: entry[name] for name in names}
 
 
-def _param_from_json(entry: Any, index: int, version: int) -> ParamRecord:
-    if version >= 2:
+def _path_keys(provenance: dict[str, Any]) -> set[str]:
+    """Keys a version 1-3 buffer's provenance says Mitsuba's path differentiated."""
+    keys = (provenance.get("gradient_integrators") or {}).get("path")
+    return {k for k in keys if isinstance(k, str)} if isinstance(keys, list) else set()
+
+
+def _param_from_json(entry: Any, index: int, version: int, path_keys: set[str]) -> ParamRecord:
+    """A parameter record; before version 4 its estimator is the backward pass's integrator."""
+    if version >= 4:
         return ParamRecord(**_entry(entry, _PARAM_FIELDS, index, "params"))
-    fields_ = _entry(entry, _V1_PARAM_FIELDS, index, "params")
+    fields_ = _entry(entry, _V3_PARAM_FIELDS if version >= 2 else _V1_PARAM_FIELDS, index, "params")
+    by_path = isinstance(fields_.get("key"), str) and fields_["key"] in path_keys
+    fields_["estimator"] = "reverse-path" if by_path else "reverse"
+    if version >= 2:
+        return ParamRecord(**fields_)
     verified = fields_.pop("verified")
     if not isinstance(verified, bool):
         raise _Malformed(f"malformed header: params[{index}].verified must be a bool")

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.repairs import Repair
 from sensaov_cli.buffer.statistics import combine_batches
 from sensaov_cli.errors import MergeError
 
@@ -77,14 +78,16 @@ def merge_shards(shards: Sequence[Shard], current_version: int) -> SensitivityBu
     objectives = tuple(
         replace(records[name], value=objective_values[name]) for name in job_objectives
     )
+    params = _merged_records(shards, grads)
     return SensitivityBuffer(
         provenance=_provenance(shards, sum(spp)),
         objects=first.buffer.objects,
-        params=_merged_records(shards, grads),
+        params=params,
         objectives=objectives,
         values=dict(first.buffer.values),
         grads=grads,
         statistics=statistics,
+        repairs=_merged_repairs(params, [by_index[i] for i in range(1, count + 1)], spp),
     )
 
 
@@ -170,12 +173,21 @@ def _one_index(
     return grads, values, spps.pop()
 
 
+_MIXED_NOTE = (
+    "repaired by finite differences in some shards only: the merge mixes in a reverse-mode "
+    "gradient known to be wrong"
+)
+
+
 def _merged_records(shards: Sequence[Shard], grads: dict[str, Any]) -> tuple[ParamRecord, ...]:
     """Each parameter with the worst label a shard gave it; no_gradient only if the merged
-    gradient is 0 for every objective."""
+    gradient is 0 for every objective; estimator "mixed" (and biased) where shards differ."""
     merged = []
     for record in shards[0].buffer.params:
         labels = [s.buffer.param(record.key) for s in shards]
+        if len({r.estimator for r in labels}) > 1:
+            merged.append(replace(record, estimator="mixed", trust="biased", note=_MIXED_NOTE))
+            continue
         flowing = any(np.any(grads[name][record.key]) for name in grads)
         if not flowing:
             zero = next((r for r in labels if r.trust == "no_gradient"), None)
@@ -185,6 +197,33 @@ def _merged_records(shards: Sequence[Shard], grads: dict[str, Any]) -> tuple[Par
         worst = max(rated, key=lambda r: _SEVERITY.index(r.trust), default=None)
         merged.append(worst or replace(record, trust="unverified", note="not checked"))
     return tuple(merged)
+
+
+def _merged_repairs(
+    params: Sequence[ParamRecord], indices: Sequence[list[Shard]], spp: Sequence[int]
+) -> dict[str, Repair]:
+    """Per repaired key, every shard's estimates in one record (each shard's seeds are its
+    own); the reverse-mode gradients it replaced, spp-weighted like the merged gradients."""
+    merged = {}
+    for key in (p.key for p in params if p.estimator == "finite-difference"):
+        # per shard index: objective -> the record of the file that rendered that objective
+        parts = [{o.name: f.buffer.repairs[key] for f in files for o in f.buffer.objectives}
+                 for files in indices]  # fmt: skip
+        firsts = [next(iter(part.values())) for part in parts]
+        names = list(parts[0])
+        merged[key] = replace(
+            firsts[0],
+            spp=tuple(n for r in firsts for n in r.spp),
+            seeds=tuple(n for r in firsts for n in r.seeds),
+            estimates={n: np.concatenate([part[n].estimates[n] for part in parts]) for n in names},
+            reverse={
+                n: np.sum([p[n].reverse[n] * w for p, w in zip(parts, spp, strict=True)], axis=0)
+                / sum(spp)
+                for n in names
+            },
+            seconds=sum(r.seconds for r in firsts),
+        )
+    return merged
 
 
 def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:

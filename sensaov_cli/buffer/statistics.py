@@ -18,7 +18,7 @@ as one batch. The buffer keeps the spp-weighted mean, and from the k batch means
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -151,3 +151,26 @@ def batch_row(grad: np.ndarray, mean: np.ndarray, theta: np.ndarray) -> np.ndarr
             float((weighted_mean_ * weighted).sum()),
         ]
     )
+
+
+def with_batch_estimates(
+    statistics: Statistics,
+    keys: Sequence[str],
+    key: str,
+    batch_grads: Mapping[str, Sequence[np.ndarray]],
+    theta: np.ndarray,
+) -> tuple[Statistics, dict[str, np.ndarray]]:
+    """``statistics`` with parameter ``key``'s batch estimates replaced by ``batch_grads``
+    (objective -> one array per batch: a repair's, render/repair.py), and their new means."""
+    index = list(keys).index(key)
+    stderr = {name: dict(per_key) for name, per_key in statistics.stderr.items()}
+    sums = {name: table.copy() for name, table in statistics.batch_sums.items()}
+    means = {}
+    for name, grads in batch_grads.items():
+        stack = np.stack([g.astype(np.float64) for g in grads])
+        mean = weighted_mean(grads, statistics.spp)
+        stderr[name][key] = pooled_stderr(stack, statistics.spp).astype(np.float32)
+        for b in range(len(grads)):
+            sums[name][index, b] = batch_row(stack[b], mean.astype(np.float64), theta)
+        means[name] = mean
+    return replace(statistics, stderr=stderr, batch_sums=sums), means

@@ -31,6 +31,8 @@ class GradientRow(Protocol):
     @property
     def verdict(self) -> str: ...
     @property
+    def method(self) -> str: ...
+    @property
     def claimed_verified(self) -> bool: ...
     @property
     def claimed(self) -> str: ...
@@ -60,11 +62,15 @@ class DualityRow(Protocol):
     @property
     def central_error(self) -> float | None: ...
     @property
+    def central_asked(self) -> bool: ...
+    @property
     def verdict(self) -> str: ...
 
 
 def checks_text(checks: Sequence[GradientRow]) -> str:
-    rows = [("key", "plugin", "type", "table", "adjoint", "finite diff", "std err", "verdict")]
+    rows = [
+        ("key", "plugin", "type", "table", "method", "adjoint", "finite diff", "std err", "verdict")
+    ]
     for c in checks:
         rows.append(
             (
@@ -72,9 +78,10 @@ def checks_text(checks: Sequence[GradientRow]) -> str:
                 c.plugin,
                 c.type,
                 c.claimed,  # the table's own label: biased kinds say biased
+                c.method,
                 f"{c.adjoint:+.3e}",
                 f"{c.finite_difference:+.3e}",
-                f"{c.standard_error:.1e}",
+                "-" if c.method == "same seed" else f"{c.standard_error:.1e}",
                 c.verdict
                 + (
                     "  <-- CONTRADICTS THE TABLE"
@@ -98,6 +105,7 @@ def duality_text(rows: Sequence[DualityRow], buffer: Path, fd_tolerance: float) 
     ]
     for d in rows:
         central = "n/a" if d.central is None else f"{d.central:+.4e}"
+        central = central if d.central_asked else "(--full)"
         error = "" if d.central_error is None else f"{d.central_error:.1e}"
         table.append(
             (

@@ -31,7 +31,7 @@ from sensaov_cli.vocabulary import Aggregate, Weight
 # The columns of a row, in JSON, CSV and text order (CSV puts "objective" first).
 COLUMNS = (
     "rank", "name", "score", "signed", "share", "sign", "value", "trust", "off_frame",
-    "score_se", "signed_se", "significant", "part", "zero_value", "raw_signed",
+    "score_se", "signed_se", "significant", "part", "zero_value", "raw_signed", "estimator",
 )  # fmt: skip
 _MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
 _CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}
@@ -130,7 +130,7 @@ def _table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
         return ["    (none)"]
     cameras = any(row.off_frame is not None for row in shown)
     values = r.by == "key"  # only a parameter has a value; groups leave the column out
-    errors = r.batches is not None
+    errors = r.batches is not None or any(row.signed_se is not None for row in r.rows)
     headers = [
         "#",
         "",
@@ -141,6 +141,7 @@ def _table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
         "sign",
         "share",
         *(["value"] * values),
+        "estimator",
         r.by,
         *(["off-frame"] * cameras),
     ]
@@ -155,6 +156,7 @@ def _table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
             row.sign + ("" if row.significant is not False else "?"),
             f"{100 * row.share:.1f}%",
             *([_value(row.value)] * values),
+            row.estimator,
             row.name,
             *([", ".join(row.off_frame or ()) or "-"] * cameras),
         ]
@@ -188,6 +190,11 @@ def _legend(r: Ranking) -> list[str]:
                 f"  the top {r.stability_top} keep their order in {100 * r.stability:.0f}% "
                 "of bootstrap resamples of the batches"
             )
+    elif any(row.signed_se is not None for row in shown):
+        lines.append(
+            "  ±: a repaired (finite-difference) parameter's standard error over its seeds; "
+            "? = sign within Student's t (95 %) of it; others: no error measured (-)"
+        )
     if any(row.off_frame for row in shown):
         lines.append("  off-frame: the cameras that see none of its objects")
     lines += zero_value_legend(r.zero_valued)

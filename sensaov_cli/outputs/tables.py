@@ -11,7 +11,7 @@ from __future__ import annotations
 import unicodedata
 from collections import defaultdict
 from collections.abc import Collection, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, SensitivityBuffer, TextureSource
@@ -83,6 +83,8 @@ class ParameterInventory:
     textures: dict[str, TextureSource]
     # what sensaov changed in the scene: what, why, where, and whether it alters the image
     changes: tuple[tuple[str, str, str, bool], ...]
+    # key -> why run repairs it by finite differences (budget permitting): render/repair_plan
+    repairs: dict[str, str] = field(default_factory=dict)
 
 
 def params_dict(loaded: ParameterInventory) -> dict[str, Any]:
@@ -91,7 +93,12 @@ def params_dict(loaded: ParameterInventory) -> dict[str, Any]:
         "variant": loaded.variant,
         "objects": list(loaded.objects),
         "selected": [
-            _selected_entry(info, loaded.textures.get(info.key)) for info in loaded.selected
+            {
+                **_selected_entry(info, loaded.textures.get(info.key)),
+                "estimator": info.estimator,
+                "repair": loaded.repairs.get(info.key),
+            }
+            for info in loaded.selected
         ],
         "excluded": [asdict(item) for item in loaded.excluded],
         "split_bsdfs": {name: list(shapes) for name, shapes in loaded.split.items()},
@@ -125,6 +132,8 @@ def params_text(loaded: ParameterInventory, *, show_all: bool = False) -> str:
             notes.append("texture, 8-bit -> float" if converted else "texture")
         if not info.verified:
             notes.append(_PARAMS_NOTES[info.trust])
+        if info.key in loaded.repairs:
+            notes.append("REPAIRED" if not info.is_texture else "NOT REPAIRED (texture)")
         shape = "x".join(str(n) for n in info.shape)
         rows.append(
             (info.key, info.type, ",".join(info.owners), info.plugin, shape, ", ".join(notes))
@@ -132,6 +141,7 @@ def params_text(loaded: ParameterInventory, *, show_all: bool = False) -> str:
     lines = [f"{len(loaded.selected)} parameters selected over {len(loaded.objects)} objects"]
     lines += format_table(rows)
     lines += _unverified_legend(loaded)
+    lines += _repairs_legend(loaded)
     lines += _textures(loaded)
     lines += _split(loaded)
     lines += _changes(loaded)
@@ -147,6 +157,17 @@ def _unverified_legend(loaded: ParameterInventory) -> list[str]:
         return []
     head = "gradients sensaov does not stand behind (left out of object and type views):"
     return ["", head] + [f"  - {label}: {note}" for label, note in notes]
+
+
+def _repairs_legend(loaded: ParameterInventory) -> list[str]:
+    if not loaded.repairs:
+        return []
+    return [
+        "",
+        "REPAIRED: known wrong in reverse mode; run computes them again by central differences "
+        "(repair.budget permitting; textures never: two renders per texel) - "
+        'docs/verification.md, "Repairs"',
+    ]
 
 
 def _textures(loaded: ParameterInventory) -> list[str]:
@@ -225,6 +246,7 @@ def render_text(summary: dict[str, Any]) -> str:
     lines.append(f"scores: {agg['method']} of {agg['contribution']} over each group's components")
     if agg["method"] != "sum":
         lines.append("signed: their plain sum; > 0 means increasing the parameter raises M")
+    lines += _repairs_lines(prov.get("repairs"))
     if counts.get("batches"):
         lines.append(
             f"standard errors from {counts['batches']} batches: 'sensaov rank BUFFER --by "
@@ -260,11 +282,12 @@ def _objective_lines(objective: dict[str, Any], method: str, counts: dict[str, i
     lines = [f"objective {objective['name']!r}   M = {objective['value']:.4g}"]
 
     lines.append(f"  parameters (top {len(params)} of {counts['ranked_parameters']})")
-    headers = ["#", "", "score", *([] if signed else ["signed"]), "type", "key", "owners"]
+    headers = ["#", "", "score", *([] if signed else ["signed"]), "type", "estimator", "key",
+               "owners"]  # fmt: skip
     rows = [
         [str(i), _mark(p["trust"]) + (ZERO_VALUE_MARK if p.get("zero_value") else ""),
          _fmt(p["score"], signed), *([] if signed else [_fmt(p["signed"], True)]), p["type"],
-         p["key"], _owners(p["owners"])]
+         p["estimator"], p["key"], _owners(p["owners"])]
         for i, p in enumerate(params, 1)
     ]  # fmt: skip
     lines.extend(_indented(headers, rows, numeric={0, 2} if signed else {0, 2, 3}))
@@ -284,6 +307,41 @@ def _objective_lines(objective: dict[str, Any], method: str, counts: dict[str, i
             for e in left["objects"]
         ]  # fmt: skip
     lines.extend(_legend(objective))
+    lines.extend(_repaired_legend(objective))
+    return lines
+
+
+def _repairs_lines(figures: Any) -> list[str]:
+    """What the run repaired by finite differences, and what it left labelled (and why)."""
+    if not isinstance(figures, dict) or not (
+        figures.get("repaired") or figures.get("not_repaired")
+    ):
+        return []
+    repaired = figures.get("repaired") or []
+    lines = [
+        f"repairs: {_count(len(repaired), 'parameter')} known wrong in reverse mode, by central "
+        f"differences ({len(figures.get('seeds') or [])} seeds x {figures.get('spp')} spp, "
+        f"{figures.get('renders')} renders, {figures.get('seconds', 0):.1f} s)"
+    ]
+    for key, why in (figures.get("not_repaired") or {}).items():
+        lines.append(printable(f"  not repaired, still labelled: {key}: {why}"))
+    return lines
+
+
+def _repaired_legend(objective: dict[str, Any]) -> list[str]:
+    """Each repaired parameter shown: its signed sum with its own standard error."""
+    shown = [p for p in objective["parameters"] if "signed_se" in p]
+    if not shown:
+        return []
+    lines = [
+        "  finite-difference = repaired (reverse mode is known wrong there), ± its seeds' error:"
+    ]
+    for p in shown:
+        sign = "" if p["significant"] else "; sign not significant"
+        lines.append(
+            printable(f"      {p['key']}: {p['signed']:+.2e} ± {p['signed_se']:.1e} "
+                      f"({p['seeds']} seeds{sign})")
+        )  # fmt: skip
     return lines
 
 

@@ -1,10 +1,11 @@
 """Wire the stages of ``sensaov check``: spec -> scene -> finite differences and duality.
 
 The job's objective (the first, or the one named) is built for the objective camera and
-:func:`~sensaov_cli.render.fdcheck.check_gradients` compares its reverse-mode gradients with
-central finite differences; the stored buffer, when there is one, is replayed against forward
-mode (:func:`~sensaov_cli.render.duality.check_duality`); :func:`exit_code` says whether the
-result is a failure.
+:func:`~sensaov_cli.render.gradient_audit.audit` compares its reverse-mode gradients with
+central finite differences (one seed where that suffices, several where the value steers
+sampling); the stored buffer, when there is one, is replayed against forward mode
+(:func:`~sensaov_cli.render.duality.check_duality`); :func:`exit_code` says whether the result
+is a failure. Every render is a progress line.
 """
 
 from __future__ import annotations
@@ -18,8 +19,10 @@ from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.statistics import single_pass
 from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, FingerprintMismatch, SpecError
 from sensaov_cli.pipeline.run import BUFFER_NAME
+from sensaov_cli.progress import Progress
 from sensaov_cli.render.duality import FD_TOLERANCE, DualityCheck, check_duality
-from sensaov_cli.render.fdcheck import GradientCheck, check_gradients
+from sensaov_cli.render.fdcheck import GradientCheck
+from sensaov_cli.render.gradient_audit import audit, plan_audit
 from sensaov_cli.render.loading import load_scene
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.scene import prepare_scene
@@ -29,7 +32,8 @@ __all__ = ["FD_TOLERANCE", "CheckReport", "check_job", "exit_code"]
 
 DEFAULT_SEEDS = 6
 DEFAULT_TOP = 3
-DEFAULT_DIRECTIONS = 2  # random directions per parameter, besides ones
+DEFAULT_DIRECTIONS = 0  # random directions per parameter, besides ones
+FULL_DIRECTIONS = 2  # with --full
 
 
 @dataclass(frozen=True)
@@ -37,6 +41,7 @@ class CheckReport:
     gradients: list[GradientCheck]  # reverse mode against finite differences, per kind
     duality: list[DualityCheck]  # the stored buffer against forward mode; [] without one
     buffer_path: Path | None  # the buffer the duality column checked; None: there is none
+    not_measured: tuple[tuple[str, str], ...] = ()  # (key, why) of kinds left out
 
 
 def check_job(
@@ -48,13 +53,21 @@ def check_job(
     keys: Sequence[str] = (),
     buffer_path: Path | None = None,
     top: int = DEFAULT_TOP,
-    directions: int = DEFAULT_DIRECTIONS,
+    directions: int | None = None,
+    full: bool = False,
     allow_python: bool,
+    progress: Progress | None = None,
 ) -> CheckReport:
-    """Check one objective's gradients over seeds ``0 .. seeds-1`` at ``spp`` (default: the
-    job's), one parameter of each kind or the ``keys`` named; then, when the job's buffer (or
-    ``buffer_path``) exists, its ``top`` parameters per objective against forward mode along
-    ones and ``directions`` random directions. The scene is prepared and loaded once."""
+    """Check one objective's gradients at ``spp`` (default: the job's), one parameter of each
+    kind or the ``keys`` named: at seed 0 where one seed suffices, over seeds ``0 .. seeds-1``
+    where the value steers sampling (``full``: every kind over every seed, known-biased ones
+    included). Then, when the job's buffer (or ``buffer_path``) exists, its ``top`` parameters
+    per objective against forward mode along ones and ``directions`` random directions (default
+    0, with ``full`` 2), and with ``full`` against central differences of the image. The scene
+    is prepared and loaded once."""
+    progress = progress or Progress(quiet=True)
+    if directions is None:
+        directions = FULL_DIRECTIONS if full else DEFAULT_DIRECTIONS
     chosen = _objective(job, objective)  # the command's own options are checked first
     path = buffer_path or job.output / BUFFER_NAME
     buffer = _checkable_buffer(job, path) if path.is_file() else None
@@ -68,16 +81,18 @@ def check_job(
     loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     width, height = loaded.resolution
     (built,) = build_objectives(loaded.mi, (chosen,), (height, width), allow_python)
-    gradients = check_gradients(
-        loaded, built, spp=spp or job.render.spp, seeds=list(range(seeds)), keys=list(keys) or None
+    plan = plan_audit(loaded, list(keys) or None, full)
+    gradients = audit(
+        loaded, built, plan, spp=spp or job.render.spp, seeds=range(seeds), progress=progress
     )
     if buffer is None:
-        return CheckReport(gradients, [], None)
+        return CheckReport(gradients, [], None, plan.skipped)
     every = build_objectives(loaded.mi, job.objectives, (height, width), allow_python)
     duality = check_duality(
-        loaded, every, buffer, keys=list(keys) or None, top=top, random_directions=directions
-    )
-    return CheckReport(gradients, duality, path)
+        loaded, every, buffer, keys=list(keys) or None, top=top, random_directions=directions,
+        progress=progress, central=full,
+    )  # fmt: skip
+    return CheckReport(gradients, duality, path, plan.skipped)
 
 
 def _checkable_buffer(job: JobSpec, path: Path) -> SensitivityBuffer:

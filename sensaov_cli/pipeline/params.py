@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from sensaov_cli.outputs.tables import ParameterInventory
 from sensaov_cli.render.loading import load_scene
+from sensaov_cli.render.repair_plan import planned
 from sensaov_cli.render.scene import prepare_scene
 from sensaov_cli.spec.job import JobSpec
 
@@ -20,4 +21,5 @@ def parameter_inventory(job: JobSpec) -> ParameterInventory:
         split=prepared.split,
         textures=loaded.textures,
         changes=tuple((c.what, c.why, c.where, c.alters_image) for c in prepared.changes),
+        repairs=planned(loaded) if job.repair.budget > 0 else {},
     )

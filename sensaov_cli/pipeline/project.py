@@ -325,6 +325,7 @@ def _layer(
         "camera": camera.name,
         "keys": json.dumps(list(values.keys)),
         "unverified": json.dumps(list(values.unverified)),
+        "estimators": json.dumps(values.estimators),
         "invisible": json.dumps(list(painted.invisible)),
         "original_name": f"{values.objective}.{values.pass_name}",
         "part": values.part,

@@ -29,6 +29,7 @@ from sensaov_cli.render.image_effect import ImageEffect, depth_effect
 from sensaov_cli.render.loading import LoadedScene, load_scene, refuse_non_finite
 from sensaov_cli.render.memory import check_render
 from sensaov_cli.render.objectives import Objective, build_objectives
+from sensaov_cli.render.repair import repair
 from sensaov_cli.render.scene import PreparedScene, prepare_scene
 from sensaov_cli.spec.job import JobSpec
 
@@ -145,6 +146,14 @@ def run_job(
         progress=progress,
         batches=batches,
     )
+    # The repairs' plan is the whole job's: a shard renders its batch's share of the seeds.
+    result = repair(
+        loaded, objectives, result, job.repair, seed=job.render.seed, spp=job.render.spp,
+        batches=task.shard[1] if task.shard else batches,
+        shard=task.shard[0] - 1 if task.shard else None,
+        passes=len(integrator_plan(loaded)) * len(whole.objectives),
+        progress=progress, stages_after=planned_forward + 1,
+    )  # fmt: skip
     provenance = _provenance(whole, loaded, result, progress.timings, time.perf_counter() - started)
     provenance["task"] = task.describe()
     provenance["image_effects"] = [asdict(effect) for effect in effects]
@@ -233,6 +242,7 @@ def _make_buffer(
         values=result.values,
         grads=result.grads,
         statistics=result.statistics,
+        repairs=result.repairs,
     )
 
 

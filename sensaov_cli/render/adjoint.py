@@ -24,6 +24,7 @@ import numpy as np
 
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import ParamRecord
+from sensaov_cli.buffer.repairs import Repair
 from sensaov_cli.buffer.statistics import Statistics, combine_batches, weighted_mean
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene
@@ -63,6 +64,7 @@ class AdjointResult:
     provenance: dict[str, Any] = field(default_factory=dict)  # integrators, self-check figures
     spp: int = 0  # samples per pixel behind the mean (the sum over batches)
     statistics: Statistics | None = None  # standard errors, with >= 2 batches
+    repairs: dict[str, Repair] = field(default_factory=dict)  # render/repair.py's records
 
 
 def to_numpy(value: Any, shape: tuple[int, ...]) -> np.ndarray:

@@ -24,6 +24,7 @@ import numpy as np
 from sensaov_cli.buffer.forward_sidecar import DUALITY_FLOOR, duality_tolerance
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.errors import SpecError
+from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import (
     chunk_seed,
     path_chunks,
@@ -51,9 +52,10 @@ class DualityCheck:
     trust: Trust
     reverse: float
     forward: float
-    central: float | None  # None: not checkable at one seed (discontinuous)
+    central: float | None  # None: not checkable at one seed (discontinuous), or not asked for
     seed: int
     tolerance: float = DUALITY_FLOOR  # of the duality residual, for this image and spp
+    central_asked: bool = True  # False: the quick check leaves central differences out
 
     @property
     def duality_error(self) -> float:
@@ -80,9 +82,10 @@ class DualityCheck:
 
 
 def top_keys(buffer: SensitivityBuffer, objective: str, k: int) -> list[str]:
-    """The ``k`` keys with the largest ‖θ · g‖ (parameters with no gradient left out)."""
+    """The ``k`` keys with the largest ‖θ · g‖ (parameters with no gradient left out); a
+    repaired parameter by its reverse-mode gradient, which is the one checked."""
     scores = {
-        p.key: float(np.linalg.norm(buffer.value(p.key) * buffer.grad(objective, p.key)))
+        p.key: float(np.linalg.norm(buffer.value(p.key) * buffer.reverse_grad(objective, p.key)))
         for p in buffer.params
         if p.trust != "no_gradient"
     }
@@ -106,8 +109,13 @@ def check_duality(
     keys: list[str] | None,
     top: int,
     random_directions: int,
+    progress: Progress | None = None,
+    central: bool = True,
 ) -> list[DualityCheck]:
-    """One row per (objective, key, direction)."""
+    """One row per (objective, key, direction), each a progress line; ``central``: also the
+    central difference of the image (two renders a row; the quick check's one-seed rows
+    already compare reverse mode with same-seed differences)."""
+    progress = progress or Progress(quiet=True)
     spp = int(buffer.provenance["spp"])
     primal = np.array(render_primal(loaded, spp, int(buffer.provenance["primal_seed"])))
     adjoints = adjoint_images(loaded, objectives, primal)
@@ -121,7 +129,12 @@ def check_duality(
         name = objective.spec.name
         for key in keys or top_keys(buffer, name, top):
             for label, v in directions(records[key], random_directions, seed=len(rows)):
-                rows.append(_row(loaded, buffer, name, records[key], label, v, adjoints[name]))
+                stage = f"check: duality of {key} along {label} for '{name}'"
+                with progress.stage(f"duality_{len(rows)}_s", stage):
+                    row = _row(
+                        loaded, buffer, name, records[key], label, v, adjoints[name], central
+                    )
+                    rows.append(row)
     return [replace(row, tolerance=tolerance) for row in rows]
 
 
@@ -133,18 +146,24 @@ def _row(
     label: str,
     v: np.ndarray,
     adjoint: np.ndarray,
+    asked: bool,
 ) -> DualityCheck:
     spp = int(buffer.provenance["spp"])
     seed = buffer.objective(objective).grad_seed
-    stored = buffer.grad(objective, info.key).astype(np.float64)
+    stored = buffer.reverse_grad(objective, info.key).astype(np.float64)  # forward's dual
     reverse = float(np.dot(stored.ravel(), v.ravel()))
     pushed = forward_image(loaded, {info.key: v}, spp=spp, seed=seed, shape=adjoint.shape)
     forward = _weighted(adjoint, pushed.image) if pushed.image is not None else float("nan")
     central = None
-    if "discontinuous" not in info.flags:
+    if asked and "discontinuous" not in info.flags:
         central = _weighted(adjoint, _image_difference(loaded, info, v, spp, seed))
-    trust = buffer.param(info.key).trust
-    return DualityCheck(objective, info.key, label, trust, reverse, forward, central, seed)
+    record = buffer.param(info.key)
+    # A repaired parameter's reverse mode is the one known wrong: its central difference may
+    # disagree with forward mode without failing the check.
+    trust = "biased" if record.estimator in ("finite-difference", "mixed") else record.trust
+    return DualityCheck(
+        objective, info.key, label, trust, reverse, forward, central, seed, central_asked=asked
+    )
 
 
 def _weighted(adjoint: np.ndarray, image: np.ndarray) -> float:

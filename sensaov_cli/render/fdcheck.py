@@ -62,8 +62,9 @@ class GradientCheck:
     claimed: Trust  # what the trust table says for this kind of parameter
     adjoint: float  # mean over seeds of <dM/dθ, v>
     finite_difference: float  # mean over seeds of the central difference
-    standard_error: float  # of the mean difference
+    standard_error: float  # of the mean difference (0 for one same-seed comparison)
     verdict: str  # "agrees" | "disagrees" | "inconclusive"
+    method: str = "seeds"  # "seeds": means over seeds; "same seed": one, to float precision
 
     @property
     def claimed_verified(self) -> bool:
@@ -138,7 +139,7 @@ def check_parameter(
             differences.append((sides[0] - sides[1]) / (2 * eps))
     finally:
         assign(loaded, info.key, theta)
-    return _judge(info, np.array(adjoints), np.array(differences))
+    return judge(info, np.array(adjoints), np.array(differences))
 
 
 def check_parameter_independent(
@@ -170,10 +171,10 @@ def check_parameter_independent(
             differences.append((sides[0] - sides[1]) / (2 * eps))
     finally:
         assign(loaded, info.key, theta)
-    return _judge(info, np.array(adjoints), np.array(differences))
+    return judge(info, np.array(adjoints), np.array(differences))
 
 
-def _judge(info: ParamRecord, adjoints: np.ndarray, differences: np.ndarray) -> GradientCheck:
+def judge(info: ParamRecord, adjoints: np.ndarray, differences: np.ndarray) -> GradientCheck:
     gap = adjoints - differences
     error = float(gap.std(ddof=1) / math.sqrt(len(gap))) if len(gap) > 1 else 0.0
     ad, fd = float(adjoints.mean()), float(differences.mean())
@@ -202,11 +203,11 @@ def check_gradients(
     keys: list[str] | None = None,
 ) -> list[GradientCheck]:
     """One check per parameter kind, or of the named ``keys`` (each must be a selected key)."""
-    chosen = representatives(loaded) if keys is None else _named(loaded, keys)
+    chosen = representatives(loaded) if keys is None else named(loaded, keys)
     return [check_parameter(loaded, objective, info, spp=spp, seeds=seeds) for info in chosen]
 
 
-def _named(loaded: LoadedScene, keys: list[str]) -> list[ParamRecord]:
+def named(loaded: LoadedScene, keys: list[str]) -> list[ParamRecord]:
     by_key = {info.key: info for info in loaded.selected}
     for key in keys:
         if key not in by_key:

@@ -260,6 +260,8 @@ def _describe(
         flags=flag_names,
         trust=trust,
         note=note,
+        # composites above it may send it to path (trust.py, "composites")
+        estimator="reverse-path" if gradient_integrator(plugin, contexts) == "path" else "reverse",
     )
     return record, contexts
 

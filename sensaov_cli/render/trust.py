@@ -204,6 +204,69 @@ def composite_status(contexts: tuple[Context, ...]) -> tuple[Trust, str]:
     return min(trusts, key=WEAKEST_FIRST.index), "; ".join(dict.fromkeys(notes))
 
 
+# --- repairs: where the reverse-mode gradient is known wrong, finite differences instead ------
+
+COMPOSITE_REASON = (
+    f"composite over a smooth (delta) lobe: {MITSUBA}'s prb differentiates it through eval(), "
+    "which omits that lobe"
+)
+
+
+@dataclass(frozen=True)
+class RepairEntry:
+    """How a kind's finite-difference repair (render/repair.py) was measured to do."""
+
+    trust: Trust  # the label a repaired gradient of this kind gets
+    step: float  # relative step ε / max(1, |θ|) it was measured with, and uses
+    note: str = ""
+
+
+REPAIR_STEP = 0.01  # the step of a kind not listed below
+# (plugin, type) -> the repair's label and step, measured against independent central
+# differences (docs/verification.md "Repairs", scripts/repair_table.py). A kind not listed is
+# still repaired where its gradient is known wrong, and labelled unverified.
+REPAIRS: dict[tuple[str, str], RepairEntry] = {
+    ("blendbsdf", "weight"): RepairEntry("verified", 0.1),  # lobe flips: noise grows as 1/ε
+    ("diffuse", "reflectance"): RepairEntry(  # components at 0: one-sided differences
+        "unverified",
+        0.05,
+        "diffuse reflectance: its repair at a component 0 was measured "
+        "3.1 standard errors from central differences (docs/verification.md)",
+    ),
+    ("plastic", "reflectance"): RepairEntry("verified", 0.05),
+    ("roughplastic", "eta"): RepairEntry("verified", 0.01),
+    ("roughplastic", "roughness"): RepairEntry("verified", 0.01),
+}
+
+
+def repair_entry(plugin: str, ptype: str) -> RepairEntry:
+    """The measured repair of a kind, or an unverified one at the default step."""
+    found = REPAIRS.get((plugin, ptype))
+    if found is not None:
+        return found
+    note = f"{plugin} {ptype}: its finite-difference repair is not measured for this kind"
+    return RepairEntry("unverified", REPAIR_STEP, note)
+
+
+# --- checks: which kinds one seed checks -----------------------------------------------------
+
+# (plugin, type, is_texture) of kinds whose value does not steer sampling: a difference at the
+# reverse pass's own seed reproduces its gradient to float precision (the trust table's
+# same-seed rows: relative error <= 1e-4), so `sensaov check` compares them at one seed. Others
+# (roughness, eta of rough or plastic BSDFs, lobe and blend weights, importance-sampled emitter
+# textures) are compared on average over seeds. A kind missing here is compared over seeds.
+SAME_SEED_EXACT = frozenset(
+    {("diffuse", "reflectance", False), ("diffuse", "reflectance", True),
+     ("conductor", "eta", False), ("conductor", "k", False), ("conductor", "specular", False),
+     ("roughconductor", "eta", False), ("roughconductor", "k", False),
+     ("dielectric", "specular", False), ("dielectric", "transmittance", False),
+     ("thindielectric", "transmittance", False), ("principled", "reflectance", False),
+     ("area", "radiance", False), ("point", "radiance", False),
+     ("directional", "radiance", False), ("constant", "radiance", False),
+     ("spot", "radiance", False), ("spot", "radiance", True), ("envmap", "radiance", False)}
+)  # fmt: skip
+
+
 def known_zero_reason(
     plugin: str, ptype: str, key: str, integrator: str, all_zero: bool
 ) -> str | None:

@@ -113,6 +113,39 @@ class RenderSpec(Section):
 
 
 @dataclass(frozen=True)
+class RepairSpec(Section):
+    """Gradients Mitsuba is known to get wrong, computed again by finite differences."""
+
+    budget: Annotated[
+        float,
+        STRICT,
+        Ge(0),
+        Le(1000),
+        Doc(
+            "Extra samples for repairs, a multiple of the run's own (its primal and backward "
+            "passes); 0 repairs nothing. What does not fit stays labelled and is named."
+        ),
+    ] = 1.0
+    seeds: Annotated[
+        int,
+        STRICT,
+        Ge(2),
+        Le(64),
+        Doc(
+            "Seeds per repair: both sides of a difference share a seed's samples, the "
+            "standard error comes from the seeds' spread."
+        ),
+    ] = 4
+    step: Annotated[
+        float | None,
+        STRICT,
+        Gt(0),
+        Le(0.5),
+        Doc("Relative step: ε = step · max(1, |θ|); null = the measured step of each kind."),
+    ] = None
+
+
+@dataclass(frozen=True)
 class ParameterSpec(Section):
     """Which scene parameters are differentiated."""
 
@@ -293,6 +326,7 @@ class JobSpec(Section):
     variant: Annotated[Variant, Doc("Mitsuba variant; auto picks one.")] = "auto"
     render: RenderSpec = RenderSpec()
     parameters: ParameterSpec = ParameterSpec()
+    repair: RepairSpec = RepairSpec()
     objective_camera: Annotated[
         CameraSpec,
         SensorOrPlaced(PLACED, name="objective"),

@@ -13,7 +13,7 @@ such a parameter. Both belong to one scale group, ``<objective>/<channel>``.
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import cast
 
 import numpy as np
@@ -44,6 +44,7 @@ class ChannelValues:
     # object -> its keys in the untrusted pass (on both parts: left out of one, held by the other)
     left_out: dict[str, tuple[str, ...]] | None = None
     zero_valued: dict[str, float] | None = None  # key -> raw Σ ∂M/∂θ, θ = 0 (weight value)
+    estimators: dict[str, str] = field(default_factory=dict)  # key -> what computed its gradient
 
     @property
     def scale_group(self) -> str:
@@ -156,4 +157,5 @@ def _values(
         unverified,
         part,
         zero_valued={key: raw for key, raw in zeros.items() if key in keys},
+        estimators={k: buf.param(k).estimator for k in keys},
     )

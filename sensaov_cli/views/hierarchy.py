@@ -21,17 +21,20 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, key_stats, rank, scores
 from sensaov_cli.errors import QueryError
 from sensaov_cli.views.headline import ZeroValued, split_groups, zero_valued
 from sensaov_cli.views.summary import ranked_groups, weakest_trust
 from sensaov_cli.views.uncertainty import GroupError, Significance, Uncertainty
-from sensaov_cli.vocabulary import Aggregate, Cut, Grouping, Trust, Untrusted, Weight
+from sensaov_cli.vocabulary import ESTIMATORS, Aggregate, Cut, Grouping, Trust, Untrusted, Weight
 
 RANKING_FORMAT = "sensaov-ranking"
 # 2: standard errors, significance and stability; 3: Student-t significance, untrusted
-# parameters ranked apart (left_out), zero-valued parameters flagged, part and raw_signed
+# parameters ranked apart (left_out), zero-valued parameters flagged, part and raw_signed,
+# each row's estimator
 RANKING_VERSION = 3
 # The grouping each cut reads: a key row is one parameter.
 GROUPING_OF: dict[Cut, Grouping] = {"key": "param", "object": "object", "type": "type"}
@@ -56,6 +59,8 @@ class RankRow:
     part: str = "all"  # "trusted" / "untrusted" (left out) under untrusted: apart
     zero_value: bool = False  # θ is 0 where ∂M/∂θ is not (a group: in one of its keys)
     raw_signed: float | None = None  # Σ ∂M/∂θ, for a zero-valued key under weight "value"
+    # what produced the gradients: a key's estimator, a group's distinct ones joined by "+"
+    estimator: str = "reverse"
 
 
 @dataclass(frozen=True)
@@ -148,6 +153,8 @@ def _ranking(
         ]
         if noise is not None:
             made = [_with_errors(row, noise.error(groups[row.name], row.score)) for row in made]
+        elif cut.by == "key":  # without batches, a repaired parameter has its own seeds' error
+            made = [_with_repair_error(buf, objective, r, cut.method, cut.weight) for r in made]
         return made
 
     stable = None if noise is None else noise.stability(rank(scores(stats, split.kept)), split.kept)
@@ -166,6 +173,27 @@ def _ranking(
         untrusted=cut.untrusted,
         significance=None if noise is None else noise.significance,
         zero_valued=tuple(hidden.values()),
+    )
+
+
+def _with_repair_error(
+    buf: SensitivityBuffer, objective: str, row: RankRow, method: Aggregate, weight: Weight
+) -> RankRow:
+    repair = buf.repairs.get(row.name)
+    if repair is None or not repair.has_error:
+        return row
+    theta = buf.value(row.name) if weight == "value" else np.ones(buf.param(row.name).shape)
+    signed_se = repair.signed_error(objective, theta)
+    score_se = {
+        "sum": signed_se,
+        "l2": repair.norm_error(objective, theta),
+        "rms": repair.norm_error(objective, theta) / math.sqrt(max(theta.size, 1)),
+    }[method]
+    return replace(
+        row,
+        score_se=score_se,
+        signed_se=signed_se,
+        significant=repair.significant(row.signed, signed_se),
     )
 
 
@@ -208,7 +236,14 @@ def _row(
         part=part,
         zero_value=bool(zero),
         raw_signed=zero[0].raw_signed if cut.by == "key" and zero else None,
+        estimator=estimators(buf, keys),
     )
+
+
+def estimators(buf: SensitivityBuffer, keys: Sequence[str]) -> str:
+    """The distinct estimators of ``keys``' gradients, in vocabulary order, joined by "+"."""
+    found = {buf.param(k).estimator for k in keys}
+    return "+".join(e for e in ESTIMATORS if e in found) or "-"
 
 
 def _mean_value(buf: SensitivityBuffer, key: str) -> float | None:

@@ -21,6 +21,8 @@ import copy
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import numpy as np
+
 from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, groups, key_stats, rank, scores
 from sensaov_cli.views.headline import check_untrusted, split_groups, zero_valued
@@ -28,7 +30,8 @@ from sensaov_cli.vocabulary import Aggregate, Grouping, Trust, Untrusted, Weight
 
 SUMMARY_FORMAT = "sensaov-summary"
 # 2: trust labels, the "no_gradient" list, ranked counts; 3: objects and types of trusted
-# parameters only ("untrusted", "left_out"), "zero_valued", and "zero_value" on parameters
+# parameters only ("untrusted", "left_out"), "zero_valued", and "zero_value" on parameters;
+# each parameter's estimator, and a repaired one's own standard error
 SUMMARY_VERSION = 3
 
 _CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}
@@ -104,6 +107,9 @@ def _objective_summary(
     hidden = zero_valued(buf, objective.name, list(ranked["param"])) if weight == "value" else {}
     objects = split_groups(buf, ranked["object"], untrusted)
     types = split_groups(buf, ranked["type"], untrusted)
+    params = _parameters(buf, stats, ranked["param"], top, method)
+    for entry in params:
+        entry.update(repair_error(buf, objective.name, entry["key"], entry["signed"], weight))
     return {
         "name": objective.name,
         "value": objective.value,
@@ -117,7 +123,7 @@ def _objective_summary(
                 "zero_value": entry["key"] in hidden,
                 "raw_signed": hidden[entry["key"]].raw_signed if entry["key"] in hidden else None,
             }
-            for entry in _parameters(buf, stats, ranked["param"], top, method)
+            for entry in params
         ],  # fmt: skip
         "objects": _group_entries(buf, stats, objects.kept, "name", method, top, hidden),
         "types": _group_entries(buf, stats, types.kept, "type", method, None, hidden),
@@ -171,9 +177,27 @@ def _parameters(
                 "verified": p.verified,
                 "trust": p.trust,
                 "note": p.note,
+                "estimator": p.estimator,
             }
         )
     return entries
+
+
+def repair_error(
+    buf: SensitivityBuffer, objective: str, key: str, signed: float, weight: Weight
+) -> dict[str, Any]:
+    """A repaired parameter's own standard error of its signed sum, the significance of its
+    sign and its seed count (buffer/repairs.py); {} for any other parameter."""
+    repair = buf.repairs.get(key)
+    if repair is None or not repair.has_error:
+        return {}
+    theta = buf.value(key) if weight == "value" else np.ones(buf.param(key).shape)
+    error = repair.signed_error(objective, theta)
+    return {
+        "signed_se": error,
+        "significant": repair.significant(signed, error),
+        "seeds": len(repair.seeds),
+    }
 
 
 def _group_entries(

@@ -100,6 +100,7 @@ def _common_metadata(tf: TexelField, seen: np.ndarray, notes: list[str]) -> dict
         "unverified": json.dumps(
             [tf.record.key] if tf.record.trust not in ("verified", "no_gradient") else []
         ),
+        "estimators": json.dumps({tf.record.key: tf.record.estimator}),
         "notes": " | ".join(notes),
     }
 

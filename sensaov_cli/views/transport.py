@@ -102,11 +102,13 @@ def direction_values(buffer: SensitivityBuffer, keys: Sequence[str], direction: 
 def reverse_along(
     buffer: SensitivityBuffer, objective: str, keys: Sequence[str], direction: str
 ) -> float:
-    """⟨g, v⟩ from the stored gradients, in float64."""
+    """⟨g, v⟩ from the reverse-mode gradients, in float64: for a repaired parameter the one
+    its repair replaced, whose dual the forward pass is (buffer/repairs.py)."""
     v = direction_values(buffer, keys, direction)
     return float(
         sum(
-            np.dot(buffer.grad(objective, k).astype(np.float64).ravel(), v[k].ravel()) for k in keys
+            np.dot(buffer.reverse_grad(objective, k).astype(np.float64).ravel(), v[k].ravel())
+            for k in keys
         )
     )
 
@@ -119,8 +121,15 @@ def top_objects(buffer: SensitivityBuffer, objective: str, k: int, weight: str) 
 
 
 def unverified_keys(buffer: SensitivityBuffer, keys: Sequence[str]) -> tuple[str, ...]:
-    """As channels mark them: a parameter with no gradient flowing through it adds exactly 0."""
-    return tuple(k for k in keys if buffer.param(k).trust not in ("verified", "no_gradient"))
+    """As channels mark them: a parameter with no gradient flowing through it adds exactly 0.
+    A repaired one is marked too: the buffer's number is right, the forward pass's is the
+    reverse mode's twin, known wrong (docs/verification.md, "Repairs")."""
+    return tuple(
+        k
+        for k in keys
+        if buffer.param(k).trust not in ("verified", "no_gradient")
+        or buffer.param(k).estimator in ("finite-difference", "mixed")
+    )
 
 
 def merged_layers(data: ForwardData, kind: str) -> list[tuple[ForwardLayer, tuple[str, ...]]]:
