@@ -33,7 +33,7 @@ def params(job: Path, as_json: bool, show_all: bool) -> None:
       sensaov params configs/cbox.yaml
       sensaov params configs/cbox.yaml --json | jq '.selected[].key'
     """
-    from sensaov_cli.outputs.tables import params_dict, params_text
+    from sensaov_cli.outputs.params_table import params_dict, params_text
     from sensaov_cli.pipeline.params import parameter_inventory
     from sensaov_cli.spec.load import load_job
 

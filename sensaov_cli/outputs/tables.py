@@ -1,20 +1,18 @@
-"""The text tables a terminal shows: ``params`` and ``rank``/``run``'s summary.
+"""The text tables a terminal shows: ``rank``/``run``'s summary, and the aligned table.
 
-One aligned-table function serves them and ``check``'s tables (check_tables.py); JSON output
-comes from the same data (the dicts of :mod:`sensaov_cli.views.summary` and ``params_dict``),
-so text and JSON always agree.
+One aligned-table function serves them, ``params`` (params_table.py) and ``check``'s tables
+(check_tables.py); JSON output comes from the same data (the dicts of
+:mod:`sensaov_cli.views.summary`), so text and JSON always agree.
 Plain text only: no colour, no box drawing, so logs and farm consoles read it as it is.
 """
 
 from __future__ import annotations
 
 import unicodedata
-from collections import defaultdict
 from collections.abc import Collection, Sequence
-from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, SensitivityBuffer, TextureSource
+from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.views.headline import ZeroValued
 from sensaov_cli.views.summary import summary_dict
 from sensaov_cli.vocabulary import Aggregate, Untrusted, Weight
@@ -32,10 +30,6 @@ LABEL_MEANINGS = {
     "suspect": "suspect: failed a run-time self-check",
 }
 _MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
-_PARAMS_NOTES = {
-    "unverified": "UNVERIFIED", "biased": "BIASED", "suspect": "SUSPECT",
-    "no_gradient": "NO GRADIENT",
-}  # fmt: skip
 _PROVENANCE_SHOWN = {"scene_path": "scene", "variant": "variant", "spp": "spp"}  # key: label
 _OWNERS_SHOWN = 3
 
@@ -69,152 +63,6 @@ def printable(text: str) -> str:
         ch.encode("unicode_escape").decode("ascii") if unicodedata.category(ch)[0] == "C" else ch
         for ch in text
     )
-
-
-@dataclass(frozen=True)
-class ParameterInventory:
-    """What ``sensaov params`` reports of a loaded scene, as plain data."""
-
-    variant: str
-    objects: tuple[str, ...]
-    selected: tuple[ParamRecord, ...]
-    excluded: tuple[ExcludedParam, ...]
-    split: dict[str, tuple[str, ...]]
-    textures: dict[str, TextureSource]
-    # what sensaov changed in the scene: what, why, where, and whether it alters the image
-    changes: tuple[tuple[str, str, str, bool], ...]
-    # key -> why run repairs it by finite differences (budget permitting): render/repair_plan
-    repairs: dict[str, str] = field(default_factory=dict)
-
-
-def params_dict(loaded: ParameterInventory) -> dict[str, Any]:
-    """What ``sensaov params --json`` prints (docs/job-spec.md)."""
-    return {
-        "variant": loaded.variant,
-        "objects": list(loaded.objects),
-        "selected": [
-            {
-                **_selected_entry(info, loaded.textures.get(info.key)),
-                "estimator": info.estimator,
-                "repair": loaded.repairs.get(info.key),
-            }
-            for info in loaded.selected
-        ],
-        "excluded": [asdict(item) for item in loaded.excluded],
-        "split_bsdfs": {name: list(shapes) for name, shapes in loaded.split.items()},
-        "scene_changes": [
-            {"what": what, "why": why, "where": where, "alters_image": alters}
-            for what, why, where, alters in loaded.changes
-        ],
-    }
-
-
-def _selected_entry(record: ParamRecord, texture: TextureSource | None) -> dict[str, Any]:
-    entry = asdict(record)
-    plugin = entry.pop("plugin")  # the order these keys always had in params --json
-    return {
-        **{key: entry[key] for key in ("key", "type", "owners")},
-        "plugin": plugin,
-        **{key: entry[key] for key in ("shape", "is_texture", "flags")},
-        "verified": record.verified,
-        **{key: entry[key] for key in ("trust", "note")},
-        "texture_file": texture.file if texture else None,
-        "converted": texture.converted if texture else False,
-    }
-
-
-def params_text(loaded: ParameterInventory, *, show_all: bool = False) -> str:
-    rows = [("key", "type", "owners", "plugin", "shape", "notes")]
-    for info in loaded.selected:
-        notes = list(info.flags)
-        if info.is_texture:
-            converted = loaded.textures[info.key].converted
-            notes.append("texture, 8-bit -> float" if converted else "texture")
-        if not info.verified:
-            notes.append(_PARAMS_NOTES[info.trust])
-        if info.key in loaded.repairs:
-            notes.append("REPAIRED" if not info.is_texture else "NOT REPAIRED (texture)")
-        shape = "x".join(str(n) for n in info.shape)
-        rows.append(
-            (info.key, info.type, ",".join(info.owners), info.plugin, shape, ", ".join(notes))
-        )
-    lines = [f"{len(loaded.selected)} parameters selected over {len(loaded.objects)} objects"]
-    lines += format_table(rows)
-    lines += _unverified_legend(loaded)
-    lines += _repairs_legend(loaded)
-    lines += _textures(loaded)
-    lines += _split(loaded)
-    lines += _changes(loaded)
-    lines += _excluded(loaded, show_all)
-    return "\n".join(lines)
-
-
-def _unverified_legend(loaded: ParameterInventory) -> list[str]:
-    notes = sorted(
-        {(_PARAMS_NOTES[i.trust], i.note) for i in loaded.selected if i.trust != "verified"}
-    )
-    if not notes:
-        return []
-    head = "gradients sensaov does not stand behind (left out of object and type views):"
-    return ["", head] + [f"  - {label}: {note}" for label, note in notes]
-
-
-def _repairs_legend(loaded: ParameterInventory) -> list[str]:
-    if not loaded.repairs:
-        return []
-    return [
-        "",
-        "REPAIRED: known wrong in reverse mode; run computes them again by central differences "
-        "(repair.budget permitting; textures never: two renders per texel) - "
-        'docs/verification.md, "Repairs"',
-    ]
-
-
-def _textures(loaded: ParameterInventory) -> list[str]:
-    if not loaded.textures:
-        return []
-    lines = ["", "textures in the buffer:"]
-    for key, source in loaded.textures.items():
-        how = (
-            "converted from 8-bit to float so its texels get gradients"
-            if source.converted
-            else "float"
-        )
-        lines.append(f"  {key}: {source.file} ({how})")
-    return lines
-
-
-def _split(loaded: ParameterInventory) -> list[str]:
-    if not loaded.split:
-        return []
-    lines = ["", "shared BSDFs split into one copy per object (parameters.shared: split):"]
-    lines += [f"  {name} -> {', '.join(shapes)}" for name, shapes in loaded.split.items()]
-    return lines
-
-
-def _changes(loaded: ParameterInventory) -> list[str]:
-    if not loaded.changes:
-        return []
-    lines = ["", "what sensaov changed in the scene before loading it (your files are untouched):"]
-    for what, why, where, alters in loaded.changes:
-        mark = "!" if alters else "-"  # M is measured on another image than the scene's
-        lines.append(f"  {mark} {what}{f' ({where})' if where else ''}: {why}")
-    if any(alters for *_, alters in loaded.changes):
-        lines.append("  (!: the image differentiated is not the one the scene renders)")
-    return lines
-
-
-def _excluded(loaded: ParameterInventory, show_all: bool) -> list[str]:
-    by_reason: dict[str, list[str]] = defaultdict(list)
-    for item in loaded.excluded:
-        by_reason[item.reason].append(item.key)
-    lines = ["", f"{len(loaded.excluded)} parameters left out:"]
-    for reason, keys in sorted(by_reason.items(), key=lambda kv: -len(kv[1])):
-        if show_all or len(keys) <= 3:
-            lines.append(f"  {reason}: {', '.join(keys)}")
-        else:
-            lines.append(f"  {reason}: {len(keys)} keys (e.g. {keys[0]}; --all lists them)")
-    return lines
 
 
 def summary_text(

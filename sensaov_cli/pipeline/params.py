@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from sensaov_cli.outputs.tables import ParameterInventory
+from sensaov_cli.outputs.params_table import ParameterInventory
 from sensaov_cli.render.loading import load_scene
 from sensaov_cli.render.repair_plan import planned
 from sensaov_cli.render.scene import prepare_scene

@@ -35,7 +35,7 @@ from sensaov_cli.render.loading import LoadedScene, assign
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
 from sensaov_cli.render.repair_plan import RepairPlan, Target, candidates, plan
 from sensaov_cli.render.trust import repair_entry
-from sensaov_cli.spec.job import RepairSpec
+from sensaov_cli.spec.render_settings import RepairSpec
 
 
 def repair(

@@ -33,7 +33,7 @@ from sensaov_cli.render.trust import (
     ZERO_VALUE_REASON,
     repair_entry,
 )
-from sensaov_cli.spec.job import RepairSpec
+from sensaov_cli.spec.render_settings import RepairSpec
 
 # A parameter with more components is not repaired by differences (two renders each).
 MAX_COMPONENTS = 16
