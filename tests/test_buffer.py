@@ -425,13 +425,16 @@ def _write_by_hand(path: Path, version: int, label: dict) -> None:
     }  # fmt: skip
     if version >= 3:
         header["statistics"] = None
-    if version >= 4:
+    members = ("value_000000", "grad_000_000000")  # one per parameter and objective
+    if version >= 4:  # packed: the parameter is values[0:3] and grads_000[0:3]
         header["repairs"] = {}
         header["params"][0]["estimator"] = "reverse"
+        header["storage"] = {"packed": 3, "params": [{"offset": 0}]}
+        members = ("values", "grads_000")
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         zf.writestr("header.npy", _npy(np.array(json.dumps(header))))
-        zf.writestr("value_000000.npy", _npy(np.array([1, 2, 3], ">f4")))
-        zf.writestr("grad_000_000000.npy", _npy(np.array([0.5, 0, -1], "<f4")))
+        zf.writestr(f"{members[0]}.npy", _npy(np.array([1, 2, 3], ">f4")))
+        zf.writestr(f"{members[1]}.npy", _npy(np.array([0.5, 0, -1], "<f4")))
 
 
 @pytest.mark.parametrize("version", [2, 3, 4])

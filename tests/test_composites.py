@@ -6,10 +6,12 @@ goes through ``path``; ``run`` applies it (docs/verification.md, "Composites").
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from types import ModuleType
 
 import pytest
+import yaml
 
 from sensaov_cli.render.fdcheck import check_parameter
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
@@ -91,9 +93,26 @@ def test_a_rough_child_beside_a_smooth_one_agrees_only_through_path(
     assert through_prb.relative_error > 0.1, through_prb
 
 
-def test_run_labels_the_blend_weight_in_its_rankings(job: Path) -> None:
-    result = sensaov("run", str(job))
+def test_run_labels_the_blend_weight_in_its_rankings(job: Path, tmp_path: Path) -> None:
+    """Without repairs the biased weight is ranked with its mark and its reason; with them
+    (the default budget) run computes it again by central differences and says so."""
+    spec = yaml.safe_load(job.read_text())
+    unrepaired = job.parent / "no_repair.yaml"
+    spec.update(repair={"budget": 0}, output=str(tmp_path / "out"))
+    unrepaired.write_text(yaml.safe_dump(spec))
+    result = sensaov("run", str(unrepaired))
     assert result.returncode == 0, result.stderr
-    line = next(line for line in result.stdout.splitlines() if WEIGHT in line)
-    assert " ! " in line  # ranked with its mark, its reason in the legend
+    line = _ranked_row(result.stdout)
+    assert " ! " in line and "reverse" in line  # ranked with its mark, its reason in the legend
     assert "a blendbsdf with a smooth (delta) child" in result.stdout
+    repaired = sensaov("run", str(job))
+    assert repaired.returncode == 0, repaired.stderr
+    line = _ranked_row(repaired.stdout)
+    assert "finite-difference" in line and " ! " not in line
+
+
+def _ranked_row(text: str) -> str:
+    """The weight's row of the parameters' ranking (a row starts with its rank)."""
+    return next(
+        line for line in text.splitlines() if WEIGHT in line and re.match(r"\s+\d+\s", line)
+    )

@@ -41,7 +41,7 @@ REPAIRED = {  # key -> its kind's reason to be repaired
     "varnish_ball.bsdf.alpha": "biased",
     "varnish_ball.bsdf.eta": "biased",
     "plastic_ball.bsdf.diffuse_reflectance.value": "biased",
-    "blend_ball.bsdf.weight.value": "composite over a smooth (delta) lobe",
+    "blend_ball.bsdf.weight.value": "a blendbsdf with a smooth (delta) child",  # trust.py
     "floor.bsdf.reflectance.value": "value exactly 0",
     "light.bsdf.reflectance.value": "no gradient",
 }
@@ -187,8 +187,8 @@ def test_no_budget_repairs_nothing(job_writer: Callable[..., Path]) -> None:
     assert buffer.repairs == {} and set(buffer.provenance["repairs"]["not_repaired"]) == set(
         REPAIRED
     )
-    weight = buffer.param("blend_ball.bsdf.weight.value")  # the table says verified: not here
-    assert weight.trust == "unverified" and "composite over a smooth" in weight.note
+    weight = buffer.param("blend_ball.bsdf.weight.value")  # its composite's row: biased
+    assert weight.trust == "biased" and "a blendbsdf with a smooth (delta) child" in weight.note
 
 
 def _record(key: str, shape: tuple[int, ...], texture: bool = False) -> ParamRecord:
