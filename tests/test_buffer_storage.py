@@ -107,7 +107,8 @@ def write_version_3(path: Path, buffer: SensitivityBuffer) -> None:
     header = {
         "format": "sensaov-buffer", "format_version": 3, "provenance": buffer.provenance,
         "objects": list(buffer.objects),
-        "params": [{**p.__dict__, "owners": list(p.owners), "shape": list(p.shape),
+        "params": [{**{k: v for k, v in p.__dict__.items() if k != "estimator"},  # 4 on
+                    "owners": list(p.owners), "shape": list(p.shape),
                     "flags": list(p.flags), "array": i} for i, p in enumerate(buffer.params)],
         "objectives": [{**o.__dict__, "array": j} for j, o in enumerate(buffer.objectives)],
         "statistics": None,
