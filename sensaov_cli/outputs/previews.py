@@ -60,6 +60,18 @@ def diverging_rgb(values: np.ndarray, scale: float) -> np.ndarray:
     The table is interpolated linearly between its stops in sRGB, as ColorBrewer's maps are
     meant to be. A scale of 0 draws zero at the centre and anything else at the ends.
     """
+    return np.rint(_diverging_srgb(values, scale)).astype(np.uint8)
+
+
+def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
+    """``values`` as float32 linear Rec. 709 RGB (shape + (3,)): the RdBu colours of
+    :func:`diverging_rgb` before rounding, decoded from sRGB, so that a viewer's sRGB (Standard)
+    display shows exactly the previews' colours. Display layers of EXRs are drawn with it."""
+    return _linear(_diverging_srgb(values, scale) / 255.0).astype(np.float32)
+
+
+def _diverging_srgb(values: np.ndarray, scale: float) -> np.ndarray:
+    """The RdBu colours of ``values`` in sRGB code values 0-255, float64, not rounded."""
     if not (math.isfinite(scale) and scale >= 0):
         raise ValueError(f"scale must be finite and non-negative, got {scale}")
     x = np.asarray(values, dtype=np.float64)
@@ -70,26 +82,7 @@ def diverging_rgb(values: np.ndarray, scale: float) -> np.ndarray:
     low = np.minimum(np.floor(position).astype(np.intp), len(RDBU) - 2)
     frac = (position - low)[..., None]
     table = RDBU.astype(np.float64)
-    rgb = table[low] * (1.0 - frac) + table[low + 1] * frac
-    return np.rint(rgb).astype(np.uint8)
-
-
-def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
-    """``values`` as float32 linear Rec. 709 RGB (shape + (3,)): the RdBu colours of
-    :func:`diverging_rgb` before rounding, decoded from sRGB, so that a viewer's sRGB (Standard)
-    display shows exactly the previews' colours. Display layers of EXRs are drawn with it."""
-    if not (math.isfinite(scale) and scale >= 0):
-        raise ValueError(f"scale must be finite and non-negative, got {scale}")
-    x = np.asarray(values, dtype=np.float64)
-    if not np.all(np.isfinite(x)):
-        raise NonFiniteError("values to draw are NaN or infinite", hint="encode finite values")
-    t = np.clip(x / scale, -1.0, 1.0) if scale > 0 else np.sign(x)
-    position = (t + 1.0) * 0.5 * (len(RDBU) - 1)
-    low = np.minimum(np.floor(position).astype(np.intp), len(RDBU) - 2)
-    frac = (position - low)[..., None]
-    table = RDBU.astype(np.float64) / 255.0
-    encoded = table[low] * (1.0 - frac) + table[low + 1] * frac
-    return _linear(encoded).astype(np.float32)
+    return table[low] * (1.0 - frac) + table[low + 1] * frac
 
 
 def hatch(rgb_uint8: np.ndarray, mask: np.ndarray, period: int = 8, width: int = 2) -> np.ndarray:
