@@ -262,11 +262,15 @@ def test_sigterm_at_random_points_of_a_large_view(tmp_path: Path) -> None:
         window = time.perf_counter() - started  # the load, both views and the writes
     waits, codes = [], []
     for delay in np.random.default_rng(21).uniform(0.0, 0.8 * window, 10):
-        process = _project_loading(job)
-        time.sleep(delay)
-        sent = time.perf_counter()
-        process.send_signal(signal.SIGTERM)
-        _, rest = process.communicate(timeout=60)
+        while True:
+            process = _project_loading(job)
+            time.sleep(delay)
+            sent = time.perf_counter()
+            process.send_signal(signal.SIGTERM)
+            _, rest = process.communicate(timeout=60)
+            if process.returncode != 0 or delay < 0.05:
+                break
+            delay /= 2  # a busy machine's run ended before the signal came: come sooner
         waits.append(time.perf_counter() - sent)
         codes.append(process.returncode)
         assert rest.strip().splitlines()[-1].startswith("sensaov: error: stopped by SIGTERM"), rest
