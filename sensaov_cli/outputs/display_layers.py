@@ -47,8 +47,10 @@ def with_display(
     per-pixel coverage by any object, in [0, 1])."""
     shown = display_metadata(layer, scale)
     values = signed_pixels(layer.data, layer.metadata.get("kind", ""))
-    alpha = np.where(values != 0, 1.0, np.clip(hit, 0.0, 1.0))[..., None]
-    colours = (diverging_linear(values, scale.value) * alpha).astype(np.float32)
+    colours = diverging_linear(values, scale.value)
+    # Zero pixels fade to black with the coverage (alpha 1 elsewhere: nothing to multiply).
+    zero = values == 0
+    colours[zero] = (colours[zero] * np.clip(hit[zero], 0.0, 1.0)[:, None]).astype(np.float32)
     display_name = layer.pass_name + DISPLAY_SUFFIX
     raw = SensitivityLayer(
         layer.objective,

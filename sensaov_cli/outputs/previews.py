@@ -80,16 +80,23 @@ def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
     display shows exactly the previews' colours. Display layers of EXRs are drawn with it."""
     if not (math.isfinite(scale) and scale >= 0):
         raise ValueError(f"scale must be finite and non-negative, got {scale}")
-    x = np.asarray(values, dtype=np.float64)
+    x = np.asarray(values)
     if not np.all(np.isfinite(x)):
         raise NonFiniteError("values to draw are NaN or infinite", hint="encode finite values")
-    t = np.clip(x / scale, -1.0, 1.0) if scale > 0 else np.sign(x)
+    # A painted layer is runs of equal pixels (an object's inside): the colours, power law and
+    # all, are computed once per run and repeated, pixel for pixel the same as computed apart.
+    flat = x.reshape(-1)
+    head = np.ones(flat.size, dtype=bool)
+    np.not_equal(flat[1:], flat[:-1], out=head[1:])
+    run = np.cumsum(head) - 1
+    distinct = flat[head].astype(np.float64)
+    t = np.clip(distinct / scale, -1.0, 1.0) if scale > 0 else np.sign(distinct)
     position = (t + 1.0) * 0.5 * (len(RDBU) - 1)
     low = np.minimum(np.floor(position).astype(np.intp), len(RDBU) - 2)
     frac = (position - low)[..., None]
     table = RDBU.astype(np.float64) / 255.0
     encoded = table[low] * (1.0 - frac) + table[low + 1] * frac
-    return _linear(encoded).astype(np.float32)
+    return _linear(encoded).astype(np.float32)[run].reshape(*x.shape, 3)
 
 
 def hatch(rgb_uint8: np.ndarray, mask: np.ndarray, period: int = 8, width: int = 2) -> np.ndarray:
