@@ -48,9 +48,10 @@ def with_display(
     shown = display_metadata(layer, scale)
     values = signed_pixels(layer.data, layer.metadata.get("kind", ""))
     colours = diverging_linear(values, scale.value)
-    # Zero pixels fade to black with the coverage (alpha 1 elsewhere: nothing to multiply).
-    zero = values == 0
-    colours[zero] = (colours[zero] * np.clip(hit[zero], 0.0, 1.0)[:, None]).astype(np.float32)
+    # Zero pixels fade to black with the coverage; alpha is 1 elsewhere. float32 products of
+    # float32 factors round as the float64 product would (it is exact).
+    faded = colours * np.clip(hit, 0.0, 1.0).astype(np.float32)[..., None]
+    colours = np.where((values == 0)[..., None], faded, colours)
     display_name = layer.pass_name + DISPLAY_SUFFIX
     raw = SensitivityLayer(
         layer.objective,

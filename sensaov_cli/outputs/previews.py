@@ -88,15 +88,17 @@ def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
     flat = x.reshape(-1)
     head = np.ones(flat.size, dtype=bool)
     np.not_equal(flat[1:], flat[:-1], out=head[1:])
-    run = np.cumsum(head) - 1
-    distinct = flat[head].astype(np.float64)
+    starts = np.flatnonzero(head)
+    lengths = np.diff(starts, append=flat.size)
+    distinct = flat[starts].astype(np.float64)
     t = np.clip(distinct / scale, -1.0, 1.0) if scale > 0 else np.sign(distinct)
     position = (t + 1.0) * 0.5 * (len(RDBU) - 1)
     low = np.minimum(np.floor(position).astype(np.intp), len(RDBU) - 2)
     frac = (position - low)[..., None]
     table = RDBU.astype(np.float64) / 255.0
     encoded = table[low] * (1.0 - frac) + table[low + 1] * frac
-    return _linear(encoded).astype(np.float32)[run].reshape(*x.shape, 3)
+    colours = np.repeat(_linear(encoded).astype(np.float32), lengths, axis=0)
+    return colours.reshape(*x.shape, 3)
 
 
 def hatch(rgb_uint8: np.ndarray, mask: np.ndarray, period: int = 8, width: int = 2) -> np.ndarray:
