@@ -67,8 +67,9 @@ def test_each_camera_weighs_the_same_whatever_its_resolution() -> None:
 
 
 def test_the_percentile_by_selection_is_the_documented_sorted_rule() -> None:
-    """Cameras of one size take a selection instead of a sort (issue 23): the value is the
-    sorted rule's, ties and all, for one camera and for two of one size."""
+    """Cameras of one size take a selection instead of a sort, others merge pre-sorted pixels
+    (issue 23): the value is the sorted rule's, ties and all, for one camera, two of one size
+    and two of different sizes."""
     rng = np.random.default_rng(5)
     images = [np.round(rng.normal(size=(30, 40)), 2) for _ in range(2)]  # many ties
 
@@ -83,9 +84,12 @@ def test_the_percentile_by_selection_is_the_documented_sorted_rule() -> None:
     for percentile in (0.5, 50.0, 95.0, 100.0):
         one = robust_scale({"a": images[:1]}, percentile=percentile).value
         two = robust_scale({"a": images[:1], "b": images[1:]}, percentile=percentile).value
+        apart = robust_scale({"a": images[:1], "c": [images[1][:7]]}, percentile=percentile)
         magnitudes = [np.abs(image[image != 0]) for image in images]
         assert one == sorted_rule(magnitudes[:1], percentile)
         assert two == sorted_rule(magnitudes, percentile)
+        small = np.abs(images[1][:7][images[1][:7] != 0])
+        assert apart.value == sorted_rule([magnitudes[0], small], percentile)
 
 
 def test_colours_of_runs_of_equal_pixels_are_each_pixels_own() -> None:

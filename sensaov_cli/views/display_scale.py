@@ -212,6 +212,9 @@ def _weighted_percentile(magnitudes: Sequence[np.ndarray], percentile: float) ->
         cumulative = np.cumsum(weights) / len(magnitudes)
         index = min(int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12)), values.size - 1)
         return float(np.partition(values, index)[index])
+    # Each camera's pixels sorted first (their weights are equal, so the order of their ties
+    # is immaterial): the stable sort of the whole is then a merge of sorted runs, not a sort.
+    values = np.concatenate([np.sort(m) for m in magnitudes])
     order = np.argsort(values, kind="stable")
     cumulative = np.cumsum(weights[order]) / len(magnitudes)
     index = int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12))
