@@ -80,17 +80,21 @@ OBJECTIVES = (
 
 PROJECTION = (
     "The 'visibility trace alone' rows show what tracing the rays costs; the rest of a view "
-    "does not shrink with the adjoint. A one-off profile of one view without beauty (cbox, "
-    "512², 16 visibility spp, two objectives × three channel kinds), when this bench was "
-    "written: about 0.24 s, of which the layered EXR ≈ 0.12 s (the ZIP-compressed write "
-    "≈ 0.07 s, building the Cryptomatte rank channels ≈ 0.05 s), `visibility.trace` ≈ 0.09 s, "
-    "per-pixel histogram and ranks ≈ 0.03 s, the sensitivity layers ≈ 0.01 s; all but the "
-    "trace is single-threaded numpy or OpenEXR. The beauty pass is a path-traced render (4 spp "
-    "by default), which costs a quarter of a primal at 16 spp. A view's cost does not depend "
-    "on the job's spp while the adjoint's grows linearly with it, hence the second comparison "
-    "against the example jobs' spp. Fix where still missed: reuse primal.exr as the objective "
-    "camera's beauty, write the EXR with a cheaper lossless codec or in parallel with the "
-    "trace, and build the Cryptomatte ranks in the trace kernel."
+    "does not shrink with the adjoint. A profile of one view without beauty (pyinstrument, "
+    "cbox 512², 16 visibility spp, two objectives × three channel kinds: 18 sensitivity "
+    "layers, each with its RGB display layer), issue 23, on 2 shared cores: about 1.06 s, of "
+    "which `visibility.trace` ≈ 0.27 s (the kernel and its read-back 0.21 s, per-pixel "
+    "histogram and ranks 0.05 s), the layered EXR ≈ 0.37 s (ZIP of ~100 float32 channels "
+    "≈ 0.33 s, on both cores), the display scales ≈ 0.13 s (a stable sort of both cameras' "
+    "pixels: project traces the objective camera too, for scales every farm task agrees "
+    "on), the display layers ≈ 0.09 s, the Cryptomatte channels ≈ 0.08 s, painting ≈ 0.04 s. "
+    "Before issue 23 the display colours (per pixel, 0.43 s), a single-threaded EXR write "
+    "(0.40 s) and sorts of data already in order made it 1.75 s. The beauty pass is a "
+    "path-traced render (4 spp by default), which costs a quarter of a primal at 16 spp. A "
+    "view's cost does not depend on the job's spp while the adjoint's grows linearly with "
+    "it, hence the second comparison against the example jobs' spp. Fix where still missed: "
+    "reuse primal.exr as the objective camera's beauty, fewer EXR bytes (display layers in "
+    "half float: a format change), and build the Cryptomatte ranks in the trace kernel."
 )
 
 

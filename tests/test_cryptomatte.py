@@ -227,6 +227,24 @@ def test_empty_ranks_are_zero_even_with_stray_coverage() -> None:
     assert channels["CryptoObject00.B"][0, 0] == 0.0 and channels["CryptoObject00.A"][0, 0] == 0.0
 
 
+def test_ranks_already_in_order_skip_the_sort_with_the_same_channels() -> None:
+    """A visibility pass's ranks come in order and are not sorted again (issue 23): the
+    channels equal those of the same ranks shuffled per pixel, which must be sorted."""
+    rng = np.random.default_rng(3)
+    names = [f"n{k}" for k in range(9)]
+    counts = -np.sort(-rng.permuted(np.tile(np.arange(1, 7), (6, 7, 1)), axis=-1), axis=-1)
+    filled = np.arange(6) < rng.integers(0, 7, size=(6, 7, 1))  # empty ranks last
+    index = np.where(filled, rng.integers(0, 9, size=counts.shape), -1).astype(np.int32)
+    coverage = np.where(filled, counts / 16.0, 0.5).astype(np.float32)  # stray on empties
+    shuffle = np.argsort(rng.random(counts.shape), axis=-1)
+    shuffled = [np.take_along_axis(a, shuffle, axis=-1) for a in (index, coverage)]
+    in_order = cryptomatte.rank_channels("CryptoObject", names, index, coverage, ranks=4)
+    resorted = cryptomatte.rank_channels("CryptoObject", names, *shuffled, ranks=4)
+    assert in_order.keys() == resorted.keys()
+    assert all(np.array_equal(data, resorted[name]) for name, data in in_order.items())
+    assert any(in_order[name].any() for name in in_order if name.endswith("A"))
+
+
 # --- the written file, decoded independently ---------------------------------------------
 
 

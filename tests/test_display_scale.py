@@ -66,6 +66,49 @@ def test_each_camera_weighs_the_same_whatever_its_resolution() -> None:
     assert scale.cameras == ("small", "large") and "each camera weighted equally" in scale.rule()
 
 
+def test_the_percentile_by_selection_is_the_documented_sorted_rule() -> None:
+    """Cameras of one size take a selection instead of a sort, others merge pre-sorted pixels
+    (issue 23): the value is the sorted rule's, ties and all, for one camera, two of one size
+    and two of different sizes."""
+    rng = np.random.default_rng(5)
+    images = [np.round(rng.normal(size=(30, 40)), 2) for _ in range(2)]  # many ties
+
+    def sorted_rule(magnitudes: list[np.ndarray], percentile: float) -> float:
+        values = np.concatenate(magnitudes)
+        weights = np.concatenate([np.full(m.size, 1.0 / m.size) for m in magnitudes])
+        order = np.argsort(values, kind="stable")
+        cumulative = np.cumsum(weights[order]) / len(magnitudes)
+        index = int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12))
+        return float(values[order][min(index, values.size - 1)])
+
+    for percentile in (0.5, 50.0, 95.0, 100.0):
+        one = robust_scale({"a": images[:1]}, percentile=percentile).value
+        two = robust_scale({"a": images[:1], "b": images[1:]}, percentile=percentile).value
+        apart = robust_scale({"a": images[:1], "c": [images[1][:7]]}, percentile=percentile)
+        magnitudes = [np.abs(image[image != 0]) for image in images]
+        assert one == sorted_rule(magnitudes[:1], percentile)
+        assert two == sorted_rule(magnitudes, percentile)
+        small = np.abs(images[1][:7][images[1][:7] != 0])
+        assert apart.value == sorted_rule([magnitudes[0], small], percentile)
+
+
+def test_colours_of_runs_of_equal_pixels_are_each_pixels_own() -> None:
+    """diverging_linear colours each run of equal values once (issue 23): bit for bit the
+    colours of the pixels drawn one at a time, zeros, -0 and clipped values included."""
+    rng = np.random.default_rng(6)
+    image = np.repeat(rng.normal(size=(8, 5)) * 1e-3, rng.integers(1, 9, size=5), axis=1)
+    image[0, :3], image[1, 1], image[2, :] = 0.0, -0.0, 5e-3
+    for scale in (2e-3, 0.0):
+        alone = np.stack([diverging_linear(np.array([v]), scale)[0] for v in image.ravel()])
+        drawn = diverging_linear(image.astype(np.float32), scale)
+        assert drawn.shape == (*image.shape, 3) and drawn.dtype == np.float32
+        expected = np.stack(
+            [diverging_linear(np.array([v], np.float32), scale)[0] for v in image.ravel()]
+        )
+        assert np.array_equal(drawn.reshape(-1, 3), expected)
+        assert np.array_equal(diverging_linear(image, scale).reshape(-1, 3), alone)
+
+
 def test_groups_share_one_scale_untrusted_parts_follow() -> None:
     trusted, apart = np.full((4, 4), 0.1), np.full((4, 4), 5.0)
     layers = {

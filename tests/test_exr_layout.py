@@ -284,3 +284,27 @@ def test_format_name_and_version_match_the_documentation() -> None:
     )
     assert f"`{exr_layout.FORMAT_NAME}`" in docs
     assert f"version {exr_layout.FORMAT_VERSION}" in docs
+
+
+def test_exr_bytes_do_not_depend_on_how_many_cores_compress_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """OpenEXR compresses on every core the process may use (issue 23); the file is the same
+    byte for byte as one compressed on a single core."""
+    import os
+
+    import OpenEXR
+
+    from sensaov_cli.outputs.exr import write_exr
+
+    rng = np.random.default_rng(7)
+    channels = {
+        f"L{k}.{c}": rng.random((70, 90)).astype(np.float32) for k in range(4) for c in "RGB"
+    }
+    written = {}
+    for cores in (1, 2):
+        monkeypatch.setattr(os, "sched_getaffinity", lambda _pid, n=cores: set(range(n)))
+        write_exr(tmp_path / f"{cores}.exr", channels, {"note": "threads"})
+        assert OpenEXR.global_thread_count() == cores
+        written[cores] = (tmp_path / f"{cores}.exr").read_bytes()
+    assert written[1] == written[2]

@@ -103,10 +103,11 @@ def rank_channels(
     ids = np.array([id_float(name) for name in names] + [np.float32(0.0)], dtype=np.float32)
     empty = index < 0
     coverage = np.where(empty, np.float32(0.0), coverage)
-    # Empty ranks sort last whatever their coverage; among the rest, largest coverage first.
-    order = np.lexsort((-coverage, empty), axis=-1)
-    index = np.take_along_axis(index, order, axis=-1)
-    coverage = np.take_along_axis(coverage, order, axis=-1)
+    if not _in_rank_order(coverage, empty):  # a visibility pass's ranks always are
+        # Empty ranks sort last whatever their coverage; among the rest, largest coverage first.
+        order = np.lexsort((-coverage, empty), axis=-1)
+        index = np.take_along_axis(index, order, axis=-1)
+        coverage = np.take_along_axis(coverage, order, axis=-1)
     height, width, present = index.shape
     rank_ids = np.zeros((height, width, ranks), dtype=np.float32)
     rank_cov = np.zeros((height, width, ranks), dtype=np.float32)
@@ -147,6 +148,14 @@ def _check_type_name(type_name: str) -> None:
         )
 
 
+def _in_rank_order(coverage: np.ndarray, empty: np.ndarray) -> bool:
+    """Whether every pixel's ranks are already as the stable sort would leave them (no empty
+    rank before a filled one, coverage not increasing): then sorting is the identity."""
+    filled_after_empty = empty[..., :-1] & ~empty[..., 1:]
+    increasing = coverage[..., 1:] > coverage[..., :-1]
+    return not (filled_after_empty.any() or (increasing & ~empty[..., 1:]).any())
+
+
 def _checked_ranks(
     names: Sequence[str], rank_index: np.ndarray, rank_coverage: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -166,7 +175,7 @@ def _checked_ranks(
             f"{len(names)} names",
             hint="indices run from 0 to len(names) - 1, with -1 for an empty rank",
         )
-    coverage = coverage.astype(np.float32)
+    coverage = coverage.astype(np.float32, copy=False)
     if not np.all(np.isfinite(coverage)):
         raise CryptomatteError("rank_coverage holds NaN or infinity")
-    return index.astype(np.int64), coverage
+    return index, coverage

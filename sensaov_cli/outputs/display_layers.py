@@ -47,8 +47,11 @@ def with_display(
     per-pixel coverage by any object, in [0, 1])."""
     shown = display_metadata(layer, scale)
     values = signed_pixels(layer.data, layer.metadata.get("kind", ""))
-    alpha = np.where(values != 0, 1.0, np.clip(hit, 0.0, 1.0))[..., None]
-    colours = (diverging_linear(values, scale.value) * alpha).astype(np.float32)
+    colours = diverging_linear(values, scale.value)
+    # Zero pixels fade to black with the coverage; alpha is 1 elsewhere. float32 products of
+    # float32 factors round as the float64 product would (it is exact).
+    faded = colours * np.clip(hit, 0.0, 1.0).astype(np.float32)[..., None]
+    colours = np.where((values == 0)[..., None], faded, colours)
     display_name = layer.pass_name + DISPLAY_SUFFIX
     raw = SensitivityLayer(
         layer.objective,

@@ -67,7 +67,16 @@ def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
     """``values`` as float32 linear Rec. 709 RGB (shape + (3,)): the RdBu colours of
     :func:`diverging_rgb` before rounding, decoded from sRGB, so that a viewer's sRGB (Standard)
     display shows exactly the previews' colours. Display layers of EXRs are drawn with it."""
-    return _linear(_diverging_srgb(values, scale) / 255.0).astype(np.float32)
+    x = np.asarray(values)
+    # A painted layer is runs of equal pixels (an object's inside): the colours, power law and
+    # all, are computed once per run and repeated, pixel for pixel the same as computed apart.
+    flat = x.reshape(-1)
+    head = np.ones(flat.size, dtype=bool)
+    np.not_equal(flat[1:], flat[:-1], out=head[1:])
+    starts = np.flatnonzero(head)
+    lengths = np.diff(starts, append=flat.size)
+    colours = _linear(_diverging_srgb(flat[starts], scale) / 255.0).astype(np.float32)
+    return np.repeat(colours, lengths, axis=0).reshape(*x.shape, 3)
 
 
 def _diverging_srgb(values: np.ndarray, scale: float) -> np.ndarray:

@@ -248,7 +248,8 @@ def _project_camera(
     sensor = loaded.inspection_sensors[camera.name]
     beauty = render_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed)
     shown = [(layer, scale_of(scales, camera.name, layer)) for layer in raw.layers]
-    pairs = [with_display(layer, scale, visibility.coverage_hit) for layer, scale in shown]
+    hit = visibility.coverage_hit  # a property that counts every sample: once per view
+    pairs = [with_display(layer, scale, hit) for layer, scale in shown]
     crypto = CryptoLayer(
         "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage
     )

@@ -61,7 +61,8 @@ class VisibilityPass:
     @property
     def visible_objects(self) -> tuple[str, ...]:
         """The objects at least one sample of this view hit."""
-        return tuple(self.objects[i] for i in np.unique(self.coverage.obj))
+        seen = np.bincount(self.coverage.obj, minlength=len(self.objects))  # O(T), no sort
+        return tuple(self.objects[i] for i in np.flatnonzero(seen))
 
     def paint(self, values: np.ndarray) -> np.ndarray:
         """(H, W) coverage-weighted mean of per-object ``values`` (background contributes 0)."""

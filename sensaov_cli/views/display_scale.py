@@ -206,6 +206,15 @@ def _weighted_percentile(magnitudes: Sequence[np.ndarray], percentile: float) ->
     the smallest value whose cumulative weight reaches ``percentile`` % of the total."""
     values = np.concatenate(magnitudes)
     weights = np.concatenate([np.full(m.size, 1.0 / m.size) for m in magnitudes])
+    if len({m.size for m in magnitudes}) == 1:
+        # Every weight is the same (one camera, or cameras of one size): the cumulative weight
+        # does not depend on the order, and the value at one rank needs a selection, not a sort.
+        cumulative = np.cumsum(weights) / len(magnitudes)
+        index = min(int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12)), values.size - 1)
+        return float(np.partition(values, index)[index])
+    # Each camera's pixels sorted first (their weights are equal, so the order of their ties
+    # is immaterial): the stable sort of the whole is then a merge of sorted runs, not a sort.
+    values = np.concatenate([np.sort(m) for m in magnitudes])
     order = np.argsort(values, kind="stable")
     cumulative = np.cumsum(weights[order]) / len(magnitudes)
     index = int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12))
