@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from sensaov_cli.buffer.lazy import LazyArrays
 from sensaov_cli.buffer.model import ParamRecord
 
 Arrays = Mapping[str, Mapping[str, np.ndarray]]  # objective -> key -> array
@@ -146,37 +147,46 @@ def unpack(
     objectives: Sequence[str],
     with_stderr: bool,
     array: Callable[[str, tuple[int, ...]], np.ndarray],
-) -> tuple[dict[str, np.ndarray], dict[str, dict[str, np.ndarray]], dict | None, set[str]]:
+    declared: Callable[[str, tuple[int, ...]], None],
+) -> tuple[LazyArrays, dict[str, LazyArrays], dict | None, set[str]]:
     """Values, gradients and standard errors (or None) by key, and the member names used.
 
-    ``array(name, shape)`` reads a member, checking its declared shape first.
+    ``array(name, shape)`` reads a member, checking its declared shape first; ``declared``
+    checks the shape alone. The packed members are read now; a texture's member is checked
+    now and read when its array is first asked for (lazy.py).
     """
     entries = _entries(storage, params, len(objectives), with_stderr)
-    members = _Members(array, int(storage["packed"]))
+    members = _Members(array, declared, int(storage["packed"]))
     kinds = [("grads", "texgrad")] + [("stderrs", "texstderr")] * with_stderr
     members.member("values", (members.size,))  # the packed members exist even if empty
     for kind, _ in kinds:
         for j in range(len(objectives)):
             members.member(packed_member(kind, j), (members.size,))
-    values: dict[str, np.ndarray] = {}
-    found: dict[str, dict[str, dict[str, np.ndarray]]] = {
-        kind: {name: {} for name in objectives} for kind, _ in kinds
-    }
-    for p, entry in zip(params, entries, strict=True):
-        values[p.key] = members.value(entry, p.shape)
-        for (kind, texture), field in zip(kinds, ("grads", "stderrs"), strict=False):
-            for j, name in enumerate(objectives):
-                found[kind][name][p.key] = members.of(entry, field, j, kind, texture, p.shape)
+    keys, pairs = [p.key for p in params], list(zip(params, entries, strict=True))
+    values = members.arrays(keys, [members.value(e, p.shape) for p, e in pairs])
+    found: dict[str, dict[str, LazyArrays]] = {kind: {} for kind, _ in kinds}
+    for (kind, texture), field in zip(kinds, ("grads", "stderrs"), strict=False):
+        for j, name in enumerate(objectives):
+            loads = [members.of(e, field, j, kind, texture, p.shape) for p, e in pairs]
+            found[kind][name] = members.arrays(keys, loads)
     stderr = found["stderrs"] if with_stderr else None
     return values, found["grads"], stderr, members.names
 
 
-class _Members:
-    """Format 4's members as the storage names them: a packed member's slice, or a texture's
-    own member (all-zero arrays shared, one read-only array per shape)."""
+Late = Callable[[], np.ndarray]
 
-    def __init__(self, array: Callable[[str, tuple[int, ...]], np.ndarray], size: int) -> None:
-        self.read, self.size = array, size
+
+class _Members:
+    """Format 4's members as the storage names them: a packed member's slice (read now), or a
+    texture's own member (read on first use; all-zero arrays shared, one per shape)."""
+
+    def __init__(
+        self,
+        array: Callable[[str, tuple[int, ...]], np.ndarray],
+        declared: Callable[[str, tuple[int, ...]], None],
+        size: int,
+    ) -> None:
+        self.read, self.declared, self.size = array, declared, size
         self.names: set[str] = set()
         self.cache: dict[str, np.ndarray] = {}
         self.zeros: dict[tuple[int, ...], np.ndarray] = {}
@@ -187,21 +197,33 @@ class _Members:
             self.names.add(name)
         return self.cache[name]
 
-    def value(self, entry: dict[str, Any], shape: tuple[int, ...]) -> np.ndarray:
+    def later(self, name: str, shape: tuple[int, ...]) -> Late:
+        """A texture member, its shape checked now, its array read on first use."""
+        if name not in self.names:
+            self.declared(name, shape)
+            self.names.add(name)
+        return lambda: self.member(name, shape)
+
+    def value(self, entry: dict[str, Any], shape: tuple[int, ...]) -> np.ndarray | Late:
         if "offset" in entry:
             return self._slice("values", entry["offset"], shape)
-        return self.member(texture_member("texture", entry["value"]), shape)
+        return self.later(texture_member("texture", entry["value"]), shape)
 
     def of(
         self, entry: dict[str, Any], field: str, j: int, kind: str, texture: str,
         shape: tuple[int, ...],
-    ) -> np.ndarray:  # fmt: skip
+    ) -> np.ndarray | Late:  # fmt: skip
         if "offset" in entry:
             return self._slice(packed_member(kind, j), entry["offset"], shape)
         index = entry[field][j]
         if index is None:  # all zero
             return self.zeros.setdefault(shape, _zeros(shape))
-        return self.member(texture_member(texture, index), shape)
+        return self.later(texture_member(texture, index), shape)
+
+    def arrays(self, keys: Sequence[str], found: Sequence[np.ndarray | Late]) -> LazyArrays:
+        ready = {k: a for k, a in zip(keys, found, strict=True) if isinstance(a, np.ndarray)}
+        pending = {k: a for k, a in zip(keys, found, strict=True) if not isinstance(a, np.ndarray)}
+        return LazyArrays(keys, ready, pending)
 
     def _slice(self, name: str, start: int, shape: tuple[int, ...]) -> np.ndarray:
         flat = self.member(name, (self.size,))

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from sensaov_cli.buffer.lazy import LazyArrays, each_checked
+from sensaov_cli.buffer.param_sums import ParamSums, check_sums
 from sensaov_cli.buffer.repairs import Repair
 from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import (
@@ -214,6 +216,8 @@ class SensitivityBuffer:
     statistics: Statistics | None = None  # standard errors, from >= 2 batches or shards
     # key -> how its gradient was repaired: every "finite-difference" parameter has one
     repairs: Mapping[str, Repair] = field(default_factory=dict)
+    # each parameter's sums as the file stores them (format 4): rankings read them, not texels
+    sums: ParamSums | None = None
     _by_key: Mapping[str, ParamRecord] = field(init=False)
     _by_name: Mapping[str, ObjectiveRecord] = field(init=False)
     _copy_arrays: InitVar[bool] = True
@@ -250,6 +254,9 @@ class SensitivityBuffer:
         if self.statistics is not None:
             self._check_statistics(self.statistics)
         set_(self, "repairs", MappingProxyType(self._checked_repairs(self.repairs)))
+        if self.sums is not None:
+            problem = check_sums(self.sums, self.keys, [o.name for o in self.objectives])
+            _require(problem is None, str(problem))
 
     def _checked_repairs(self, repairs: Mapping[str, Repair]) -> dict[str, Repair]:
         _check_no_extra("repairs", repairs, self._by_key)
@@ -283,6 +290,8 @@ class SensitivityBuffer:
             _require(sums.shape[0] == len(self.params), f"batch sums of {name!r}: wrong length")
             given = statistics.stderr[name]
             _check_no_extra(f"standard errors of {name!r}", given, self._by_key)
+            if isinstance(given, LazyArrays):
+                continue  # the reader checks each array as it reads it (npz.py)
             for p in self.params:
                 if p.key not in given:
                     raise BufferContentError(
@@ -292,17 +301,20 @@ class SensitivityBuffer:
                 if bad or not (arr >= 0).all():
                     raise BufferContentError(f"bad standard error of {p.key!r}")
 
-    def _checked_values(self, values: Mapping[str, Any], copy: bool) -> dict[str, np.ndarray]:
+    def _checked_values(self, values: Mapping[str, Any], copy: bool) -> Mapping[str, np.ndarray]:
         _check_no_extra("values", values, self._by_key)
-        checked = {}
         for p in self.params:
             if p.key not in values:
                 raise BufferContentError(f"parameter {p.key!r} has no value")
-            arr, bad = _frozen_array(values[p.key], p.shape, _named("value", p), copy, copy)
+
+        def check(key: str, given: Any) -> np.ndarray:
+            p = self._by_key[key]
+            arr, bad = _frozen_array(given, p.shape, _named("value", p), copy, copy)
             if bad:
                 raise BufferContentError(f"value of {p.key!r} has {bad} components NaN or infinite")
-            checked[p.key] = arr
-        return checked
+            return arr
+
+        return each_checked(values, self.keys, check)
 
     def _checked_grads(self, grads: Mapping[str, Mapping[str, Any]], copy: bool) -> dict[str, Any]:
         _check_no_extra("gradients", grads, self._by_name)
@@ -311,16 +323,18 @@ class SensitivityBuffer:
             _require(o.name in grads, f"objective {o.name!r} has no gradients")
             given = grads[o.name]
             _check_no_extra(f"gradients of {o.name!r}", given, self._by_key)
-            per_key = {}
             for p in self.params:
                 if p.key not in given:
                     raise BufferContentError(f"objective {o.name!r} has no gradient for {p.key!r}")
-                what = _named(f"gradient of {o.name!r}", p)
-                arr, bad = _frozen_array(given[p.key], p.shape, what, copy, copy)
+
+            def check(key: str, given: Any, name: str = o.name) -> np.ndarray:
+                p, what = self._by_key[key], f"gradient of {name!r}"
+                arr, bad = _frozen_array(given, p.shape, _named(what, p), copy, copy)
                 if bad:
-                    raise NonFiniteGradientError(o.name, p.key, bad, arr.size)
-                per_key[p.key] = arr
-            checked[o.name] = MappingProxyType(per_key)
+                    raise NonFiniteGradientError(name, p.key, bad, arr.size)
+                return arr
+
+            checked[o.name] = MappingProxyType(each_checked(given, self.keys, check))
         return checked
 
     def __repr__(self) -> str:

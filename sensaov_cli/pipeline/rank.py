@@ -28,7 +28,7 @@ def rank_summary(
     untrusted: Untrusted = "apart",
 ) -> str | dict[str, Any]:
     """The summary ``sensaov run`` prints (top keys, objects, types), as text or JSON data."""
-    loaded = read_buffer(buffer)
+    loaded = read_buffer(buffer, lazy=True)  # a ranking reads each parameter's sums
     return summary_of(
         loaded, as_json=as_json, top=top, method=method, weight=weight, untrusted=untrusted
     )
@@ -62,7 +62,7 @@ def rank_by_cut(
     untrusted: Untrusted = "apart",
 ) -> str | dict[str, Any]:
     """One table per objective at one cut: ``style`` "json" (data), "csv" or "text"."""
-    loaded = read_buffer(buffer)
+    loaded = read_buffer(buffer, lazy=True)  # a ranking reads each parameter's sums
     check_cut(by, cameras=bool(exrs))
     for name in objectives:
         loaded.objective(name)  # an unknown name is an error that lists the known ones
