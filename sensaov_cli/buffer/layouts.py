@@ -152,41 +152,53 @@ def unpack(
     """Values, gradients and standard errors (or None) by key, and the member names used.
 
     ``array(name, shape)`` reads a member, checking its declared shape first; ``declared``
-    checks the shape alone. The packed members are read now; a texture's member is checked
-    now and read when its array is first asked for (lazy.py).
+    checks the shape alone. The packed members are read now and every texture member's shape
+    checked; a key's array is made, and a texture's member read, when first asked for.
     """
     entries = _entries(storage, params, len(objectives), with_stderr)
-    members = _Members(array, declared, int(storage["packed"]))
+    members = _Members(array, int(storage["packed"]))
     kinds = [("grads", "texgrad")] + [("stderrs", "texstderr")] * with_stderr
     members.member("values", (members.size,))  # the packed members exist even if empty
     for kind, _ in kinds:
         for j in range(len(objectives)):
             members.member(packed_member(kind, j), (members.size,))
-    keys, pairs = [p.key for p in params], list(zip(params, entries, strict=True))
-    values = members.arrays(keys, [members.value(e, p.shape) for p, e in pairs])
+    at = {p.key: (p.shape, e) for p, e in zip(params, entries, strict=True)}
+    for shape, entry in at.values():
+        for name in _texture_members(entry):
+            if name not in members.names:
+                declared(name, shape)
+                members.names.add(name)
+    keys = list(at)
+    values = LazyArrays(keys, lambda key: members.value(at[key][1], at[key][0]))
     found: dict[str, dict[str, LazyArrays]] = {kind: {} for kind, _ in kinds}
     for (kind, texture), field in zip(kinds, ("grads", "stderrs"), strict=False):
         for j, name in enumerate(objectives):
-            loads = [members.of(e, field, j, kind, texture, p.shape) for p, e in pairs]
-            found[kind][name] = members.arrays(keys, loads)
+
+            def resolve(key: str, j: int = j, kind: str = kind, texture: str = texture,
+                        field: str = field) -> np.ndarray:  # fmt: skip
+                return members.of(at[key][1], field, j, kind, texture, at[key][0])
+
+            found[kind][name] = LazyArrays(keys, resolve)
     stderr = found["stderrs"] if with_stderr else None
     return values, found["grads"], stderr, members.names
 
 
-Late = Callable[[], np.ndarray]
+def _texture_members(entry: dict[str, Any]) -> list[str]:
+    """The members a texture's storage entry names (none for a packed parameter)."""
+    if "offset" in entry:
+        return []
+    names = [texture_member("texture", entry["value"])]
+    for field, kind in (("grads", "texgrad"), ("stderrs", "texstderr")):
+        names += [texture_member(kind, i) for i in entry.get(field, ()) if i is not None]
+    return names
 
 
 class _Members:
-    """Format 4's members as the storage names them: a packed member's slice (read now), or a
-    texture's own member (read on first use; all-zero arrays shared, one per shape)."""
+    """Format 4's members as the storage names them: a packed member's slice, or a texture's
+    own member, read on first use (all-zero arrays shared, one read-only array per shape)."""
 
-    def __init__(
-        self,
-        array: Callable[[str, tuple[int, ...]], np.ndarray],
-        declared: Callable[[str, tuple[int, ...]], None],
-        size: int,
-    ) -> None:
-        self.read, self.declared, self.size = array, declared, size
+    def __init__(self, array: Callable[[str, tuple[int, ...]], np.ndarray], size: int) -> None:
+        self.read, self.size = array, size
         self.names: set[str] = set()
         self.cache: dict[str, np.ndarray] = {}
         self.zeros: dict[tuple[int, ...], np.ndarray] = {}
@@ -197,33 +209,21 @@ class _Members:
             self.names.add(name)
         return self.cache[name]
 
-    def later(self, name: str, shape: tuple[int, ...]) -> Late:
-        """A texture member, its shape checked now, its array read on first use."""
-        if name not in self.names:
-            self.declared(name, shape)
-            self.names.add(name)
-        return lambda: self.member(name, shape)
-
-    def value(self, entry: dict[str, Any], shape: tuple[int, ...]) -> np.ndarray | Late:
+    def value(self, entry: dict[str, Any], shape: tuple[int, ...]) -> np.ndarray:
         if "offset" in entry:
             return self._slice("values", entry["offset"], shape)
-        return self.later(texture_member("texture", entry["value"]), shape)
+        return self.member(texture_member("texture", entry["value"]), shape)
 
     def of(
         self, entry: dict[str, Any], field: str, j: int, kind: str, texture: str,
         shape: tuple[int, ...],
-    ) -> np.ndarray | Late:  # fmt: skip
+    ) -> np.ndarray:  # fmt: skip
         if "offset" in entry:
             return self._slice(packed_member(kind, j), entry["offset"], shape)
         index = entry[field][j]
         if index is None:  # all zero
             return self.zeros.setdefault(shape, _zeros(shape))
-        return self.later(texture_member(texture, index), shape)
-
-    def arrays(self, keys: Sequence[str], found: Sequence[np.ndarray | Late]) -> LazyArrays:
-        ready = {k: a for k, a in zip(keys, found, strict=True) if isinstance(a, np.ndarray)}
-        pending = {k: a for k, a in zip(keys, found, strict=True) if not isinstance(a, np.ndarray)}
-        return LazyArrays(keys, ready, pending)
+        return self.member(texture_member(texture, index), shape)
 
     def _slice(self, name: str, start: int, shape: tuple[int, ...]) -> np.ndarray:
         flat = self.member(name, (self.size,))

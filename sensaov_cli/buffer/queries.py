@@ -140,7 +140,7 @@ def groups(
     """
     _choice("grouping", by, GROUPINGS)
     selected = _keys(buf, keys)
-    records = [buf.param(key) for key in selected]
+    records = buf.params if keys is None else [buf.param(key) for key in selected]
     if by == "param":
         return {key: (key,) for key in selected}
     # One pass over the records, not one per group: linear in a scene of 8,000 objects.
