@@ -378,8 +378,8 @@ def test_file_layout_is_version_4(saved: Path) -> None:
         names = sorted(npz.files)
         header = json.loads(str(npz["header"]))
     assert names == [
-        "grads_000", "grads_001", "header", "texgrad_00000", "texgrad_00001", "texture_00000",
-        "values",
+        "grads_000", "grads_001", "header", "sums_000", "sums_001", "texgrad_00000",
+        "texgrad_00001", "texture_00000", "value_means", "values",
     ]  # fmt: skip
     assert header == {
         "format": "sensaov-buffer",

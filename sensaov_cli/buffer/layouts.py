@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from sensaov_cli.buffer.lazy import LazyArrays
 from sensaov_cli.buffer.model import ParamRecord
 
 Arrays = Mapping[str, Mapping[str, np.ndarray]]  # objective -> key -> array
@@ -146,10 +147,13 @@ def unpack(
     objectives: Sequence[str],
     with_stderr: bool,
     array: Callable[[str, tuple[int, ...]], np.ndarray],
-) -> tuple[dict[str, np.ndarray], dict[str, dict[str, np.ndarray]], dict | None, set[str]]:
+    declared: Callable[[str, tuple[int, ...]], None],
+) -> tuple[LazyArrays, dict[str, LazyArrays], dict | None, set[str]]:
     """Values, gradients and standard errors (or None) by key, and the member names used.
 
-    ``array(name, shape)`` reads a member, checking its declared shape first.
+    ``array(name, shape)`` reads a member, checking its declared shape first; ``declared``
+    checks the shape alone. The packed members are read now and every texture member's shape
+    checked; a key's array is made, and a texture's member read, when first asked for.
     """
     entries = _entries(storage, params, len(objectives), with_stderr)
     members = _Members(array, int(storage["packed"]))
@@ -158,22 +162,40 @@ def unpack(
     for kind, _ in kinds:
         for j in range(len(objectives)):
             members.member(packed_member(kind, j), (members.size,))
-    values: dict[str, np.ndarray] = {}
-    found: dict[str, dict[str, dict[str, np.ndarray]]] = {
-        kind: {name: {} for name in objectives} for kind, _ in kinds
-    }
-    for p, entry in zip(params, entries, strict=True):
-        values[p.key] = members.value(entry, p.shape)
-        for (kind, texture), field in zip(kinds, ("grads", "stderrs"), strict=False):
-            for j, name in enumerate(objectives):
-                found[kind][name][p.key] = members.of(entry, field, j, kind, texture, p.shape)
+    at = {p.key: (p.shape, e) for p, e in zip(params, entries, strict=True)}
+    for shape, entry in at.values():
+        for name in _texture_members(entry):
+            if name not in members.names:
+                declared(name, shape)
+                members.names.add(name)
+    keys = list(at)
+    values = LazyArrays(keys, lambda key: members.value(at[key][1], at[key][0]))
+    found: dict[str, dict[str, LazyArrays]] = {kind: {} for kind, _ in kinds}
+    for (kind, texture), field in zip(kinds, ("grads", "stderrs"), strict=False):
+        for j, name in enumerate(objectives):
+
+            def resolve(key: str, j: int = j, kind: str = kind, texture: str = texture,
+                        field: str = field) -> np.ndarray:  # fmt: skip
+                return members.of(at[key][1], field, j, kind, texture, at[key][0])
+
+            found[kind][name] = LazyArrays(keys, resolve)
     stderr = found["stderrs"] if with_stderr else None
     return values, found["grads"], stderr, members.names
 
 
+def _texture_members(entry: dict[str, Any]) -> list[str]:
+    """The members a texture's storage entry names (none for a packed parameter)."""
+    if "offset" in entry:
+        return []
+    names = [texture_member("texture", entry["value"])]
+    for field, kind in (("grads", "texgrad"), ("stderrs", "texstderr")):
+        names += [texture_member(kind, i) for i in entry.get(field, ()) if i is not None]
+    return names
+
+
 class _Members:
     """Format 4's members as the storage names them: a packed member's slice, or a texture's
-    own member (all-zero arrays shared, one read-only array per shape)."""
+    own member, read on first use (all-zero arrays shared, one read-only array per shape)."""
 
     def __init__(self, array: Callable[[str, tuple[int, ...]], np.ndarray], size: int) -> None:
         self.read, self.size = array, size

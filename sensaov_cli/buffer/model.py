@@ -8,9 +8,7 @@ stored buffer, never a second differentiation. The file is a plain ``.npz`` read
 
 from __future__ import annotations
 
-import json
 import math
-import operator
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import InitVar, dataclass, field
 from types import MappingProxyType
@@ -18,6 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from sensaov_cli.buffer.lazy import LazyArrays, each_checked
+from sensaov_cli.buffer.param_sums import ParamSums, check_sums
+from sensaov_cli.buffer.record_fields import json_copy, require, shape_tuple, str_tuple
 from sensaov_cli.buffer.repairs import Repair
 from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import (
@@ -30,46 +31,6 @@ from sensaov_cli.vocabulary import ESTIMATORS, TRUSTS, Estimator, Trust
 FORMAT_NAME = "sensaov-buffer"
 FORMAT_VERSION = 4
 HEADER_MEMBER = "header"
-
-
-def _require(ok: bool, message: str) -> None:
-    if not ok:
-        raise BufferContentError(message)
-
-
-# The checks below run for every parameter on every read (8,000 of them in a large scene):
-# messages are built only when a check fails.
-
-
-def _str_tuple(items: Any, what: str) -> tuple[str, ...]:
-    if isinstance(items, Iterable) and not isinstance(items, str):
-        items = tuple(items)
-        if all(isinstance(s, str) for s in items):
-            return items
-        raise BufferContentError(f"{what} must hold strings only")
-    raise BufferContentError(f"{what} must be a sequence of strings, got {items!r}")
-
-
-def _shape(items: Any, what: str) -> tuple[int, ...]:
-    dims: tuple[int, ...] = ()
-    try:
-        dims = tuple(operator.index(d) for d in items if not isinstance(d, bool))
-        ok = len(dims) == len(items) and all(d >= 0 for d in dims)
-    except TypeError:
-        ok = False
-    if not ok:
-        raise BufferContentError(
-            f"{what} must be a sequence of non-negative integers, got {items!r}"
-        )
-    return dims
-
-
-def _json_copy(data: Any, what: str) -> Any:
-    """A deep copy through JSON, so the record saves and loads back equal (tuples become lists)."""
-    try:
-        return json.loads(json.dumps(data, allow_nan=False))
-    except (TypeError, ValueError) as exc:
-        raise BufferContentError(f"{what} is not JSON-able: {exc}") from exc
 
 
 @dataclass(frozen=True)
@@ -94,9 +55,22 @@ class ParamRecord:
         return self.trust == "verified"
 
     def __post_init__(self) -> None:
+        plain = (type(self.key) is str and self.key != "" and type(self.type) is str
+                 and self.type != "" and type(self.plugin) is str and type(self.note) is str
+                 and type(self.is_texture) is bool and self.trust in TRUSTS
+                 and self.estimator in ESTIMATORS)  # fmt: skip
+        if not plain:  # the common case skips the checks that name the field that is wrong
+            self._check_fields()
+        what = f"parameter {self.key!r}"
+        object.__setattr__(self, "owners", str_tuple(self.owners, f"{what}: owners"))
+        object.__setattr__(self, "flags", str_tuple(self.flags, f"{what}: flags"))
+        object.__setattr__(self, "shape", shape_tuple(self.shape, f"{what}: shape"))
+
+    def _check_fields(self) -> None:
         for name in ("key", "type"):
             value = getattr(self, name)
-            _require(isinstance(value, str) and value != "", f"parameter {name} must be a string")
+            if not isinstance(value, str) or value == "":
+                raise BufferContentError(f"parameter {name} must be a string")
         what = f"parameter {self.key!r}"
         for name, kind in (("plugin", str), ("note", str), ("is_texture", bool)):
             if not isinstance(getattr(self, name), kind):
@@ -107,9 +81,6 @@ class ParamRecord:
             raise BufferContentError(
                 f"{what}: estimator {self.estimator!r} is not one of {ESTIMATORS}"
             )
-        object.__setattr__(self, "owners", _str_tuple(self.owners, f"{what}: owners"))
-        object.__setattr__(self, "flags", _str_tuple(self.flags, f"{what}: flags"))
-        object.__setattr__(self, "shape", _shape(self.shape, f"{what}: shape"))
 
 
 @dataclass(frozen=True)
@@ -138,17 +109,17 @@ class ObjectiveRecord:
     grad_seed: int
 
     def __post_init__(self) -> None:
-        _require(isinstance(self.name, str) and self.name != "", "objective name must be a string")
+        require(isinstance(self.name, str) and self.name != "", "objective name must be a string")
         what = f"objective {self.name!r}"
-        _require(isinstance(self.definition, dict), f"{what}: definition must be a dict")
-        object.__setattr__(self, "definition", _json_copy(self.definition, f"{what}: definition"))
-        _require(
+        require(isinstance(self.definition, dict), f"{what}: definition must be a dict")
+        object.__setattr__(self, "definition", json_copy(self.definition, f"{what}: definition"))
+        require(
             isinstance(self.value, int | float | np.floating) and not isinstance(self.value, bool),
             f"{what}: value must be a number",
         )
-        _require(math.isfinite(self.value), f"{what}: value M is {self.value}, not finite")
+        require(math.isfinite(self.value), f"{what}: value M is {self.value}, not finite")
         object.__setattr__(self, "value", float(self.value))
-        _require(
+        require(
             isinstance(self.grad_seed, int | np.integer) and not isinstance(self.grad_seed, bool),
             f"{what}: grad_seed must be an integer",
         )
@@ -193,7 +164,7 @@ def _check_unique(kind: str, names: Sequence[str]) -> None:
 
 def _check_no_extra(kind: str, given: Iterable[str], known: Iterable[str]) -> None:
     extra = sorted(set(given) - set(known))
-    _require(not extra, f"{kind} for undeclared names: {', '.join(map(repr, extra))}")
+    require(not extra, f"{kind} for undeclared names: {', '.join(map(repr, extra))}")
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -214,23 +185,23 @@ class SensitivityBuffer:
     statistics: Statistics | None = None  # standard errors, from >= 2 batches or shards
     # key -> how its gradient was repaired: every "finite-difference" parameter has one
     repairs: Mapping[str, Repair] = field(default_factory=dict)
+    # each parameter's sums as the file stores them (format 4): rankings read them, not texels
+    sums: ParamSums | None = None
     _by_key: Mapping[str, ParamRecord] = field(init=False)
     _by_name: Mapping[str, ObjectiveRecord] = field(init=False)
     _copy_arrays: InitVar[bool] = True
 
     def __post_init__(self, _copy_arrays: bool) -> None:
         set_ = object.__setattr__
-        _require(isinstance(self.provenance, dict), "provenance must be a dict")
-        set_(self, "provenance", _json_copy(self.provenance, "provenance"))
-        objects = _str_tuple(self.objects, "objects")
+        require(isinstance(self.provenance, dict), "provenance must be a dict")
+        set_(self, "provenance", json_copy(self.provenance, "provenance"))
+        objects = str_tuple(self.objects, "objects")
         _check_unique("object", objects)
         set_(self, "objects", tuple(sorted(objects)))
         set_(self, "params", tuple(self.params))
         set_(self, "objectives", tuple(self.objectives))
-        _require(
-            all(isinstance(p, ParamRecord) for p in self.params), "params must be ParamRecords"
-        )
-        _require(
+        require(all(isinstance(p, ParamRecord) for p in self.params), "params must be ParamRecords")
+        require(
             all(isinstance(o, ObjectiveRecord) for o in self.objectives),
             "objectives must be ObjectiveRecords",
         )
@@ -250,6 +221,9 @@ class SensitivityBuffer:
         if self.statistics is not None:
             self._check_statistics(self.statistics)
         set_(self, "repairs", MappingProxyType(self._checked_repairs(self.repairs)))
+        if self.sums is not None:
+            problem = check_sums(self.sums, self.keys, [o.name for o in self.objectives])
+            require(problem is None, str(problem))
 
     def _checked_repairs(self, repairs: Mapping[str, Repair]) -> dict[str, Repair]:
         _check_no_extra("repairs", repairs, self._by_key)
@@ -258,31 +232,33 @@ class SensitivityBuffer:
             repair = repairs.get(p.key)
             if repair is None:
                 needed = p.estimator == "finite-difference"
-                _require(not needed, f"parameter {p.key!r} is repaired but has no repair record")
+                require(not needed, f"parameter {p.key!r} is repaired but has no repair record")
                 continue
-            _require(isinstance(repair, Repair), f"repair of {p.key!r} must be a Repair")
-            _require(
+            require(isinstance(repair, Repair), f"repair of {p.key!r} must be a Repair")
+            require(
                 p.estimator in ("finite-difference", "mixed"),
                 f"parameter {p.key!r} has a repair record but estimator {p.estimator!r}",
             )
-            _require(sorted(repair.estimates) == names, f"repair of {p.key!r}: objectives differ")
+            require(sorted(repair.estimates) == names, f"repair of {p.key!r}: objectives differ")
             size = int(np.prod(p.shape))
-            _require(repair.components == size, f"repair of {p.key!r} has the wrong size")
+            require(repair.components == size, f"repair of {p.key!r} has the wrong size")
         return dict(repairs)
 
     def _check_statistics(self, statistics: Statistics) -> None:
-        _require(isinstance(statistics, Statistics), "statistics must be a Statistics")
+        require(isinstance(statistics, Statistics), "statistics must be a Statistics")
         names = [o.name for o in self.objectives]
-        _require(sorted(statistics.stderr) == sorted(names), "statistics: objectives differ")
-        _require(sorted(statistics.batch_sums) == sorted(names), "batch sums: objectives differ")
-        _require(
+        require(sorted(statistics.stderr) == sorted(names), "statistics: objectives differ")
+        require(sorted(statistics.batch_sums) == sorted(names), "batch sums: objectives differ")
+        require(
             sorted(statistics.objective_values) == sorted(names), "batch values: objectives differ"
         )
         for name in names:
             sums = statistics.batch_sums[name]
-            _require(sums.shape[0] == len(self.params), f"batch sums of {name!r}: wrong length")
+            require(sums.shape[0] == len(self.params), f"batch sums of {name!r}: wrong length")
             given = statistics.stderr[name]
             _check_no_extra(f"standard errors of {name!r}", given, self._by_key)
+            if isinstance(given, LazyArrays):
+                continue  # the reader checks each array as it reads it (npz.py)
             for p in self.params:
                 if p.key not in given:
                     raise BufferContentError(
@@ -292,35 +268,40 @@ class SensitivityBuffer:
                 if bad or not (arr >= 0).all():
                     raise BufferContentError(f"bad standard error of {p.key!r}")
 
-    def _checked_values(self, values: Mapping[str, Any], copy: bool) -> dict[str, np.ndarray]:
+    def _checked_values(self, values: Mapping[str, Any], copy: bool) -> Mapping[str, np.ndarray]:
         _check_no_extra("values", values, self._by_key)
-        checked = {}
         for p in self.params:
             if p.key not in values:
                 raise BufferContentError(f"parameter {p.key!r} has no value")
-            arr, bad = _frozen_array(values[p.key], p.shape, _named("value", p), copy, copy)
+
+        def check(key: str, given: Any) -> np.ndarray:
+            p = self._by_key[key]
+            arr, bad = _frozen_array(given, p.shape, _named("value", p), copy, copy)
             if bad:
                 raise BufferContentError(f"value of {p.key!r} has {bad} components NaN or infinite")
-            checked[p.key] = arr
-        return checked
+            return arr
+
+        return each_checked(values, self.keys, check)
 
     def _checked_grads(self, grads: Mapping[str, Mapping[str, Any]], copy: bool) -> dict[str, Any]:
         _check_no_extra("gradients", grads, self._by_name)
         checked: dict[str, Any] = {}
         for o in self.objectives:
-            _require(o.name in grads, f"objective {o.name!r} has no gradients")
+            require(o.name in grads, f"objective {o.name!r} has no gradients")
             given = grads[o.name]
             _check_no_extra(f"gradients of {o.name!r}", given, self._by_key)
-            per_key = {}
             for p in self.params:
                 if p.key not in given:
                     raise BufferContentError(f"objective {o.name!r} has no gradient for {p.key!r}")
-                what = _named(f"gradient of {o.name!r}", p)
-                arr, bad = _frozen_array(given[p.key], p.shape, what, copy, copy)
+
+            def check(key: str, given: Any, name: str = o.name) -> np.ndarray:
+                p, what = self._by_key[key], f"gradient of {name!r}"
+                arr, bad = _frozen_array(given, p.shape, _named(what, p), copy, copy)
                 if bad:
-                    raise NonFiniteGradientError(o.name, p.key, bad, arr.size)
-                per_key[p.key] = arr
-            checked[o.name] = MappingProxyType(per_key)
+                    raise NonFiniteGradientError(name, p.key, bad, arr.size)
+                return arr
+
+            checked[o.name] = MappingProxyType(each_checked(given, self.keys, check))
         return checked
 
     def __repr__(self) -> str:

@@ -17,9 +17,11 @@ import json
 import os
 import stat
 import struct
+import weakref
 import zipfile
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -27,7 +29,9 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.buffer.archive import Archive, ArchiveError, archive_writer
-from sensaov_cli.buffer.layouts import LayoutError, pack, per_parameter, unpack
+from sensaov_cli.buffer.layouts import LayoutError, pack
+from sensaov_cli.buffer.lazy import Guard
+from sensaov_cli.buffer.members import arrays, declared_shape, float64
 from sensaov_cli.buffer.model import (
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -36,6 +40,7 @@ from sensaov_cli.buffer.model import (
     ParamRecord,
     SensitivityBuffer,
 )
+from sensaov_cli.buffer.param_sums import sums_members, sums_of
 from sensaov_cli.buffer.repairs import repair_json, repairs_from_json
 from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import BufferFormatError, SensaovError
@@ -50,14 +55,19 @@ def buffer_writer(buffer: SensitivityBuffer) -> Callable[[Path], None]:
     return archive_writer(_members(buffer))
 
 
-def read_buffer(path: Path | str) -> SensitivityBuffer:
-    """Read a buffer; any unreadable or inconsistent file raises BufferFormatError."""
-    return _load(Path(path))[0]
+def read_buffer(path: Path | str, *, lazy: bool = False) -> SensitivityBuffer:
+    """Read a buffer; any unreadable or inconsistent file raises BufferFormatError.
+
+    Every member is read and checked now, unless ``lazy``: then a texture's member (format 4)
+    is read, and its CRC checked, when a view first asks for its array, and a rank that needs
+    only each parameter's sums never reads it (buffer/param_sums.py).
+    """
+    return _load(Path(path), lazy)[0]
 
 
 def read_buffer_versioned(path: Path) -> tuple[SensitivityBuffer, int]:
     """The buffer and the format version its file was written in."""
-    return _load(path)
+    return _load(path, False)
 
 
 def _members(buffer: SensitivityBuffer) -> dict[str, np.ndarray]:
@@ -79,6 +89,7 @@ def _members(buffer: SensitivityBuffer) -> dict[str, np.ndarray]:
         "repairs": {key: repair_json(r) for key, r in buffer.repairs.items()},  # version 4
     }
     members = {HEADER_MEMBER: np.array(json.dumps(header, allow_nan=False))} | arrays
+    members |= sums_members(sums_of(buffer.keys, buffer.values, buffer.grads), names)
     for j, name in enumerate(names):
         if statistics is not None:
             members[batch_sums_member(j)] = statistics.batch_sums[name]
@@ -135,13 +146,30 @@ _READ_ERRORS = (
 )  # fmt: skip
 
 
-def _load(path: Path) -> tuple[SensitivityBuffer, int]:
-    try:
+def _load(path: Path, lazy: bool) -> tuple[SensitivityBuffer, int]:
+    with _reading(path):
         if not stat.S_ISREG(os.stat(path).st_mode):  # a FIFO would block, a device never end
             raise _Malformed("not a regular file", _FOREIGN)
-        data = path.read_bytes()
-        _require_zip(data)
-        return _read_archive(Archive(data))
+        file = path.open("rb")
+        try:
+            _require_zip(file.read(4))
+            archive = Archive(file)
+            found = _read_archive(archive, (lambda: _reading(path)) if lazy else None)
+        except BaseException:
+            file.close()
+            raise
+        if lazy:  # the archive reads its members on demand: the file closes with it
+            weakref.finalize(archive, file.close)
+        else:
+            file.close()
+        return found
+
+
+@contextmanager
+def _reading(path: Path) -> Iterator[None]:
+    """Every error of reading ``path`` as one BufferFormatError naming the file."""
+    try:
+        yield
     except (ArchiveError, LayoutError) as exc:
         raise BufferFormatError(
             f"inconsistent buffer: {exc}", where=str(path), hint=_REGENERATE
@@ -172,11 +200,12 @@ def _require_zip(data: bytes) -> None:
         raise _Malformed("not a sensaov buffer: not an .npz (zip) archive", _FOREIGN)
 
 
-def _read_archive(archive: Archive) -> tuple[SensitivityBuffer, int]:
+def _read_archive(archive: Archive, guard: Guard | None) -> tuple[SensitivityBuffer, int]:
+    """The buffer in ``archive``; with a ``guard``, texture members are read on first use."""
     members = set(archive.members)
     if HEADER_MEMBER not in members:
         raise _Malformed(f"not a sensaov buffer: the archive has no {HEADER_MEMBER!r}", _FOREIGN)
-    _declared(archive, HEADER_MEMBER, None)  # a header claiming gigabytes is not read
+    declared_shape(archive, HEADER_MEMBER, None)  # a header claiming gigabytes is not read
     header = _read_header(archive.array(HEADER_MEMBER))
     version = header["format_version"]
     path_keys = _path_keys(header["provenance"]) if version < 4 else set()
@@ -185,24 +214,7 @@ def _read_archive(archive: Archive) -> tuple[SensitivityBuffer, int]:
     ]
     objectives = [_objective_from_json(e, j) for j, e in enumerate(header["objectives"])]
     entry = header.get("statistics")
-
-    def array(name: str, shape: tuple[int, ...]) -> np.ndarray:
-        if name not in members:
-            raise _Malformed(f"inconsistent buffer: missing array {name!r}")
-        _declared(archive, name, shape)
-        arr = archive.array(name)
-        if arr.dtype.kind != "f" or arr.dtype.itemsize != 4:
-            raise _Malformed(f"inconsistent buffer: array {name!r} is {arr.dtype}, not float32")
-        if not np.isfinite(arr).all():  # once per member: the model does not count again
-            raise _Malformed(f"inconsistent buffer: array {name!r} holds NaN or infinity")
-        return arr
-
-    names = [o.name for o in objectives]
-    if version >= 4:
-        layout = unpack(header["storage"], params, names, entry is not None, array)
-    else:
-        layout = per_parameter(params, names, entry is not None, array)
-    values, grads, stderr, used = layout
+    values, grads, stderr, used, sums = arrays(archive, header, params, objectives, guard)
     expected = {HEADER_MEMBER} | used
     if entry is not None:
         expected |= {batch_sums_member(j) for j in range(len(objectives))}
@@ -217,6 +229,7 @@ def _read_archive(archive: Archive) -> tuple[SensitivityBuffer, int]:
         grads=grads,
         statistics=_read_statistics(archive, entry, params, objectives, stderr),
         repairs=repairs_from_json(header.get("repairs", {})),  # none before version 4
+        sums=sums,
         _copy_arrays=False,  # views of the file's bytes, read once: frozen in place
     )
     return buffer, version
@@ -244,13 +257,7 @@ def _read_statistics(
         raise _Malformed("malformed header: statistics.objective_values must map to number lists")
     sums = {}
     for j, o in enumerate(objectives):
-        if batch_sums_member(j) not in archive.members:
-            raise _Malformed(f"inconsistent buffer: missing array {batch_sums_member(j)!r}")
-        _declared(archive, batch_sums_member(j), (len(params), len(entry["spp"]), 4))
-        arr = archive.array(batch_sums_member(j))
-        if arr.dtype != np.float64:
-            raise _Malformed(f"inconsistent buffer: {batch_sums_member(j)!r} is not float64")
-        sums[o.name] = arr
+        sums[o.name] = float64(archive, batch_sums_member(j), (len(params), len(entry["spp"]), 4))
     return Statistics(
         source=str(entry["source"]),
         spp=tuple(entry["spp"]),
@@ -353,21 +360,3 @@ def _param_from_json(entry: Any, index: int, version: int, path_keys: set[str]) 
 
 def _objective_from_json(entry: Any, index: int) -> ObjectiveRecord:
     return ObjectiveRecord(**_entry(entry, _OBJECTIVE_FIELDS, index, "objectives"))
-
-
-# The header is a few kB per parameter; a member declaring more is refused before it is read.
-_MAX_HEADER_BYTES = 1 << 28
-
-
-def _declared(archive: Archive, name: str, shape: tuple[int, ...] | None) -> None:
-    """Check a member's npy header before reading it: its declared shape (for an array) or
-    its declared size (for the header), so a forged size cannot allocate memory."""
-    declared, dtype = archive.declared(name)
-    if shape is None:
-        if dtype.itemsize * int(np.prod(declared)) > _MAX_HEADER_BYTES:
-            raise _Malformed(f"inconsistent buffer: {name!r} declares {dtype.itemsize} bytes")
-    elif tuple(declared) != shape:
-        raise _Malformed(
-            f"inconsistent buffer: array {name!r} has shape {tuple(declared)}, its record "
-            f"declares {shape}"
-        )

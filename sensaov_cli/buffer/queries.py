@@ -18,22 +18,11 @@ from __future__ import annotations
 import fnmatch
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
-
-import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.param_sums import KeyStats, stats_of
 from sensaov_cli.errors import QueryError, UnknownNameError
 from sensaov_cli.vocabulary import AGGREGATES, GROUPINGS, WEIGHTS, Aggregate, Grouping, Weight
-
-
-@dataclass(frozen=True)
-class KeyStats:
-    """The sufficient statistics of one parameter's contributions c for one objective."""
-
-    sum_sq: float  # Σ c²
-    total: float  # Σ c
-    count: int  # number of components
 
 
 def _choice(kind: str, given: str, valid: tuple[str, ...]) -> None:
@@ -96,27 +85,23 @@ def key_stats(
     """Per key, the statistics of its contributions to ``objective`` (all keys when None)."""
     _choice("weight", weight, WEIGHTS)
     buf.objective(objective)
+    selected = _keys(buf, keys)
+    sums = buf.sums
+    if sums is not None:  # stored by the writer from these very arrays: no texel is read
+        return {
+            key: sums.stats(objective, key, weight, math.prod(buf.param(key).shape))
+            for key in selected
+        }
     stats = {}
     # Copies of a texture share their arrays in the file (format 4): each pair is summed once.
     done: dict[tuple[int, int], KeyStats] = {}
-    for key in _keys(buf, keys):
+    for key in selected:
         grad, value = buf.grad(objective, key), buf.value(key)
         pair = (id(grad), id(value) if weight == "value" else 0)
         if pair not in done:
-            done[pair] = _stats(grad, value if weight == "value" else None)
+            done[pair] = stats_of(grad, value if weight == "value" else None)
         stats[key] = done[pair]
     return stats
-
-
-def _stats(grad: np.ndarray, value: np.ndarray | None) -> KeyStats:
-    if not grad.any():  # an untouched texture (no gradient): one cheap pass, no float64 copy
-        return KeyStats(sum_sq=0.0, total=0.0, count=grad.size)
-    c = (
-        grad.ravel().astype(np.float64)
-        if value is None
-        else np.multiply(grad.ravel(), value.ravel(), dtype=np.float64)
-    )
-    return KeyStats(sum_sq=float(c @ c), total=float(c.sum()), count=c.size)
 
 
 def combine(stats: Iterable[KeyStats], method: Aggregate = "l2") -> float:
@@ -155,7 +140,7 @@ def groups(
     """
     _choice("grouping", by, GROUPINGS)
     selected = _keys(buf, keys)
-    records = [buf.param(key) for key in selected]
+    records = buf.params if keys is None else [buf.param(key) for key in selected]
     if by == "param":
         return {key: (key,) for key in selected}
     # One pass over the records, not one per group: linear in a scene of 8,000 objects.

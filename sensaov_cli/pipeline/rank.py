@@ -9,10 +9,8 @@ from typing import Any
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import QueryError
-from sensaov_cli.outputs.frames import visible_objects
 from sensaov_cli.outputs.rankings import ranking_csv, ranking_dict, ranking_text
 from sensaov_cli.outputs.tables import summary_text
-from sensaov_cli.pipeline.consistency import check_made_from
 from sensaov_cli.views.hierarchy import check_cut, rankings
 from sensaov_cli.views.summary import summary_dict
 from sensaov_cli.vocabulary import Aggregate, Cut, Untrusted, Weight
@@ -28,7 +26,7 @@ def rank_summary(
     untrusted: Untrusted = "apart",
 ) -> str | dict[str, Any]:
     """The summary ``sensaov run`` prints (top keys, objects, types), as text or JSON data."""
-    loaded = read_buffer(buffer)
+    loaded = read_buffer(buffer, lazy=True)  # a ranking reads each parameter's sums
     return summary_of(
         loaded, as_json=as_json, top=top, method=method, weight=weight, untrusted=untrusted
     )
@@ -62,16 +60,11 @@ def rank_by_cut(
     untrusted: Untrusted = "apart",
 ) -> str | dict[str, Any]:
     """One table per objective at one cut: ``style`` "json" (data), "csv" or "text"."""
-    loaded = read_buffer(buffer)
+    loaded = read_buffer(buffer, lazy=True)  # a ranking reads each parameter's sums
     check_cut(by, cameras=bool(exrs))
     for name in objectives:
         loaded.objective(name)  # an unknown name is an error that lists the known ones
-
-    def made_from_this_buffer(path: Path, header: Mapping[str, Any]) -> None:
-        remake = f"sensaov project JOB, with the job that wrote {buffer.name}"
-        check_made_from(header, loaded, str(path), remake=remake)
-
-    visible = visible_objects(list(exrs), made_from_this_buffer) if exrs else None
+    visible = _visible(buffer, loaded, exrs) if exrs else None
     found = rankings(
         loaded,
         by=by,
@@ -98,3 +91,18 @@ def refuse_options(
         raise QueryError("--json and --csv exclude each other", hint="choose one")
     if by is None and (objective or as_csv or exr):
         raise QueryError("--objective, --csv and --exr need --by", hint="add --by key|object|type")
+
+
+def _visible(
+    buffer: Path, loaded: SensitivityBuffer, exrs: tuple[Path, ...]
+) -> dict[str, frozenset[str]]:
+    """What each camera's EXR sees, each EXR checked to come from this very buffer."""
+    # Imported here: only --exr needs them, and the job spec they load costs every rank time.
+    from sensaov_cli.outputs.frames import visible_objects
+    from sensaov_cli.pipeline.consistency import check_made_from
+
+    def made_from_this_buffer(path: Path, header: Mapping[str, Any]) -> None:
+        remake = f"sensaov project JOB, with the job that wrote {buffer.name}"
+        check_made_from(header, loaded, str(path), remake=remake)
+
+    return visible_objects(list(exrs), made_from_this_buffer)

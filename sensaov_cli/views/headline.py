@@ -15,12 +15,12 @@ mark, as before. The rule is documented in docs/encoding.md ("Trusted numbers").
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-import numpy as np
-
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.param_sums import hidden_by_zero
 from sensaov_cli.errors import QueryError
 from sensaov_cli.vocabulary import UNTRUSTED_MODES, Trust
 
@@ -102,11 +102,13 @@ def zero_valued(
 ) -> dict[str, ZeroValued]:
     """The parameters among ``keys`` (default all) whose value-weighted score hides a gradient."""
     found = {}
+    sums = buf.sums
     for key in buf.keys if keys is None else keys:
-        value, grad = buf.value(key), buf.grad(objective, key)
-        hidden = int(np.count_nonzero((value == 0) & (grad != 0)))
+        record = buf.param(key)
+        if sums is not None:  # stored by the writer (buffer/param_sums.py): no texel is read
+            hidden, raw = sums.hidden(objective, key)
+        else:
+            hidden, raw = hidden_by_zero(buf.value(key), buf.grad(objective, key))
         if hidden:
-            raw = float(grad.astype(np.float64).sum())
-            record = buf.param(key)
-            found[key] = ZeroValued(key, record.owners, hidden, int(value.size), raw)
+            found[key] = ZeroValued(key, record.owners, hidden, math.prod(record.shape), raw)
     return found

@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.param_sums import mean_value
 from sensaov_cli.buffer.queries import KeyStats, key_stats, rank, scores
 from sensaov_cli.errors import QueryError
 from sensaov_cli.views.headline import ZeroValued, split_groups, zero_valued
@@ -248,8 +249,9 @@ def estimators(buf: SensitivityBuffer, keys: Sequence[str]) -> str:
 
 def _mean_value(buf: SensitivityBuffer, key: str) -> float | None:
     """One number for a value array (a colour, a texture): its mean; None when it is empty."""
-    value = buf.value(key)
-    return float(value.astype("float64").mean()) if value.size else None
+    if buf.sums is not None:  # stored by the writer: a texture's texels are not read
+        return buf.sums.mean(key, math.prod(buf.param(key).shape))
+    return mean_value(buf.value(key))
 
 
 def off_frame(objects: Sequence[str], visible: Mapping[str, frozenset[str]]) -> tuple[str, ...]:

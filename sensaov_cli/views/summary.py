@@ -83,7 +83,11 @@ def ranked_groups(buf: SensitivityBuffer) -> dict[Grouping, dict[str, tuple[str,
     flowing = [p.key for p in buf.params if p.trust != "no_gradient"]
     ranked: dict[Grouping, dict[str, tuple[str, ...]]] = {}
     for by in _GROUPINGS:
-        every, kept = groups(buf, None, by), groups(buf, flowing, by)
+        every = groups(buf, None, by)
+        if len(flowing) == len(buf.params):  # nothing lost: the groups are every group
+            ranked[by] = every
+            continue
+        kept = groups(buf, flowing, by)
         ranked[by] = {name: keys for name, keys in kept.items() if keys or not every[name]}
     return ranked
 

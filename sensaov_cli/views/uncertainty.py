@@ -67,7 +67,7 @@ class Uncertainty:
         self.sums = statistics.batch_sums[objective]
         self.spp = statistics.spp
         self.index = {key: i for i, key in enumerate(buf.keys)}
-        self.counts = {key: buf.values[key].size for key in buf.keys}
+        self.counts = {p.key: math.prod(p.shape) for p in buf.params}  # no texel is read
         self.method, self.weight = method, weight
         self.significance = Significance.of(len(self.spp))
 
