@@ -262,18 +262,19 @@ def test_sigterm_at_random_points_of_a_large_view(tmp_path: Path) -> None:
         window = time.perf_counter() - started  # the load, both views and the writes
     waits, codes = [], []
     for delay in np.random.default_rng(21).uniform(0.0, 0.8 * window, 10):
-        while True:
+        for _ in range(8):
             process = _project_loading(job)
             time.sleep(delay)
             sent = time.perf_counter()
             process.send_signal(signal.SIGTERM)
             _, rest = process.communicate(timeout=60)
-            if process.returncode != 0 or delay < 0.05:
+            if process.returncode != 0:
                 break
-            delay /= 2  # a busy machine's run ended before the signal came: come sooner
+            delay /= 2  # this run ended before the signal came (runs vary): come sooner
         waits.append(time.perf_counter() - sent)
         codes.append(process.returncode)
-        assert rest.strip().splitlines()[-1].startswith("sensaov: error: stopped by SIGTERM"), rest
+        last = rest.strip().splitlines()[-1]
+        assert last.startswith("sensaov: error: stopped by SIGTERM"), (process.returncode, rest)
     print(f"window {window:.2f} s; SIGTERM to exit: {', '.join(f'{w:.2f}' for w in waits)} s")
     assert codes == [EXIT_TERMINATED] * 10, codes
     assert max(waits) < LARGE_VIEW_BOUND_S, waits
@@ -318,9 +319,10 @@ LARGE_CAMERA = {
             },
             TERM_BOUND_S,  # a forward sub-pass of 2^19 samples takes ~0.9 s on 2 cores
         ),
-        (  # the visibility pass with UVs that texel fields are painted through
+        (  # the visibility pass with UVs that texel fields are painted through (project traces
+            # every camera in its shared stage, for the display scales, before any view)
             ["project", "-q", "--beauty-spp", "1"],
-            "stage:view_big",
+            "stage:visibility",
             {
                 "inspection_cameras": [LARGE_CAMERA],
                 "channels": [{"name": "t", "kind": "texel"}],
