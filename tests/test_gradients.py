@@ -23,6 +23,7 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render import adjoint
 from sensaov_cli.render.fdcheck import check_gradients, check_parameter
 from sensaov_cli.render.gradient_audit import SAME_SEED_TOLERANCE, audit, plan_audit
+from sensaov_cli.render.leaves import enable_gradients
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
 from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
 from sensaov_cli.spec.load import load_job
@@ -198,7 +199,7 @@ def test_a_second_pass_over_the_same_keys_reuses_its_leaves_bit_for_bit(
         assert len(updates) == 1
         again = adjoint.backward_pass(loaded, "prb", keys, adjoint_image, 4, 1)
         assert len(updates) == 1  # the leaves were reused: no update
-        adjoint.enable_gradients(loaded, set())  # what a forward pass does first
+        enable_gradients(loaded, set())  # what a forward pass does first
         after = adjoint.backward_pass(loaded, "prb", keys, adjoint_image, 4, 1)
         assert len(updates) == 3  # fresh leaves once the scene's were replaced
     assert any(np.any(grad != 0) for grad in fresh.values())
