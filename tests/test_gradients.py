@@ -23,6 +23,7 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render import adjoint
 from sensaov_cli.render.fdcheck import check_gradients, check_parameter
 from sensaov_cli.render.gradient_audit import SAME_SEED_TOLERANCE, audit, plan_audit
+from sensaov_cli.render.leaves import enable_gradients
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
 from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
 from sensaov_cli.spec.load import load_job
@@ -176,3 +177,32 @@ def test_one_seed_verdicts() -> None:
     assert _one_seed(info, [1.02], [1.0], 0.1).verdict == "inconclusive"
     assert _one_seed(info, [1.2], [1.0], 0.1).verdict == "disagrees"
     assert _one_seed(info, [1e-7], [0.0], 0.1).verdict == "agrees"  # within M's rounding
+
+
+def test_a_second_pass_over_the_same_keys_reuses_its_leaves_bit_for_bit(
+    mi: ModuleType, job_writer: Callable[..., Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """scenes/interior has a rough plastic, whose lobe weights ``params.update()`` derives from
+    its reflectance leaf: the reused leaves must keep those edges and start from zero."""
+    render = {"spp": 4, "max_depth": 6, "seed": 0, "resolution": [16, 16]}
+    _, loaded, objective = loaded_with_objective(job_writer("reuse", "interior", render=render))
+    image = adjoint.render_primal(loaded, 4, 0)
+    _, adjoint_image = value_and_adjoint(loaded.mi, objective, image)
+    (keys,) = adjoint.integrator_plan(loaded).values()
+    updates = []
+    update = type(loaded.params).update
+    monkeypatch.setattr(
+        type(loaded.params), "update", lambda self: updates.append(1) or update(self)
+    )
+    with adjoint.reproducible(loaded, True):
+        fresh = adjoint.backward_pass(loaded, "prb", keys, adjoint_image, 4, 1)
+        assert len(updates) == 1
+        again = adjoint.backward_pass(loaded, "prb", keys, adjoint_image, 4, 1)
+        assert len(updates) == 1  # the leaves were reused: no update
+        enable_gradients(loaded, set())  # what a forward pass does first
+        after = adjoint.backward_pass(loaded, "prb", keys, adjoint_image, 4, 1)
+        assert len(updates) == 3  # fresh leaves once the scene's were replaced
+    assert any(np.any(grad != 0) for grad in fresh.values())
+    for key in keys:
+        np.testing.assert_array_equal(again[key], fresh[key], err_msg=key)
+        np.testing.assert_array_equal(after[key], fresh[key], err_msg=key)

@@ -12,7 +12,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from sensaov_cli.render.adjoint import enable_gradients
+from sensaov_cli.render.leaves import enable_gradients
 from sensaov_cli.render.loading import load_scene
 from sensaov_cli.render.scene.legacy import PLUGINS
 from sensaov_cli.render.scene.prepare import prepare_xml

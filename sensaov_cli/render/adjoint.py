@@ -27,6 +27,7 @@ from sensaov_cli.buffer.model import ParamRecord
 from sensaov_cli.buffer.repairs import Repair
 from sensaov_cli.buffer.statistics import Statistics, combine_batches, weighted_mean
 from sensaov_cli.progress import Progress
+from sensaov_cli.render.leaves import pass_leaves
 from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
 from sensaov_cli.render.selfcheck import self_check
@@ -70,29 +71,6 @@ class AdjointResult:
 def to_numpy(value: Any, shape: tuple[int, ...]) -> np.ndarray:
     """A float32 copy (Dr.Jit may hand out a writable zero-copy view) in the recorded shape."""
     return np.array(value, dtype=np.float32, copy=True).reshape(shape)
-
-
-def enable_gradients(loaded: LoadedScene, keys: set[str] | None = None) -> dict[str, Any]:
-    """Give every selected parameter a fresh leaf of its own; gradients on ``keys`` (default all).
-
-    The gradient is read from our leaf, never from ``params[key]``: an envmap's update replaces
-    the tensor that ``params[key]`` refers to by a copy with its halo columns filled in, and the
-    gradient of that copy reads 0 (Mitsuba 3.9.1, docs/verification.md). The other parameters
-    hold the leaf itself. Leaves not in ``keys`` are detached, so a pass differentiates nothing
-    else (prb raises if only delta-lobe parameters carry gradients; path's memory grows with them).
-    """
-    import drjit as dr
-
-    leaves = {}
-    for info in loaded.selected:
-        current = loaded.params[info.key]
-        leaf = type(current)(dr.detach(current))
-        if keys is None or info.key in keys:
-            dr.enable_grad(leaf)
-        loaded.params[info.key] = leaf
-        leaves[info.key] = leaf
-    loaded.params.update()  # bitmap and envmap data only take the new tensor after update()
-    return leaves
 
 
 def render_primal(loaded: LoadedScene, spp: int, seed: int, integrator: Any = None) -> Any:
@@ -149,7 +127,7 @@ def backward_pass(
     """dM/dθ for ``keys`` through integrator ``name`` ("prb": the scene's, or "path")."""
     import drjit as dr
 
-    leaves = enable_gradients(loaded, keys)
+    leaves = pass_leaves(loaded, keys)
     shapes = {info.key: info.shape for info in loaded.selected}
     if name == "prb":
         sums = _prb_backward(loaded, adjoint_image, spp, seed, {k: leaves[k] for k in keys})
@@ -157,7 +135,6 @@ def backward_pass(
     else:
         _path_backward(loaded, adjoint_image, spp, seed)
         grads = {key: to_numpy(dr.grad(leaves[key]), shapes[key]) for key in keys}
-    enable_gradients(loaded, set())  # leave no gradient-enabled leaf behind for the next pass
     return grads
 
 

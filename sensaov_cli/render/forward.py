@@ -19,13 +19,13 @@ import numpy as np
 from sensaov_cli import interrupts
 from sensaov_cli.render.adjoint import (
     chunk_seed,
-    enable_gradients,
     integrator_plan,
     path_chunks,
     path_integrator,
     reproducible,
     subpasses,
 )
+from sensaov_cli.render.leaves import enable_gradients
 from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
 

@@ -44,6 +44,9 @@ class LoadedScene:
     resolution: tuple[int, int]
     inspection_sensors: dict[str, Any]  # inspection camera name -> its own sensor
     prepared: PreparedScene  # what was loaded: the text, files, fingerprint, changes
+    # The leaves the last backward pass differentiated and its keys (adjoint.pass_leaves), kept
+    # so that the next pass over the same keys skips ``params.update()``; None: make fresh ones.
+    held_leaves: tuple[frozenset[str], dict[str, Any]] | None = None
 
     @property
     def integrator_type(self) -> str:
@@ -150,4 +153,5 @@ def assign(loaded: LoadedScene, key: str, array: np.ndarray) -> None:
     else:
         replacement = type(current)(flat.reshape(-1))
     loaded.params[key] = replacement
+    loaded.held_leaves = None  # the scene no longer holds that leaf
     loaded.params.update()
