@@ -31,7 +31,9 @@ def reprojection(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figu
         f"(`--beauty-spp {DEFAULT_BEAUTY_SPP}`) and without it (`--beauty-spp 0`), and "
         f"`visibility.trace` alone. The adjoint pass is one backward pass at {s.view}², all "
         f"threads, at {s.view_spp} spp (as many samples as the view traces) and at {s.job_spp} "
-        "spp (what the example jobs in configs/ use); all five are interleaved.",
+        "spp (what the example jobs in configs/ use). The objective camera row: a job whose only "
+        f"view is the objective camera at {s.view}², whose default beauty is the run's own "
+        "primal.exr; all six are interleaved.",
     )
     figure.why_missed = notes.PROJECTION
     for scene in SCENES:
@@ -43,10 +45,15 @@ def reprojection(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figu
         adjoint_job = Passes.load(
             ws.job(f"proj_adj_job_{scene}", SCENES[scene], resolution=s.view, spp=s.job_spp)
         )
+        objective_job = _objective_job(ws, s, scene)
+        objective_buffer = _make_buffer(objective_job)
         t = interleave(
             {
                 "beauty": _view(job, buffer_path, DEFAULT_BEAUTY_SPP),
                 "no_beauty": _view(job, buffer_path, 0),
+                "objective": _view(
+                    objective_job, objective_buffer, DEFAULT_BEAUTY_SPP, "objective"
+                ),
                 "trace": _trace(job, s.vis_spp),
                 "adjoint": adjoint.backward,
                 "adjoint_job": adjoint_job.backward,
@@ -67,6 +74,19 @@ def _projection_job(ws: Workspace, s: Settings, scene: str) -> Path:
         spp=BUFFER_SPP,
         objectives=[MEAN_LUMA, EXTRA_OBJECTIVES[0]],
         inspection=(_camera(scene, s),),
+    )
+
+
+def _objective_job(ws: Workspace, s: Settings, scene: str) -> Path:
+    """A job whose only view is the objective camera at the view size: its beauty is the run's
+    primal (project_beauty.py), so the default view renders no path trace."""
+    return ws.job(
+        f"proj_objective_{scene}",
+        SCENES[scene],
+        resolution=s.view,
+        spp=BUFFER_SPP,
+        objectives=[MEAN_LUMA, EXTRA_OBJECTIVES[0]],
+        inspection=({"name": "objective", "objective": True, "vis_spp": s.vis_spp},),
     )
 
 
@@ -97,6 +117,16 @@ def _rows(case: str, t: dict[str, Stats], s: Settings) -> list[Row]:
             )
     rows.append(
         Row(
+            f"{case}, objective camera, default (beauty: run's primal), vs backward at "
+            f"{s.view_spp} spp",
+            t["objective"].ratio_to(t["adjoint"]),
+            "x",
+            Goal("<=", 1 / 20, "1/20"),
+            f"view {fmt(t['objective'].median, 's')} vs backward {adjoint}",
+        )
+    )
+    rows.append(
+        Row(
             f"{case}, visibility only (beauty 0), vs the visibility trace alone",
             t["no_beauty"].ratio_to(t["trace"]),
             "x",
@@ -125,7 +155,9 @@ def _make_buffer(job: Path) -> Path:
     return run_job(load_job(job), allow_python=False, progress=Progress(quiet=True)).buffer_path
 
 
-def _view(job: Path, buffer_path: Path, beauty_spp: int) -> Callable[[], float]:
+def _view(
+    job: Path, buffer_path: Path, beauty_spp: int, camera: str = CAMERA
+) -> Callable[[], float]:
     from sensaov_cli.pipeline.project import project_job
     from sensaov_cli.progress import Progress
     from sensaov_cli.spec.load import load_job
@@ -137,7 +169,7 @@ def _view(job: Path, buffer_path: Path, beauty_spp: int) -> Callable[[], float]:
         (view,) = project_job(
             spec,
             buffer_path=buffer_path,
-            cameras=(CAMERA,),
+            cameras=(camera,),
             beauty_spp=beauty_spp,
             progress=progress,
         )

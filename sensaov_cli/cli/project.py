@@ -34,7 +34,9 @@ from sensaov_cli.cli.options import (
     default=4,
     show_default=True,
     help="Samples per pixel of the quick beauty pass, a reference for the compositor "
-    "(0: none). It is a full path trace: at 16 spp it costs more than the whole view.",
+    "(0: none). It is a full path trace: at 16 spp it costs more than the whole view. The "
+    "objective camera shows the run's primal.exr instead when it was written with this buffer "
+    "at the view's size and at least these spp.",
 )
 @click.option(
     "--force",
@@ -98,5 +100,5 @@ def project(
         extra = f" (+{len(view.previews)} PNG)" if view.previews else ""
         click.echo(
             f"{view.camera}: {view.width}x{view.height}, {view.vis_spp} vis spp, "
-            f"{view.seconds:.2f} s -> {view.path}{extra}"
+            f"{view.seconds:.2f} s -> {view.path}{extra}; beauty: {view.beauty}"
         )

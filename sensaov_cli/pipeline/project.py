@@ -28,10 +28,11 @@ from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.pipeline import project_texels
 from sensaov_cli.pipeline.consistency import check_buffer_of_job
+from sensaov_cli.pipeline.merge import primal_beside
+from sensaov_cli.pipeline.project_beauty import RunBeauty, run_beauty, view_beauty
 from sensaov_cli.pipeline.project_forward import projected_layers
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.beauty import render_beauty
 from sensaov_cli.render.loading import LoadedScene, load_scene
 from sensaov_cli.render.memory import check_job, sensor_sizes
 from sensaov_cli.render.scene import prepare_scene
@@ -50,7 +51,9 @@ from sensaov_cli.views.painting import paint_pass
 from sensaov_cli.views.texel_fields import TexelField
 from sensaov_cli.views.texel_passes import TexelPass
 
-DEFAULT_BEAUTY_SPP = 4  # a quick reference for the compositor; it is a full path trace
+# The quick pass's spp: a reference for the compositor, and a full path trace. The objective
+# camera shows run's own primal instead when it can (project_beauty.py).
+DEFAULT_BEAUTY_SPP = 4
 
 
 @dataclass(frozen=True)
@@ -60,8 +63,9 @@ class ProjectedView:
     width: int
     height: int
     vis_spp: int
-    seconds: float  # wall time of the view: visibility, beauty, painting, files
+    seconds: float  # wall time of the view: beauty, display layers, files (not visibility)
     previews: tuple[Path, ...]
+    beauty: str = ""  # what the beauty is: run's primal, a quick trace at N spp, or none
 
 
 def project_job(
@@ -85,7 +89,13 @@ def project_job(
     folders = texel_folder + ["previews/"] * png
     check_writable(job.output, [f"{camera.name}.exr" for camera in chosen] + folders)
     refuse_unsafe_outputs(
-        (*job.input_files(), *prepared.files, buffer_path, buffer_path.with_name(FORWARD_NAME)),
+        (
+            *job.input_files(),
+            *prepared.files,
+            buffer_path,
+            buffer_path.with_name(FORWARD_NAME),
+            primal_beside(buffer_path),
+        ),  # fmt: skip
         [job.output / f"{camera.name}.exr" for camera in chosen],
         folders=[job.output / folder for folder in folders],
         where=str(job.path),
@@ -107,13 +117,16 @@ def project_job(
             for c in every
         }
         scales = _scales(job, raw)
+    objective_chosen = any(camera.objective for camera in chosen)
+    reused = run_beauty(buffer, buffer_path, beauty_spp, progress) if objective_chosen else None
+    reused = None if force else reused  # the scene may have changed since the run
     views = []
     for camera in chosen:
         stage = f"view_{camera.name}_s"
         with progress.stage(stage, f"view '{camera.name}'"):
             view = _project_camera(
                 job, buffer, buffer_path, loaded, camera, traced[camera.name],
-                raw[camera.name], scales, png, beauty_spp,
+                raw[camera.name], scales, png, beauty_spp, reused if camera.objective else None,
             )  # fmt: skip
         views.append(replace(view, seconds=progress.timings[stage]))
     return views
@@ -244,9 +257,10 @@ def _project_camera(
     scales: dict[tuple[str, str], DisplayScale],
     png: bool,
     beauty_spp: int,
+    reused: RunBeauty | None,
 ) -> ProjectedView:
     sensor = loaded.inspection_sensors[camera.name]
-    beauty = render_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed)
+    beauty, made = view_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed, reused)
     shown = [(layer, scale_of(scales, camera.name, layer)) for layer in raw.layers]
     hit = visibility.coverage_hit  # a property that counts every sample: once per view
     pairs = [with_display(layer, scale, hit) for layer, scale in shown]
@@ -256,7 +270,7 @@ def _project_camera(
     material = _material_cryptomatte(visibility, loaded.prepared.materials)
     path = job.output / f"{camera.name}.exr"
     made_from = stamp(buffer, job.job_hash())
-    attributes = {**_attributes(buffer, buffer_path, camera, beauty_spp), **made_from}
+    attributes = {**_attributes(buffer, buffer_path, camera, beauty_spp, made), **made_from}
     interrupts.check()
     write_layered_exr(
         path,
@@ -271,7 +285,7 @@ def _project_camera(
     if png:
         previews = _write_previews(job, camera, raw, scales, shown, beauty, visibility, made_from)
     return ProjectedView(
-        camera.name, path, visibility.width, visibility.height, visibility.spp, 0.0, previews
+        camera.name, path, visibility.width, visibility.height, visibility.spp, 0.0, previews, made
     )
 
 
@@ -339,13 +353,14 @@ def _layer(
 
 
 def _attributes(
-    buffer: SensitivityBuffer, buffer_path: Path, camera: CameraSpec, beauty_spp: int
+    buffer: SensitivityBuffer, buffer_path: Path, camera: CameraSpec, beauty_spp: int, beauty: str
 ) -> dict[str, str]:
     made = {
         **made_by("project"),
         "camera": camera.name,
         "vis_spp": camera.vis_spp,
         "beauty_spp": beauty_spp,
+        "beauty": beauty,
         "buffer": str(buffer_path),
         "buffer_provenance": buffer.provenance,
     }
