@@ -19,7 +19,7 @@ import yaml
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import per_object
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.outputs.previews import diverging_linear
+from sensaov_cli.outputs.previews import diverging_linear, diverging_rgb, srgb_uint8
 from sensaov_cli.spec.job import ChannelSpec
 from sensaov_cli.views.channels import channel_values
 from sensaov_cli.views.coverage import VisibilityPass, histogram, ranked
@@ -107,6 +107,15 @@ def test_colours_of_runs_of_equal_pixels_are_each_pixels_own() -> None:
         )
         assert np.array_equal(drawn.reshape(-1, 3), expected)
         assert np.array_equal(diverging_linear(image, scale).reshape(-1, 3), alone)
+
+
+def test_display_colours_stored_as_half_are_the_previews_8_bit_colours() -> None:
+    """Display layers are written as half floats: over a million values and every scale kind,
+    the sRGB codes of the half colours are the previews' codes, not one of them off by one."""
+    values = np.random.default_rng(7).normal(size=1_000_000) * 1e-3
+    for scale in (1e-3, 3e-4, 0.0):
+        half = diverging_linear(values, scale).astype(np.float16)
+        assert np.array_equal(srgb_uint8(half), diverging_rgb(values, scale))
 
 
 def test_groups_share_one_scale_untrusted_parts_follow() -> None:
@@ -274,13 +283,20 @@ def test_every_raw_layer_has_a_display_layer_an_artist_sees(demo: Path) -> None:
             shown = meta[m["display_layer"]]
             assert shown["display_of"] == m["original_name"]
             colours = data_of(channels, shown)
-            assert colours.shape[-1] == 3
+            assert colours.shape[-1] == 3 and colours.dtype == np.float16  # a picture: half
             share = float((colours.max(axis=-1) > 0.1)[visible].mean())
             assert share >= 0.1, (camera, name, share)
             values = signed_pixels(data_of(channels, m), m.get("kind", ""))
             expected = diverging_linear(values, float(m["display_scale"]))
             painted = values != 0
-            np.testing.assert_allclose(colours[painted], expected[painted], atol=1e-6)
+            # half's rounding (2^-11 relative, 2^-25 below its normal range) and not more: the
+            # previews' 8-bit sRGB codes come out the same
+            np.testing.assert_allclose(
+                colours[painted], expected[painted], rtol=2**-11, atol=2**-25
+            )
+            np.testing.assert_array_equal(
+                srgb_uint8(colours[painted]), srgb_uint8(expected[painted])
+            )
 
 
 def test_transport_layers_are_not_written_twice(demo: Path) -> None:

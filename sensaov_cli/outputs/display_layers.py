@@ -5,8 +5,9 @@ A raw layer keeps its values untouched (a few 1e-2 at most, often 1e-5: black in
 Its display layer ``<objective>.<pass>_display.R/G/B`` holds the previews' picture of it: the
 signed value at the group's display scale (:mod:`sensaov_cli.views.display_scale`) on the
 diverging RdBu map (blue lowers M, red raises it, near-white 0), as linear Rec. 709 values whose
-sRGB encoding is exactly the previews' colours; where the camera hits nothing it is black. Both
-layers record the scale, its rule and the share of pixels it clips (docs/exr-layout.md).
+sRGB encoding is exactly the previews' colours, stored as half floats; where the camera hits
+nothing it is black. Both layers record the scale, its rule and the share of pixels it clips
+(docs/exr-layout.md).
 """
 
 from __future__ import annotations
@@ -51,7 +52,9 @@ def with_display(
     # Zero pixels fade to black with the coverage; alpha is 1 elsewhere. float32 products of
     # float32 factors round as the float64 product would (it is exact).
     faded = colours * np.clip(hit, 0.0, 1.0).astype(np.float32)[..., None]
-    colours = np.where((values == 0)[..., None], faded, colours)
+    # Stored as half: a picture in [0, 1] needs no more (its sRGB 8-bit codes are the same as
+    # float32's, tested), and half the bytes make the EXR write ~40 % faster (issue 23).
+    colours = np.where((values == 0)[..., None], faded, colours).astype(np.float16)
     display_name = layer.pass_name + DISPLAY_SUFFIX
     raw = SensitivityLayer(
         layer.objective,

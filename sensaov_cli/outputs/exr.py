@@ -37,7 +37,7 @@ def exr_writer(
     """A function writing the EXR to a given (temporary) path, for paired atomic writes."""
     import OpenEXR
 
-    pixels = {name: np.ascontiguousarray(data, dtype=np.float32) for name, data in channels.items()}
+    pixels = {name: _pixels(data) for name, data in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     header.update(attributes)
     _use_every_core(OpenEXR)
@@ -53,13 +53,19 @@ def exr_writer(
     return write
 
 
+def _pixels(data: np.ndarray) -> np.ndarray:
+    """A channel as the binding writes it: half stays half (display layers), all else float32."""
+    kind = np.float16 if np.asarray(data).dtype == np.float16 else np.float32
+    return np.ascontiguousarray(data, dtype=kind)
+
+
 def encode_exr(channels: dict[str, np.ndarray], attributes: dict[str, str]) -> bytes:
     """The EXR ``write_exr`` would write, as bytes in memory (an HTTP answer, no file)."""
     import io
 
     import OpenEXR
 
-    pixels = {name: np.ascontiguousarray(data, dtype=np.float32) for name, data in channels.items()}
+    pixels = {name: _pixels(data) for name, data in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     header.update(attributes)
     _use_every_core(OpenEXR)

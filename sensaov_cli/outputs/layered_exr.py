@@ -281,12 +281,13 @@ def _sensitivity_channels(
             f"sensitivity layer {layer.original_name!r} has shape {data.shape}; "
             f"expected {shape} (one Y channel) or {shape + (3,)} (R, G, B)",
         )
-    data = _as_float32(data, f"sensitivity layer {layer.original_name!r}")
+    if data.dtype != np.float16 or layer.metadata.get("kind") != "display":
+        data = _as_float32(data, f"sensitivity layer {layer.original_name!r}")
     bad = int(np.count_nonzero(~np.isfinite(data)))
     if bad:
         raise ExrError(
             f"sensitivity layer {layer.original_name!r} has {bad} of {data.size} values NaN "
-            "or infinite (after conversion to float32)",
+            f"or infinite (after conversion to {data.dtype})",
             hint="a compositor multiply turns them into NaN mattes; zero them or fix the "
             "encoding's scale",
         )

@@ -64,9 +64,11 @@ def diverging_rgb(values: np.ndarray, scale: float) -> np.ndarray:
 
 
 def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
-    """``values`` as float32 linear Rec. 709 RGB (shape + (3,)): the RdBu colours of
-    :func:`diverging_rgb` before rounding, decoded from sRGB, so that a viewer's sRGB (Standard)
-    display shows exactly the previews' colours. Display layers of EXRs are drawn with it."""
+    """``values`` as float32 linear Rec. 709 RGB (shape + (3,)): the 8-bit RdBu colours of
+    :func:`diverging_rgb` decoded from sRGB, so that a viewer's sRGB (Standard) display shows
+    exactly the previews' colours. Display layers of EXRs are drawn with it; decoded from the
+    rounded codes, they keep those codes when stored as half (half's rounding moves a code by
+    at most 0.05 of a step, the rounding of an unrounded colour could go either way)."""
     x = np.asarray(values)
     # A painted layer is runs of equal pixels (an object's inside): the colours, power law and
     # all, are computed once per run and repeated, pixel for pixel the same as computed apart.
@@ -75,7 +77,7 @@ def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
     np.not_equal(flat[1:], flat[:-1], out=head[1:])
     starts = np.flatnonzero(head)
     lengths = np.diff(starts, append=flat.size)
-    colours = _linear(_diverging_srgb(flat[starts], scale) / 255.0).astype(np.float32)
+    colours = _linear(np.rint(_diverging_srgb(flat[starts], scale)) / 255.0).astype(np.float32)
     return np.repeat(colours, lengths, axis=0).reshape(*x.shape, 3)
 
 
