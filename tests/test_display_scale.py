@@ -210,7 +210,7 @@ def test_one_scale_per_channel_in_every_camera_and_legend(demo: Path) -> None:
         manifest = json.loads((out / "previews" / f"{camera}.json").read_text())
         (entry,) = [e for e in manifest["files"] if e.get("pass_name") == "objects"
                     and e["objective"] == "mean_luma"]  # fmt: skip
-        assert entry["notes"][0].startswith(f"shared scale +-{float(scales[camera]):.3g}: p95")
+        assert entry["notes"][0].startswith(f"shared scale ±{float(scales[camera]):.3g}: p95")
         assert entry["notes"][1].startswith("clipped: ")
     assert scales["objective"] == scales["overhead"]
 
@@ -263,7 +263,7 @@ def test_a_per_tile_scale_is_only_on_request_and_labelled(demo: Path, tmp_path: 
         manifest = json.loads((tmp_path / "out" / "previews" / f"{camera}.json").read_text())
         (entry,) = [e for e in manifest["files"] if e.get("pass_name") == "objects"
                     and e["objective"] == "mean_luma"]  # fmt: skip
-        assert entry["notes"][0].startswith(f"per-tile scale +-{scales[camera]:.3g}: p95")
+        assert entry["notes"][0].startswith(f"per-tile scale ±{scales[camera]:.3g}: p95")
         assert entry["notes"][0].endswith(f"non-zero pixels of {camera} only")
     # objective and overhead both land on the back wall's value; the floor alone does not,
     # and keeps its own number where the shared rule gives every camera one

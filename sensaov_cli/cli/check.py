@@ -9,6 +9,7 @@ import click
 
 from sensaov_cli.cli.options import (
     EXIT_CODES_EPILOG,
+    FilePath,
     allow_python_option,
     echo_json,
     job_argument,
@@ -43,7 +44,7 @@ from sensaov_cli.cli.options import (
 @click.option(
     "--buffer",
     "buffer_path",
-    type=click.Path(path_type=Path, dir_okay=False),
+    type=FilePath(path_type=Path, dir_okay=False),
     help="Buffer whose gradients the duality column checks (default: <output>/buffer.npz).",
 )
 @click.option(

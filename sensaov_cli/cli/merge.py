@@ -6,16 +6,22 @@ from pathlib import Path
 
 import click
 
-from sensaov_cli.cli.options import EXIT_CODES_EPILOG, progress_option, quiet_option, reports_errors
+from sensaov_cli.cli.options import (
+    EXIT_CODES_EPILOG,
+    FilePath,
+    progress_option,
+    quiet_option,
+    reports_errors,
+)
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
-@click.argument("shards", nargs=-1, required=True, type=click.Path(path_type=Path, dir_okay=False))
+@click.argument("shards", nargs=-1, required=True, type=FilePath(path_type=Path, dir_okay=False))
 @click.option(
     "-o",
     "--output",
     required=True,
-    type=click.Path(path_type=Path, dir_okay=False),
+    type=FilePath(path_type=Path, dir_okay=False),
     help="The merged buffer; its primal is written beside it (buffer -> primal, .exr).",
 )
 @quiet_option

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import io
 import json
 import os
 import select
@@ -33,7 +34,18 @@ EXIT_CODES_EPILOG = "\b\nExit codes:\n" + "".join(
     f"  {code}  {meaning}\n" for code, meaning in EXIT_MEANINGS.items()
 )
 
-job_argument = click.argument("job", type=click.Path(path_type=Path))
+
+class FilePath(click.Path):
+    """A path argument that refuses the empty string: Python reads ``''`` as the current folder,
+    so ``sensaov run ''`` (an unset shell variable, quoted) would blame the folder instead."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, str) and not value.strip():
+            self.fail("the path is empty (an unset variable?)", param, ctx)
+        return super().convert(value, param, ctx)
+
+
+job_argument = click.argument("job", type=FilePath(path_type=Path))
 allow_python_option = click.option(
     "--allow-python",
     is_flag=True,
@@ -207,10 +219,40 @@ def _os_failure(err: OSError) -> tuple[str, int] | None:
     if err.errno == errno.EPIPE:  # stdout's reader (| head) went away; stderr is another case
         _silence(1)
         return f"stdout: {what}", code
-    where = f"{err.filename}: " if err.filename else ""
     full = err.errno in (errno.ENOSPC, errno.EDQUOT)
     hint = " (free space and run again; the previous outputs were kept)" if full else ""
+    if not err.filename and _stdout_refuses(err):
+        _silence(1)  # else the interpreter's last flush complains a second time
+        return f"stdout: cannot write the result: {what}", code
+    where = f"{err.filename}: " if err.filename else ""
     return f"{where}cannot write or read: {what}{hint}", code
+
+
+def _stdout_refuses(err: OSError) -> bool:
+    """Whether it is stdout that cannot take what was printed (``> /dev/full``, a full disk
+    under a redirected result): an error without a file name, raised by ``click.echo`` writing
+    to descriptor 1, or one that flushing stdout repeats (a buffered writer keeps what it could
+    not write)."""
+    trace = err.__traceback__
+    while trace is not None:
+        frame = trace.tb_frame
+        if frame.f_code.co_name == "echo" and _writes_to_stdout(frame.f_locals.get("file")):
+            return True
+        trace = trace.tb_next
+    try:
+        sys.stdout.flush()
+    except OSError as again:
+        return again.errno == err.errno
+    except (ValueError, AttributeError):  # closed or absent: not what failed here
+        return False
+    return False
+
+
+def _writes_to_stdout(stream: Any) -> bool:
+    try:
+        return bool(stream is not None and stream.fileno() == 1)
+    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
+        return False
 
 
 def _reported(err: BaseException, verbose: int = 0) -> tuple[str, int]:

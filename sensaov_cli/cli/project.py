@@ -8,6 +8,7 @@ import click
 
 from sensaov_cli.cli.options import (
     EXIT_CODES_EPILOG,
+    FilePath,
     echo_json,
     job_argument,
     json_option,
@@ -24,7 +25,7 @@ from sensaov_cli.cli.options import (
 @click.option(
     "--buffer",
     "buffer_path",
-    type=click.Path(path_type=Path),
+    type=FilePath(path_type=Path),
     help="Buffer to project (default: <output>/buffer.npz of the job).",
 )
 @click.option("--png", is_flag=True, help="Also write PNG previews and a contact sheet per camera.")

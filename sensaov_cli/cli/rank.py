@@ -9,6 +9,7 @@ import click
 
 from sensaov_cli.cli.options import (
     EXIT_CODES_EPILOG,
+    FilePath,
     aggregate_option,
     echo_json,
     json_option,
@@ -22,7 +23,7 @@ from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
-@click.argument("buffer", type=click.Path(path_type=Path))
+@click.argument("buffer", type=FilePath(path_type=Path))
 @click.option(
     "--by",
     type=click.Choice(CUTS),
@@ -35,7 +36,7 @@ from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
     "--exr",
     "exrs",
     multiple=True,
-    type=click.Path(path_type=Path),
+    type=FilePath(path_type=Path),
     help="A camera's EXR from 'sensaov project' (repeatable): label rows off-frame for it.",
 )
 @top_option("Rows per table.")

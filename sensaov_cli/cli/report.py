@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from sensaov_cli.cli.options import EXIT_CODES_EPILOG, job_argument, reports_errors
+from sensaov_cli.cli.options import EXIT_CODES_EPILOG, FilePath, job_argument, reports_errors
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
@@ -14,7 +14,7 @@ from sensaov_cli.cli.options import EXIT_CODES_EPILOG, job_argument, reports_err
 @click.option(
     "-o",
     "--output",
-    type=click.Path(path_type=Path),
+    type=FilePath(path_type=Path),
     help="The page to write (default: <output>/report.html of the job).",
 )
 @reports_errors

@@ -9,6 +9,7 @@ import click
 
 from sensaov_cli.cli.options import (
     EXIT_CODES_EPILOG,
+    FilePath,
     aggregate_option,
     objective_option,
     reports_errors,
@@ -19,7 +20,7 @@ from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Untrusted, Weight
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
-@click.argument("buffer", type=click.Path(path_type=Path))
+@click.argument("buffer", type=FilePath(path_type=Path))
 @objective_option(
     "Draw only this objective (repeatable; default: one disc per objective).", multiple=True
 )
@@ -36,7 +37,7 @@ from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Untrusted, Weight
 @click.option(
     "-o",
     "--output",
-    type=click.Path(path_type=Path),
+    type=FilePath(path_type=Path),
     default=Path("sunburst.svg"),
     show_default=True,
     help="The file to write: .svg or .png.",

@@ -7,7 +7,13 @@ from pathlib import Path
 
 import click
 
-from sensaov_cli.cli.options import EXIT_CODES_EPILOG, job_argument, quiet_option, reports_errors
+from sensaov_cli.cli.options import (
+    EXIT_CODES_EPILOG,
+    FilePath,
+    job_argument,
+    quiet_option,
+    reports_errors,
+)
 
 
 @click.command(epilog=EXIT_CODES_EPILOG)
@@ -30,7 +36,7 @@ from sensaov_cli.cli.options import EXIT_CODES_EPILOG, job_argument, quiet_optio
 @click.option(
     "--buffer",
     "buffer_path",
-    type=click.Path(path_type=Path),
+    type=FilePath(path_type=Path),
     help="Buffer to inspect (default: <output>/buffer.npz of the job).",
 )
 @click.option(

@@ -176,7 +176,7 @@ def legend_notes(
     """The lines under a single preview's colour bar (ASCII: the font has no θ or ∂)."""
     meta = layer.metadata
     scope = {"shared": "shared scale", "tile": "per-tile scale", "fixed": "fixed scale"}
-    lines = [f"{scope[scale.scope]} +-{scale.value:.3g}: {scale.rule()}"]
+    lines = [f"{scope[scale.scope]} ±{scale.value:.3g}: {scale.rule()}"]
     if scale.value == 0:
         lines[0] = f"zero in every camera of the rule: {scale.rule()}"
     elif not values.any():
@@ -212,7 +212,7 @@ def _sheet_notes(
     scopes = sorted({scale.scope for _, scale in mine})
     shared = ", one per channel across every camera" if "shared" in scopes else ""
     notes = [
-        f"colour bar in units of each tile's scale (+-, in its label); scales: "
+        f"colour bar in units of each tile's scale (±, in its label); scales: "
         f"{', '.join(scopes)}{shared}"
     ]
     if any(layer.metadata.get("part") == "untrusted" for layer, _ in mine):
@@ -226,7 +226,7 @@ def _label(layer: SensitivityLayer, scale: DisplayScale) -> str:
     tile = " tile" if scale.scope == "tile" else ""
     if scale.value == 0:
         return f"{layer.pass_name}: 0 everywhere{marks}"
-    return f"{layer.pass_name} +-{scale.value:.2e}{tile}{marks}"
+    return f"{layer.pass_name} ±{scale.value:.2e}{tile}{marks}"
 
 
 def _enlarged(tile: np.ndarray, width: int) -> np.ndarray:

@@ -123,7 +123,7 @@ def write_fig4_sheet(
     for texel_pass, scale in zip(passes, scales, strict=True):
         tile = _enlarged(diverging_rgb(_luminance(texel_pass.data), scale))
         mark = " !" if json.loads(texel_pass.metadata.get("unverified", "[]")) else ""
-        tiles.append((f"{texel_pass.panel} +-{scale:.2e}{mark}", tile))
+        tiles.append((f"{texel_pass.panel} ±{scale:.2e}{mark}", tile))
     meta = passes[0].metadata
     title = f"{camera}: {meta['texture']} (object | per texel | joint share; ! = not trusted)"
     notes = ["each panel at its own display scale (shared by every camera); the joint panel "

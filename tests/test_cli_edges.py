@@ -1,0 +1,47 @@
+"""The command line's own edges: an empty path, a result stdout cannot take."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from .conftest import sensaov
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize(
+    "arguments",
+    [["run", ""], ["validate", " "], ["rank", ""], ["merge", "", "-o", "x.npz"], ["report", ""]],
+)
+def test_an_empty_path_is_named_as_empty_not_as_the_current_folder(
+    arguments: list[str], tmp_path: Path
+) -> None:
+    done = sensaov(*arguments, cwd=tmp_path)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "the path is empty" in lines[0], done.stderr
+    assert "directory" not in lines[0] and "Traceback" not in done.stderr
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs Linux's /dev/full")
+@pytest.mark.parametrize(
+    "arguments", [["schema"], ["validate", str(ROOT / "configs" / "cbox.yaml")]]
+)
+def test_a_result_stdout_cannot_take_is_blamed_on_stdout(arguments: list[str]) -> None:
+    with open("/dev/full", "w") as full:
+        done = subprocess.run(
+            [sys.executable, "-m", "sensaov_cli", *arguments],
+            stdout=full,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+    assert done.returncode == 1, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr  # no second complaint from the interpreter's exit
+    assert lines[0].startswith("sensaov: error: stdout: cannot write the result: disk full")
