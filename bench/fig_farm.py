@@ -134,7 +134,8 @@ def _merge(ws: Workspace, s: Settings) -> Row:
     for i in range(1, 5):
         shard = make_buffer(s.io_texture)
         provenance = {
-            "job_hash": "bench", "scene_fingerprint": "bench", "spp": 16, "primal_seed": i,
+            "job_hash": "bench", "scene_fingerprint": "bench", "spp": 16, "job_spp": 64,
+            "primal_seed": i, "resolution": [8, 8],  # what merge checks a shard records
             "job": {"objectives": [{"name": "mean_luma"}]},
             "task": {"shard": {"index": i, "count": 4}, "objectives": None},
         }  # fmt: skip
