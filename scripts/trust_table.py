@@ -7,7 +7,7 @@ checked with sensaov's fdcheck: same-seed central differences where θ does not 
 paths are sampled, independent-seed differences at a high sample count where it does (lobe
 selection, roughness, eta, blend weights: a shared seed does not give shared paths there).
 
-    .venv/bin/python scripts/trust_table.py            # about 3 minutes on 2 cores
+    .venv/bin/python scripts/trust_table.py            # about 8 minutes on 2 quiet cores
     .venv/bin/python scripts/trust_table.py --only plastic,envmap
 
 It prints the markdown that docs/verification.md holds: one row per parameter checked, then one
