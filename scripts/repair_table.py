@@ -9,7 +9,7 @@ compared with two references computed here, apart from the repair:
 - common random numbers: central differences at 16 other seeds, 64 spp, twice the step;
 - independent seeds: each side of the difference at seeds of its own, 2048 spp, 24 seeds.
 
-    .venv/bin/python scripts/repair_table.py         # about 15 minutes on 2 cores
+    .venv/bin/python scripts/repair_table.py         # about 7 minutes on 2 quiet cores
     .venv/bin/python scripts/repair_table.py --independent-seeds 0   # CRN only, 1 minute
 
 It prints the markdown that docs/verification.md holds: a row per component and objective,
