@@ -110,8 +110,11 @@ def test_a_truncated_primal_is_said_and_the_view_still_written(copy: Path) -> No
 
 
 def test_force_renders_the_beauty_since_the_scene_may_have_changed(copy: Path) -> None:
+    primal = copy.parent / "out" / "primal.exr"
+    primal.write_bytes(primal.read_bytes()[:300])  # not even read with --force: nothing said
     done = sensaov("project", str(copy), "--camera", "objective", "--force")
     assert done.returncode == 0, done.stderr
+    assert "primal.exr" not in done.stderr
     assert _beauty(copy.parent / "out", "objective")[1]["beauty"] == "path trace at 4 spp"
 
 

@@ -37,10 +37,7 @@ def exr_writer(
     """A function writing the EXR to a given (temporary) path, for paired atomic writes."""
     import OpenEXR
 
-    pixels = {name: _pixels(data) for name, data in channels.items()}
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    header.update(attributes)
-    _use_every_core(OpenEXR)
+    header, pixels = _file_parts(OpenEXR, channels, attributes)
 
     def write(tmp: Path) -> None:
         try:
@@ -51,6 +48,16 @@ def exr_writer(
             raise _os_error(str(error).replace(str(tmp), "the file")) from error
 
     return write
+
+
+def _file_parts(
+    openexr: Any, channels: dict[str, np.ndarray], attributes: dict[str, str]
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The header and pixels of a ZIP scanline file, compressed on every core."""
+    header: dict[str, Any] = {"compression": openexr.ZIP_COMPRESSION, "type": openexr.scanlineimage}
+    header.update(attributes)
+    _use_every_core(openexr)
+    return header, {name: _pixels(data) for name, data in channels.items()}
 
 
 def _pixels(data: np.ndarray) -> np.ndarray:
@@ -65,10 +72,7 @@ def encode_exr(channels: dict[str, np.ndarray], attributes: dict[str, str]) -> b
 
     import OpenEXR
 
-    pixels = {name: _pixels(data) for name, data in channels.items()}
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    header.update(attributes)
-    _use_every_core(OpenEXR)
+    header, pixels = _file_parts(OpenEXR, channels, attributes)
     stream = io.BytesIO()
     with OpenEXR.File(header, pixels) as exr:
         exr.write(stream)
@@ -79,7 +83,8 @@ def _use_every_core(openexr: Any) -> None:
     """Let OpenEXR compress its blocks on every core this process may run on (its default is
     one thread): ZIP on a 512² view of ~50 channels is most of the write. Blocks are still
     written in line order, so the file's bytes do not depend on the thread count."""
-    cores = len(os.sched_getaffinity(0))
+    affinity = getattr(os, "sched_getaffinity", None)  # Linux; elsewhere every core counts
+    cores = len(affinity(0)) if affinity else (os.cpu_count() or 1)
     if openexr.global_thread_count() != cores:
         openexr.set_global_thread_count(cores)
 

@@ -7,6 +7,7 @@ store it with :func:`provenance_attributes`, so every file reads the same way.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from typing import Any
 
 from sensaov_cli import __version__
@@ -17,6 +18,15 @@ PROVENANCE_ATTRIBUTE = "sensaov/provenance"
 def made_by(command: str) -> dict[str, Any]:
     """The fields every provenance record starts with: the tool, its version, the command."""
     return {"tool": "sensaov", "tool_version": __version__, "command": command}
+
+
+def header_provenance(header: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The provenance an EXR header carries, or None where it holds none sensaov wrote."""
+    try:
+        recorded = json.loads(header[PROVENANCE_ATTRIBUTE])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return recorded if isinstance(recorded, dict) else None
 
 
 def provenance_attributes(provenance: dict[str, Any]) -> dict[str, str]:

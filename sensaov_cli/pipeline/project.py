@@ -118,8 +118,9 @@ def project_job(
         }
         scales = _scales(job, raw)
     objective_chosen = any(camera.objective for camera in chosen)
-    reused = run_beauty(buffer, buffer_path, beauty_spp, progress) if objective_chosen else None
-    reused = None if force else reused  # the scene may have changed since the run
+    # Not with --force: the scene may have changed since the run (nor is the primal read then).
+    reuse = objective_chosen and not force
+    reused = run_beauty(buffer, buffer_path, beauty_spp, progress) if reuse else None
     views = []
     for camera in chosen:
         stage = f"view_{camera.name}_s"

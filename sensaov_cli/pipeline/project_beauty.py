@@ -12,7 +12,6 @@ changed since the run). The EXR's provenance records which it was (``beauty``).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,7 @@ from sensaov_cli.buffer.identity import buffer_id, provenance_id
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.errors import SensaovError
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.outputs.provenance import PROVENANCE_ATTRIBUTE
+from sensaov_cli.outputs.provenance import header_provenance
 from sensaov_cli.pipeline.merge import primal_beside
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.beauty import render_beauty
@@ -55,10 +54,10 @@ def run_beauty(
     except SensaovError as error:
         progress.note(f"{path.name} not used as the objective camera's beauty: {error}")
         return None
-    provenance = _provenance(header)
-    recorded = int(provenance.get("spp") or 0) if isinstance(provenance, dict) else 0
+    provenance = header_provenance(header)
+    recorded = int(provenance.get("spp") or 0) if provenance is not None else 0
     reason = None
-    if not isinstance(provenance, dict) or provenance_id(provenance) != buffer_id(buffer):
+    if provenance is None or provenance_id(provenance) != buffer_id(buffer):
         reason = "it was not written with this buffer"
     elif recorded < spp:
         reason = f"it has {recorded} spp, fewer than the {spp} asked for"
@@ -87,13 +86,6 @@ def view_beauty(
         return np.concatenate([reused.rgb, alpha], axis=2), reused.describe()
     image = render_beauty(loaded, sensor, visibility, spp, seed)
     return image, f"path trace at {spp} spp"
-
-
-def _provenance(header: dict[str, Any]) -> Any:
-    try:
-        return json.loads(header[PROVENANCE_ATTRIBUTE])
-    except (KeyError, TypeError, ValueError):
-        return None
 
 
 def _rgb(channels: dict[str, np.ndarray]) -> np.ndarray | None:

@@ -28,7 +28,7 @@ from sensaov_cli.outputs.overwrite import recorded_inputs, refuse_unsafe_outputs
 from sensaov_cli.outputs.png import read_png_text
 from sensaov_cli.outputs.preview_files import read_previews
 from sensaov_cli.outputs.previews import srgb_uint8
-from sensaov_cli.outputs.provenance import PROVENANCE_ATTRIBUTE
+from sensaov_cli.outputs.provenance import header_provenance
 from sensaov_cli.outputs.report_html import (
     CameraSection,
     ObjectiveSection,
@@ -285,10 +285,8 @@ def _primal(path: Path, buf: SensitivityBuffer) -> Picture | None:
     if not path.exists() and not path.is_symlink():  # a FIFO or a device: read_exr refuses it
         return None
     channels, header = read_exr(path)
-    try:
-        recorded = provenance_id(json.loads(header[PROVENANCE_ATTRIBUTE]))
-    except (KeyError, TypeError, ValueError, AttributeError):
-        recorded = None  # no provenance, or not sensaov's: refused below
+    provenance = header_provenance(header)  # None: not sensaov's, refused below
+    recorded = None if provenance is None else provenance_id(provenance)
     check_made_from({"sensaov/buffer_id": recorded}, buf, str(path), remake="sensaov run JOB")
     linear = [channels[c] for c in ("R", "G", "B") if c in channels]
     if len(linear) != 3:

@@ -44,7 +44,7 @@ class LoadedScene:
     resolution: tuple[int, int]
     inspection_sensors: dict[str, Any]  # inspection camera name -> its own sensor
     prepared: PreparedScene  # what was loaded: the text, files, fingerprint, changes
-    # The leaves the last backward pass differentiated and its keys (adjoint.pass_leaves), kept
+    # The leaves the last backward pass differentiated and its keys (leaves.pass_leaves), kept
     # so that the next pass over the same keys skips ``params.update()``; None: make fresh ones.
     held_leaves: tuple[frozenset[str], dict[str, Any]] | None = None
 
