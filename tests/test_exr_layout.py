@@ -223,6 +223,27 @@ def test_nan_is_refused_and_nothing_is_written(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("bits", [0x7C00, 0xFC00, 0x7E00, 0xFFFF])  # +inf, -inf, NaNs
+def test_a_half_display_layer_with_nan_or_inf_is_refused(tmp_path: Path, bits: int) -> None:
+    """Half layers are checked by their exponent bits (a faster path than isfinite): every
+    NaN and infinity is still found, and no finite half is taken for one."""
+    every_half = np.arange(65536, dtype=np.uint16).view(np.float16)
+    assert exr_layout._non_finite(every_half) == np.count_nonzero(~np.isfinite(every_half))
+    colours = np.zeros((HEIGHT, WIDTH, 3), np.float16)
+    colours.view(np.uint16)[2, 3, 1] = bits
+    with pytest.raises(ValueError, match="1 of .* NaN or infinite"):
+        write_layered_exr(
+            tmp_path / "half.exr",
+            width=WIDTH,
+            height=HEIGHT,
+            beauty=None,
+            cryptomattes=[],
+            layers=[SensitivityLayer("m", "p_display", colours, {"kind": "display"})],
+            attributes={},
+        )
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize(
     ("change", "message"),
     [

@@ -109,19 +109,14 @@ def rank_channels(
         index = np.take_along_axis(index, order, axis=-1)
         coverage = np.take_along_axis(coverage, order, axis=-1)
     height, width, present = index.shape
-    rank_ids = np.zeros((height, width, ranks), dtype=np.float32)
-    rank_cov = np.zeros((height, width, ranks), dtype=np.float32)
-    kept = min(present, ranks)
-    rank_ids[..., :kept] = ids[index[..., :kept]]  # index -1 picks the trailing 0.0
-    rank_cov[..., :kept] = coverage[..., :kept]
     channels: dict[str, np.ndarray] = {}
     names_out = channel_names(type_name, ranks)
     for rank in range(2 * layer_count(ranks)):
         id_name, cov_name = names_out[2 * rank], names_out[2 * rank + 1]
-        if rank < ranks:
-            channels[id_name] = np.ascontiguousarray(rank_ids[..., rank])
-            channels[cov_name] = np.ascontiguousarray(rank_cov[..., rank])
-        else:
+        if rank < min(present, ranks):
+            channels[id_name] = ids[index[..., rank]]  # index -1 picks the trailing 0.0
+            channels[cov_name] = np.ascontiguousarray(coverage[..., rank])
+        else:  # padding: ranks asked for beyond those present, and the last layer's odd one
             channels[id_name] = np.zeros((height, width), dtype=np.float32)
             channels[cov_name] = np.zeros((height, width), dtype=np.float32)
     return channels

@@ -30,31 +30,45 @@ DISPLAY_ENCODING = (
 
 def display_metadata(layer: SensitivityLayer, scale: DisplayScale) -> dict[str, str]:
     """What a raw layer and its display layer both record about the picture's scale."""
-    here = clipped_share([signed_pixels(layer.data, layer.metadata.get("kind", ""))], scale.value)
+    return _display_metadata(layer, scale, _signed(layer))
+
+
+def _display_metadata(
+    layer: SensitivityLayer, scale: DisplayScale, values: np.ndarray
+) -> dict[str, str]:
     return {
         "display_scale": repr(scale.value),
         "display_rule": scale.rule(),
         "display_scope": scale.scope,
         "display_cameras": json.dumps(list(scale.cameras)),
-        "display_clipped": repr(here),  # this camera's share of its non-zero pixels
+        # this camera's share of its non-zero pixels
+        "display_clipped": repr(clipped_share([values], scale.value)),
         "display_clipped_all": repr(scale.clipped),  # every camera of the rule, weighted equally
     }
 
 
+def display_background(hit: np.ndarray) -> np.ndarray:
+    """(H, W, 3) half: the display colour of a zero pixel of one camera, whatever the layer.
+
+    Zero is the map's centre at every scale; it fades to black with ``hit``, the camera's
+    per-pixel coverage by any object: the float32 colour times the float32 coverage clipped to
+    [0, 1], rounded to half once. Computed once per camera, shared by its display layers."""
+    centre = diverging_linear(np.zeros(1), 1.0)[0]  # (3,) float32, the same at every scale
+    fade = np.clip(np.asarray(hit, np.float32), 0.0, 1.0)
+    return (fade[..., None] * centre).astype(np.float16)
+
+
 def with_display(
-    layer: SensitivityLayer, scale: DisplayScale, hit: np.ndarray
+    layer: SensitivityLayer, scale: DisplayScale, background: np.ndarray
 ) -> tuple[SensitivityLayer, SensitivityLayer]:
-    """The raw layer with its display metadata, and its display layer (``hit``: the camera's
-    per-pixel coverage by any object, in [0, 1])."""
-    shown = display_metadata(layer, scale)
-    values = signed_pixels(layer.data, layer.metadata.get("kind", ""))
-    colours = diverging_linear(values, scale.value)
-    # Zero pixels fade to black with the coverage; alpha is 1 elsewhere. float32 products of
-    # float32 factors round as the float64 product would (it is exact).
-    faded = colours * np.clip(hit, 0.0, 1.0).astype(np.float32)[..., None]
+    """The raw layer with its display metadata, and its display layer (``background``: the
+    camera's :func:`display_background`, shown where the layer is zero)."""
+    values = _signed(layer)
+    shown = _display_metadata(layer, scale, values)
     # Stored as half: a picture in [0, 1] needs no more (its sRGB 8-bit codes are the same as
     # float32's, tested), and half the bytes make the EXR write ~40 % faster (issue 23).
-    colours = np.where((values == 0)[..., None], faded, colours).astype(np.float16)
+    colours = diverging_linear(values, scale.value, np.float16)
+    np.copyto(colours, background, where=(values == 0)[..., None])
     display_name = layer.pass_name + DISPLAY_SUFFIX
     raw = SensitivityLayer(
         layer.objective,
@@ -77,6 +91,14 @@ def with_display(
         },
     )
     return raw, display
+
+
+def _signed(layer: SensitivityLayer) -> np.ndarray:
+    """The layer's signed value per pixel: a (H, W) layer as it is (float32 to float64 is exact,
+    so runs, zeros and the clipped share come out as from the float64 copy, without it)."""
+    if layer.data.ndim == 2:
+        return np.asarray(layer.data)
+    return signed_pixels(layer.data, layer.metadata.get("kind", ""))
 
 
 def scale_of(

@@ -283,7 +283,7 @@ def _sensitivity_channels(
         )
     if data.dtype != np.float16 or layer.metadata.get("kind") != "display":
         data = _as_float32(data, f"sensitivity layer {layer.original_name!r}")
-    bad = int(np.count_nonzero(~np.isfinite(data)))
+    bad = _non_finite(data)
     if bad:
         raise ExrError(
             f"sensitivity layer {layer.original_name!r} has {bad} of {data.size} values NaN "
@@ -294,6 +294,14 @@ def _sensitivity_channels(
     if data.ndim == 2:
         return {f"{name}.Y": data}
     return {f"{name}.{channel}": data[..., index] for index, channel in enumerate("RGB")}
+
+
+def _non_finite(data: np.ndarray) -> int:
+    """How many values are NaN or infinite. Half (display layers) by its exponent bits, all
+    ones exactly there: numpy's isfinite has no vector loop for half, 10x slower."""
+    if data.dtype == np.float16:
+        return int(np.count_nonzero((data.view(np.uint16) & 0x7C00) == 0x7C00))
+    return int(np.count_nonzero(~np.isfinite(data)))
 
 
 def _as_float32(data: np.ndarray, what: str) -> np.ndarray:

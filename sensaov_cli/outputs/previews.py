@@ -63,12 +63,16 @@ def diverging_rgb(values: np.ndarray, scale: float) -> np.ndarray:
     return np.rint(_diverging_srgb(values, scale)).astype(np.uint8)
 
 
-def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
-    """``values`` as float32 linear Rec. 709 RGB (shape + (3,)): the 8-bit RdBu colours of
-    :func:`diverging_rgb` decoded from sRGB, so that a viewer's sRGB (Standard) display shows
-    exactly the previews' colours. Display layers of EXRs are drawn with it; decoded from the
-    rounded codes, they keep those codes when stored as half (half's rounding moves a code by
-    at most 0.05 of a step, the rounding of an unrounded colour could go either way)."""
+def diverging_linear(
+    values: np.ndarray, scale: float, dtype: type[np.floating] = np.float32
+) -> np.ndarray:
+    """``values`` as linear Rec. 709 RGB (shape + (3,), float32 or ``dtype``): the 8-bit RdBu
+    colours of :func:`diverging_rgb` decoded from sRGB, so that a viewer's sRGB (Standard)
+    display shows exactly the previews' colours. Display layers of EXRs are drawn with it as
+    half floats (``dtype=np.float16``: the float32 colours rounded to half, the same as
+    rounding them afterwards); decoded from the rounded codes, they keep those codes when
+    stored as half (half's rounding moves a code by at most 0.05 of a step, the rounding of an
+    unrounded colour could go either way)."""
     x = np.asarray(values)
     # A painted layer is runs of equal pixels (an object's inside): the colours, power law and
     # all, are computed once per run and repeated, pixel for pixel the same as computed apart.
@@ -78,7 +82,7 @@ def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
     starts = np.flatnonzero(head)
     lengths = np.diff(starts, append=flat.size)
     colours = _linear(np.rint(_diverging_srgb(flat[starts], scale)) / 255.0).astype(np.float32)
-    return np.repeat(colours, lengths, axis=0).reshape(*x.shape, 3)
+    return np.repeat(colours.astype(dtype), lengths, axis=0).reshape(*x.shape, 3)
 
 
 def _diverging_srgb(values: np.ndarray, scale: float) -> np.ndarray:

@@ -22,7 +22,7 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import FingerprintMismatch, SpecError
 from sensaov_cli.outputs.atomic import check_writable
-from sensaov_cli.outputs.display_layers import scale_of, with_display
+from sensaov_cli.outputs.display_layers import display_background, scale_of, with_display
 from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write_layered_exr
 from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
@@ -263,8 +263,8 @@ def _project_camera(
     sensor = loaded.inspection_sensors[camera.name]
     beauty, made = view_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed, reused)
     shown = [(layer, scale_of(scales, camera.name, layer)) for layer in raw.layers]
-    hit = visibility.coverage_hit  # a property that counts every sample: once per view
-    pairs = [with_display(layer, scale, hit) for layer, scale in shown]
+    background = display_background(visibility.coverage_hit)  # once per view, every layer's
+    pairs = [with_display(layer, scale, background) for layer, scale in shown]
     crypto = CryptoLayer(
         "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage
     )

@@ -22,6 +22,7 @@ when the group paints nothing else. :func:`shared_channel_scale` gives the scale
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -117,8 +118,13 @@ def fixed_scale(value: float, pixels: Mapping[str, Sequence[np.ndarray]]) -> Dis
 
 def clipped_share(images: Sequence[np.ndarray], value: float) -> float:
     """The share of ``images``' non-zero pixels above ``value`` (one camera's, in legends)."""
-    magnitudes = _painted(images)
-    return float(np.count_nonzero(magnitudes > value)) / magnitudes.size if magnitudes.size else 0.0
+    painted = above = 0
+    bound = np.float64(value)  # not a Python float: float32 pixels compare in float64, exactly
+    for image in images:
+        magnitude = np.abs(np.asarray(image))  # exact in the image's own type: no copy to float64
+        painted += int(np.count_nonzero(magnitude > 0))
+        above += int(np.count_nonzero(magnitude > bound))
+    return float(above) / painted if painted else 0.0
 
 
 def group_scales(
@@ -197,25 +203,46 @@ def _painted(images: Sequence[np.ndarray]) -> np.ndarray:
     """|v| of every non-zero pixel of ``images``, flattened, float64."""
     if not images:
         return np.zeros(0)
-    flat = np.concatenate([np.abs(np.asarray(image, np.float64)).ravel() for image in images])
-    return flat[flat > 0]
+    parts = []
+    for image in images:
+        magnitude = np.abs(np.asarray(image)).ravel()  # exact in its own type
+        parts.append(magnitude[magnitude > 0].astype(np.float64))  # only the painted widened
+    return np.concatenate(parts)
 
 
 def _weighted_percentile(magnitudes: Sequence[np.ndarray], percentile: float) -> float:
     """The percentile of the union of ``magnitudes``, each array weighted 1/len (equal cameras):
     the smallest value whose cumulative weight reaches ``percentile`` % of the total."""
-    values = np.concatenate(magnitudes)
-    weights = np.concatenate([np.full(m.size, 1.0 / m.size) for m in magnitudes])
     if len({m.size for m in magnitudes}) == 1:
         # Every weight is the same (one camera, or cameras of one size): the cumulative weight
         # does not depend on the order, and the value at one rank needs a selection, not a sort.
-        cumulative = np.cumsum(weights) / len(magnitudes)
+        values = np.concatenate(magnitudes)
+        cumulative = np.cumsum(np.full(values.size, 1.0 / magnitudes[0].size)) / len(magnitudes)
         index = min(int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12)), values.size - 1)
         return float(np.partition(values, index)[index])
-    # Each camera's pixels sorted first (their weights are equal, so the order of their ties
-    # is immaterial): the stable sort of the whole is then a merge of sorted runs, not a sort.
-    values = np.concatenate([np.sort(m) for m in magnitudes])
+    # The cumulative weight is the mean of the cameras' own distribution functions, so its
+    # percentile lies between the smallest and the largest of the cameras' own percentiles
+    # (widened by two ranks each way against rounding): only the values in between are
+    # sorted, a selection per camera finds the bounds, the rest is counted (issue 23).
+    bounds = [_rank_bounds(m, percentile) for m in magnitudes]
+    low, high = min(b[0] for b in bounds), max(b[1] for b in bounds)
+    below = sum(np.count_nonzero(m < low) / m.size for m in magnitudes)
+    inside = [m[(m >= low) & (m <= high)] for m in magnitudes]
+    # Each camera's values sorted first (their weights are equal, so the order of their ties is
+    # immaterial): the stable sort of the whole is then a merge of sorted runs, not a sort.
+    values = np.concatenate([np.sort(m) for m in inside])
+    weights = np.concatenate(
+        [np.full(m.size, 1.0 / whole.size) for m, whole in zip(inside, magnitudes, strict=True)]
+    )
     order = np.argsort(values, kind="stable")
-    cumulative = np.cumsum(weights[order]) / len(magnitudes)
+    cumulative = (below + np.cumsum(weights[order])) / len(magnitudes)
     index = int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12))
     return float(values[order][min(index, values.size - 1)])
+
+
+def _rank_bounds(magnitude: np.ndarray, percentile: float) -> tuple[float, float]:
+    """Two values of one camera's pixels that bracket its own percentile by two ranks each way."""
+    rank = math.ceil(percentile / 100.0 * magnitude.size) - 1
+    low, high = max(rank - 2, 0), min(rank + 2, magnitude.size - 1)
+    parted = np.partition(magnitude, (low, high))
+    return float(parted[low]), float(parted[high])
