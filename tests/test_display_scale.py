@@ -19,7 +19,12 @@ import yaml
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import per_object
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.outputs.previews import diverging_linear, diverging_rgb, srgb_uint8
+from sensaov_cli.outputs.previews import (
+    diverging_linear,
+    diverging_linear_planes,
+    diverging_rgb,
+    srgb_uint8,
+)
 from sensaov_cli.spec.job import ChannelSpec
 from sensaov_cli.views.channels import channel_values
 from sensaov_cli.views.coverage import VisibilityPass, histogram, ranked
@@ -139,6 +144,11 @@ def test_colours_of_runs_of_equal_pixels_are_each_pixels_own() -> None:
         )
         assert np.array_equal(drawn.reshape(-1, 3), expected)
         assert np.array_equal(diverging_linear(image, scale).reshape(-1, 3), alone)
+        planes = diverging_linear_planes(image, scale, np.float16)  # display layers' form
+        assert planes.shape == (3, *image.shape) and all(p.flags.c_contiguous for p in planes)
+        assert np.array_equal(
+            planes.transpose(1, 2, 0), alone.astype(np.float16).reshape(drawn.shape)
+        )
 
 
 def test_display_colours_stored_as_half_are_the_previews_8_bit_colours() -> None:

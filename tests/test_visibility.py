@@ -7,7 +7,14 @@ from types import ModuleType
 import numpy as np
 
 from sensaov_cli.render.visibility import film_positions
-from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass, histogram, ranked
+from sensaov_cli.views.coverage import (
+    BACKGROUND,
+    Coverage,
+    VisibilityPass,
+    histogram,
+    pixel_order,
+    ranked,
+)
 
 B = BACKGROUND
 
@@ -63,6 +70,43 @@ def test_regroup_merges_objects_into_their_groups() -> None:
     index, amount = ranked(grouped, (2, 2), 4, ranks=2)
     assert index[0, 1].tolist() == [0, B] and amount[0, 1].tolist() == [0.75, 0.0]
     assert index[1, 1].tolist() == [0, 1] and amount[1, 1].tolist() == [0.5, 0.5]
+
+
+def test_coverage_orders_and_merges_as_the_plain_sorts_did() -> None:
+    """Histogram, regroup and ranks use one stable sort of a combined key and run starts
+    (issue 23) where they used lexsort, unique and searchsorted: on random sample ids (ties,
+    background, 1 to 40 objects) the triplets and ranks are those of the plain versions, and
+    a key too wide for 63 bits takes the lexsort."""
+    rng = np.random.default_rng(3)
+
+    def plain_regroup(cov: Coverage, group_of: np.ndarray) -> Coverage:
+        groups = int(group_of.max()) + 1
+        keys, inverse = np.unique(cov.pixel * groups + group_of[cov.obj], return_inverse=True)
+        counts = np.bincount(inverse, weights=cov.count).astype(np.int32)
+        pixel, group = keys // groups, (keys % groups).astype(np.int32)
+        order = np.lexsort((group, -counts, pixel))
+        return Coverage(pixel[order], group[order], counts[order])
+
+    for objects in (1, 3, 40):
+        samples = rng.integers(-1, objects, size=(500, 16)).astype(np.int32)
+        cov = histogram(samples)
+        flat = np.sort(samples, axis=1)
+        for row in (0, 7, 499):  # every (pixel, object) count, most covered first
+            ids, counts = np.unique(flat[row][flat[row] >= 0], return_counts=True)
+            expected = sorted(zip(-counts, ids, strict=True))
+            at = cov.pixel == row
+            assert list(zip(-cov.count[at], cov.obj[at], strict=True)) == expected
+        group_of = rng.integers(0, max(1, objects // 2), size=objects).astype(np.int32)
+        ours, plain = cov.regroup(group_of), plain_regroup(cov, group_of)
+        for name in ("pixel", "obj", "count"):
+            assert np.array_equal(getattr(ours, name), getattr(plain, name))
+        index, amount = ranked(cov, (20, 25), 16, ranks=6)
+        first = np.searchsorted(cov.pixel, cov.pixel, side="left")
+        rank = np.arange(len(cov.pixel)) - first
+        keep = rank < 6
+        assert np.array_equal(index.reshape(-1, 6)[cov.pixel[keep], rank[keep]], cov.obj[keep])
+    wide = np.array([2**40, 5, 2**40]), np.array([1, 3, 2]), np.array([7, 2**30, 9])
+    assert pixel_order(*wide).tolist() == np.lexsort((wide[2], -wide[1], wide[0])).tolist()
 
 
 def test_traced_uvs_lie_on_hit_surfaces(mi: ModuleType, job_writer) -> None:  # noqa: ANN001

@@ -18,7 +18,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
-from sensaov_cli.outputs.previews import diverging_linear
+from sensaov_cli.outputs.previews import diverging_linear, diverging_linear_planes
 from sensaov_cli.views.display_scale import DisplayScale, clipped_share, signed_pixels
 
 DISPLAY_SUFFIX = "_display"
@@ -48,14 +48,13 @@ def _display_metadata(
 
 
 def display_background(hit: np.ndarray) -> np.ndarray:
-    """(H, W, 3) half: the display colour of a zero pixel of one camera, whatever the layer.
-
-    Zero is the map's centre at every scale; it fades to black with ``hit``, the camera's
-    per-pixel coverage by any object: the float32 colour times the float32 coverage clipped to
-    [0, 1], rounded to half once. Computed once per camera, shared by its display layers."""
+    """(3, H, W) half planes: the display colour of a zero pixel of one camera, whatever the
+    layer. Zero is the map's centre at every scale; it fades to black with ``hit``, the
+    camera's per-pixel coverage by any object: the float32 colour times the float32 coverage
+    clipped to [0, 1], rounded to half once. Computed once per camera, shared by its layers."""
     centre = diverging_linear(np.zeros(1), 1.0)[0]  # (3,) float32, the same at every scale
     fade = np.clip(np.asarray(hit, np.float32), 0.0, 1.0)
-    return (fade[..., None] * centre).astype(np.float16)
+    return (centre[:, None, None] * fade[None]).astype(np.float16)
 
 
 def with_display(
@@ -66,9 +65,11 @@ def with_display(
     values = _signed(layer)
     shown = _display_metadata(layer, scale, values)
     # Stored as half: a picture in [0, 1] needs no more (its sRGB 8-bit codes are the same as
-    # float32's, tested), and half the bytes make the EXR write ~40 % faster (issue 23).
-    colours = diverging_linear(values, scale.value, np.float16)
-    np.copyto(colours, background, where=(values == 0)[..., None])
+    # float32's, tested), and half the bytes make the EXR write ~40 % faster (issue 23). Drawn
+    # as planes, so each EXR channel is contiguous as it is; the layer sees (H, W, 3).
+    planes = diverging_linear_planes(values, scale.value, np.float16)
+    np.copyto(planes, background, where=(values == 0)[None])
+    colours = planes.transpose(1, 2, 0)
     display_name = layer.pass_name + DISPLAY_SUFFIX
     raw = SensitivityLayer(
         layer.objective,

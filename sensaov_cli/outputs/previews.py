@@ -74,15 +74,35 @@ def diverging_linear(
     stored as half (half's rounding moves a code by at most 0.05 of a step, the rounding of an
     unrounded colour could go either way)."""
     x = np.asarray(values)
-    # A painted layer is runs of equal pixels (an object's inside): the colours, power law and
-    # all, are computed once per run and repeated, pixel for pixel the same as computed apart.
+    colours, lengths = _run_colours(x, scale)
+    return np.repeat(colours.astype(dtype), lengths, axis=0).reshape(*x.shape, 3)
+
+
+def diverging_linear_planes(
+    values: np.ndarray, scale: float, dtype: type[np.floating] = np.float32
+) -> np.ndarray:
+    """:func:`diverging_linear` as three contiguous planes, (3,) + shape: R, G, B each ready
+    for an EXR channel without the copy a strided slice of (..., 3) needs."""
+    x = np.asarray(values)
+    colours, lengths = _run_colours(x, scale)
+    colours = colours.astype(dtype)
+    planes = np.empty((3, x.size), dtype)
+    for channel in range(3):
+        planes[channel] = np.repeat(colours[:, channel], lengths)
+    return planes.reshape(3, *x.shape)
+
+
+def _run_colours(x: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """The float32 colours of each run of equal values of ``x`` (flattened) and the runs'
+    lengths. A painted layer is runs of equal pixels (an object's inside): the colours, power
+    law and all, are computed once per run, pixel for pixel the same as computed apart."""
     flat = x.reshape(-1)
     head = np.ones(flat.size, dtype=bool)
     np.not_equal(flat[1:], flat[:-1], out=head[1:])
     starts = np.flatnonzero(head)
     lengths = np.diff(starts, append=flat.size)
     colours = _linear(np.rint(_diverging_srgb(flat[starts], scale)) / 255.0).astype(np.float32)
-    return np.repeat(colours.astype(dtype), lengths, axis=0).reshape(*x.shape, 3)
+    return colours, lengths
 
 
 def _diverging_srgb(values: np.ndarray, scale: float) -> np.ndarray:

