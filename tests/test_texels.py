@@ -110,6 +110,32 @@ def test_footprint_painting_equals_per_sample_lookups() -> None:
     assert np.allclose(painted, expected, atol=1e-5)
 
 
+@pytest.mark.parametrize("wrap", ["repeat", "mirror", "clamp"])
+@pytest.mark.parametrize("kind", ["bilinear", "nearest"])
+def test_footprint_merges_a_pixels_samples_in_one_cell(kind: str, wrap: str) -> None:
+    """Samples of a pixel that read one texel cell become one entry per corner (issue 23:
+    texel indices per run, not per sample), and painting still equals per-sample lookups,
+    UVs past the edges (wrapped) and six owners (the gather, not the comparisons) included."""
+    rng = np.random.default_rng(5)
+    texels = rng.normal(size=(4, 5, 3))
+    # 6 x 7 pixels of 8 samples, each pixel's UVs jittered inside one small patch
+    centre = rng.uniform(-0.6, 1.6, (6, 7, 1, 2))
+    sample_uv = centre + rng.uniform(-0.01, 0.01, (6, 7, 8, 2))
+    sampling = TextureSampling(kind, wrap)
+    for owners in (np.array([0]), np.arange(6)):
+        sample_object = np.where(rng.random((6, 7, 8)) < 0.8, owners[-1], -1)
+        factor = np.linspace(1.0, 2.0, len(owners))
+        seen_by = footprint((4, 5), sampling, sample_uv, sample_object, owners)
+        corners = 4 if kind == "bilinear" else 1
+        hits = int(np.count_nonzero(sample_object >= 0))
+        assert seen_by.pixel.size < hits * corners / 2  # merged: most pixels are one run
+        per_sample = lookup(texels, sample_uv.reshape(-1, 2), sampling).reshape(6, 7, 8, 3)
+        weight = np.where(sample_object >= 0, factor[-1], 0.0)
+        expected = (per_sample * weight[..., None]).mean(axis=2)
+        painted = seen_by.paint(texels.reshape(20, 3), factor)
+        assert np.allclose(painted, expected, atol=1e-5)
+
+
 def test_the_job_knows_texel_channels_and_refuses_their_keys_elsewhere(tmp_path: Path) -> None:
     from sensaov_cli.errors import SpecError
     from sensaov_cli.spec.load import load_job

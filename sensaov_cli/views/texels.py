@@ -56,6 +56,16 @@ def texel_weights(
 
     k = 4 for bilinear, 1 for nearest; the weights of each hit sum to 1.
     """
+    col, row, fx, fy = _cells(uv, size, sampling)
+    cells = _nearest_index if fx is None else _corner_index
+    return cells(col, row, size, sampling.wrap), _corner_weights(fx, fy, len(col))
+
+
+def _cells(
+    uv: np.ndarray, size: tuple[int, int], sampling: TextureSampling
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Each UV's texel cell before wrapping (column, row: int64) and, for bilinear, its place
+    in the cell (fx, fy); a cell is the texel (nearest) or the four whose centres surround it."""
     height, width = size
     # float32 UVs stay float32 (Mitsuba computes its lookup in float32 too): half the traffic.
     uv = np.asarray(uv).reshape(-1, 2)
@@ -66,22 +76,40 @@ def texel_weights(
     # Written out: numpy's matmul with an inner size of 2 is ~100x slower on millions of rows.
     x, y = (a * u + b * v + c) * width, (d * u + e * v + f) * height
     if sampling.filter == "nearest":
-        col = wrap_index(np.floor(x).astype(np.int64), width, sampling.wrap)
-        row = wrap_index(np.floor(y).astype(np.int64), height, sampling.wrap)
-        return (row * width + col)[:, None], np.ones((len(uv), 1))
+        return np.floor(x).astype(np.int64), np.floor(y).astype(np.int64), None, None
     x, y = x - 0.5, y - 0.5
     x0, y0 = np.floor(x), np.floor(y)
-    fx, fy = x - x0, y - y0
-    col0, row0 = x0.astype(np.int64), y0.astype(np.int64)
-    c0, c1 = wrap_index(col0, width, sampling.wrap), wrap_index(col0 + 1, width, sampling.wrap)
-    r0, r1 = wrap_index(row0, height, sampling.wrap), wrap_index(row0 + 1, height, sampling.wrap)
-    r0, r1 = r0 * width, r1 * width
-    index = np.empty((len(uv), 4), np.int64)  # corners (r0,c0), (r0,c1), (r1,c0), (r1,c1)
+    return x0.astype(np.int64), y0.astype(np.int64), x - x0, y - y0
+
+
+def _corner_index(col: np.ndarray, row: np.ndarray, size: tuple[int, int], wrap: str) -> np.ndarray:
+    """(N, 4) flat texel indices of the bilinear cells at (``col``, ``row``), wrapped as
+    Mitsuba wraps: corners (r0,c0), (r0,c1), (r1,c0), (r1,c1)."""
+    height, width = size
+    c0, c1 = wrap_index(col, width, wrap), wrap_index(col + 1, width, wrap)
+    r0, r1 = wrap_index(row, height, wrap) * width, wrap_index(row + 1, height, wrap) * width
+    index = np.empty((len(col), 4), np.int64)
     index[:, 0], index[:, 1], index[:, 2], index[:, 3] = r0 + c0, r0 + c1, r1 + c0, r1 + c1
+    return index
+
+
+def _nearest_index(
+    col: np.ndarray, row: np.ndarray, size: tuple[int, int], wrap: str
+) -> np.ndarray:
+    """(N, 1) flat indices of the texels at (``col``, ``row``), wrapped."""
+    height, width = size
+    return (wrap_index(row, height, wrap) * width + wrap_index(col, width, wrap))[:, None]
+
+
+def _corner_weights(fx: np.ndarray | None, fy: np.ndarray | None, count: int) -> np.ndarray:
+    """(N, k) lookup weights: 1 for nearest, the four bilinear products in ``_corner_index``'s
+    order otherwise."""
+    if fx is None or fy is None:
+        return np.ones((count, 1))
     gx, gy = 1 - fx, 1 - fy
-    weight = np.empty((len(uv), 4), fx.dtype)
+    weight = np.empty((count, 4), fx.dtype)
     weight[:, 0], weight[:, 1], weight[:, 2], weight[:, 3] = gy * gx, gy * fx, fy * gx, fy * fx
-    return index, weight
+    return weight
 
 
 def lookup(texels: np.ndarray, uv: np.ndarray, sampling: TextureSampling) -> np.ndarray:
@@ -136,40 +164,46 @@ def footprint(
     objects = sample_object.reshape(-1)
     position = np.full(max(int(objects.max(initial=0)), int(np.max(owners, initial=0))) + 2, -1)
     position[np.asarray(owners, np.int64)] = np.arange(len(owners))
-    hits = np.flatnonzero(position[objects] >= 0)  # background (-1) reads the last entry: -1
+    hits = np.flatnonzero(_owned(objects, np.asarray(owners, np.int64), position))
     texels = size[0] * size[1]
     if not hits.size:
         empty = np.zeros(0, np.int64)
         return Footprint((height, width), texels, empty, empty, empty, np.zeros(0))
-    index, weight = texel_weights(sample_uv.reshape(-1, 2)[hits], size, sampling)
+    col, row, fx, fy = _cells(sample_uv.reshape(-1, 2)[hits], size, sampling)
     owner = position[objects[hits]]
-    # Merge runs of samples of a pixel that read the same texels (the common case: a pixel is
-    # smaller than a texel), summing their corner weights. Samples come in pixel order, so a
-    # run never spans two pixels; no sort is needed, and a pair that repeats after another
-    # group stays a second entry (paint sums entries, so the result is the same). A group is
-    # keyed by its first texel, how its second row and column follow from it (``_step``) and
-    # its owner.
-    corners = index.shape[1]
-    key = (hits // spp) * texels + index[:, 0]
-    if corners == 4:
-        row, col = np.divmod(index[:, [0, 3]], size[1])  # first and last texel's row, column
-        key = (key * 3 + _step(row[:, 0], row[:, 1])) * 3 + _step(col[:, 0], col[:, 1])
-    key = key * len(owners) + owner
-    starts = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1])))
+    pixel = hits // spp
+    # Merge runs of samples of a pixel that read the same cell with the same owner (the
+    # common case: a pixel is smaller than a texel), summing their corner weights. Samples
+    # come in pixel order, so a run never spans two pixels; no sort is needed, and a cell that
+    # repeats after another stays a second entry (paint sums entries: the same result). The
+    # cell before wrapping fixes every corner, so texel indices are computed per run, not per
+    # sample (issue 23).
+    head = np.zeros(hits.size, dtype=bool)
+    head[0] = True
+    for part in (pixel, row, col, owner):
+        head[1:] |= part[1:] != part[:-1]
+    starts = np.flatnonzero(head)
+    weight = _corner_weights(fx, fy, hits.size)
     summed = np.add.reduceat(weight, starts, axis=0) / spp  # (G, corners)
-    first = starts
-    pixel = np.repeat(hits[first] // spp, corners)
+    cells = _nearest_index if fx is None else _corner_index
+    index = cells(col[starts], row[starts], size, sampling.wrap)
+    corners = index.shape[1]
     return Footprint(
         (height, width),
         texels,
-        pixel,
-        index[first].reshape(-1),
-        np.repeat(owner[first], corners),
+        np.repeat(pixel[starts], corners),
+        index.reshape(-1),
+        np.repeat(owner[starts], corners),
         summed.reshape(-1),
     )
 
 
-def _step(first: np.ndarray, second: np.ndarray) -> np.ndarray:
-    """0 when ``second`` is the row (column) after ``first``, 1 when the same one (clamp and
-    mirror at an edge, or a texture one texel wide), 2 when it wrapped round to 0 (repeat)."""
-    return np.where(second == first + 1, 0, np.where(second == first, 1, 2))
+def _owned(objects: np.ndarray, owners: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """Which samples hit one of ``owners``: a comparison per owner for a few (a texture is
+    usually on one or two objects: 8x faster than the gather), else through ``position``."""
+    if 0 < len(owners) <= 4:
+        mask = objects == owners[0]
+        for owner in owners[1:]:
+            mask |= objects == owner
+        return mask
+    return position[objects] >= 0  # background (-1) reads the last entry: -1
