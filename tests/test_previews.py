@@ -186,3 +186,35 @@ def test_failed_png_write_leaves_the_old_file_and_no_temporary(tmp_path: Path) -
     with pytest.raises(ValueError, match=r"\(H, W, 3\)"):
         write_png(path, np.zeros((4, 4, 4), dtype=np.uint8))
     assert os.listdir(tmp_path) == ["cam.png"] and path.read_bytes() == b"old"
+
+
+def test_a_contact_sheet_names_what_its_tiles_cannot_show(tmp_path: Path) -> None:
+    """The per-objective sheet repeats what the single previews say a tile leaves out: objects
+    with a sensitivity that this camera does not see, and a failed duality check."""
+    from sensaov_cli.outputs.contact_sheets import write_previews
+    from sensaov_cli.outputs.layered_exr import SensitivityLayer
+    from sensaov_cli.views.display_scale import robust_scale
+
+    data = np.linspace(-1, 1, 16, dtype=np.float32).reshape(4, 4)
+    scale = robust_scale({"cam": [data]})
+    meta = {"encoding": "linear", "unverified": "[]"}
+    layers = [
+        (SensitivityLayer("m", "objects", data, {**meta, "invisible": '["light", "sky"]'}), scale),
+        (SensitivityLayer("m", "types_radiance", data, {**meta, "invisible": '["light"]'}), scale),
+        (SensitivityLayer("m", "walls", data, {**meta, "duality": "disagrees"}), scale),
+        (SensitivityLayer("other", "objects", data, meta), scale),
+    ]
+
+    class Visibility:
+        coverage_hit = np.ones((4, 4), np.float32)
+
+    entries = write_previews(tmp_path, "cam", layers, None, Visibility(), {})  # type: ignore[arg-type]
+    sheets = {entry.objective: entry for entry in entries if entry.kind == "sheet"}
+    notes = " | ".join(sheets["m"].notes)
+    assert (
+        "not in this view, so no tile paints them: light (objects, types_radiance); sky (objects)"
+        in notes
+    )
+    assert "duality check FAILED, do not trust (marked !): walls" in notes
+    assert not any("not in this view" in n or "FAILED" in n for n in sheets["other"].notes)
+    assert (tmp_path / "cam_m.png").is_file()

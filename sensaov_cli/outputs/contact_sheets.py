@@ -217,6 +217,21 @@ def _sheet_notes(
     ]
     if any(layer.metadata.get("part") == "untrusted" for layer, _ in mine):
         notes.append(UNTRUSTED_NOTE)
+    # What the tiles cannot show, as their single previews say it: a tile is never read as
+    # "no sensitivity" where the objects that carry it are off-frame or the check failed.
+    unseen: dict[str, list[str]] = defaultdict(list)
+    for layer, _ in mine:
+        for name in json.loads(layer.metadata.get("invisible", "[]")):
+            unseen[name].append(layer.pass_name)
+    if unseen:
+        notes.append(
+            "not in this view, so no tile paints them: "
+            + "; ".join(f"{name} ({', '.join(passes)})" for name, passes in sorted(unseen.items()))
+        )
+    failed = [layer.pass_name for layer, _ in mine
+              if layer.metadata.get("duality", "agrees") != "agrees"]  # fmt: skip
+    if failed:
+        notes.append("duality check FAILED, do not trust (marked !): " + ", ".join(failed))
     return notes
 
 
