@@ -95,10 +95,6 @@ def with_display(
 
 
 def _signed(layer: SensitivityLayer) -> np.ndarray:
-    """The layer's signed value per pixel: a (H, W) layer as it is (float32 to float64 is exact,
-    so runs, zeros and the clipped share come out as from the float64 copy, without it)."""
-    if layer.data.ndim == 2:
-        return np.asarray(layer.data)
     return signed_pixels(layer.data, layer.metadata.get("kind", ""))
 
 

@@ -73,10 +73,11 @@ class DisplayScale:
 
 
 def signed_pixels(data: np.ndarray, kind: str = "") -> np.ndarray:
-    """One signed value per pixel of a layer: (H, W) as is; an RGB forward or transport image
-    by its Rec. 709 luminance; an RGB texel field by its components' sum (scaling them all)."""
+    """One signed value per pixel of a layer: (H, W) as is (its own type, not copied: float32
+    compares, sorts and widens exactly); an RGB forward or transport image by its Rec. 709
+    luminance; an RGB texel field by its components' sum (scaling them all), in float64."""
     if data.ndim == 2:
-        return np.asarray(data, np.float64)
+        return np.asarray(data)
     rgb = np.asarray(data[..., :3], np.float64)
     return rgb @ np.array(REC709_LUMA) if kind in ("forward", "transport") else rgb.sum(axis=2)
 
