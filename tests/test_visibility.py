@@ -120,4 +120,12 @@ def test_traced_uvs_lie_on_hit_surfaces(mi: ModuleType, job_writer) -> None:  # 
     covered = vis.coverage_hit == 1.0
     uv = vis.sample_uv[covered]
     assert np.all((uv >= 0) & (uv <= 1)) and uv.std() > 0.1  # real surface coordinates
+    # A sample on a shape the buffer does not list is background too, UV 0 (zeroed in the
+    # kernel since issue 23): trace as if the buffer lacked the most covered object.
+    most = int(np.bincount(vis.sample_object[vis.sample_object >= 0]).argmax())
+    fewer = tuple(name if i != most else "not-in-the-scene" for i, name in enumerate(vis.objects))
+    partial = trace(mi, loaded.scene, loaded.sensor, fewer, 4, with_uv=True)
+    assert partial.sample_uv is not None and partial.sample_object is not None
+    unlisted = (partial.sample_object == BACKGROUND) & (vis.sample_object == most)
+    assert unlisted.any() and not np.any(partial.sample_uv[unlisted])
     assert trace(mi, loaded.scene, loaded.sensor, loaded.objects, 4).sample_uv is None

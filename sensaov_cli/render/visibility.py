@@ -82,7 +82,6 @@ def trace(
     rank_index, rank_coverage = ranked(coverage, (height, width), spp)
     sample_uv = sample_object = None
     if uv is not None:
-        uv[samples == BACKGROUND] = 0.0
         sample_uv = uv.reshape(height, width, spp, 2)
         sample_object = samples.reshape(height, width, spp)
     return VisibilityPass(
@@ -123,10 +122,13 @@ def _trace_span(
         hit = si.is_valid() & (registry < dr.width(table))
         index = dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)
         if uv is not None:  # one kernel for both: converting them apart would trace twice
-            dr.eval(index, si.uv)
+            # 0 where nothing is hit, selected in the kernel: a numpy mask over every sample
+            # afterwards cost more than the select (issue 23).
+            hit_uv = dr.select(index != BACKGROUND, si.uv, mi.Point2f(0.0, 0.0))
+            dr.eval(index, hit_uv)
         samples[:] = np.array(index, dtype=np.int32)
         if uv is not None:
-            uv[:, 0], uv[:, 1] = np.array(si.uv.x), np.array(si.uv.y)
+            uv[:, 0], uv[:, 1] = np.array(hit_uv.x), np.array(hit_uv.y)
 
 
 def object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> np.ndarray:
