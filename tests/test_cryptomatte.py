@@ -276,3 +276,20 @@ def test_coverage_sums_to_one_and_ranks_are_sorted(
     np.testing.assert_allclose(total[hit] + background[hit], 1.0, atol=1e-6)
     np.testing.assert_allclose(total[background == 0], 1.0, atol=1e-6)
     assert (np.diff(np.stack(rank_coverages), axis=0) <= 0).all()
+
+
+def test_ranks_a_visibility_pass_builds_need_no_reordering() -> None:
+    """``ordered=True`` (what project passes for a visibility pass's ranks) skips the zeroing,
+    check and sort: on ranks from random sample ids the channels are bit for bit those of the
+    checked path, and the check itself agrees they were in order."""
+    from sensaov_cli.views.coverage import histogram, ranked
+
+    rng = np.random.default_rng(8)
+    names = [f"object_{i}" for i in range(12)]
+    samples = rng.integers(-1, len(names), size=(30 * 40, 16)).astype(np.int32)
+    index, coverage = ranked(histogram(samples), (30, 40), 16, ranks=6)
+    assert cryptomatte._in_rank_order(coverage, index < 0)
+    checked = cryptomatte.rank_channels("CryptoObject", names, index, coverage)
+    trusted = cryptomatte.rank_channels("CryptoObject", names, index, coverage, ordered=True)
+    assert checked.keys() == trusted.keys()
+    assert all(np.array_equal(checked[k], trusted[k]) for k in checked)

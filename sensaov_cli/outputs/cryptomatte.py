@@ -87,6 +87,8 @@ def rank_channels(
     rank_index: np.ndarray,
     rank_coverage: np.ndarray,
     ranks: int = DEFAULT_RANKS,
+    *,
+    ordered: bool = False,
 ) -> dict[str, np.ndarray]:
     """Cryptomatte channels (name -> H x W float32) from per-pixel ranked coverage.
 
@@ -94,20 +96,23 @@ def rank_channels(
     is the coverage of that rank. Ranks are (stably) re-sorted by coverage, largest first, with
     empty ranks last; then the first ``ranks`` are written, padded with ID 0 / coverage 0, into
     a fixed count of ``ceil(ranks / 2)`` layers, so a sequence keeps the same channels on every
-    frame. Coverage beyond ``ranks`` is dropped, as in every Cryptomatte writer.
+    frame. Coverage beyond ``ranks`` is dropped, as in every Cryptomatte writer. ``ordered``
+    promises the ranks are in that order already, empty ones last at coverage 0, as a
+    visibility pass builds them: nothing is then zeroed, checked or sorted (issue 23).
     """
     _check_type_name(type_name)
     if ranks < 1:
         raise CryptomatteError(f"ranks must be at least 1, got {ranks}")
     index, coverage = _checked_ranks(names, rank_index, rank_coverage)
     ids = np.array([id_float(name) for name in names] + [np.float32(0.0)], dtype=np.float32)
-    empty = index < 0
-    coverage = np.where(empty, np.float32(0.0), coverage)
-    if not _in_rank_order(coverage, empty):  # a visibility pass's ranks always are
-        # Empty ranks sort last whatever their coverage; among the rest, largest coverage first.
-        order = np.lexsort((-coverage, empty), axis=-1)
-        index = np.take_along_axis(index, order, axis=-1)
-        coverage = np.take_along_axis(coverage, order, axis=-1)
+    if not ordered:
+        empty = index < 0
+        coverage = np.where(empty, np.float32(0.0), coverage)
+        if not _in_rank_order(coverage, empty):
+            # Empty ranks sort last whatever their coverage; among the rest, largest first.
+            order = np.lexsort((-coverage, empty), axis=-1)
+            index = np.take_along_axis(index, order, axis=-1)
+            coverage = np.take_along_axis(coverage, order, axis=-1)
     height, width, present = index.shape
     channels: dict[str, np.ndarray] = {}
     names_out = channel_names(type_name, ranks)

@@ -67,6 +67,7 @@ class CryptoLayer:
     rank_index: np.ndarray
     rank_coverage: np.ndarray
     ranks: int = cryptomatte.DEFAULT_RANKS
+    ordered: bool = False  # ranks already in order, empty last at 0 (a visibility pass's)
 
 
 @dataclass(frozen=True, eq=False)
@@ -268,8 +269,9 @@ def _crypto_channels(crypto: CryptoLayer, shape: tuple[int, int]) -> dict[str, n
             hint="compute visibility at the file's resolution",
         )
     return cryptomatte.rank_channels(
-        crypto.type_name, crypto.names, index, crypto.rank_coverage, crypto.ranks
-    )
+        crypto.type_name, crypto.names, index, crypto.rank_coverage, crypto.ranks,
+        ordered=crypto.ordered,
+    )  # fmt: skip
 
 
 def _sensitivity_channels(

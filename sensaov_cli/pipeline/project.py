@@ -266,8 +266,9 @@ def _project_camera(
     background = display_background(visibility.coverage_hit)  # once per view, every layer's
     pairs = [with_display(layer, scale, background) for layer, scale in shown]
     crypto = CryptoLayer(
-        "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage
-    )
+        "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage,
+        ordered=True,  # coverage.ranked builds them in Cryptomatte's order
+    )  # fmt: skip
     material = _material_cryptomatte(visibility, loaded.prepared.materials)
     path = job.output / f"{camera.name}.exr"
     made_from = stamp(buffer, job.job_hash())
@@ -321,7 +322,7 @@ def _material_cryptomatte(visibility: VisibilityPass, materials: dict[str, str])
     )
     coverage = visibility.coverage.regroup(group_of)
     index, amount = ranked(coverage, (visibility.height, visibility.width), visibility.spp)
-    return CryptoLayer("CryptoMaterial", tuple(names), index, amount)
+    return CryptoLayer("CryptoMaterial", tuple(names), index, amount, ordered=True)
 
 
 def _layer(
