@@ -58,10 +58,12 @@ def texel_cost(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figure
         )
     )
     figure.why_missed = (
-        "The extra time is the texture's footprint in the view (lookup weights for every "
-        "visibility sample on the texture's owners, in numpy), the layered EXR's extra "
-        "channels and the UVs out of the visibility kernel (docs/texels.md, 'Cost'). Computing "
-        "the texel indices and weights inside the visibility kernel would remove the first."
+        "The extra time (docs/texels.md, 'Cost') is the layered EXR's texel layers and their "
+        "display layers (the largest part), the UVs out of the visibility kernel, the "
+        "texture's footprint in the view (texel indices per run of a pixel's samples in one "
+        "cell since issue 23, no longer per sample), the three panels per objective and the "
+        "texture files. The view without texels got cheaper in issue 23 as well, so the ratio "
+        "moved less than the extra seconds did."
     )
     log("figure 12: cost done")
     for spp, resolution in NOISE_CASES if not s.quick else ((4, 32),):

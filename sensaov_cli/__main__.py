@@ -6,6 +6,6 @@ from sensaov_cli import interrupts
 # and acted on by the command (exit 130/143, one line), never a traceback from inside an import.
 interrupts.install(raising=False)
 
-from sensaov_cli.cli import main  # noqa: E402 - after the signal handlers, on purpose
+from sensaov_cli.cli import console  # noqa: E402 - after the signal handlers, on purpose
 
-main(prog_name="sensaov")
+console()

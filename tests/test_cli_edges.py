@@ -45,3 +45,30 @@ def test_a_result_stdout_cannot_take_is_blamed_on_stdout(arguments: list[str]) -
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1, done.stderr  # no second complaint from the interpreter's exit
     assert lines[0].startswith("sensaov: error: stdout: cannot write the result: disk full")
+
+
+@pytest.mark.parametrize(("arguments", "code"), [(["schema"], 0), (["rank", "missing.npz"], 2)])
+def test_the_executable_ends_when_its_command_does(
+    arguments: list[str], code: int, tmp_path: Path
+) -> None:
+    """After a command, the executable flushes and exits with its code, without the
+    interpreter's finalisation (0.15 s of Dr.Jit and module teardown in which a farm's SIGTERM
+    found Python's handlers already gone and killed a finished process, status -15): an
+    atexit callback, which finalisation would run, never runs; every line still arrives."""
+    marker = tmp_path / "finalised"
+    script = (
+        "import atexit, pathlib\n"
+        f"atexit.register(pathlib.Path({str(marker)!r}).write_text, 'yes')\n"
+        "from sensaov_cli.cli import console\n"
+        "console()\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, *arguments],
+        capture_output=True, text=True, cwd=tmp_path, timeout=120, check=False,
+    )  # fmt: skip
+    assert done.returncode == code, done.stderr
+    assert not marker.exists()
+    if code == 0:
+        assert done.stdout.rstrip().endswith("}")  # the whole JSON schema, flushed
+    else:
+        assert done.stderr.count("\n") == 1 and "missing.npz" in done.stderr
