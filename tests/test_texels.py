@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sensaov_cli.views.pooling import Pool, default_pool, pool_field, seed_noise
-from sensaov_cli.views.texels import TextureSampling, footprint, lookup
+from sensaov_cli.views.texels import TextureSampling, footprint, lookup, texel_weights
 
 
 def _rotation(degrees: float, scale: tuple[float, float], shift: tuple[float, float]) -> np.ndarray:
@@ -134,6 +134,35 @@ def test_footprint_merges_a_pixels_samples_in_one_cell(kind: str, wrap: str) -> 
         expected = (per_sample * weight[..., None]).mean(axis=2)
         painted = seen_by.paint(texels.reshape(20, 3), factor)
         assert np.allclose(painted, expected, atol=1e-5)
+
+
+@pytest.mark.parametrize("wrap", ["repeat", "mirror", "clamp"])
+@pytest.mark.parametrize("size", [(6, 7), (1, 5), (4, 1)])
+def test_footprint_entries_are_merged_on_the_texels_a_seam_included(
+    wrap: str, size: tuple[int, int]
+) -> None:
+    """Runs found on the cell before wrapping are joined where their cells wrap onto the same
+    texels (a seam under repeat, UVs past a clamped edge, a texture one texel wide): the
+    entries and their float32 sums are exactly those of merging a pixel's consecutive samples
+    on the texels they read (the plain rule, written out here per sample)."""
+    rng = np.random.default_rng(9)
+    spp = 8
+    centre = rng.choice([0.0, 1.0, -1.0, 0.5], size=(5, 6, 1, 2))  # seams and edges
+    sample_uv = (centre + rng.uniform(-0.02, 0.02, (5, 6, spp, 2))).astype(np.float32)
+    sample_object = np.where(rng.random((5, 6, spp)) < 0.9, 0, -1)
+    for kind in ("bilinear", "nearest"):
+        sampling = TextureSampling(kind, wrap)
+        seen_by = footprint(size, sampling, sample_uv, sample_object, np.array([0]))
+        hits = np.flatnonzero(sample_object.reshape(-1) == 0)
+        index, weight = texel_weights(sample_uv.reshape(-1, 2)[hits], size, sampling)
+        key = np.column_stack([hits // spp, index])
+        first = np.concatenate(([True], np.any(key[1:] != key[:-1], axis=1)))
+        starts = np.flatnonzero(first)
+        expected = np.add.reduceat(weight, starts, axis=0) / spp
+        assert np.array_equal(seen_by.texel, index[starts].reshape(-1))
+        assert np.array_equal(seen_by.pixel, np.repeat(hits[starts] // spp, index.shape[1]))
+        assert seen_by.weight.dtype == expected.dtype
+        assert np.array_equal(seen_by.weight, expected.reshape(-1))
 
 
 def test_the_job_knows_texel_channels_and_refuses_their_keys_elsewhere(tmp_path: Path) -> None:

@@ -172,21 +172,27 @@ def footprint(
     col, row, fx, fy = _cells(sample_uv.reshape(-1, 2)[hits], size, sampling)
     owner = position[objects[hits]]
     pixel = hits // spp
-    # Merge runs of samples of a pixel that read the same cell with the same owner (the
+    # Merge runs of samples of a pixel that read the same texels with the same owner (the
     # common case: a pixel is smaller than a texel), summing their corner weights. Samples
-    # come in pixel order, so a run never spans two pixels; no sort is needed, and a cell that
-    # repeats after another stays a second entry (paint sums entries: the same result). The
-    # cell before wrapping fixes every corner, so texel indices are computed per run, not per
-    # sample (issue 23).
+    # come in pixel order, so a run never spans two pixels; no sort is needed, and texels that
+    # repeat after others stay a second entry (paint sums entries: the same result). Runs are
+    # found on the cell before wrapping, which fixes every corner, so texel indices are
+    # computed per run, not per sample (issue 23); neighbouring runs whose cells wrap onto the
+    # same texels (a seam, UVs past a clamped edge) are then joined, so the entries and their
+    # float32 sums are those of merging on the texels themselves.
     head = np.zeros(hits.size, dtype=bool)
     head[0] = True
     for part in (pixel, row, col, owner):
         head[1:] |= part[1:] != part[:-1]
-    starts = np.flatnonzero(head)
+    runs = np.flatnonzero(head)
+    cells = _nearest_index if fx is None else _corner_index
+    index = cells(col[runs], row[runs], size, sampling.wrap)
+    same = np.all(index[1:] == index[:-1], axis=1)
+    same &= (pixel[runs[1:]] == pixel[runs[:-1]]) & (owner[runs[1:]] == owner[runs[:-1]])
+    first = np.concatenate(([True], ~same))
+    starts, index = runs[first], index[first]
     weight = _corner_weights(fx, fy, hits.size)
     summed = np.add.reduceat(weight, starts, axis=0) / spp  # (G, corners)
-    cells = _nearest_index if fx is None else _corner_index
-    index = cells(col[starts], row[starts], size, sampling.wrap)
     corners = index.shape[1]
     return Footprint(
         (height, width),
@@ -201,7 +207,7 @@ def footprint(
 def _owned(objects: np.ndarray, owners: np.ndarray, position: np.ndarray) -> np.ndarray:
     """Which samples hit one of ``owners``: a comparison per owner for a few (a texture is
     usually on one or two objects: 8x faster than the gather), else through ``position``."""
-    if 0 < len(owners) <= 4:
+    if 0 < len(owners) <= 4 and int(owners.min()) >= 0:
         mask = objects == owners[0]
         for owner in owners[1:]:
             mask |= objects == owner
