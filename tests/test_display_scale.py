@@ -129,6 +129,29 @@ def test_the_bracketed_percentile_of_cameras_of_different_sizes_is_the_sorted_ru
             assert robust_scale(cameras, percentile=percentile).value == expected, (case, sizes)
 
 
+def test_the_percentile_of_large_cameras_of_different_sizes_is_the_exact_one() -> None:
+    """With millions of pixels the sorted rule's running float sum of 1/n drifts past its
+    1e-12 allowance and could pick a neighbour of the percentile where the cumulative weight
+    lands on it exactly (an HD and a half-HD camera: 1/4 the pixels). The bracketed rule
+    sums only the values inside the bracket (issue 23): its value is the exact one, checked
+    in integers: the smallest v whose cumulative weight reaches p %."""
+    rng = np.random.default_rng(0)
+    images = [rng.random(1920 * 1080), rng.random(960 * 540)]
+    sizes = [image.size for image in images]
+    lcm = int(np.lcm.reduce(sizes))
+    ordered = [np.sort(image) for image in images]
+
+    def reaches(v: float, percent: int) -> bool:  # 100·Σ k_c·(L/n_c) >= p·C·L, in integers
+        counts = [int(np.searchsorted(o, v, side="right")) for o in ordered]
+        total = sum(k * (lcm // n) for k, n in zip(counts, sizes, strict=True))
+        return 100 * total >= percent * len(sizes) * lcm
+
+    for percent in (95, 99, 90):
+        value = robust_scale({"hd": [images[0]], "half": [images[1]]}, percentile=percent).value
+        below = max(o[np.searchsorted(o, value) - 1] for o in ordered if o[0] < value)
+        assert reaches(value, percent) and not reaches(float(below), percent), percent
+
+
 def test_colours_of_runs_of_equal_pixels_are_each_pixels_own() -> None:
     """diverging_linear colours each run of equal values once (issue 23): bit for bit the
     colours of the pixels drawn one at a time, zeros, -0 and clipped values included."""

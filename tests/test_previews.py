@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -217,4 +218,10 @@ def test_a_contact_sheet_names_what_its_tiles_cannot_show(tmp_path: Path) -> Non
     )
     assert "duality check FAILED, do not trust (marked !): walls" in notes
     assert not any("not in this view" in n or "FAILED" in n for n in sheets["other"].notes)
+    assert sheets["m"].notes[0].startswith("duality check FAILED")  # first: never cut off
+    many = json.dumps([f"object_{i:02d}" for i in range(20)])
+    crowded = [(SensitivityLayer("m", "objects", data, {**meta, "invisible": many}), scale)]
+    (sheet,) = [e for e in write_previews(tmp_path, "c2", crowded, None, Visibility(), {})
+                if e.kind == "sheet"]  # fmt: skip
+    assert sheet.notes[-1].endswith("object_05 (objects); and 14 more")
     assert (tmp_path / "cam_m.png").is_file()

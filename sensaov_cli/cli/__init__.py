@@ -74,7 +74,6 @@ main.add_command(report.report)
 main.add_command(view.view)
 
 
-
 def console() -> None:
     """The ``sensaov`` executable: :func:`main`, then the process ends at once.
 

@@ -33,6 +33,7 @@ MIN_TILE_WIDTH = 192  # small views are enlarged (nearest neighbour) so labels s
 SINGLE_TILE_WIDTH = 256  # a single preview is enlarged further: its legend needs the width
 MANIFEST_FORMAT = "sensaov-previews"
 MANIFEST_VERSION = 1
+SHEET_UNSEEN = 6  # objects a sheet names as not in its view (the single previews name all)
 UNTRUSTED_NOTE = "hatched: gradients sensaov does not stand behind, left out of the headline"
 
 
@@ -218,20 +219,22 @@ def _sheet_notes(
     if any(layer.metadata.get("part") == "untrusted" for layer, _ in mine):
         notes.append(UNTRUSTED_NOTE)
     # What the tiles cannot show, as their single previews say it: a tile is never read as
-    # "no sensitivity" where the objects that carry it are off-frame or the check failed.
+    # "no sensitivity" where the check failed or the objects carrying it are off-frame. The
+    # failure first and the objects capped: the sheet draws at most MAX_NOTES wrapped lines.
+    failed = [layer.pass_name for layer, _ in mine
+              if layer.metadata.get("duality", "agrees") != "agrees"]  # fmt: skip
+    if failed:
+        notes.insert(0, "duality check FAILED, do not trust (marked !): " + ", ".join(failed))
     unseen: dict[str, list[str]] = defaultdict(list)
     for layer, _ in mine:
         for name in json.loads(layer.metadata.get("invisible", "[]")):
             unseen[name].append(layer.pass_name)
     if unseen:
+        named = [f"{name} ({', '.join(passes)})" for name, passes in sorted(unseen.items())]
+        more = f"; and {len(named) - SHEET_UNSEEN} more" if len(named) > SHEET_UNSEEN else ""
         notes.append(
-            "not in this view, so no tile paints them: "
-            + "; ".join(f"{name} ({', '.join(passes)})" for name, passes in sorted(unseen.items()))
+            "not in this view, so no tile paints them: " + "; ".join(named[:SHEET_UNSEEN]) + more
         )
-    failed = [layer.pass_name for layer, _ in mine
-              if layer.metadata.get("duality", "agrees") != "agrees"]  # fmt: skip
-    if failed:
-        notes.append("duality check FAILED, do not trust (marked !): " + ", ".join(failed))
     return notes
 
 

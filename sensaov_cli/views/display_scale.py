@@ -122,7 +122,7 @@ def clipped_share(images: Sequence[np.ndarray], value: float) -> float:
     painted = above = 0
     bound = np.float64(value)  # not a Python float: float32 pixels compare in float64, exactly
     for image in images:
-        magnitude = np.abs(np.asarray(image))  # exact in the image's own type: no copy to float64
+        magnitude = _magnitude(image)
         painted += int(np.count_nonzero(magnitude > 0))
         above += int(np.count_nonzero(magnitude > bound))
     return float(above) / painted if painted else 0.0
@@ -206,9 +206,16 @@ def _painted(images: Sequence[np.ndarray]) -> np.ndarray:
         return np.zeros(0)
     parts = []
     for image in images:
-        magnitude = np.abs(np.asarray(image)).ravel()  # exact in its own type
+        magnitude = _magnitude(image).ravel()
         parts.append(magnitude[magnitude > 0].astype(np.float64))  # only the painted widened
     return np.concatenate(parts)
+
+
+def _magnitude(image: np.ndarray) -> np.ndarray:
+    """|image|, exact: a float image in its own type (no float64 copy of every pixel), any
+    other (an int's most negative value has no |v| in its type) in float64."""
+    data = np.asarray(image)
+    return np.abs(data if data.dtype.kind == "f" else data.astype(np.float64))
 
 
 def _weighted_percentile(magnitudes: Sequence[np.ndarray], percentile: float) -> float:
