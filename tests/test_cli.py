@@ -19,7 +19,7 @@ from click.testing import CliRunner
 
 import sensaov_cli.cli
 from sensaov_cli import interrupts
-from sensaov_cli.cli import main
+from sensaov_cli.cli import console, main
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_MEANINGS, EXIT_OK
 
 REPO = Path(__file__).resolve().parents[1]
@@ -89,7 +89,7 @@ def test_importing_the_cli_loads_no_stage_library() -> None:
 
 def test_console_script_and_module_entry_point() -> None:
     (script,) = entry_points(group="console_scripts", name="sensaov")
-    assert script.load() is main
+    assert script.load() is console  # main, then an exit without the interpreter's teardown
     result = subprocess.run(
         [sys.executable, "-m", "sensaov_cli", "--version"],
         cwd=REPO,

@@ -92,8 +92,9 @@ def console() -> None:
         if not isinstance(code, int):
             raise  # a message for Python to print
         try:
-            sys.stdout.flush()
-            sys.stderr.flush()
+            for stream in (sys.stdout, sys.stderr):
+                if stream is not None:  # None: started with that descriptor closed
+                    stream.flush()
         except (OSError, ValueError):
             raise done from None
         os._exit(code)
