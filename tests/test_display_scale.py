@@ -71,20 +71,23 @@ def test_each_camera_weighs_the_same_whatever_its_resolution() -> None:
     assert scale.cameras == ("small", "large") and "each camera weighted equally" in scale.rule()
 
 
+def sorted_rule(magnitudes: list[np.ndarray], percentile: float) -> float:
+    """The documented rule written plainly: a stable sort of every camera's |v|, each camera's
+    pixels weighted 1/size, the first value whose running weight reaches the percentile."""
+    values = np.concatenate(magnitudes)
+    weights = np.concatenate([np.full(m.size, 1.0 / m.size) for m in magnitudes])
+    order = np.argsort(values, kind="stable")
+    cumulative = np.cumsum(weights[order]) / len(magnitudes)
+    index = int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12))
+    return float(values[order][min(index, values.size - 1)])
+
+
 def test_the_percentile_by_selection_is_the_documented_sorted_rule() -> None:
     """Cameras of one size take a selection instead of a sort, others merge pre-sorted pixels
     (issue 23): the value is the sorted rule's, ties and all, for one camera, two of one size
     and two of different sizes."""
     rng = np.random.default_rng(5)
     images = [np.round(rng.normal(size=(30, 40)), 2) for _ in range(2)]  # many ties
-
-    def sorted_rule(magnitudes: list[np.ndarray], percentile: float) -> float:
-        values = np.concatenate(magnitudes)
-        weights = np.concatenate([np.full(m.size, 1.0 / m.size) for m in magnitudes])
-        order = np.argsort(values, kind="stable")
-        cumulative = np.cumsum(weights[order]) / len(magnitudes)
-        index = int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12))
-        return float(values[order][min(index, values.size - 1)])
 
     for percentile in (0.5, 50.0, 95.0, 100.0):
         one = robust_scale({"a": images[:1]}, percentile=percentile).value
@@ -102,14 +105,6 @@ def test_the_bracketed_percentile_of_cameras_of_different_sizes_is_the_sorted_ru
     23): over 200 random cases (2-4 cameras, sizes 1 to 5,000, ties, scales apart by 10^4, so
     the bracket is sometimes nearly everything) the value is the sorted rule's, bit for bit."""
     rng = np.random.default_rng(11)
-
-    def sorted_rule(magnitudes: list[np.ndarray], percentile: float) -> float:
-        values = np.concatenate(magnitudes)
-        weights = np.concatenate([np.full(m.size, 1.0 / m.size) for m in magnitudes])
-        order = np.argsort(values, kind="stable")
-        cumulative = np.cumsum(weights[order]) / len(magnitudes)
-        index = int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12))
-        return float(values[order][min(index, values.size - 1)])
 
     for case in range(200):
         sizes = rng.integers(1, 5000, size=rng.integers(2, 5))
