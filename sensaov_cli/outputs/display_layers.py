@@ -28,14 +28,9 @@ DISPLAY_ENCODING = (
 )
 
 
-def display_metadata(layer: SensitivityLayer, scale: DisplayScale) -> dict[str, str]:
-    """What a raw layer and its display layer both record about the picture's scale."""
-    return _display_metadata(layer, scale, _signed(layer))
-
-
-def _display_metadata(
-    layer: SensitivityLayer, scale: DisplayScale, values: np.ndarray
-) -> dict[str, str]:
+def display_metadata(scale: DisplayScale, values: np.ndarray) -> dict[str, str]:
+    """What a raw layer and its display layer both record about the picture's scale
+    (``values``: the layer's signed pixels)."""
     return {
         "display_scale": repr(scale.value),
         "display_rule": scale.rule(),
@@ -62,8 +57,8 @@ def with_display(
 ) -> tuple[SensitivityLayer, SensitivityLayer]:
     """The raw layer with its display metadata, and its display layer (``background``: the
     camera's :func:`display_background`, shown where the layer is zero)."""
-    values = _signed(layer)
-    shown = _display_metadata(layer, scale, values)
+    values = signed_pixels(layer.data, layer.metadata.get("kind", ""))
+    shown = display_metadata(scale, values)
     # Stored as half: a picture in [0, 1] needs no more (its sRGB 8-bit codes are the same as
     # float32's, tested), and half the bytes make the EXR write ~40 % faster (issue 23). Drawn
     # as planes, so each EXR channel is contiguous as it is; the layer sees (H, W, 3).
@@ -92,10 +87,6 @@ def with_display(
         },
     )
     return raw, display
-
-
-def _signed(layer: SensitivityLayer) -> np.ndarray:
-    return signed_pixels(layer.data, layer.metadata.get("kind", ""))
 
 
 def scale_of(

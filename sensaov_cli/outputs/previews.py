@@ -63,26 +63,23 @@ def diverging_rgb(values: np.ndarray, scale: float) -> np.ndarray:
     return np.rint(_diverging_srgb(values, scale)).astype(np.uint8)
 
 
-def diverging_linear(
-    values: np.ndarray, scale: float, dtype: type[np.floating] = np.float32
-) -> np.ndarray:
-    """``values`` as linear Rec. 709 RGB (shape + (3,), float32 or ``dtype``): the 8-bit RdBu
-    colours of :func:`diverging_rgb` decoded from sRGB, so that a viewer's sRGB (Standard)
-    display shows exactly the previews' colours. Display layers of EXRs are drawn with it as
-    half floats (``dtype=np.float16``: the float32 colours rounded to half, the same as
-    rounding them afterwards); decoded from the rounded codes, they keep those codes when
-    stored as half (half's rounding moves a code by at most 0.05 of a step, the rounding of an
-    unrounded colour could go either way)."""
+def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
+    """``values`` as float32 linear Rec. 709 RGB (shape + (3,)): the 8-bit RdBu colours of
+    :func:`diverging_rgb` decoded from sRGB, so that a viewer's sRGB (Standard) display shows
+    exactly the previews' colours. Display layers of EXRs are drawn with it; decoded from the
+    rounded codes, they keep those codes when stored as half (half's rounding moves a code by
+    at most 0.05 of a step, the rounding of an unrounded colour could go either way)."""
     x = np.asarray(values)
     colours, lengths = _run_colours(x, scale)
-    return np.repeat(colours.astype(dtype), lengths, axis=0).reshape(*x.shape, 3)
+    return np.repeat(colours, lengths, axis=0).reshape(*x.shape, 3)
 
 
 def diverging_linear_planes(
     values: np.ndarray, scale: float, dtype: type[np.floating] = np.float32
 ) -> np.ndarray:
-    """:func:`diverging_linear` as three contiguous planes, (3,) + shape: R, G, B each ready
-    for an EXR channel without the copy a strided slice of (..., 3) needs."""
+    """:func:`diverging_linear` as three contiguous planes, (3,) + shape, in ``dtype`` (half
+    for display layers: the float32 colours rounded once): R, G, B each ready for an EXR
+    channel without the copy a strided slice of (..., 3) needs."""
     x = np.asarray(values)
     colours, lengths = _run_colours(x, scale)
     colours = colours.astype(dtype)
