@@ -54,11 +54,14 @@ def test_the_executable_ends_when_its_command_does(
     """After a command, the executable flushes and exits with its code, without the
     interpreter's finalisation (0.15 s of Dr.Jit and module teardown in which a farm's SIGTERM
     found Python's handlers already gone and killed a finished process, status -15): an
-    atexit callback, which finalisation would run, never runs; every line still arrives."""
-    marker = tmp_path / "finalised"
+    atexit callback, which finalisation would run, never runs; every line still arrives; the
+    scratch folders sensaov's own exit handler removes are removed."""
+    marker, scratch = tmp_path / "finalised", tmp_path / "scratch"
     script = (
         "import atexit, pathlib\n"
         f"atexit.register(pathlib.Path({str(marker)!r}).write_text, 'yes')\n"
+        "from sensaov_cli.outputs.atomic import scratch_folder\n"  # as a sunburst makes one
+        f"pathlib.Path({str(scratch)!r}).write_text(str(scratch_folder('test')))\n"
         "from sensaov_cli.cli import console\n"
         "console()\n"
     )
@@ -68,6 +71,7 @@ def test_the_executable_ends_when_its_command_does(
     )  # fmt: skip
     assert done.returncode == code, done.stderr
     assert not marker.exists()
+    assert not Path(scratch.read_text()).exists()  # sensaov's own exit handler still ran
     if code == 0:
         assert done.stdout.rstrip().endswith("}")  # the whole JSON schema, flushed
     else:

@@ -82,15 +82,20 @@ def console() -> None:
     ``project`` or ``run``, in which Python has already put SIGTERM back to its default, so a
     farm's SIGTERM then killed a finished process (status -15, no line). Here the streams are
     flushed and the process exits with the command's code, as a stop already does
-    (``options._stopped``). A flush that fails (stdout on a full disk, a closed pipe) takes the
-    ordinary exit, which reports it. In-process callers (tests) use :func:`main`.
+    (``options._stopped``). Of the exit handlers it skips, sensaov's own, which removes its
+    scratch folders (matplotlib's cache of a sunburst), runs here first. A flush that fails
+    (stdout on a full disk, a closed pipe) takes the ordinary exit, which reports it.
+    In-process callers (tests) use :func:`main`.
     """
+    from sensaov_cli.outputs.atomic import remove_temporaries
+
     try:
         main(prog_name="sensaov")
     except SystemExit as done:
         code = 0 if done.code is None else done.code
         if not isinstance(code, int):
             raise  # a message for Python to print
+        remove_temporaries()
         try:
             for stream in (sys.stdout, sys.stderr):
                 if stream is not None:  # None: started with that descriptor closed
