@@ -21,6 +21,7 @@ import numpy as np
 
 from sensaov_cli.errors import NonFiniteError, PreviewError
 from sensaov_cli.outputs.png import write_png_file
+from sensaov_cli.views.coverage import run_starts
 
 # ColorBrewer RdBu, 11 classes (Brewer 2002), ordered from -scale (blue) to +scale (red).
 # It is diverging and symmetric in lightness, so |value| reads as darkness whatever the sign.
@@ -94,9 +95,7 @@ def _run_colours(x: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
     lengths. A painted layer is runs of equal pixels (an object's inside): the colours, power
     law and all, are computed once per run, pixel for pixel the same as computed apart."""
     flat = x.reshape(-1)
-    head = np.ones(flat.size, dtype=bool)
-    np.not_equal(flat[1:], flat[:-1], out=head[1:])
-    starts = np.flatnonzero(head)
+    starts = run_starts(flat)
     lengths = np.diff(starts, append=flat.size)
     colours = _linear(np.rint(_diverging_srgb(flat[starts], scale)) / 255.0).astype(np.float32)
     return colours, lengths

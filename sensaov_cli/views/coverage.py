@@ -35,7 +35,7 @@ class Coverage:
         # Sorted by pixel already: the stable sort only merges each pixel's few entries.
         order = np.argsort(combined, kind="stable")
         combined = combined[order]
-        starts = _run_starts(combined)
+        starts = run_starts(combined)
         counts = np.add.reduceat(self.count[order], starts) if starts.size else self.count[:0]
         keys = combined[starts]
         pixel, group = keys // groups, (keys % groups).astype(np.int32)
@@ -59,8 +59,8 @@ def pixel_order(pixel: np.ndarray, count: np.ndarray, index: np.ndarray) -> np.n
     return np.argsort(key, kind="stable")
 
 
-def _run_starts(values: np.ndarray) -> np.ndarray:
-    """Where each run of equal neighbours begins."""
+def run_starts(values: np.ndarray) -> np.ndarray:
+    """Where each run of equal neighbours of a 1-D array begins."""
     if not values.size:
         return np.zeros(0, np.intp)
     head = np.ones(values.size, dtype=bool)
@@ -124,7 +124,7 @@ def ranked(
     height, width = size
     index = np.full((height * width, ranks), BACKGROUND, np.int32)
     amount = np.zeros((height * width, ranks), np.float32)
-    starts = _run_starts(coverage.pixel)  # sorted by pixel: a pixel's entries are one run
+    starts = run_starts(coverage.pixel)  # sorted by pixel: a pixel's entries are one run
     lengths = np.diff(starts, append=len(coverage.pixel))
     rank = np.arange(len(coverage.pixel)) - np.repeat(starts, lengths)
     keep = rank < ranks
