@@ -47,10 +47,11 @@ def source_tree(repo: Path) -> str:
 
 
 def source_digest(repo: Path) -> str:
-    """A hash of the package and bench sources, to notice a checkout that changed mid-run."""
+    """A hash of the package and bench sources, to notice a checkout that changed mid-run
+    (every module, subpackages included)."""
     digest = hashlib.sha256()
-    for path in sorted([*repo.glob("sensaov_cli/*.py"), *repo.glob("bench/*.py")]):
-        digest.update(path.name.encode() + path.read_bytes())
+    for path in sorted([*repo.glob("sensaov_cli/**/*.py"), *repo.glob("bench/*.py")]):
+        digest.update(str(path.relative_to(repo)).encode() + path.read_bytes())
     return digest.hexdigest()[:12]
 
 

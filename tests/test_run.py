@@ -65,6 +65,12 @@ def test_buffer_records_how_it_was_made(first_run) -> None:  # noqa: ANN001
     ):
         assert field in prov, field
     assert prov["resolution"] == [24, 24] and prov["integrator"] == "prb"
+    from importlib.metadata import version  # the installed packages the modules came from
+
+    assert (prov["mitsuba_version"], prov["drjit_version"]) == (
+        version("mitsuba"),
+        version("drjit"),
+    )
     seeds = prov["gradient_seeds"]
     assert len(set(seeds.values()) | {prov["primal_seed"]}) == 3  # primal and gradient seeds differ
     assert [o.name for o in buffer.objectives] == ["mean_luma", "centre"]

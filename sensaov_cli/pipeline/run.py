@@ -8,7 +8,6 @@ import platform
 import sys
 import time
 from dataclasses import asdict, dataclass, replace
-from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +29,7 @@ from sensaov_cli.render.loading import LoadedScene, load_scene, refuse_non_finit
 from sensaov_cli.render.memory import check_render
 from sensaov_cli.render.objectives import Objective, build_objectives
 from sensaov_cli.render.repair import repair
+from sensaov_cli.render.runtime import library_versions
 from sensaov_cli.render.scene import PreparedScene, prepare_scene
 from sensaov_cli.spec.job import JobSpec
 
@@ -306,8 +306,7 @@ def _provenance(
         **made_by(" ".join(sys.argv)),
         BUFFER_ID: new_buffer_id(),  # every output made from this buffer records it
         RUN_VERSION: job.run_hash(),  # what run read of the job: project and report compare it
-        "mitsuba_version": version("mitsuba"),
-        "drjit_version": version("drjit"),
+        **library_versions(loaded.mi),
         "variant": loaded.variant,
         "libllvm": os.environ.get("DRJIT_LIBLLVM_PATH", ""),
         "python": platform.python_version(),
