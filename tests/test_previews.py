@@ -225,3 +225,28 @@ def test_a_contact_sheet_names_what_its_tiles_cannot_show(tmp_path: Path) -> Non
                 if e.kind == "sheet"]  # fmt: skip
     assert sheet.notes[-1].endswith("object_05 (objects); and 14 more")
     assert (tmp_path / "cam_m.png").is_file()
+
+
+def test_text_is_blended_where_glyphs_cover_and_nowhere_else() -> None:
+    """The blend runs on covered pixels only: the result is the whole-canvas blend's, byte for
+    byte, on a canvas with a different colour in every pixel."""
+    from OpenImageIO import ImageBuf, ImageBufAlgo, ImageSpec
+
+    from sensaov_cli.outputs.previews import BASELINE, FONT, FONT_SIZE, TEXT_COLOUR, _draw_text
+
+    rng = np.random.default_rng(3)
+    canvas = rng.integers(0, 256, (60, 180, 3), dtype=np.uint8)
+    texts = [(90, 4, "mean_luma +1.2e-3", "center"), (2, 30, "left", "left")]
+    drawn = canvas.copy()
+    _draw_text(drawn, texts)
+
+    mask = ImageBuf(ImageSpec(180, 60, 1, "float"))
+    for x, top, text, align in texts:
+        ImageBufAlgo.render_text(
+            mask, x, top + BASELINE, text, FONT_SIZE, FONT, (1.0,), alignx=align
+        )
+    alpha = np.clip(mask.get_pixels().reshape(60, 180, 1), 0.0, 1.0)
+    whole = np.rint(canvas * (1.0 - alpha) + np.array(TEXT_COLOUR) * alpha).astype(np.uint8)
+    assert (alpha > 0).any() and (alpha == 0).any()
+    np.testing.assert_array_equal(drawn, whole)
+    assert (drawn != canvas).any(axis=2).sum() > 50  # the glyphs are there

@@ -21,8 +21,14 @@ _SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _MAX_KEYWORD = 79  # bytes, by the PNG specification
 
 
+# zlib's level for files. Measured on the demo's 54 previews (contact sheets and single
+# views): level 6 took 0.53 s for 3.6 MB, level 3 0.21 s for 3.9 MB (+7 %), level 1 0.15 s
+# for 4.3 MB. Filtering rows (Sub, Up) made them larger at every level: the sheets are flat.
+LEVEL = 3
+
+
 def encode_png(
-    rgb_uint8: np.ndarray, text: Mapping[str, str] | None = None, level: int = 6
+    rgb_uint8: np.ndarray, text: Mapping[str, str] | None = None, level: int = LEVEL
 ) -> bytes:
     """An (H, W, 3) uint8 image as PNG bytes (8-bit RGB, no interlace), with ``text`` chunks;
     ``level`` is zlib's compression level."""
