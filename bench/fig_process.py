@@ -66,7 +66,7 @@ def pipeline_overhead(ws: Workspace, s: Settings, variant: str, log: Log) -> Fig
     figure = Figure(
         1,
         "Pipeline overhead: `sensaov run` / a hand-written Mitsuba script",
-        "≤ 1.10×",
+        "≤ 1.10×; ≤ 1.05× at the larger size (issue 23)",
         "Whole-process wall time, start-up included: `sensaov run job.yaml -q --json` (one "
         "objective, mean luminance; writes buffer.npz and primal.exr) against "
         "`bench/plain_mitsuba.py` (load the same scene text, one primal, one `render_backward` "
@@ -95,14 +95,15 @@ def pipeline_overhead(ws: Workspace, s: Settings, variant: str, log: Log) -> Fig
                 s.process_rounds,
             )
             case = f"{scene} {res}²"
-            figure.rows += _overhead_rows(case, t, inputs.count)
+            goal = 1.05 if res == max(s.resolutions) else 1.10  # issue 23: 1.05× at the larger
+            figure.rows += _overhead_rows(case, t, inputs.count, goal)
             log(f"figure 1: {case} done")
     figure.why_missed = notes.OVERHEAD
     figure.remarks.append(notes.DETERMINISTIC)
     return figure
 
 
-def _overhead_rows(case: str, t: dict[str, Stats], params: int) -> list[Row]:
+def _overhead_rows(case: str, t: dict[str, Stats], params: int, goal: float) -> list[Row]:
     plain = t["plain"].median
     delta = Stats.of([a - b for a, b in zip(t["sensaov"].values, t["plain"].values, strict=True)])
     return [
@@ -110,7 +111,7 @@ def _overhead_rows(case: str, t: dict[str, Stats], params: int) -> list[Row]:
             f"{case}, deterministic: false",
             t["sensaov"].ratio_to(t["plain"]),
             "x",
-            Goal("<=", 1.10),
+            Goal("<=", goal),
             f"sensaov {fmt(t['sensaov'].median, 's')} vs script {fmt(plain, 's')}, "
             f"Δ {delta.median:+.2f} s ({params} parameters)",
             why_missed=notes.overhead_case(delta.median, plain),

@@ -8,17 +8,20 @@ when the bench was written (named as such, with what was profiled).
 from __future__ import annotations
 
 OVERHEAD = (
-    "sensaov's extra time is a fixed cost per process (the Δ in each case), so it weighs most "
-    "on small jobs. A one-off profile of `sensaov run` (cbox 256², 32 spp) when this bench was "
-    "written (re-checked at commit 2c743b7) put it at: importing the job-spec models "
-    "(`sensaov_cli.spec`, pydantic) ≈ 0.11 s; "
-    "click, PyYAML, OpenEXR and sensaov's own modules ≈ 0.05–0.08 s; loading the job, "
-    "preparing the scene, writing buffer.npz, primal.exr and the summary ≈ 0.05 s; interpreter "
-    "exit ≈ 0.06 s longer than the script's. The passes themselves cost the same on both sides "
-    "(figure 2, 'Mitsuba alone' rows). A fixed ≈ 0.3 s stays under 10 % only once the script "
-    "itself takes ≳ 3 s. Fix: keep pydantic off the `run` path (validate with plain-Python "
-    "checks and import pydantic only to word an error), which removes the largest item; or "
-    "state the goal for jobs whose passes take ≥ 3 s."
+    "sensaov's extra time is mostly a fixed cost per process, so it weighs most on small jobs. "
+    "One-off measurements when issue 23 was last worked on (commit ae9f8bd, 2 cores): on a "
+    "16² job at 1 spp, where the passes cost next to nothing, `sensaov run` took 0.18–0.20 s "
+    "longer than the script (0.25 s when each process compiled sensaov's bytecode again; the "
+    "bench now writes it first). A profile of that run put it at: pydantic's import ≈ 0.06 s "
+    "and building the job-spec validator ≈ 0.04 s; PyYAML and click ≈ 0.03 s; sensaov's own "
+    "~90 modules ≈ 0.08 s; preparing the scene and writing the outputs ≈ 0.03 s. At 256², "
+    "32 spp, Dr.Jit's kernel history shows sensaov's kernels taking as long as the script's "
+    "(2.5–2.8 s against 2.5–2.9 s: four sub-passes of 2^19 samples against one pass), but each "
+    "sub-pass traces prb's loop again in Python, about 0.1 s more in all. Run-to-run spread of "
+    "a 3 s process on this machine is itself ±0.2 s. Fix: keep pydantic off the `run` path "
+    "(validate with plain-Python checks and import pydantic only to word an error), the largest "
+    "item; then fewer, larger sub-passes (a longer wait for a stop, and results that change "
+    "with the sample split), or state the goal for jobs whose passes take ≥ 5 s."
 )
 
 
