@@ -250,3 +250,37 @@ def test_text_is_blended_where_glyphs_cover_and_nowhere_else() -> None:
     assert (alpha > 0).any() and (alpha == 0).any()
     np.testing.assert_array_equal(drawn, whole)
     assert (drawn != canvas).any(axis=2).sum() > 50  # the glyphs are there
+
+
+def test_queued_pngs_are_the_files_write_png_writes(tmp_path: Path) -> None:
+    """PngQueue encodes on a worker thread: every file is the one write_png writes, byte for
+    byte, and each is written once the next two are queued (not all at the end)."""
+    from sensaov_cli.outputs.previews import PngQueue
+
+    images = [diverging_rgb(np.full((5, 7), v), 1.0) for v in (-1.0, -0.5, 0.0, 0.5, 1.0)]
+    (tmp_path / "direct").mkdir()
+    (tmp_path / "queued").mkdir()
+    with PngQueue() as queue:
+        for index, image in enumerate(images):
+            write_png(tmp_path / "direct" / f"{index}.png", image, {"sensaov/i": str(index)})
+            queue.put(tmp_path / "queued" / f"{index}.png", image, {"sensaov/i": str(index)})
+            assert len(os.listdir(tmp_path / "queued")) == max(0, index - 1)
+    for index in range(len(images)):
+        name = f"{index}.png"
+        assert (tmp_path / "queued" / name).read_bytes() == (
+            tmp_path / "direct" / name
+        ).read_bytes()
+
+
+def test_a_png_queue_left_by_an_error_writes_nothing_more(tmp_path: Path) -> None:
+    from sensaov_cli.outputs.previews import PngQueue
+
+    image = diverging_rgb(np.zeros((4, 4)), 1.0)
+    with pytest.raises(RuntimeError, match="stop"), PngQueue() as queue:
+        for index in range(4):
+            queue.put(tmp_path / f"{index}.png", image, {})
+        raise RuntimeError("stop")
+    assert sorted(os.listdir(tmp_path)) == ["0.png", "1.png"]  # written before the error
+    with pytest.raises(ValueError, match="uint8"), PngQueue() as queue:
+        queue.put(tmp_path / "bad.png", np.zeros((4, 4, 3)), {})
+    assert "bad.png" not in os.listdir(tmp_path)

@@ -24,7 +24,7 @@ import numpy as np
 from sensaov_cli.outputs.atomic import atomic_write
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.names import file_token
-from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay, write_png
+from sensaov_cli.outputs.previews import PngQueue, contact_sheet, diverging_rgb, hatch, underlay
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, clipped_share, signed_pixels
 
@@ -65,6 +65,19 @@ def write_previews(
     """``folder/<camera>/<objective>.<pass>.png`` per layer and ``folder/<camera>_<objective>.png``
     per objective. Names in paths are :func:`~.names.file_token`; the names as they were are
     kept in each PNG's text chunks, with the ``stamp`` (buffer id, job version)."""
+    with PngQueue() as queue:
+        return _write_pictures(queue, folder, camera, layers, beauty, visibility, stamp)
+
+
+def _write_pictures(
+    queue: PngQueue,
+    folder: Path,
+    camera: str,
+    layers: Sequence[tuple[SensitivityLayer, DisplayScale]],
+    beauty: np.ndarray | None,
+    visibility: VisibilityPass,
+    stamp: Mapping[str, str],
+) -> list[PreviewFile]:
     written = []
     sheets: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
     for layer, scale in layers:
@@ -79,7 +92,7 @@ def write_previews(
         tile = _enlarged(rgb, SINGLE_TILE_WIDTH)
         sheet = contact_sheet([(_label(layer, scale), tile)], 1, scale=scale.value, title=title,
                               notes=entry.notes)  # fmt: skip
-        write_png(folder / entry.file, sheet, text)
+        queue.put(folder / entry.file, sheet, text)
         written.append(entry)
         sheets[layer.objective].append((_label(layer, scale), _enlarged(rgb, MIN_TILE_WIDTH)))
     for objective, tiles in sheets.items():
@@ -87,7 +100,7 @@ def write_previews(
         notes = _sheet_notes(layers, objective)
         sheet = contact_sheet(tiles, SHEET_COLUMNS, scale=1.0, title=f"{camera} / {objective}",
                               notes=notes)  # fmt: skip
-        write_png(folder / file, sheet, {**stamp, "sensaov/camera": camera,
+        queue.put(folder / file, sheet, {**stamp, "sensaov/camera": camera,
                                          "sensaov/objective": objective})  # fmt: skip
         written.append(PreviewFile(file, "sheet", objective, notes=tuple(notes)))
     return written

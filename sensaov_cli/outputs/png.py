@@ -46,7 +46,11 @@ def encode_png(
 
 def write_png_file(path: Path, rgb_uint8: np.ndarray, text: Mapping[str, str] | None) -> None:
     """Encode, then write atomically: a failed write leaves the previous file as it was."""
-    data = encode_png(rgb_uint8, text)
+    write_png_bytes(path, encode_png(rgb_uint8, text))
+
+
+def write_png_bytes(path: Path, data: bytes) -> None:
+    """Write an encoded PNG atomically: a failed write leaves the previous file as it was."""
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as stream:
