@@ -228,15 +228,25 @@ def test_a_contact_sheet_names_what_its_tiles_cannot_show(tmp_path: Path) -> Non
 
 
 def test_text_is_blended_where_glyphs_cover_and_nowhere_else() -> None:
-    """The blend runs on covered pixels only: the result is the whole-canvas blend's, byte for
-    byte, on a canvas with a different colour in every pixel."""
+    """Lines are rasterised once and copied, and blended on covered pixels only: the result is
+    that of render_text in place and a whole-canvas blend, byte for byte, on a canvas with a
+    different colour in every pixel, for every alignment, lines cut by an edge, and lines drawn
+    over one another."""
     from OpenImageIO import ImageBuf, ImageBufAlgo, ImageSpec
 
     from sensaov_cli.outputs.previews import BASELINE, FONT, FONT_SIZE, TEXT_COLOUR, _draw_text
 
     rng = np.random.default_rng(3)
     canvas = rng.integers(0, 256, (60, 180, 3), dtype=np.uint8)
-    texts = [(90, 4, "mean_luma +1.2e-3", "center"), (2, 30, "left", "left")]
+    texts = [
+        (90, 4, "mean_luma +1.2e-3", "center"),
+        (2, 30, "left", "left"),
+        (178, 30, "right, cut by the edge", "right"),
+        (-20, 44, "off the left edge", "left"),
+        (60, 50, "cut at the bottom", "center"),
+        (30, 32, "overlaps", "left"),  # over "left" and the right-aligned line
+        (90, 4, "mean_luma +1.2e-3", "center"),  # drawn twice: from the cache the second time
+    ]
     drawn = canvas.copy()
     _draw_text(drawn, texts)
 
@@ -284,3 +294,18 @@ def test_a_png_queue_left_by_an_error_writes_nothing_more(tmp_path: Path) -> Non
     with pytest.raises(ValueError, match="uint8"), PngQueue() as queue:
         queue.put(tmp_path / "bad.png", np.zeros((4, 4, 3)), {})
     assert "bad.png" not in os.listdir(tmp_path)
+
+
+def test_a_missing_font_is_a_preview_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    from sensaov_cli.errors import PreviewError
+    from sensaov_cli.outputs import previews
+
+    monkeypatch.setattr(previews, "FONT", "NoSuchFont-sensaov")
+    previews._glyphs.cache_clear()
+    previews._text_width.cache_clear()
+    try:
+        with pytest.raises(PreviewError, match="cannot draw text"):
+            previews._draw_text(np.zeros((20, 40, 3), np.uint8), [(0, 0, "x", "left")])
+    finally:
+        previews._glyphs.cache_clear()
+        previews._text_width.cache_clear()
