@@ -59,6 +59,41 @@ def test_pooling_conserves_the_sum(kind: str, wrap: str) -> None:
     assert np.count_nonzero(pooled) > np.count_nonzero(field)  # it spreads
 
 
+@pytest.mark.parametrize("wrap", ["repeat", "mirror", "clamp"])
+@pytest.mark.parametrize(
+    ("kind", "radius"), [("gaussian", 1.0), ("gaussian", 9.0), ("box", 20.0), ("gaussian", 60.0)]
+)
+def test_long_kernels_pool_by_fft_as_tap_by_tap(
+    wrap: str, kind: str, radius: float, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Kernels past DIRECT_TAPS are applied by FFT: the same field and variance to 1e-13 of
+    the largest value, and exactly the same texels left at zero (nothing reaches them), on
+    fields sparse, dense and empty, and kernels longer than the texture (wrapping over it)."""
+    from sensaov_cli.views import pooling
+
+    rng = np.random.default_rng(5)
+    pool = Pool(kind, radius, "job")
+    one = np.zeros((120, 90, 2))
+    one[3, 80, 1] = 2.5  # one texel: far from it, nothing arrives
+    cases = [rng.normal(size=(70, 50, 3)) * (rng.random((70, 50, 3)) < d) for d in (0.002, 0.3)]
+    cases += [rng.normal(size=(9, 40, 1)), np.zeros((8, 8, 2)), one]
+    for field in cases:
+        results = []
+        for taps in (10**9, 0):  # every kernel tap by tap, then every kernel by FFT
+            monkeypatch.setattr(pooling, "DIRECT_TAPS", taps)
+            results.append(
+                (pool_field(field, pool, wrap), pooling.pool_variance(field**2, pool, wrap))
+            )
+        (direct, direct_var), (fourier, fourier_var) = results
+        largest = max(float(np.abs(field).max()), 1.0)
+        assert np.abs(direct - fourier).max() <= 1e-13 * largest
+        assert np.abs(direct_var - fourier_var).max() <= 1e-13 * largest**2
+        np.testing.assert_array_equal(direct == 0, fourier == 0)
+        np.testing.assert_array_equal(direct_var == 0, fourier_var == 0)
+        if field is one and len(pooling._kernel(pool)) < 90:
+            assert (direct == 0).any() and (direct != 0).any()  # the zero check has teeth
+
+
 def test_pooling_reduces_seed_noise_of_a_sparse_estimate() -> None:
     rng = np.random.default_rng(3)
     truth = np.ones((32, 32, 1))

@@ -13,7 +13,6 @@
 from __future__ import annotations
 
 import json
-import math
 import re
 from dataclasses import dataclass, replace
 
@@ -76,8 +75,6 @@ def texel_passes(tf: TexelField, visibility: VisibilityPass, seen_by: Footprint)
 
 
 def _common_metadata(tf: TexelField, seen: np.ndarray, notes: list[str]) -> dict[str, str]:
-    pooled_seen = np.abs(tf.pooled).max(axis=2)[seen] if seen.any() else np.zeros(0)
-    raw_seen = np.abs(tf.raw).max(axis=2)[seen] if seen.any() else np.zeros(0)
     return {
         "texture": tf.record.key,
         "texture_type": tf.record.type,
@@ -93,10 +90,10 @@ def _common_metadata(tf: TexelField, seen: np.ndarray, notes: list[str]) -> dict
         # "none" for a buffer without statistics (render.batches: 1, no shards).
         "stderr_reduction": "none" if tf.stderr_reduction is None else repr(tf.stderr_reduction),
         "signed_sum": repr(tf.signed_sum),
-        "pooled_sum": repr(math.fsum(tf.pooled.ravel()) / tf.unit_factor),
+        "pooled_sum": repr(tf.pooled_sum),
         "texels_seen": str(int(seen.sum())),
-        "seen_empty_before_pool": str(int(np.count_nonzero(raw_seen == 0))),
-        "seen_empty_after_pool": str(int(np.count_nonzero(pooled_seen == 0))),
+        "seen_empty_before_pool": str(int(np.count_nonzero(tf.raw_empty & seen))),
+        "seen_empty_after_pool": str(int(np.count_nonzero(tf.pooled_empty & seen))),
         "unverified": json.dumps(
             [tf.record.key] if tf.record.trust not in ("verified", "no_gradient") else []
         ),
