@@ -265,7 +265,7 @@ def test_text_is_blended_where_glyphs_cover_and_nowhere_else() -> None:
 def test_queued_pngs_are_the_files_write_png_writes(tmp_path: Path) -> None:
     """PngQueue encodes on a worker thread: every file is the one write_png writes, byte for
     byte, and each is written once the next two are queued (not all at the end)."""
-    from sensaov_cli.outputs.previews import PngQueue
+    from sensaov_cli.outputs.png import PngQueue
 
     images = [diverging_rgb(np.full((5, 7), v), 1.0) for v in (-1.0, -0.5, 0.0, 0.5, 1.0)]
     (tmp_path / "direct").mkdir()
@@ -283,7 +283,7 @@ def test_queued_pngs_are_the_files_write_png_writes(tmp_path: Path) -> None:
 
 
 def test_a_png_queue_left_by_an_error_writes_nothing_more(tmp_path: Path) -> None:
-    from sensaov_cli.outputs.previews import PngQueue
+    from sensaov_cli.outputs.png import PngQueue
 
     image = diverging_rgb(np.zeros((4, 4)), 1.0)
     with pytest.raises(RuntimeError, match="stop"), PngQueue() as queue:

@@ -14,16 +14,14 @@ from __future__ import annotations
 
 import functools
 import math
-from collections import deque
 from collections.abc import Mapping, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from sensaov_cli.errors import NonFiniteError, PreviewError
-from sensaov_cli.outputs.png import encode_png, write_png_bytes, write_png_file
+from sensaov_cli.outputs.png import check_rgb, write_png_file
 from sensaov_cli.views.coverage import run_starts
 
 # ColorBrewer RdBu, 11 classes (Brewer 2002), ordered from -scale (blue) to +scale (red).
@@ -122,7 +120,7 @@ def _diverging_srgb(values: np.ndarray, scale: float) -> np.ndarray:
 def hatch(rgb_uint8: np.ndarray, mask: np.ndarray, period: int = 8, width: int = 2) -> np.ndarray:
     """``rgb_uint8`` with dark diagonal stripes over ``mask``: the mark of a picture of
     gradients left out of the headline views (untrusted), as the sunburst hatches them."""
-    _check_rgb(rgb_uint8)
+    check_rgb(rgb_uint8)
     rows, columns = np.indices(rgb_uint8.shape[:2])
     stripe = ((rows + columns) % period < width) & np.asarray(mask, bool)
     out = rgb_uint8.copy()
@@ -145,7 +143,7 @@ def underlay(
     """
     if not 0.0 <= strength <= 1.0:
         raise ValueError(f"strength must lie in [0, 1], got {strength}")
-    _check_rgb(rgb_uint8)
+    check_rgb(rgb_uint8)
     height, width = rgb_uint8.shape[:2]
     beauty = np.asarray(beauty_linear, dtype=np.float64)
     coverage = np.asarray(coverage_or_alpha, dtype=np.float64)
@@ -167,46 +165,8 @@ def write_png(
     """Write an (H, W, 3) uint8 image as a PNG, atomically; ``attributes`` become text chunks
     (the channel's encoding and scale, so a preview can be traced back to its data).
     """
-    _check_rgb(rgb_uint8)
+    check_rgb(rgb_uint8)
     write_png_file(Path(path), rgb_uint8, attributes)
-
-
-class PngQueue:
-    """PNGs written in the order given, each encoded on a worker thread while the caller draws
-    the next picture: zlib releases the GIL, so on two cores the compression (0.2 s of the
-    demo's previews) runs beside the drawing. A file is written, atomically and by the caller's
-    thread, once the next one is queued, and the rest when the block ends; a block left by an
-    exception writes nothing more (its pending encodings are dropped).
-    """
-
-    _AHEAD = 2  # encodings in flight: one compressing while the caller draws the next
-
-    def __init__(self) -> None:
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sensaov-png")
-        self._queued: deque[tuple[Path, Future[bytes]]] = deque()
-
-    def __enter__(self) -> PngQueue:
-        return self
-
-    def put(self, path: Path, rgb_uint8: np.ndarray, attributes: Mapping[str, str]) -> None:
-        """Queue ``rgb_uint8`` (not modified afterwards) for ``path``, as :func:`write_png`."""
-        _check_rgb(rgb_uint8)
-        self._queued.append((Path(path), self._pool.submit(encode_png, rgb_uint8, attributes)))
-        while len(self._queued) > self._AHEAD:
-            self._write_oldest()
-
-    def _write_oldest(self) -> None:
-        path, encoded = self._queued.popleft()
-        write_png_bytes(path, encoded.result())
-
-    def __exit__(self, kind: object, error: object, trace: object) -> None:
-        try:
-            while kind is None and self._queued:
-                self._write_oldest()
-        finally:
-            for _, encoded in self._queued:
-                encoded.cancel()
-            self._pool.shutdown(wait=True)
 
 
 @dataclass(frozen=True)
@@ -261,7 +221,7 @@ def contact_sheet(
     if isinstance(columns, bool) or not isinstance(columns, int) or columns < 1:
         raise ValueError(f"columns must be a positive integer, got {columns!r}")
     for _, rgb in tiles:
-        _check_rgb(rgb)
+        check_rgb(rgb)
     width = _layout([rgb.shape for _, rgb in tiles], columns, 0).width - 2 * PAD
     notes = [line for note in notes for line in _wrap(note, width)][:MAX_NOTES]
     layout = _layout([rgb.shape for _, rgb in tiles], columns, len(notes))
@@ -418,10 +378,3 @@ def _srgb(linear: np.ndarray) -> np.ndarray:
     return np.where(
         linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1.0 / 2.4) - 0.055
     )
-
-
-def _check_rgb(rgb: np.ndarray) -> None:
-    if not isinstance(rgb, np.ndarray) or rgb.dtype != np.uint8:
-        raise ValueError(f"expected a uint8 image, got {getattr(rgb, 'dtype', type(rgb))}")
-    if rgb.ndim != 3 or rgb.shape[2] != 3:
-        raise ValueError(f"expected an (H, W, 3) image, got shape {rgb.shape}")
