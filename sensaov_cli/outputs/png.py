@@ -74,7 +74,7 @@ class PngQueue:
     """PNGs written in the order given, each encoded on a worker thread while the caller draws
     the next picture: zlib releases the GIL, so on two cores the compression (0.2 s of the
     demo's previews) runs beside the drawing. A file is written, atomically and by the caller's
-    thread, once the next one is queued, and the rest when the block ends; a block left by an
+    thread, once two more are queued, and the rest when the block ends; a block left by an
     exception writes nothing more (its pending encodings are dropped).
     """
 
