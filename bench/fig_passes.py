@@ -37,11 +37,11 @@ class Passes:
 
     @staticmethod
     def load(job: Path) -> Passes:
+        from sensaov_cli.job.load import load_job
         from sensaov_cli.render.adjoint import render_primal
         from sensaov_cli.render.leaves import enable_gradients
         from sensaov_cli.render.loading import load_job_scene
         from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
-        from sensaov_cli.spec.load import load_job
 
         spec = load_job(job)
         loaded = load_job_scene(spec)

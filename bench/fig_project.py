@@ -148,9 +148,9 @@ def _rows(case: str, t: dict[str, Stats], s: Settings) -> list[Row]:
 
 
 def _make_buffer(job: Path) -> Path:
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.pipeline.run import run_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.spec.load import load_job
 
     return run_job(load_job(job), allow_python=False, progress=Progress(quiet=True)).buffer_path
 
@@ -158,9 +158,9 @@ def _make_buffer(job: Path) -> Path:
 def _view(
     job: Path, buffer_path: Path, beauty_spp: int, camera: str = CAMERA
 ) -> Callable[[], float]:
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.pipeline.project import project_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
 
@@ -182,9 +182,9 @@ def _view(
 
 def _trace(job: Path, vis_spp: int) -> Callable[[], float]:
     """``visibility.trace`` alone on the inspection camera, the pass a view is built on."""
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.render.loading import load_job_scene
     from sensaov_cli.render.visibility import trace
-    from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
 

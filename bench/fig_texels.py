@@ -75,9 +75,9 @@ def texel_cost(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figure
 def _view(job: Path, buffer_path: Path, beauty_spp: int) -> Callable[[], float]:
     """Figure 4's view time (visibility and view stages) plus the camera-independent texel
     work (fields, texture files)."""
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.pipeline.project import project_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
 
@@ -113,7 +113,7 @@ def _job(ws: Workspace, s: Settings, name: str, *, with_texels: bool) -> Path:
 
 
 def _noise_rows(ws: Workspace, spp: int, resolution: int) -> list[Row]:
-    from sensaov_cli.spec.job import ChannelSpec
+    from sensaov_cli.job.spec import ChannelSpec
     from sensaov_cli.views.pooling import seed_noise
     from sensaov_cli.views.texel_fields import texel_fields
 

@@ -26,7 +26,7 @@ def view_latency(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figu
         13,
         f"Live view (`sensaov view`): latency per view at {side}², 1 spp, warm",
         f"≤ {LATENCY_GOAL_S * 1000:.0f} ms per view (median and 95th percentile)",
-        f"The real server (`pipeline/view_server.py`, in this process, on a loopback port) "
+        f"The real server (`live/server.py`, in this process, on a loopback port) "
         f"answers `GET /api/view` for the `objects` channel of cbox (two objectives, buffer at "
         f"{BUFFER_SPP} spp) at {side}², 1 spp, PNG, from {views} cameras along an orbit, each "
         "new (no view is served from the cache); the time is the HTTP round trip from request "
@@ -58,11 +58,11 @@ def _measure(
 ) -> tuple[Stats, Stats, int, float]:
     import drjit as dr
 
-    from sensaov_cli.pipeline.view import open_session
-    from sensaov_cli.pipeline.view_server import ViewServer
+    from sensaov_cli.job.load import load_job
+    from sensaov_cli.live.server import ViewServer
+    from sensaov_cli.live.session import open_session
     from sensaov_cli.progress import Progress
     from sensaov_cli.render.visibility import trace
-    from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
     progress = Progress(quiet=True)

@@ -132,9 +132,9 @@ class Workspace:
         Both sides of figure 1 then do the same work on the same scene; preparing the XML is
         text processing (milliseconds) and is left out of the hand-written side.
         """
+        from sensaov_cli.job.load import load_job
         from sensaov_cli.render.loading import load_scene
-        from sensaov_cli.render.scene import prepare_scene
-        from sensaov_cli.spec.load import load_job
+        from sensaov_cli.scene import prepare_scene
 
         spec = load_job(job_path)
         prepared = prepare_scene(spec)

@@ -13,8 +13,8 @@ SENSAOV ?= sensaov  # with PYTHON: the interpreter that has sensaov installed
 PYTHON  ?= python3
 
 # The job's output folder and inspection cameras, as sensaov reads them.
-OUT     := $(shell $(PYTHON) -c "from sensaov_cli.spec.load import load_job; print(load_job('$(JOB)').output)")
-CAMERAS := $(shell $(PYTHON) -c "from sensaov_cli.spec.load import load_job; j = load_job('$(JOB)'); print(' '.join(c.name for c in j.inspection_cameras) or 'objective')")
+OUT     := $(shell $(PYTHON) -c "from sensaov_cli.job.load import load_job; print(load_job('$(JOB)').output)")
+CAMERAS := $(shell $(PYTHON) -c "from sensaov_cli.job.load import load_job; j = load_job('$(JOB)'); print(' '.join(c.name for c in j.inspection_cameras) or 'objective')")
 SHARDS  := $(foreach i,$(shell seq 1 $(N)),$(OUT)/buffer.shard-$(i)-of-$(N).npz)
 VIEWS   := $(foreach c,$(CAMERAS),$(OUT)/$(c).exr)
 

@@ -24,10 +24,10 @@ from pathlib import Path
 import yaml
 
 from sensaov_cli.errors import SensaovError
-from sensaov_cli.render.fdcheck import check_parameter, check_parameter_independent
+from sensaov_cli.job.load import load_job
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
 from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.spec.load import load_job
+from sensaov_cli.render.verify.fdcheck import check_parameter, check_parameter_independent
 
 STEERING = ("roughness", "eta", "weight", "opacity", "bump", "normal", "sigma_t", "g",
             "metallic", "spec_trans", "clearcoat", "specular", "anisotropic")  # fmt: skip

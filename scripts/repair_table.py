@@ -14,7 +14,7 @@ compared with two references computed here, apart from the repair:
 
 It prints the markdown that docs/verification.md holds: a row per component and objective,
 then one label per kind: verified where every row is within 3 combined standard errors of both
-references, else unverified. sensaov_cli/render/trust.py's REPAIRS must say the same
+references, else unverified. sensaov_cli/render/verify/trust.py's REPAIRS must say the same
 (tests/test_trust.py compares them).
 """
 
@@ -33,12 +33,12 @@ import numpy as np
 import yaml
 
 from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.job.load import load_job
 from sensaov_cli.pipeline.run import run_job
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import render_primal
 from sensaov_cli.render.loading import LoadedScene, assign, load_job_scene
 from sensaov_cli.render.objectives import Objective, build_objectives, value_and_adjoint
-from sensaov_cli.spec.load import load_job
 
 SCENE = Path(__file__).resolve().parents[1] / "tests" / "scenes" / "repair_mix.xml"
 RES, SPP, SEEDS = 32, 16, 4

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from sensaov_cli.buffer.student_t import interval_factor
+from sensaov_cli.job.load import load_job
 from sensaov_cli.pipeline.run import run_job
 from sensaov_cli.progress import Progress
-from sensaov_cli.spec.load import load_job
 from sensaov_cli.views.hierarchy import rankings
 
 REPO = Path(__file__).resolve().parent.parent

@@ -84,7 +84,7 @@ job["scene"] = str((source.parent / job["scene"]).resolve())
 job["output"] = str(target.parent / "out")
 target.write_text(yaml.safe_dump(job, sort_keys=False))
 PY
-CAMERAS=$("$PYTHON" -c "from sensaov_cli.spec.load import load_job; print(' '.join(c.name for c in load_job('$JOB').inspection_cameras))")
+CAMERAS=$("$PYTHON" -c "from sensaov_cli.job.load import load_job; print(' '.join(c.name for c in load_job('$JOB').inspection_cameras))")
 OUT=$DEMO/out
 # A shared Dr.Jit kernel cache: every task after the first finds its kernels compiled.
 export DRJIT_CACHE_DIR=${DRJIT_CACHE_DIR:-$DEMO/drjit-cache}

@@ -11,8 +11,8 @@ selection, roughness, eta, blend weights: a shared seed does not give shared pat
     .venv/bin/python scripts/trust_table.py --only plastic,envmap
 
 It prints the markdown that docs/verification.md holds: one row per parameter checked, then one
-label per (plugin, type) kind, the worst of its rows. sensaov_cli/render/trust.py must say the
-same (tests/test_trust.py compares them).
+label per (plugin, type) kind, the worst of its rows. sensaov_cli/render/verify/trust.py must
+say the same (tests/test_trust.py compares them).
 """
 
 from __future__ import annotations
@@ -30,16 +30,16 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from sensaov_cli.render.fdcheck import (
+from sensaov_cli.job.load import load_job
+from sensaov_cli.render.loading import load_job_scene
+from sensaov_cli.render.objectives import build_objectives
+from sensaov_cli.render.runtime import import_mitsuba
+from sensaov_cli.render.verify.fdcheck import (
     GradientCheck,
     check_parameter,
     check_parameter_independent,
 )
-from sensaov_cli.render.loading import load_job_scene
-from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.runtime import import_mitsuba
-from sensaov_cli.render.trust import COMPOSITES, TABLE, Context
-from sensaov_cli.spec.load import load_job
+from sensaov_cli.render.verify.trust import COMPOSITES, TABLE, Context
 
 RES, SPP, SEEDS = 32, 32, 8  # same-seed checks
 IND_SPP, IND_FD_SPP, IND_SEEDS = 32, 1024, 12  # independent-seed checks

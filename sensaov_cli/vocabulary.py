@@ -23,7 +23,7 @@ Untrusted = Literal["apart", "include"]
 # Display scales of previews and display layers: one per (objective, channel) across every
 # camera of the job, or each tile its own (docs/encoding.md, "Display scales").
 ScaleScope = Literal["shared", "tile"]
-# The job's own words (spec/job.py): a Mitsuba variant, an objective's type, a channel's kind,
+# The job's own words (job/spec.py): a Mitsuba variant, an objective's type, a channel's kind,
 # a forward pass's direction, a texel channel's pooling and units.
 Variant = Literal[
     "auto",

@@ -186,12 +186,12 @@ def test_a_library_error_is_one_line_and_its_exit_code(runner: CliRunner, tmp_pa
 def test_an_unexpected_error_is_an_internal_error(
     runner: CliRunner, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import sensaov_cli.spec.load
+    import sensaov_cli.job.load
 
     def broken(path: Path) -> None:
         raise ZeroDivisionError("first line\nlast line")
 
-    monkeypatch.setattr(sensaov_cli.spec.load, "load_job", broken)
+    monkeypatch.setattr(sensaov_cli.job.load, "load_job", broken)
     result = runner.invoke(main, ["validate", "whatever.yaml"])
     assert result.exit_code == EXIT_JOB_FAILED
     assert result.stderr == (

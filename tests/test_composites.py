@@ -13,11 +13,11 @@ from types import ModuleType
 import pytest
 import yaml
 
-from sensaov_cli.render.fdcheck import check_parameter
+from sensaov_cli.job.load import load_job
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
 from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.trust import COMPOSITE_TABLE
-from sensaov_cli.spec.load import load_job
+from sensaov_cli.render.verify.fdcheck import check_parameter
+from sensaov_cli.render.verify.trust import COMPOSITE_TABLE
 from tests.conftest import sensaov, use_scene, write_job
 
 SCENE = """<scene version="3.0.0">

@@ -22,10 +22,10 @@ import pytest
 import yaml
 
 from sensaov_cli.errors import SceneError
+from sensaov_cli.job.load import load_job
+from sensaov_cli.job.spec import CameraSpec
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
-from sensaov_cli.render.scene.prepare import PreparedScene, prepare_xml
-from sensaov_cli.spec.job import CameraSpec
-from sensaov_cli.spec.load import load_job
+from sensaov_cli.scene.prepare import PreparedScene, prepare_xml
 
 CORPUS = Path(__file__).resolve().parents[1] / "scenes" / "corpus"
 # (scene folder, the scene arguments it is loaded with)

@@ -18,6 +18,7 @@ import yaml
 
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import per_object
+from sensaov_cli.job.spec import ChannelSpec
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.outputs.previews import (
     diverging_linear,
@@ -25,7 +26,6 @@ from sensaov_cli.outputs.previews import (
     diverging_rgb,
     srgb_uint8,
 )
-from sensaov_cli.spec.job import ChannelSpec
 from sensaov_cli.views.channels import channel_values
 from sensaov_cli.views.coverage import VisibilityPass, histogram, ranked
 from sensaov_cli.views.display_scale import (

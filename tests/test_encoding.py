@@ -9,7 +9,7 @@ import pytest
 
 from sensaov_cli.buffer.queries import KeyStats, combine
 from sensaov_cli.errors import EncodingError, NonFiniteError
-from sensaov_cli.spec.job import ChannelSpec
+from sensaov_cli.job.spec import ChannelSpec
 from sensaov_cli.views.encoding import (
     Encoding,
     Scale,

@@ -278,11 +278,11 @@ def test_standard_errors_are_calibrated(job_writer: Callable[..., Path]) -> None
     missing sqrt(k), variance for standard deviation) fails it.
     """
     from sensaov_cli.buffer.statistics import SUM_VALUE
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.progress import Progress
     from sensaov_cli.render.adjoint import run_adjoint
     from sensaov_cli.render.loading import load_job_scene
     from sensaov_cli.render.objectives import build_objectives
-    from sensaov_cli.spec.load import load_job
 
     render = {"spp": 32, "max_depth": 3, "seed": 0, "resolution": [16, 16], "batches": 4}
     job = load_job(job_writer("calibration", render=render))

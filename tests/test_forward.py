@@ -54,10 +54,10 @@ def test_run_reports_the_cost_of_every_forward_pass(cbox_forward: tuple) -> None
 
 def test_forward_channel_matches_same_seed_central_differences(cbox_forward: tuple) -> None:
     """J·v of the green wall's reflectance against (I(θ+εv) − I(θ−εv)) / 2ε at its seed."""
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.render.adjoint import render_primal
     from sensaov_cli.render.loading import assign, load_job_scene
     from sensaov_cli.render.visibility import trace
-    from sensaov_cli.spec.load import load_job
 
     job, _ = cbox_forward
     buffer, data = _load(job)
@@ -151,9 +151,9 @@ def test_check_passes_and_fails_loudly_on_a_corrupted_gradient(
 
 def test_indirect_only_wall_paints_the_objects_it_lights(tmp_path: Path) -> None:
     """scenes/interior's front wall is behind the camera: seen nowhere, felt everywhere."""
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.render.loading import load_job_scene
     from sensaov_cli.render.visibility import trace
-    from sensaov_cli.spec.load import load_job
 
     forward = [{"name": "front_wall", "object": "front_wall", "transport": True}]
     job = write_job(tmp_path, "interior", forward=forward, channels=[])
@@ -176,7 +176,7 @@ def test_indirect_only_wall_paints_the_objects_it_lights(tmp_path: Path) -> None
 
 
 def test_forward_entries_are_validated(tmp_path: Path) -> None:
-    from sensaov_cli.spec.load import load_job
+    from sensaov_cli.job.load import load_job
 
     both = [{"name": "a", "select": "*", "type": "reflectance"}]
     with pytest.raises(SpecError, match="exactly one of select, object or type"):

@@ -19,14 +19,14 @@ from types import ModuleType
 import numpy as np
 import pytest
 
+from sensaov_cli.job.load import load_job
 from sensaov_cli.progress import Progress
 from sensaov_cli.render import adjoint
-from sensaov_cli.render.fdcheck import check_gradients, check_parameter
-from sensaov_cli.render.gradient_audit import SAME_SEED_TOLERANCE, audit, plan_audit
 from sensaov_cli.render.leaves import enable_gradients
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
 from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
-from sensaov_cli.spec.load import load_job
+from sensaov_cli.render.verify.fdcheck import check_gradients, check_parameter
+from sensaov_cli.render.verify.gradient_audit import SAME_SEED_TOLERANCE, audit, plan_audit
 
 # Kinds whose sampling does not depend on θ: at the same seed they agree on every run.
 SAME_SEED_KINDS = {
@@ -122,7 +122,7 @@ def test_disagreement_needs_students_t_for_few_seeds() -> None:
     import numpy as np
 
     from sensaov_cli.buffer.model import ParamRecord
-    from sensaov_cli.render.fdcheck import disagreement_sigmas, judge
+    from sensaov_cli.render.verify.fdcheck import disagreement_sigmas, judge
 
     info = ParamRecord("k", "roughness", (), (1,), False, "roughdielectric", (), "verified", "")
     noise = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0]) * 1e-4 * np.sqrt(6 * 5 / 6)
@@ -134,7 +134,7 @@ def test_disagreement_needs_students_t_for_few_seeds() -> None:
     assert disagreement_sigmas(6) == 6.87 and disagreement_sigmas(100) == 3.29
 
 
-# --- sensaov check's plan: one seed where it suffices (render/gradient_audit.py) -------------
+# --- sensaov check's plan: one seed where it suffices (render/verify/gradient_audit.py) ---------
 
 
 def test_check_plans_one_seed_where_the_value_does_not_steer_sampling(tiny) -> None:  # noqa: ANN001
@@ -170,7 +170,7 @@ def test_one_seed_agrees_to_float_precision_and_says_so_as_it_goes(tiny) -> None
 
 def test_one_seed_verdicts() -> None:
     from sensaov_cli.buffer.model import ParamRecord
-    from sensaov_cli.render.gradient_audit import _one_seed  # noqa: PLC2701 - the rule itself
+    from sensaov_cli.render.verify.gradient_audit import _one_seed  # noqa: PLC2701 - the rule itself
 
     info = ParamRecord("k", "reflectance", (), (3,), False, "diffuse", (), "verified", "")
     assert _one_seed(info, [1.0005], [1.0], 0.1).verdict == "agrees"

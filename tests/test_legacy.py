@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_OK
-from sensaov_cli.render.scene import legacy
+from sensaov_cli.scene import legacy
 from tests.conftest import sensaov, use_scene, write_job
 
 INTERIOR = Path(__file__).parent / "scenes" / "legacy_interior"

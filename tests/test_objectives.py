@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from sensaov_cli.errors import ObjectiveError, SpecError
+from sensaov_cli.job.spec import ObjectiveSpec
 from sensaov_cli.render.objectives import REC709_LUMA, build_objectives, value_and_adjoint
-from sensaov_cli.spec.job import ObjectiveSpec
 
 H, W = 6, 8
 

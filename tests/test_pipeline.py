@@ -15,8 +15,8 @@ from click.testing import CliRunner
 
 from sensaov_cli import interrupts
 from sensaov_cli.cli import main
-from sensaov_cli.render.scene import expand
-from sensaov_cli.spec.load import load_job
+from sensaov_cli.job.load import load_job
+from sensaov_cli.scene import expand
 
 CHANNELS = [{"name": "objects", "kind": "object"}]
 CAMERAS = [{"name": "top", "look_at": {"origin": [0, 1, 3], "target": [0, 0, 0], "up": [0, 1, 0]},

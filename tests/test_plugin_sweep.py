@@ -12,12 +12,12 @@ from types import ModuleType
 import numpy as np
 import pytest
 
+from sensaov_cli.job.cameras import CameraSpec
+from sensaov_cli.job.spec import ParameterSpec
 from sensaov_cli.render.leaves import enable_gradients
 from sensaov_cli.render.loading import load_scene
-from sensaov_cli.render.scene.legacy import PLUGINS
-from sensaov_cli.render.scene.prepare import prepare_xml
-from sensaov_cli.spec.cameras import CameraSpec
-from sensaov_cli.spec.job import ParameterSpec
+from sensaov_cli.scene.legacy import PLUGINS
+from sensaov_cli.scene.prepare import prepare_xml
 
 DIFFUSE = '<bsdf type="diffuse"/>'
 BITMAP = '<texture type="bitmap" name="{}"><string name="filename" value="tex.exr"/></texture>'

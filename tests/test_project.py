@@ -163,9 +163,9 @@ def test_project_computes_no_derivatives(
 ) -> None:
     import drjit as dr
 
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.pipeline.project import project_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.spec.load import load_job
 
     job = job_writer("no_ad", inspection_cameras=CAMERAS[1:])
     assert sensaov("run", "-q", str(job)).returncode == 0

@@ -302,8 +302,8 @@ def zero_valued_buffer() -> SensitivityBuffer:
 def test_zero_valued_parameters_are_flagged_with_their_raw_gradient() -> None:
     """θ = 0 gives a value-weighted score of 0 (issue 18, point 5): never 'does not matter'
     without a word, in rankings, the summary, channels and the sunburst."""
+    from sensaov_cli.job.spec import ChannelSpec
     from sensaov_cli.outputs.rankings import ranking_dict, ranking_text
-    from sensaov_cli.spec.job import ChannelSpec
     from sensaov_cli.views.channels import channel_values
     from sensaov_cli.views.hierarchy import rankings
     from sensaov_cli.views.summary import summary_dict

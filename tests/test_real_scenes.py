@@ -22,12 +22,12 @@ import yaml
 
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_OK
+from sensaov_cli.job.load import load_job
+from sensaov_cli.job.spec import CameraSpec, ChannelSpec
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
-from sensaov_cli.render.scene.prepare import prepare_xml
 from sensaov_cli.render.visibility import trace
-from sensaov_cli.spec.job import CameraSpec, ChannelSpec
-from sensaov_cli.spec.load import load_job
+from sensaov_cli.scene.prepare import prepare_xml
 from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass, histogram, ranked
 from sensaov_cli.views.display_scale import robust_scale

@@ -1,4 +1,4 @@
-"""Repairs (render/repair.py): known-wrong gradients computed again by finite differences.
+"""Repairs (render/verify/repair.py): known-wrong gradients computed again by finite differences.
 
 The acceptance test of issue 20 runs tests/scenes/repair_mix.xml (roughplastic α and η, smooth
 plastic, a reflectance component exactly 0, the light's own reflectance 0, a blend over a smooth
@@ -21,15 +21,15 @@ import pytest
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer
+from sensaov_cli.job.load import load_job
+from sensaov_cli.job.spec import RepairSpec
 from sensaov_cli.outputs.tables import summary_text
 from sensaov_cli.pipeline.run import run_job
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import render_primal
 from sensaov_cli.render.loading import assign, load_job_scene
 from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
-from sensaov_cli.render.repair_plan import TEXTURE_REASON, plan
-from sensaov_cli.spec.job import RepairSpec
-from sensaov_cli.spec.load import load_job
+from sensaov_cli.render.verify.repair_plan import TEXTURE_REASON, plan
 from tests.conftest import use_scene
 
 SCENE = Path(__file__).parent / "scenes" / "repair_mix.xml"

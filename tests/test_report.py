@@ -294,7 +294,7 @@ def row_of_params(text: str, key: str) -> str:
 
 def test_a_pass_is_not_marked_for_a_parameter_no_gradient_flows_through() -> None:
     """The gold ball's eta adds exactly 0 to every picture: only the biased alpha marks it."""
-    from sensaov_cli.spec.job import ChannelSpec
+    from sensaov_cli.job.spec import ChannelSpec
     from sensaov_cli.views.channels import channel_values
 
     channel = (ChannelSpec("objects", "object"),)

@@ -216,9 +216,9 @@ def test_a_stop_requested_during_a_kernel_writes_nothing(
 ) -> None:
     """A KeyboardInterrupt can be swallowed inside Dr.Jit callbacks; the recorded request is not."""
     from sensaov_cli import interrupts
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.pipeline.run import run_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.spec.load import load_job
 
     job = job_writer("stopped")
     monkeypatch.setattr(interrupts, "_requested", __import__("threading").Event())

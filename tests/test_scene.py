@@ -9,9 +9,9 @@ from types import ModuleType
 import pytest
 
 from sensaov_cli.errors import SceneError, SpecError
+from sensaov_cli.job.load import load_job
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
-from sensaov_cli.render.scene.prepare import prepare_xml
-from sensaov_cli.spec.load import load_job
+from sensaov_cli.scene.prepare import prepare_xml
 
 SPLIT_WHITE = ("back_wall", "ceiling", "floor", "light")
 

@@ -14,13 +14,13 @@ from pathlib import Path
 import pytest
 
 from sensaov_cli.errors import SceneError
+from sensaov_cli.job.cameras import CameraSpec, LookAt
+from sensaov_cli.job.load import load_job
 from sensaov_cli.pipeline.validate import validate_job
-from sensaov_cli.render.scene.expand import expand_scene
-from sensaov_cli.render.scene.naming import name_objects
-from sensaov_cli.render.scene.prepare import PreparedScene, prepare_xml
-from sensaov_cli.render.scene.source import locate_load_error, write_xml
-from sensaov_cli.spec.cameras import CameraSpec, LookAt
-from sensaov_cli.spec.load import load_job
+from sensaov_cli.scene.expand import expand_scene
+from sensaov_cli.scene.naming import name_objects
+from sensaov_cli.scene.prepare import PreparedScene, prepare_xml
+from sensaov_cli.scene.source import locate_load_error, write_xml
 
 CORPUS = Path(__file__).resolve().parents[1] / "scenes" / "corpus"
 SENSOR = (
@@ -552,7 +552,7 @@ def test_validate_needs_no_renderer() -> None:
     code = (
         "import sys; from pathlib import Path\n"
         "from sensaov_cli.pipeline.validate import validate_job\n"
-        "from sensaov_cli.spec.load import load_job\n"
+        "from sensaov_cli.job.load import load_job\n"
         f"assert validate_job(load_job(Path({str(job)!r}))).sensor_ids\n"
         "print(sorted({m.split('.')[0] for m in sys.modules} & {'mitsuba', 'drjit'}))"
     )

@@ -17,8 +17,8 @@ import pytest
 
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import key_stats
+from sensaov_cli.job.spec import ChannelSpec, PoolSpec
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.spec.job import ChannelSpec, PoolSpec
 from sensaov_cli.views.texel_fields import texel_fields
 from sensaov_cli.views.texels import TextureSampling
 
@@ -37,10 +37,10 @@ CASES = {
 
 
 def _run(folder: Path, mi: ModuleType, filter_type: str, wrap: str, angle: int) -> Path:
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.pipeline.project import project_job
     from sensaov_cli.pipeline.run import run_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.spec.load import load_job
 
     folder.mkdir(parents=True)
     texture = folder / "quad_texture.exr"

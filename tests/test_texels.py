@@ -202,7 +202,7 @@ def test_footprint_entries_are_merged_on_the_texels_a_seam_included(
 
 def test_the_job_knows_texel_channels_and_refuses_their_keys_elsewhere(tmp_path: Path) -> None:
     from sensaov_cli.errors import SpecError
-    from sensaov_cli.spec.load import load_job
+    from sensaov_cli.job.load import load_job
 
     def job(channel: str) -> Path:
         path = tmp_path / "job.yaml"

@@ -14,12 +14,13 @@ import pytest
 import yaml
 
 from sensaov_cli.buffer.model import ParamRecord
+from sensaov_cli.job.load import load_job
 from sensaov_cli.progress import Progress
 from sensaov_cli.render import adjoint
-from sensaov_cli.render.fdcheck import check_parameter
 from sensaov_cli.render.loading import load_job_scene
 from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.selfcheck import (
+from sensaov_cli.render.verify.fdcheck import check_parameter
+from sensaov_cli.render.verify.selfcheck import (
     MIN_TOLERANCE,
     PAIR_TOLERANCE,
     EmitterTerms,
@@ -27,7 +28,7 @@ from sensaov_cli.render.selfcheck import (
     check,
     tolerance,
 )
-from sensaov_cli.render.trust import (
+from sensaov_cli.render.verify.trust import (
     COMPOSITE_TABLE,
     COMPOSITES,
     DELTA_LOBE_REASON,
@@ -37,7 +38,6 @@ from sensaov_cli.render.trust import (
     SPOT_TEXTURE_REASON,
     TABLE,
 )
-from sensaov_cli.spec.load import load_job
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "verification.md"
 WORST_FIRST = ("no_gradient", "biased", "suspect", "unverified", "verified")

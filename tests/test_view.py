@@ -38,15 +38,15 @@ from sensaov_cli.errors import (
     EXIT_TERMINATED,
     RequestError,
 )
+from sensaov_cli.job.cameras import LookAt
+from sensaov_cli.job.load import load_job
+from sensaov_cli.live.query import single_values, view_request
+from sensaov_cli.live.save import copy_path
+from sensaov_cli.live.server import ViewServer
+from sensaov_cli.live.session import ViewSession, open_session
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.pipeline.view import ViewSession, open_session
-from sensaov_cli.pipeline.view_query import single_values, view_request
-from sensaov_cli.pipeline.view_save import copy_path
-from sensaov_cli.pipeline.view_server import ViewServer
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.viewpoint import Pose, ViewTracer, sensor_pose
-from sensaov_cli.spec.cameras import LookAt
-from sensaov_cli.spec.load import load_job
 from sensaov_cli.views.headline import is_trusted
 
 from .conftest import ROOT, sensaov

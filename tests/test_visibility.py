@@ -110,9 +110,9 @@ def test_coverage_orders_and_merges_as_the_plain_sorts_did() -> None:
 
 
 def test_traced_uvs_lie_on_hit_surfaces(mi: ModuleType, job_writer) -> None:  # noqa: ANN001
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.render.loading import load_job_scene
     from sensaov_cli.render.visibility import trace
-    from sensaov_cli.spec.load import load_job
 
     loaded = load_job_scene(load_job(job_writer("uv")))
     vis = trace(mi, loaded.scene, loaded.sensor, loaded.objects, 4, with_uv=True)

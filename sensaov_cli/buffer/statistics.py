@@ -161,7 +161,7 @@ def with_batch_estimates(
     theta: np.ndarray,
 ) -> tuple[Statistics, dict[str, np.ndarray]]:
     """``statistics`` with parameter ``key``'s batch estimates replaced by ``batch_grads``
-    (objective -> one array per batch: a repair's, render/repair.py), and their new means."""
+    (objective -> one array per batch: a repair's, render/verify/repair.py), and their new means."""
     index = list(keys).index(key)
     stderr = {name: dict(per_key) for name, per_key in statistics.stderr.items()}
     sums = {name: table.copy() for name, table in statistics.batch_sums.items()}

@@ -80,9 +80,9 @@ def project(
     """
     from dataclasses import asdict
 
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.pipeline.project import project_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
     views = project_job(

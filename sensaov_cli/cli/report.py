@@ -34,7 +34,7 @@ def report(job: Path, output: Path | None) -> None:
       sensaov run configs/cbox.yaml && sensaov project configs/cbox.yaml --png
       sensaov report configs/cbox.yaml          # -> out/cbox/report.html
     """
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.pipeline.report import make_report
-    from sensaov_cli.spec.load import load_job
 
     click.echo(str(make_report(load_job(job), output)))

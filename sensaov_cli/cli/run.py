@@ -79,10 +79,10 @@ def run(
       sensaov run configs/cbox.yaml --shard 3/8 --resume    # one farm task
       sensaov run configs/cbox.yaml --objective mean_luma   # one adjoint pass
     """
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.pipeline.rank import summary_of
     from sensaov_cli.pipeline.run import Task, run_job
     from sensaov_cli.progress import Progress
-    from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
     with stdout_to_stderr():  # an objective's print() must not end up in the summary

@@ -16,6 +16,6 @@ def schema() -> None:
     Example:
       sensaov schema > sensaov-job.schema.json
     """
-    from sensaov_cli.spec.load import job_schema
+    from sensaov_cli.job.load import job_schema
 
     echo_json(job_schema(), sort_keys=True)

@@ -22,8 +22,8 @@ def validate(job: Path) -> None:
     Example:
       sensaov validate configs/cbox.yaml
     """
+    from sensaov_cli.job.load import load_job
     from sensaov_cli.pipeline.validate import validate_job
-    from sensaov_cli.spec.load import load_job
 
     spec = load_job(job)
     sensors = validate_job(spec).sensor_ids

@@ -74,10 +74,10 @@ def view(
       sensaov view configs/cbox.yaml --open    # http://127.0.0.1:8765/
       curl -o v.png 'http://127.0.0.1:8765/api/view?channel=objects&origin=2,1,3'
     """
-    from sensaov_cli.pipeline.view import open_session
-    from sensaov_cli.pipeline.view_server import listen, serve
+    from sensaov_cli.job.load import load_job
+    from sensaov_cli.live.server import listen, serve
+    from sensaov_cli.live.session import open_session
     from sensaov_cli.progress import Progress
-    from sensaov_cli.spec.load import load_job
 
     def printed(text: str) -> None:  # a saved camera's YAML, on stdout as it is saved
         click.echo(text, nl=False)

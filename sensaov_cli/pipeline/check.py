@@ -1,11 +1,11 @@
 """Wire the stages of ``sensaov check``: spec -> scene -> finite differences and duality.
 
 The job's objective (the first, or the one named) is built for the objective camera and
-:func:`~sensaov_cli.render.gradient_audit.audit` compares its reverse-mode gradients with
+:func:`~sensaov_cli.render.verify.gradient_audit.audit` compares its reverse-mode gradients with
 central finite differences (one seed where that suffices, several where the value steers
 sampling); the stored buffer, when there is one, is replayed against forward mode
-(:func:`~sensaov_cli.render.duality.check_duality`); :func:`exit_code` says whether the result
-is a failure. Every render is a progress line.
+(:func:`~sensaov_cli.render.verify.duality.check_duality`); :func:`exit_code` says whether the
+result is a failure. Every render is a progress line.
 """
 
 from __future__ import annotations
@@ -18,15 +18,15 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.statistics import single_pass
 from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, FingerprintMismatch, SpecError
+from sensaov_cli.job.spec import JobSpec, ObjectiveSpec
 from sensaov_cli.pipeline.run import BUFFER_NAME
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.duality import FD_TOLERANCE, DualityCheck, check_duality
-from sensaov_cli.render.fdcheck import GradientCheck
-from sensaov_cli.render.gradient_audit import audit, plan_audit
 from sensaov_cli.render.loading import load_scene
 from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.scene import prepare_scene
-from sensaov_cli.spec.job import JobSpec, ObjectiveSpec
+from sensaov_cli.render.verify.duality import FD_TOLERANCE, DualityCheck, check_duality
+from sensaov_cli.render.verify.fdcheck import GradientCheck
+from sensaov_cli.render.verify.gradient_audit import audit, plan_audit
+from sensaov_cli.scene import prepare_scene
 
 __all__ = ["FD_TOLERANCE", "CheckReport", "check_job", "exit_code"]
 

@@ -18,7 +18,7 @@ from typing import Any
 from sensaov_cli.buffer.identity import STAMP_BUFFER, STAMP_JOB, buffer_id, run_version
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.errors import StaleInputError
-from sensaov_cli.spec.job import JobSpec
+from sensaov_cli.job.spec import JobSpec
 
 # The job's top-level keys, as `run` reads them; a mismatch names the ones that differ.
 _RUN_KEYS = ("scene", "scene_args", "variant", "render", "parameters", "objective_camera",

@@ -21,6 +21,7 @@ from sensaov_cli.buffer.identity import stamp
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import FingerprintMismatch, SpecError
+from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.outputs.atomic import check_writable
 from sensaov_cli.outputs.display_layers import display_background, scale_of, with_display
 from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write_layered_exr
@@ -35,9 +36,8 @@ from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene, load_scene
 from sensaov_cli.render.memory import check_job, sensor_sizes
-from sensaov_cli.render.scene import prepare_scene
 from sensaov_cli.render.visibility import trace
-from sensaov_cli.spec.job import CameraSpec, JobSpec
+from sensaov_cli.scene import prepare_scene
 from sensaov_cli.views.channels import ChannelValues, channel_values
 from sensaov_cli.views.coverage import VisibilityPass, ranked
 from sensaov_cli.views.display_scale import (

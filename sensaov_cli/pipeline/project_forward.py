@@ -11,10 +11,10 @@ from sensaov_cli.buffer.forward_sidecar import check_belongs, read_forward
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.statistics import single_pass
 from sensaov_cli.errors import SpecError
+from sensaov_cli.job.spec import JobSpec
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
-from sensaov_cli.spec.job import JobSpec
 from sensaov_cli.views.transport import forward_views, transport_views
 
 

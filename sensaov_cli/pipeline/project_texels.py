@@ -16,12 +16,12 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.job.spec import JobSpec
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.texture_files import safe_file_stem, write_fig4_sheet, write_texture_files
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.texture_modes import objects_without_uv, texture_probes
-from sensaov_cli.spec.job import JobSpec
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale
 from sensaov_cli.views.texel_fields import TexelField, texel_fields, texture_keys

@@ -20,6 +20,7 @@ from sensaov_cli.buffer.identity import buffer_id, provenance_id, run_version
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import OutputError, SensaovError, StaleInputError
+from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.outputs.atomic import check_writable
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.outputs.frames import seen_names
@@ -40,8 +41,7 @@ from sensaov_cli.outputs.report_html import (
 from sensaov_cli.outputs.sunburst_drawing import sunburst_bytes
 from sensaov_cli.pipeline.consistency import check_buffer_of_job, check_made_by, check_made_from
 from sensaov_cli.pipeline.run import BUFFER_NAME, PRIMAL_NAME
-from sensaov_cli.render.scene.expand import expand_scene
-from sensaov_cli.spec.job import CameraSpec, JobSpec
+from sensaov_cli.scene.expand import expand_scene
 from sensaov_cli.views.headline import is_trusted
 from sensaov_cli.views.hierarchy import rankings
 from sensaov_cli.views.sunburst_geometry import panels

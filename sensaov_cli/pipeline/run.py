@@ -17,6 +17,7 @@ from sensaov_cli.buffer.identity import BUFFER_ID, RUN_VERSION, new_buffer_id
 from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer
 from sensaov_cli.errors import SensaovError, SpecError
+from sensaov_cli.job.spec import JobSpec
 from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
 from sensaov_cli.outputs.exr import exr_writer, image_channels, read_exr
 from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
@@ -28,10 +29,9 @@ from sensaov_cli.render.image_effect import ImageEffect, depth_effect
 from sensaov_cli.render.loading import LoadedScene, load_scene, refuse_non_finite
 from sensaov_cli.render.memory import check_render
 from sensaov_cli.render.objectives import Objective, build_objectives
-from sensaov_cli.render.repair import repair
 from sensaov_cli.render.runtime import library_versions
-from sensaov_cli.render.scene import PreparedScene, prepare_scene
-from sensaov_cli.spec.job import JobSpec
+from sensaov_cli.render.verify.repair import repair
+from sensaov_cli.scene import PreparedScene, prepare_scene
 
 BUFFER_NAME = "buffer.npz"
 PRIMAL_NAME = "primal.exr"

@@ -23,12 +23,12 @@ from sensaov_cli.buffer.forward_sidecar import (
     ties_of,
 )
 from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.job.spec import ChannelSpec, JobSpec
 from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.forward import adjoint_images, forward_image
 from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective
-from sensaov_cli.spec.job import ChannelSpec, JobSpec
 from sensaov_cli.views.transport import (
     direction_values,
     group_keys,

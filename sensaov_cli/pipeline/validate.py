@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+from sensaov_cli.job.spec import JobSpec
 from sensaov_cli.render.memory import check_job
-from sensaov_cli.render.scene import PreparedScene, prepare_scene
-from sensaov_cli.spec.job import JobSpec
+from sensaov_cli.scene import PreparedScene, prepare_scene
 
 
 def validate_job(job: JobSpec) -> PreparedScene:

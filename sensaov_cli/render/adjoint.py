@@ -9,7 +9,7 @@ prb cannot differentiate smooth (delta) BSDF lobes: their parameters take a seco
 pass of Mitsuba's ``path`` integrator (``loaded.routes``, from ``trust.gradient_integrator``:
 smooth BSDFs and composites with a smooth lobe), with gradients enabled
 on those parameters only, its samples split into chunks that bound its memory. After the
-passes, :mod:`~sensaov_cli.render.selfcheck` labels what the gradients themselves show to be
+passes, :mod:`~sensaov_cli.render.verify.selfcheck` labels what the gradients themselves show to be
 wrong (docs/verification.md).
 """
 
@@ -30,7 +30,7 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.leaves import pass_leaves
 from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-from sensaov_cli.render.selfcheck import self_check
+from sensaov_cli.render.verify.selfcheck import self_check
 
 SEED_STRIDE = 0x9E3779B1  # golden-ratio stride: distinct, reproducible seeds per objective
 # Mitsuba's path integrator differentiates by recording the whole render in the AD graph:
@@ -65,7 +65,7 @@ class AdjointResult:
     provenance: dict[str, Any] = field(default_factory=dict)  # integrators, self-check figures
     spp: int = 0  # samples per pixel behind the mean (the sum over batches)
     statistics: Statistics | None = None  # standard errors, with >= 2 batches
-    repairs: dict[str, Repair] = field(default_factory=dict)  # render/repair.py's records
+    repairs: dict[str, Repair] = field(default_factory=dict)  # render/verify/repair.py's records
 
 
 def to_numpy(value: Any, shape: tuple[int, ...]) -> np.ndarray:

@@ -18,11 +18,11 @@ import numpy as np
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
 from sensaov_cli.errors import SceneError
+from sensaov_cli.job.spec import CameraSpec, JobSpec, ParameterSpec
 from sensaov_cli.render.runtime import import_mitsuba
-from sensaov_cli.render.scene import PreparedScene, prepare_scene
 from sensaov_cli.render.selection import ownership_of, select
-from sensaov_cli.render.trust import Context
-from sensaov_cli.spec.job import CameraSpec, JobSpec, ParameterSpec
+from sensaov_cli.render.verify.trust import Context
+from sensaov_cli.scene import PreparedScene, prepare_scene
 
 
 @dataclass

@@ -15,8 +15,8 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 from sensaov_cli.errors import MemoryBudgetError
+from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.limits import check_memory
-from sensaov_cli.spec.job import CameraSpec, JobSpec
 
 if TYPE_CHECKING:
     from sensaov_cli.render.loading import LoadedScene

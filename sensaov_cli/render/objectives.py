@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.errors import ObjectiveError, SpecError
+from sensaov_cli.job.spec import ObjectiveSpec
 from sensaov_cli.limits import check_memory, regular_file
-from sensaov_cli.spec.job import ObjectiveSpec
 
 # Rec. 709 / sRGB primaries, the photometric response of the paper's example objective.
 REC709_LUMA = (0.2126, 0.7152, 0.0722)

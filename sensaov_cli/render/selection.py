@@ -19,7 +19,8 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
-from sensaov_cli.render.trust import (
+from sensaov_cli.job.spec import ParameterSpec
+from sensaov_cli.render.verify.trust import (
     COMPOSITES,
     WEAKEST_FIRST,
     Context,
@@ -27,7 +28,6 @@ from sensaov_cli.render.trust import (
     gradient_integrator,
     verification_status,
 )
-from sensaov_cli.spec.job import ParameterSpec
 from sensaov_cli.vocabulary import Trust
 
 # The slot a parameter fills, whatever its storage ("white.reflectance.value" and

@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from sensaov_cli.job.cameras import LookAt
 from sensaov_cli.render.visibility import object_of_registry_id
-from sensaov_cli.spec.cameras import LookAt
 from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass, histogram, ranked
 
 Vec3 = tuple[float, float, float]

@@ -21,7 +21,7 @@ import numpy as np
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.queries import per_object, select
 from sensaov_cli.errors import SpecError
-from sensaov_cli.spec.job import ChannelSpec
+from sensaov_cli.job.spec import ChannelSpec
 from sensaov_cli.views.headline import check_untrusted, untrusted_keys, zero_valued
 from sensaov_cli.vocabulary import Aggregate, Weight
 

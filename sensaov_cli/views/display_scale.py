@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
-from sensaov_cli.spec.job import ChannelSpec
+from sensaov_cli.job.spec import ChannelSpec
 from sensaov_cli.views.channels import channel_values
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.painting import paint_pass

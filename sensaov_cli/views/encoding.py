@@ -29,7 +29,7 @@ from sensaov_cli.errors import EncodingError, NonFiniteError
 from sensaov_cli.vocabulary import AGGREGATES, NORMALIZES, SIGNS, TONEMAPS, WEIGHTS
 
 if TYPE_CHECKING:
-    from sensaov_cli.spec.job import ChannelSpec
+    from sensaov_cli.job.spec import ChannelSpec
 
 
 # The log tone maps are near-linear below the threshold and logarithmic above it; at 1e-3 of

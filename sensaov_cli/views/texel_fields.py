@@ -21,7 +21,7 @@ import numpy as np
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import per_object
 from sensaov_cli.errors import SpecError
-from sensaov_cli.spec.job import ChannelSpec
+from sensaov_cli.job.spec import ChannelSpec
 from sensaov_cli.views.pooling import Pool, default_pool, pool_field, pool_variance
 from sensaov_cli.views.texels import TextureSampling
 

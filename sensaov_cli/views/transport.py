@@ -27,7 +27,7 @@ from sensaov_cli.buffer.forward_sidecar import ForwardData, ForwardLayer, dualit
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import per_object
 from sensaov_cli.errors import SpecError
-from sensaov_cli.spec.job import ForwardSpec
+from sensaov_cli.job.spec import ForwardSpec
 
 _TINY = 1e-30
 

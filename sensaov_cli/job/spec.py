@@ -1,0 +1,335 @@
+"""The job as the pipeline sees it: frozen dataclasses, one per concept, standard library only.
+
+Every field of the job format is defined here once: name, type and default, and in its
+``Annotated`` metadata the range, wording and description a job file must respect
+(:mod:`.fields`, :mod:`.markers`). :func:`sensaov_cli.job.load.load_job` validates a job file
+straight into these classes; importing them loads neither pydantic nor PyYAML, so views and
+outputs name them freely.
+
+A class a job file writes in several shapes keeps one field that tells them apart
+(``ObjectiveSpec.type``, ``ChannelSpec.kind``; a camera's kind is the key that picks it), and
+a field marked ``In`` is a key of the named shapes only. In a job file, null is accepted only
+where it is the default: a key written null means the key left out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from annotated_types import Ge, Gt, Le, Lt
+
+from sensaov_cli.job.cameras import PLACED, CameraSpec, InspectionCamera
+from sensaov_cli.job.fields import (
+    STRICT,
+    Function,
+    Globs,
+    JobDir,
+    JobFile,
+    Name,
+    Number,
+    OutputDir,
+    Region,
+    SceneArgs,
+    Text,
+    unique_names,
+)
+from sensaov_cli.job.markers import (
+    Doc,
+    Given,
+    In,
+    MinItems,
+    Section,
+    SensorOrPlaced,
+    Tagged,
+)
+from sensaov_cli.job.problems import Problem
+from sensaov_cli.job.render_settings import RenderSpec, RepairSpec
+from sensaov_cli.vocabulary import (
+    Aggregate,
+    ChannelKind,
+    Direction,
+    Normalize,
+    ObjectiveType,
+    PoolKind,
+    ScaleScope,
+    Sign,
+    TexelUnits,
+    Tonemap,
+    Untrusted,
+    Variant,
+    Weight,
+)
+
+
+@dataclass(frozen=True)
+class ParameterSpec(Section):
+    """Which scene parameters are differentiated."""
+
+    include: Annotated[Globs, MinItems(1), Doc("fnmatch globs over parameter keys to select.")] = (
+        "*",
+    )
+    exclude: Annotated[Globs, Doc("Globs removed from the selection.")] = ()
+    shared: Annotated[
+        Literal["split", "keep"],
+        Doc(
+            "split: copy a BSDF shared by several shapes into each, so each "
+            "object gets its own gradient; keep: leave shared BSDFs shared."
+        ),
+    ] = "split"
+
+
+@dataclass(frozen=True)
+class ViewsSpec(Section):
+    """How the headline views and the pictures read the buffer (docs/encoding.md)."""
+
+    untrusted: Annotated[
+        Untrusted,
+        Doc(
+            "apart: object and type views add up only gradients sensaov stands behind "
+            "(verified); the rest gets layers, rows and wedges of its own, named per object. "
+            "include: mix them in, marked."
+        ),
+    ] = "apart"
+    scale: Annotated[
+        ScaleScope,
+        Doc(
+            "shared: one display scale per (objective, channel) across every camera of the "
+            "job, for previews, contact sheets, the report and display layers; tile: each "
+            "camera its own scale, labelled so."
+        ),
+    ] = "shared"
+    percentile: Annotated[
+        Number,
+        Gt(50.0),
+        Le(100.0),
+        Doc(
+            "The display scale is this percentile of |value| over the pixels a layer paints "
+            "(non-zero), each camera weighted equally; larger values clip, and say so."
+        ),
+    ] = 95.0
+
+
+@dataclass(frozen=True)
+class ObjectiveSpec:
+    """A scalar of the rendered image whose derivatives are computed."""
+
+    name: Annotated[Name, Doc("Unique among objectives.")]
+    type: ObjectiveType
+    region: Annotated[
+        Region | None, In("region_luminance"), Doc("[x0, y0, x1, y1], normalised, y down.")
+    ] = None
+    mask: Annotated[
+        JobFile | None, In("region_luminance"), Doc("Mask image, relative to the job.")
+    ] = None
+    target: Annotated[
+        JobFile | None, In("l2_to_target", required=True), Doc("Target image, relative to the job.")
+    ] = None
+    function: Annotated[Function | None, In("python", required=True), Doc("'module:function'.")] = (
+        None
+    )
+    path: Annotated[
+        JobDir, In("python"), Doc("Put on sys.path; null = the job file's directory.")
+    ] = None
+
+    def __post_init__(self) -> None:
+        if self.name == "forward":  # the EXR layer of forward channels: forward.<name>.R/G/B
+            raise Problem("the name 'forward' is reserved for forward channels", at=("name",))
+        if self.type == "region_luminance" and (self.region is None) == (self.mask is None):
+            both = self.region is not None
+            raise Problem(
+                "give exactly one of region or mask" + (", not both" if both else ""),
+                at=("mask",) if both else (),
+            )
+
+    def definition(self) -> dict[str, Any]:
+        """The objective as written down in outputs: its non-None fields, JSON-able."""
+        fields = _jsonable(dataclasses.asdict(self), None)
+        return {key: value for key, value in fields.items() if value is not None}
+
+
+@dataclass(frozen=True)
+class PoolSpec(Section):
+    """Sum-conserving pooling of a texel field (paper §6): texel gradients are sparse."""
+
+    kind: Annotated[PoolKind, Doc("gaussian, box, mip (block sums) or none.")] = "gaussian"
+    radius: Annotated[
+        float | None,
+        STRICT,
+        Ge(0),
+        Lt(4096),
+        Doc("In texels (gaussian: sigma; box: half-width; mip: log2 of the block); null = auto."),
+    ] = None
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """A sensitivity image layer: a selection of parameters, aggregated and encoded."""
+
+    name: Annotated[Name, Doc("Unique among channels; the EXR layer name.")]
+    kind: ChannelKind
+    types: Annotated[
+        Annotated[tuple[Text, ...], MinItems(1)] | None,
+        In("type"),
+        Doc("Parameter types to show; null = all present."),
+    ] = None
+    select: Annotated[
+        Text | None,
+        In("select", required=True, doc="fnmatch glob over parameter keys."),
+        In("texel", doc="fnmatch glob over texture keys; null = every texture in the buffer."),
+    ] = None
+    weight: Weight = "value"
+    sign: Sign = "signed"
+    aggregate: Aggregate = "l2"
+    tonemap: Tonemap = "none"
+    normalize: Normalize = "none"
+    top: Annotated[
+        int, STRICT, Ge(1), Lt(65), In("transport"), Doc("Objects per objective (top by l2).")
+    ] = 3
+    pool: Annotated[
+        PoolSpec | None,
+        In("texel"),
+        Doc("How the texel field is pooled before projection; null = chosen from spp and size."),
+    ] = None
+    units: Annotated[
+        TexelUnits,
+        In("texel"),
+        Doc("texel: θ·∂M/∂θ of each texel; uv_area: per unit UV area (resolution-free)."),
+    ] = "texel"
+
+
+@dataclass(frozen=True)
+class ForwardSpec:
+    """A forward channel: the image's derivative along one pushed group of parameters (§4).
+
+    The group is a key glob (select), an object's parameters, or a parameter type: one of them.
+    """
+
+    name: Annotated[Name, Doc("Unique among forward channels; the EXR layer forward.<name>.")]
+    select: Annotated[Text | None, Doc("fnmatch glob over parameter keys.")] = None
+    object: Annotated[Text | None, Doc("Every selected parameter of this object.")] = None
+    type: Annotated[Text | None, Doc("Every selected parameter of this type.")] = None
+    direction: Annotated[
+        Direction, Doc("value: push v = θ (a proportional change); ones: v = 1 per component.")
+    ] = "value"
+    transport: Annotated[
+        bool, STRICT, Doc("Also write <objective>.transport_<name>.Y for every objective.")
+    ] = False
+
+    def __post_init__(self) -> None:
+        given = [k for k in ("select", "object", "type") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise Problem(
+                "give exactly one of select, object or type"
+                + (f", not {' and '.join(given)}" if given else ""),
+                at=(given[-1],) if len(given) > 1 else (),
+            )
+
+
+Objective = Annotated[
+    ObjectiveSpec, Tagged("type", "a mapping with name and type", noun="Objective")
+]
+Channel = Annotated[ChannelSpec, Tagged("kind", "a mapping with name and kind", noun="Channel")]
+
+
+@dataclass(frozen=True, kw_only=True)
+class JobSpec(Section):
+    """A sensaov job: which scene, which objectives, which views of their sensitivities."""
+
+    path: Annotated[Path, Given("job")]  # the job file itself
+    version: Annotated[Literal[1], Doc("Job format version.")]
+    scene: Annotated[JobFile, Doc("Mitsuba scene XML, relative to the job.")]
+    scene_args: SceneArgs = dataclasses.field(default_factory=dict)
+    variant: Annotated[Variant, Doc("Mitsuba variant; auto picks one.")] = "auto"
+    render: RenderSpec = RenderSpec()
+    parameters: ParameterSpec = ParameterSpec()
+    repair: RepairSpec = RepairSpec()
+    objective_camera: Annotated[
+        CameraSpec,
+        SensorOrPlaced(PLACED, name="objective"),
+        Doc("Sensor id or look_at camera; null = the scene's first sensor."),
+    ]
+    objectives: Annotated[
+        tuple[Objective, ...],
+        MinItems(1),
+        unique_names("objective", "objectives"),
+        Doc("What to differentiate; one backward pass each."),
+    ]
+    inspection_cameras: Annotated[
+        tuple[InspectionCamera, ...],
+        unique_names("inspection camera", "inspection_cameras"),
+        Doc("Extra views the sensitivities are shown from."),
+    ] = ()
+    channels: Annotated[tuple[Channel, ...], unique_names("channel", "channels")] = (
+        ChannelSpec("objects", "object"),
+        ChannelSpec("types", "type"),
+    )
+    forward: Annotated[
+        tuple[ForwardSpec, ...],
+        unique_names("forward channel", "forward"),
+        Doc("Forward-mode channels: one forward pass each (more with transport)."),
+    ] = ()
+    views: ViewsSpec = ViewsSpec()
+    output: Annotated[
+        OutputDir, Doc("Output directory, relative to the job; null = out/<job stem>.")
+    ]
+
+    @property
+    def wants_forward(self) -> bool:
+        """Whether the job asks for any forward pass: a forward channel or a transport one."""
+        return bool(self.forward) or any(c.kind == "transport" for c in self.channels)
+
+    def projected_cameras(self) -> tuple[CameraSpec, ...]:
+        """The cameras ``project`` paints: the inspection cameras, with the objective camera
+        first unless one of them already is it."""
+        cameras = self.inspection_cameras
+        if any(camera.objective for camera in cameras):
+            return cameras
+        return (CameraSpec("objective", objective=True), *cameras)
+
+    def input_files(self) -> tuple[Path, ...]:
+        """The files the job itself names: the job file, objectives' masks and targets (the
+        scene's files are the prepared scene's ``files``)."""
+        named = [(o.mask, o.target) for o in self.objectives]
+        return (self.path, *(path for pair in named for path in pair if path is not None))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The whole spec as a canonical JSON-able dict (absolute paths as strings)."""
+        result: dict[str, Any] = _jsonable(dataclasses.asdict(self), None)
+        return result
+
+    def job_hash(self) -> str:
+        """sha256 of the spec without ``path``, its paths relative to the job's directory.
+
+        Relative paths make the hash survive moving or copying a project directory: the
+        same job next to the same files hashes the same wherever it lies.
+        """
+        fields = _jsonable(dataclasses.asdict(self), self.path.parent)
+        del fields["path"]
+        return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
+
+    def run_hash(self) -> str:
+        """sha256 of what ``sensaov run`` reads of the job: the :meth:`job_hash` fields less the
+        ones only later commands read (inspection cameras, placement and texel channels, views,
+        the output folder). A buffer records it as ``run_version``: ``project`` and ``report``
+        accept a buffer only from a job whose run_hash is the same (docs/buffer-format.md)."""
+        fields = _jsonable(dataclasses.asdict(self), self.path.parent)
+        for later in ("path", "inspection_cameras", "views", "output"):
+            del fields[later]
+        fields["channels"] = [c for c in fields["channels"] if c["kind"] == "transport"]
+        return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
+
+
+def _jsonable(value: Any, relative_to: Path | None) -> Any:
+    if isinstance(value, dict):
+        return {key: _jsonable(item, relative_to) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(item, relative_to) for item in value]
+    if isinstance(value, Path):
+        return str(value) if relative_to is None else os.path.relpath(value, relative_to)
+    return value

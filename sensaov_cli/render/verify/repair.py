@@ -1,0 +1,215 @@
+"""Repairs: where Mitsuba's reverse-mode gradient is known wrong, central differences instead.
+
+After a run's backward passes and self-checks, every parameter :mod:`.repair_plan` picks is
+differentiated again by finite differences with common random numbers: per seed s and
+component c, (M(θ + ε e_c; s) − M(θ − ε e_c; s)) / 2ε, both sides rendered with the same
+samples, so that the noise they share cancels; a component within a step of a bound (0 for a
+throughput weight, 0 or 1 for a blend weight) takes (−3 M(θ; s) + 4 M(θ + h e_c; s) −
+M(θ + 2h e_c; s)) / 2h, h = ±ε away from it. ε = step · max(1, |θ_c|), the step measured for
+the kind (trust.REPAIRS). The mean over seeds replaces the stored gradient; the
+seeds' spread is its standard error (buffer/repairs.py). With ``render.batches: k`` the seeds
+are dealt to the batches, so the buffer's batch statistics cover the repaired gradients too.
+
+The label a repaired parameter gets is the repair's, measured per kind (trust.REPAIRS):
+``verified`` where differences were measured to agree with independent ones, else
+``unverified``. A candidate left out (over budget, a texture) keeps its label, with the reason
+added to its note; a composite over a smooth lobe the table called verified becomes unverified.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from sensaov_cli import interrupts
+from sensaov_cli.buffer.model import ParamRecord
+from sensaov_cli.buffer.repairs import Repair
+from sensaov_cli.buffer.statistics import with_batch_estimates
+from sensaov_cli.job.render_settings import RepairSpec
+from sensaov_cli.progress import Progress
+from sensaov_cli.render.adjoint import AdjointResult, derived_seed, integrator_plan, render_primal
+from sensaov_cli.render.loading import LoadedScene, assign
+from sensaov_cli.render.objectives import Objective, value_and_adjoint
+from sensaov_cli.render.verify.repair_plan import RepairPlan, Target, candidates, plan
+from sensaov_cli.render.verify.trust import repair_entry
+
+
+def repair(
+    loaded: LoadedScene,
+    objectives: Sequence[Objective],
+    result: AdjointResult,
+    settings: RepairSpec,
+    *,
+    seed: int,
+    spp: int,
+    batches: int = 1,
+    shard: int | None = None,
+    passes: int | None = None,
+    progress: Progress,
+    stages_after: int = 0,
+) -> AdjointResult:
+    """``result`` with every known-wrong gradient the budget allows computed again.
+
+    ``seed``, ``spp`` and ``batches`` are the whole job's (its primal seed, render.spp, and
+    render.batches or the shard count): the plan, its seeds and their spp are the job's, so
+    shard i renders exactly the seeds batch i-1 of a run with as many batches does, and their
+    merge is that run's buffer. ``shard``: this task's batch index (0-based), or None;
+    ``passes``: the whole job's backward passes per batch (default: this run's, which an
+    ``--objective`` task has fewer of). ``stages_after``: the progress stages that follow."""
+    zeros = result.provenance.get("self_checks", {}).get("zero_components", {})
+    reasons = candidates(loaded, result.params, zeros)
+    count = max(settings.seeds, batches)  # with batches, at least one seed each
+    width, height = loaded.resolution
+    whole = plan(
+        reasons, result.params, result.values, result.grads, settings,
+        pixels=width * height, spp=spp,
+        passes=passes or len(integrator_plan(loaded)) * len(objectives),
+        seeds=[derived_seed(seed, "repair", i) for i in range(count)],
+    )  # fmt: skip
+    chosen = whole if shard is None else replace(whole, seeds=whole.seeds[shard::batches])
+    progress.plan(len(chosen.targets) + stages_after)
+    repairs = {}
+    for index, target in enumerate(chosen.targets, 1):
+        label = (
+            f"repair {index}/{len(chosen.targets)} {target.key}: differences over "
+            f"{len(chosen.seeds)} seeds at {chosen.spp} spp"
+        )
+        with progress.stage(f"repair_{index}_s", label):
+            repairs[target.key] = _differences(loaded, objectives, result, chosen, target)
+    grads, statistics = _stored(result, repairs, batches)
+    provenance = {**result.provenance, "repairs": _figures(chosen, settings, repairs)}
+    return replace(
+        result,
+        grads=grads,
+        statistics=statistics,
+        params=tuple(_relabel(r, reasons, repairs, chosen) for r in result.params),
+        repairs=repairs,
+        provenance=provenance,
+    )
+
+
+class _Objectives:
+    """M of every objective at the current parameters, per (seed, spp); base renders cached."""
+
+    def __init__(self, loaded: LoadedScene, objectives: Sequence[Objective], spp: int):
+        self.loaded, self.objectives, self.spp = loaded, objectives, spp
+        self.base: dict[int, np.ndarray] = {}
+
+    def __call__(self, seed: int) -> np.ndarray:
+        interrupts.check()  # between renders: a stop is acted on within one render
+        image = render_primal(self.loaded, self.spp, seed)
+        return np.array([value_and_adjoint(self.loaded.mi, o, image)[0] for o in self.objectives])
+
+    def at_base(self, seed: int) -> np.ndarray:
+        if seed not in self.base:
+            self.base[seed] = self(seed)
+        return self.base[seed]
+
+
+def _differences(
+    loaded: LoadedScene,
+    objectives: Sequence[Objective],
+    result: AdjointResult,
+    chosen: RepairPlan,
+    target: Target,
+) -> Repair:
+    """Every seed's estimate of every component, for every objective. Each side is set once
+    and rendered at every seed (setting a roughplastic recomputes its tables: 14 ms)."""
+    started = time.perf_counter()
+    shape = result.values[target.key].shape
+    theta = result.values[target.key].astype(np.float32).ravel()
+    measure = _Objectives(loaded, objectives, chosen.spp)
+    rows = np.zeros((len(chosen.seeds), target.components, len(objectives)))
+    try:
+        away = dict(target.one_sided)  # component -> the sign of h, away from its bound
+        for c in range(target.components):
+            h = target.step * max(1.0, abs(float(theta[c]))) * away.get(c, 1)
+            sides = []
+            for multiple in (1, 2) if c in away else (1, -1):
+                moved = theta.copy()
+                moved[c] += multiple * h
+                assign(loaded, target.key, moved.reshape(shape))
+                sides.append(np.array([measure(seed) for seed in chosen.seeds]))
+            if c in away:
+                assign(loaded, target.key, theta.reshape(shape))
+                base = np.array([measure.at_base(seed) for seed in chosen.seeds])
+                rows[:, c] = (4 * sides[0] - sides[1] - 3 * base) / (2 * h)
+            else:
+                rows[:, c] = (sides[0] - sides[1]) / (2 * h)
+    finally:
+        assign(loaded, target.key, theta.reshape(shape))
+    names = [o.spec.name for o in objectives]
+    return Repair(
+        reason=target.reason,
+        step=target.step,
+        spp=(chosen.spp,) * len(chosen.seeds),
+        seeds=chosen.seeds,
+        one_sided=target.one_sided,
+        estimates={name: rows[:, :, j] for j, name in enumerate(names)},
+        reverse={name: result.grads[name][target.key].astype(np.float64).ravel() for name in names},
+        seconds=round(time.perf_counter() - started, 4),
+    )
+
+
+def _stored(
+    result: AdjointResult, repairs: dict[str, Repair], batches: int
+) -> tuple[dict[str, dict[str, np.ndarray]], Any]:
+    """The gradients with the repairs in place: the mean over seeds; with batch statistics,
+    seed i counts in batch i mod k and the mean is the batches' spp-weighted one."""
+    grads = {name: dict(per_key) for name, per_key in result.grads.items()}
+    statistics = result.statistics
+    keys = [r.key for r in result.params]
+    for key, fixed in repairs.items():
+        shape = result.values[key].shape
+        if statistics is None:
+            for name in grads:
+                grads[name][key] = fixed.mean(name).astype(np.float32).reshape(shape)
+            continue
+        # float32 per batch, as a shard stores it: the merge of shards gives the same bits
+        per_batch = {
+            name: [rows[b::batches].mean(axis=0).astype(np.float32).reshape(shape)
+                   for b in range(batches)]
+            for name, rows in fixed.estimates.items()
+        }  # fmt: skip
+        theta = result.values[key].astype(np.float64)
+        statistics, means = with_batch_estimates(statistics, keys, key, per_batch, theta)
+        for name, mean in means.items():
+            grads[name][key] = mean
+    return grads, statistics
+
+
+def _relabel(
+    record: ParamRecord, reasons: dict[str, str], repairs: dict[str, Repair], chosen: RepairPlan
+) -> ParamRecord:
+    if record.key in repairs:
+        entry = repair_entry(record.plugin, record.type)
+        was = f"{record.trust}" + (f": {record.note}" if record.note else "")
+        how = f"repaired by finite differences (reverse mode was {was})"
+        note = how if entry.trust == "verified" else f"{entry.note}; {how}"
+        return replace(record, estimator="finite-difference", trust=entry.trust, note=note)
+    if record.key in chosen.skipped:  # known wrong and left as it is: say both
+        known = record.note or reasons[record.key]
+        if record.trust == "verified":  # a composite over a smooth lobe, the table's verified
+            record = replace(record, trust="unverified")
+            known = reasons[record.key]
+        return replace(record, note=f"{known}; not repaired: {chosen.skipped[record.key]}")
+    return record
+
+
+def _figures(chosen: RepairPlan, settings: RepairSpec, repairs: dict[str, Repair]) -> dict:
+    """What the buffer's provenance says of the repairs (docs/buffer-format.md)."""
+    return {
+        "budget": settings.budget,
+        "budget_samples": chosen.budget_samples,
+        "samples": chosen.samples,
+        "spp": chosen.spp,
+        "seeds": list(chosen.seeds),
+        "renders": chosen.renders_per_seed() * len(chosen.seeds),
+        "repaired": [t.key for t in chosen.targets],
+        "not_repaired": dict(chosen.skipped),
+        "seconds": round(sum(r.seconds for r in repairs.values()), 4),
+    }

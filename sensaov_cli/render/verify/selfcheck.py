@@ -1,0 +1,277 @@
+"""Self-checks on the gradients a run computed, after its backward passes: no extra render.
+
+They can only lower a parameter's trust label (docs/verification.md, "Run-time self-checks"):
+
+(a) **no gradient flows**: a gradient identically 0 for every objective is not a result. The
+    parameter is labelled ``no_gradient`` with the known reason when there is one, and views
+    list it apart instead of ranking it.
+(b) **zero components**: where a throughput weight (reflectance, specular, transmittance) is
+    exactly 0, Mitsuba's replay has no later vertex to differentiate, so ∂M/∂θ there is wrong
+    (15x too small, measured) while θ·∂M/∂θ = 0 is right whatever the gradient. A parameter
+    the table verifies becomes ``unverified``, with the components named in its note.
+(c) **emission identities**, for objectives linear in the image: an image is linear in each
+    emitter's radiance, so Σ θ·∂M/∂θ over an emitter's radiance-like parameters equals its
+    ``scale`` (or spot texture) term, and summed over all emitters equals M. A violation
+    beyond Monte Carlo error marks the parameters involved ``suspect``, with the figures.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from sensaov_cli.buffer.model import ParamRecord
+from sensaov_cli.render.loading import LoadedScene
+from sensaov_cli.render.objectives import Objective, value_and_adjoint
+from sensaov_cli.render.verify.trust import NO_FLOW_REASON, known_zero_reason
+
+LINEAR_OBJECTIVES = frozenset({"mean_luminance", "region_luminance"})
+THROUGHPUT_TYPES = frozenset({"reflectance", "specular", "transmittance"})
+# Same pass, same paths: an emitter's radiance and scale terms agree to 3e-5 (measured on
+# envmaps and textured spot lights); 1e-3 leaves room for float32 accumulation.
+PAIR_TOLERANCE = 1e-3
+# M and its gradient-side estimate come from independent samples. Their relative gap times
+# sqrt(spp x effective pixel count) reached 12 at most over 8 scenes, 3 spp and 12 seeds
+# (docs/verification.md); the tolerance is 40 / sqrt(spp x pixels), never below 1 %.
+MC_CONSTANT = 40.0
+MIN_TOLERANCE = 0.01
+
+
+@dataclass(frozen=True)
+class EmitterTerms:
+    """An emitter's parameters that its emission is proportional to, in two independent groups.
+
+    ``radiance``: radiance, irradiance, intensity, envmap data (and textures in those slots);
+    ``scale``: an envmap's scale, a spot light's spatially varying texture. A group is None
+    when the emitter has none, or when one of its differentiable parameters is not selected.
+    """
+
+    name: str
+    radiance: tuple[str, ...] | None
+    scale: tuple[str, ...] | None
+
+
+@dataclass(frozen=True)
+class LinearObjective:
+    value: float  # M at the primal
+    effective_pixels: float  # (Σ w)² / Σ w² over the pixel weights of dM/dI
+
+
+@dataclass(frozen=True)
+class SelfCheck:
+    params: tuple[ParamRecord, ...]  # the records with their labels after the checks
+    figures: dict[str, Any]  # what was checked and found, for the buffer's provenance
+
+
+def check(
+    records: Sequence[ParamRecord],
+    values: Mapping[str, np.ndarray],
+    grads: Mapping[str, Mapping[str, np.ndarray]],
+    linear: Mapping[str, LinearObjective],
+    emitters: Sequence[EmitterTerms],
+    spp: int,
+    integrators: Mapping[str, str],
+) -> SelfCheck:
+    """Apply checks (a), (b), (c) to a run's gradients; ``integrators``: key -> its integrator."""
+    no_flow = [r.key for r in records if all(not np.any(g[r.key]) for g in grads.values())]
+    zeros = {r.key: _zero_components(r, values[r.key]) for r in records}
+    zeros = {key: where for key, where in zeros.items() if where}
+    identities = []
+    for name, objective in linear.items():
+        contributions = {r.key: _contribution(values[r.key], grads[name][r.key]) for r in records}
+        identities += _identities(name, objective, contributions, emitters, spp)
+    suspect: dict[str, list[str]] = {}
+    for identity in identities:
+        if not identity["passed"]:
+            for key in identity["keys"]:
+                suspect.setdefault(key, []).append(identity["summary"])
+    labelled = tuple(
+        _label(r, values[r.key], integrators[r.key] if r.key in no_flow else None, zeros, suspect)
+        for r in records
+    )
+    figures = {
+        "no_gradient": no_flow,
+        "zero_components": {key: len(where) for key, where in zeros.items()},
+        "emission_identities": identities,
+    }
+    return SelfCheck(labelled, figures)
+
+
+def _contribution(value: np.ndarray, grad: np.ndarray) -> float:
+    return float(np.dot(value.astype(np.float64).ravel(), grad.astype(np.float64).ravel()))
+
+
+def _zero_components(record: ParamRecord, value: np.ndarray) -> list[int]:
+    if record.type not in THROUGHPUT_TYPES:
+        return []
+    return [int(i) for i in np.flatnonzero(value.ravel() == 0)]
+
+
+def _label(
+    record: ParamRecord,
+    value: np.ndarray,
+    no_flow: str | None,
+    zeros: Mapping[str, list[int]],
+    suspect: Mapping[str, list[str]],
+) -> ParamRecord:
+    """The record with the strongest finding: no gradient flowing through integrator
+    ``no_flow``, then suspect, then zero components."""
+    if no_flow is not None:
+        return replace(record, trust="no_gradient", note=_no_flow_reason(record, value, no_flow))
+    if record.key in suspect:
+        figures = "failed a self-check: " + "; ".join(suspect[record.key])
+        if record.trust == "biased":  # already known wrong: keep the label, add the figures
+            return replace(record, note=f"{record.note}; {figures}")
+        return replace(record, trust="suspect", note=figures)
+    if record.key in zeros and record.trust == "verified":
+        return replace(record, trust="unverified", note=_zeros_note(zeros[record.key], value))
+    return record
+
+
+def _no_flow_reason(record: ParamRecord, value: np.ndarray, integrator: str) -> str:
+    if record.trust == "no_gradient":  # the table knows why
+        return record.note
+    all_zero = record.type in THROUGHPUT_TYPES and not np.any(value)
+    reason = known_zero_reason(record.plugin, record.type, record.key, integrator, all_zero)
+    return reason or NO_FLOW_REASON
+
+
+def _zeros_note(where: list[int], value: np.ndarray) -> str:
+    shown = f"components {where}" if len(where) <= 8 else f"{len(where)} components"
+    return (
+        f"value exactly 0 in {shown} of {value.size}: ∂M/∂θ there is not reliable (zero "
+        "throughput ends the path Mitsuba replays); θ·∂M/∂θ there is 0 whatever the gradient"
+    )
+
+
+def tolerance(spp: int, effective_pixels: float) -> float:
+    """Relative tolerance of Σ_emitters θ·∂M/∂θ against M (see MC_CONSTANT)."""
+    return max(MIN_TOLERANCE, MC_CONSTANT / math.sqrt(max(spp * effective_pixels, 1.0)))
+
+
+def _identity(
+    objective: str, what: str, lhs: float, rhs: float, tol: float, keys: Sequence[str]
+) -> dict[str, Any]:
+    scale = max(abs(lhs), abs(rhs))
+    gap = (lhs - rhs) / scale if scale > 0 else 0.0
+    summary = f"{what} for {objective!r}: {lhs:.4g} vs {rhs:.4g} ({gap:+.1%}, tolerance {tol:.1%})"
+    return {
+        "objective": objective, "check": what, "lhs": lhs, "rhs": rhs,
+        "relative_difference": gap, "tolerance": tol, "passed": abs(gap) <= tol,
+        "keys": list(keys), "summary": summary,
+    }  # fmt: skip
+
+
+def _identities(
+    objective: str,
+    linear: LinearObjective,
+    contributions: Mapping[str, float],
+    emitters: Sequence[EmitterTerms],
+    spp: int,
+) -> list[dict[str, Any]]:
+    def total(keys: Sequence[str]) -> float:
+        return math.fsum(contributions[k] for k in keys)
+
+    found = []
+    for e in emitters:
+        if e.radiance and e.scale:
+            what = f"emitter {e.name!r}: Σθ·∂M/∂θ of its radiance vs of its scale"
+            keys = [*e.radiance, *e.scale]
+            found.append(
+                _identity(objective, what, total(e.radiance), total(e.scale), PAIR_TOLERANCE, keys)
+            )
+    complete = [e.radiance or e.scale for e in emitters]
+    if emitters and all(complete):
+        keys = [k for group in complete for k in group or ()]
+        tol = tolerance(spp, linear.effective_pixels)
+        what = "Σθ·∂M/∂θ over every emitter's radiance vs M"
+        found.append(_identity(objective, what, total(keys), linear.value, tol, keys))
+    return found
+
+
+# --- what the live scene says: which parameters each emitter's emission is proportional to ----
+
+RADIANCE_SLOTS = frozenset({"radiance", "irradiance", "intensity", "data"})
+
+
+def self_check(
+    loaded: LoadedScene,
+    objectives: Sequence[Objective],
+    image: np.ndarray,
+    values: Mapping[str, np.ndarray],
+    grads: Mapping[str, Mapping[str, np.ndarray]],
+    objective_values: Mapping[str, float],
+    spp: int,
+    integrators: Mapping[str, str],
+) -> SelfCheck:
+    """Checks (a), (b), (c) on a run's gradients, given its primal image (no render)."""
+    linear = {
+        o.spec.name: LinearObjective(
+            objective_values[o.spec.name], _effective_pixels(loaded, o, image)
+        )
+        for o in objectives
+        if o.spec.type in LINEAR_OBJECTIVES
+    }
+    emitters = emitter_terms(loaded)
+    return check(loaded.selected, values, grads, linear, emitters, spp, integrators)
+
+
+def _effective_pixels(loaded: LoadedScene, objective: Objective, image: np.ndarray) -> float:
+    """(Σ w)² / Σ w² of the objective's pixel weights: the pixel count a region averages."""
+    _, adjoint = value_and_adjoint(loaded.mi, objective, loaded.mi.TensorXf(image))
+    weights = np.asarray(adjoint, dtype=np.float64).sum(axis=2)
+    return float(weights.sum() ** 2 / max(float((weights**2).sum()), 1e-300))
+
+
+def emitter_terms(loaded: LoadedScene) -> tuple[EmitterTerms, ...]:
+    """Per emitter of the scene, its radiance and scale groups (nodes matched by identity)."""
+    params = loaded.params
+    by_node: dict[int, list[str]] = {}
+    for key in params.keys():
+        by_node.setdefault(id(params.properties[key][2]), []).append(key)
+    selected = {record.key: record for record in loaded.selected}
+    terms = []
+    for emitter in loaded.scene.emitters():
+        nodes = list(loaded.mi.traverse(emitter).hierarchy)  # alive while ids are compared
+        own = by_node.get(id(emitter), [])
+        if not own:
+            continue
+        prefix = own[0].rsplit(".", 1)[0]
+        groups: dict[str, list[str] | None] = {"radiance": [], "scale": []}
+        for node in nodes:
+            for key in by_node.get(id(node), []):
+                group = _group(loaded, key[len(prefix) + 1 :].split(".")[0], node, emitter)
+                if group is None or not _differentiable(loaded, key):
+                    continue
+                members = groups[group]
+                groups[group] = members + [key] if key in selected and members is not None else None
+        first = next((k for g in groups.values() for k in g or () if selected[k].owners), None)
+        name = ",".join(selected[first].owners) if first else str(emitter.id())
+        terms.append(EmitterTerms(name, *(tuple(g) if g else None for g in groups.values())))
+    return tuple(terms)
+
+
+def _group(loaded: LoadedScene, slot: str, node: Any, emitter: Any) -> str | None:
+    """The group ("radiance", "scale" or None) of a parameter in ``slot`` of ``emitter``."""
+    if slot in RADIANCE_SLOTS:
+        return "radiance"
+    if slot == "scale":
+        return "scale"
+    if slot == "texture":  # a spot light ignores a texture that does not vary over the beam
+        top = node
+        while loaded.params.hierarchy.get(top, (None,))[0] not in (emitter, None):
+            top = loaded.params.hierarchy[top][0]
+        return "scale" if top.is_spatially_varying() else None
+    return None
+
+
+def _differentiable(loaded: LoadedScene, key: str) -> bool:
+    import drjit as dr
+
+    value, flags = loaded.params[key], loaded.params.properties[key][3]
+    non_differentiable = flags & int(loaded.mi.ParamFlags.NonDifferentiable)
+    return not non_differentiable and dr.is_diff_v(value) and dr.is_float_v(value)

@@ -1,0 +1,13 @@
+"""Preparing a user's scene for differentiation (pure XML: no Mitsuba import).
+
+The face is :func:`prepare_scene`: a job's scene reference in, a :class:`PreparedScene` out
+(the text Mitsuba loads, where it resolves names, the fingerprint, every file read, the names
+given to unnamed objects, and what was rewritten and why). Every command prepares its scene
+once and passes that value down. Inside: ``source`` (XML with file and line), ``expand``
+(includes, arguments, paths, as Mitsuba's parser reads them), ``upgrade`` (old formats),
+``naming``, ``sharing``, ``sensors`` and ``rewrite`` (what sensaov changes), ``prepare``.
+"""
+
+from sensaov_cli.scene.prepare import PreparedScene, SceneChange, prepare_scene
+
+__all__ = ["PreparedScene", "SceneChange", "prepare_scene"]

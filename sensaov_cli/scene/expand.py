@@ -1,0 +1,322 @@
+"""Expand a scene into one XML tree the way Mitsuba 3.9.1's parser reads it (pure Python).
+
+sensaov rewrites the scene before Mitsuba sees it, so the rewrite has to see what Mitsuba
+would: the reference is ``src/core/parser.cpp`` (``parse_xml_node``, ``substitute_parameters``,
+``parse_file_impl``); the measured behaviour is in the issue-8 research notes. What is done:
+
+- ``<include>`` is replaced by the included file's objects (a ``<scene>`` root) or by its root
+  object (any other root, under the include's ``name``). The file is found next to the including
+  file first, then in the folders of the files that include that one and the ``<path>``
+  folders declared so far; cycles are refused (Mitsuba would only stop at its depth limit,
+  which is kept: 15).
+- ``$name`` substitution runs on every attribute in document order (arguments.py).
+- ``<path>`` adds a search folder; ``<alias>`` is resolved into the ``<ref>``s that use it.
+- Plugin file names (meshes, bitmaps, envmaps) are resolved the way Mitsuba resolves them at
+  instantiation: against the main file's folder and the main file's ``<path>`` folders, never
+  an included file's folder. A ``<spectrum filename>`` is resolved when it is read, with the
+  folders of the files that include its file (measured: not its own file's folder). Found
+  names are made absolute, so a scene loaded from a string resolves them the same.
+- Files of a format version below 2.0 get Mitsuba's upgrade (upgrade.py), and what 3.9.1
+  lacks of 0.5/0.6 is upgraded or refused (legacy.py). Missing files, unknown elements and
+  plugins, unsupported old properties are gathered and reported together (changes.py).
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from sensaov_cli.errors import SceneError
+from sensaov_cli.limits import regular_file
+from sensaov_cli.scene.arguments import Parameters, SceneArgument, shorten
+from sensaov_cli.scene.changes import Change, Refusals
+from sensaov_cli.scene.declared_sizes import check_declared_size
+from sensaov_cli.scene.legacy import refuse_unknown_plugins, srgb_element
+from sensaov_cli.scene.source import (
+    OBJECT_TAGS,
+    is_object,
+    read_xml,
+    user_attributes,
+    where,
+)
+from sensaov_cli.scene.upgrade import upgrade_legacy
+
+MAX_INCLUDE_DEPTH = 15  # Mitsuba's ParserConfig.max_include_depth
+# Every tag Mitsuba 3.9.1's parser knows (interpret_tag); any other is "an unsupported XML
+# element" to it, the 0.6 <shapegroup> included. Objects are scene_source.OBJECT_TAGS.
+_KNOWN_TAGS = OBJECT_TAGS | frozenset(
+    "boolean integer float string point vector rgb spectrum transform"
+    " translate rotate scale lookat matrix ref include alias default path".split()
+)
+
+
+@dataclass(frozen=True)
+class ExpandedScene:
+    root: ET.Element
+    files: tuple[Path, ...]  # every file the scene reads (XML first); names not found as written
+    search_path: tuple[Path, ...]  # where Mitsuba looks for names still relative, first wins
+    arguments: dict[str, SceneArgument]
+    changes: tuple[Change, ...]  # what reading it changed: old formats upgraded
+
+
+def expand_scene(path: Path, scene_args: Mapping[str, object]) -> ExpandedScene:
+    expansion = _Expansion(Parameters(scene_args))
+    main = _Context(path, [path.parent.absolute()], ())
+    root = expansion.file(main)
+    if root.tag != "scene":
+        raise SceneError(f"root element is <{root.tag}>, expected <scene>", where=where(root))
+    expansion.finish(root, main)
+    expansion.refusals.raise_all(str(path))  # every missing file and unsupported property
+    return ExpandedScene(
+        root,
+        tuple(dict.fromkeys(expansion.files)),
+        tuple(dict.fromkeys(main.resolver)),
+        expansion.parameters.arguments(),
+        tuple(expansion.changes),
+    )
+
+
+@dataclass
+class _Context:
+    """One file being read: Mitsuba's per-file parser state.
+
+    Measured on 3.9.1: a file's resolver is its includer's, with the includer's folder
+    prepended; its own folder is searched first only for ``<include>`` and ``<path>``, so a
+    ``<spectrum filename>`` next to an included file is not found (one next to its includer
+    is).
+    """
+
+    path: Path
+    resolver: list[Path]  # search folders, first wins; <path> prepends to it
+    chain: tuple[Path, ...]  # this file and the files that include it, outermost first
+
+    def here(self) -> list[Path]:
+        """The folders an ``<include>`` or ``<path>`` in this file is looked for in."""
+        return [self.path.parent.absolute(), *self.resolver]
+
+
+@dataclass
+class _Expansion:
+    parameters: Parameters
+    ids: dict[str, str] = field(default_factory=dict)  # id -> where it is defined
+    aliases: dict[str, str] = field(default_factory=dict)  # alias -> the id it stands for
+    files: list[Path] = field(default_factory=list)
+    filenames: list[ET.Element] = field(default_factory=list)  # resolved once <path>s are known
+    legacy: set[str] = field(default_factory=set)  # files older than format 2.0
+    refusals: Refusals = field(default_factory=Refusals)  # gathered: one pass reports all
+    changes: list[Change] = field(default_factory=list)
+
+    def file(self, context: _Context) -> ET.Element:
+        root = read_xml(context.path)
+        self.files.append(context.path)
+        if _version(root) < (2, 0, 0):
+            self.legacy.add(str(context.path))
+        context.chain += (context.path,)
+        self._attributes(root)
+        if root.get("type", "scene") != "scene":
+            self._register(root)
+        for child in list(root):
+            self._element(root, child, context, at_root=True)
+        return root
+
+    def finish(self, root: ET.Element, main: _Context) -> None:
+        self.parameters.refuse_unused(main.path)
+        for ref in root.iter("ref"):
+            ref.set("id", self.aliases.get(ref.get("id", ""), ref.get("id", "")))
+        for element in self.filenames:
+            with self.refusals.gathered():
+                resolved = _existing(element.get("value", ""), main.resolver, where(element))
+                check_declared_size(resolved, where(element))  # a gigapixel, a billion vertices
+                self.files.append(resolved)
+                element.set("value", str(resolved))
+        upgrade_legacy(root, self.legacy, self.changes, self.refusals)
+        refuse_unknown_plugins(root, self.refusals)
+
+    def _attributes(self, element: ET.Element) -> None:
+        for key, value in user_attributes(element):
+            if "$" in value:
+                element.set(key, self.parameters.substitute(value, where(element)))
+
+    def _element(
+        self, parent: ET.Element, element: ET.Element, context: _Context, at_root: bool
+    ) -> None:
+        self._attributes(element)
+        if element.tag == "srgb" and str(context.path) in self.legacy:
+            change = srgb_element(element, self.refusals)
+            self.changes += [change] if change is not None else []
+        if element.tag not in _KNOWN_TAGS:
+            self.refusals.add(
+                f"<{element.tag}> is not an element Mitsuba 3 reads",
+                where(element),
+                hint=_TAG_HINTS.get(element.tag, "see Mitsuba's scene format documentation"),
+            )
+            parent.remove(element)
+            return
+        handler = _DIRECTIVES.get(element.tag)
+        if handler is not None:
+            index = list(parent).index(element)
+            parent.remove(element)
+            for offset, replacement in enumerate(handler(self, element, context, at_root)):
+                parent.insert(index + offset, replacement)
+            return
+        if is_object(element):
+            self._register(element)
+        elif element.tag == "spectrum" and element.get("filename"):
+            self._spectrum_file(element, context)
+        elif (
+            element.tag == "string" and element.get("name") == "filename" and parent.tag != "scene"
+        ):
+            self.filenames.append(element)
+        for child in list(element):
+            self._element(element, child, context, at_root=False)
+
+    def _register(self, element: ET.Element) -> None:
+        identifier = element.get("id")
+        if identifier is None:
+            return
+        if identifier in self.ids:
+            first = self.ids[identifier]
+            raise SceneError(
+                f"duplicate id {shorten(identifier)!r} (first defined at {first})",
+                where=where(element),
+            )
+        self.ids[identifier] = where(element)
+
+    def _spectrum_file(self, element: ET.Element, context: _Context) -> None:
+        with self.refusals.gathered():
+            resolved = _existing(element.get("filename", ""), context.resolver, where(element))
+            self.files.append(resolved)
+            element.set("filename", str(resolved))
+
+    def _include(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+        name = _required(element, "filename")
+        folders = context.here()
+        try:
+            path = _existing(name, folders, where(element), what="included file")
+        except SceneError as exc:  # gathered: the rest of the scene is still checked
+            self.refusals.found.append(exc)
+            return []
+        _refuse_nesting(path, context.chain, where(element))
+        root = self.file(_Context(path, folders, context.chain))
+        if root.get("type", "scene") == "scene":
+            # Only objects cross over; properties and refs on an included <scene> are dropped.
+            return [child for child in root if is_object(child)]
+        root.attrib.pop("version")
+        root.attrib.pop("name", None)
+        if element.get("name"):
+            root.set("name", element.get("name", ""))
+        return [root]
+
+    def _default(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+        name = _required(element, "name")
+        if not name:
+            raise SceneError("<default>: name must be non-empty", where=where(element))
+        self.parameters.default(name, _required(element, "value"), where(element))
+        return []
+
+    def _path(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+        if not at_root:
+            raise SceneError("<path> can only be a child of the root element", where=where(element))
+        value = _required(element, "value")
+        folder = _resolve(value, context.here(), where(element))
+        if not _exists(folder, where(element)):
+            raise SceneError(f'<path>: folder "{shorten(value)}" not found', where=where(element))
+        context.resolver.insert(0, folder)
+        return []
+
+    def _alias(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+        source, alias = _required(element, "id"), _required(element, "as")
+        if alias in self.ids:
+            raise SceneError(f'alias destination id "{alias}" already exists', where=where(element))
+        if source not in self.ids:
+            raise SceneError(
+                f'alias source id "{source}" not found',
+                where=where(element),
+                hint="an alias must come after the object it names",
+            )
+        self.aliases[alias] = self.aliases.get(source, source)
+        self.ids[alias] = where(element)
+        return []
+
+
+_TAG_HINTS = {
+    "shapegroup": 'write <shape type="shapegroup" id="..."> (the 0.6 <shapegroup> tag is gone)',
+}
+
+_DIRECTIVES = {
+    "include": _Expansion._include,
+    "default": _Expansion._default,
+    "path": _Expansion._path,
+    "alias": _Expansion._alias,
+}
+
+
+def _required(element: ET.Element, attribute: str) -> str:
+    value = element.get(attribute)
+    if value is None:
+        raise SceneError(
+            f'missing required attribute "{attribute}" in <{element.tag}>', where=where(element)
+        )
+    return value
+
+
+def _version(root: ET.Element) -> tuple[int, ...]:
+    text = root.get("version")
+    if text is None:
+        raise SceneError(
+            f"missing version attribute in root element <{root.tag}>", where=where(root)
+        )
+    parts = text.strip().split(".")
+    if len(parts) != 3 or not all(part.isdigit() for part in parts):
+        raise SceneError(f'invalid version number "{text}"', where=where(root))
+    return tuple(int(part) for part in parts)
+
+
+def _resolve(name: str, folders: list[Path], origin: str) -> Path:
+    """Mitsuba's FileResolver.resolve: the first folder holding ``name``, else ``name``."""
+    path = Path(name)
+    if path.is_absolute():
+        return path
+    for folder in folders:
+        if _exists(folder / path, origin):
+            return folder / path
+    return path
+
+
+def _existing(name: str, folders: list[Path], origin: str, what: str = "file") -> Path:
+    """``name`` resolved, refused where Mitsuba would fail to open it (run and validate alike),
+    or where it would block or never end reading it (a FIFO, a device: a regular file only)."""
+    path = _resolve(name, folders, origin)
+    if not _exists(path, origin):
+        looked = "" if path.is_absolute() else ", ".join(str(p) for p in dict.fromkeys(folders))
+        raise SceneError(
+            f'{what} "{shorten(name)}" not found',
+            where=origin,
+            hint=f"looked in {looked}" if looked else None,
+        )
+    regular_file(path, what, where=origin, error=SceneError)
+    return path.absolute()
+
+
+def _exists(path: Path, origin: str) -> bool:
+    try:
+        return path.exists()
+    except OSError as exc:  # a name too long for the file system, say
+        raise SceneError(
+            f'cannot look for "{shorten(str(path))}": {exc.strerror or exc}', where=origin
+        ) from exc
+
+
+def _refuse_nesting(path: Path, chain: tuple[Path, ...], origin: str) -> None:
+    real = [os.path.realpath(p) for p in chain]
+    if os.path.realpath(path) in real:
+        start = real.index(os.path.realpath(path))
+        names = " -> ".join(p.name for p in (*chain[start:], path))
+        raise SceneError(f"include cycle: {names}", where=origin)
+    if len(chain) >= MAX_INCLUDE_DEPTH:
+        raise SceneError(
+            f"include depth exceeds Mitsuba's limit of {MAX_INCLUDE_DEPTH}", where=origin
+        )

@@ -1,0 +1,313 @@
+"""A user's scene prepared for differentiation: expanded once, rewritten, fingerprinted.
+
+The user's files are never modified. The scene is expanded as Mitsuba's parser reads it
+(expand.py: includes, ``$name`` arguments, ``<path>``, aliases, file names made absolute),
+then rewritten, and the text is handed to ``mitsuba.load_string``. Every command prepares its
+scene once, here, and passes the :class:`PreparedScene` down. What the rewrite changes, and
+why, is listed in ``PreparedScene.changes``:
+
+- the integrator and 8-bit bitmaps (rewrite.py);
+- unnamed objects get stable ids people recognise (naming.py); Mitsuba would key them by
+  memory address;
+- a top-level texture used through ``<ref>`` is written where it is used: Mitsuba keys a
+  top-level bitmap by memory address (its id is lost when the plugin expands), a nested one by
+  the path of its user (``floor_mat.reflectance.data``). With ``shared: split`` each use gets
+  its own copy (its own parameters, like split BSDFs); with ``keep`` the texture moves into its
+  first user and the other uses keep referring to it;
+- with ``shared: split``, a BSDF used by several shapes is copied into each of them, so each
+  object gets its own gradient (the copies' gradients sum to the shared one); a shapegroup
+  used by several instances is copied for each instance first (sharing.py);
+- the objective camera is chosen, added (inline ``look_at``) or resized, and each inspection
+  camera gets a sensor of its own (sensors.py).
+
+Scene arguments and the job's render settings: ``scene_args`` fill the scene's ``$name``s as
+``mitsuba.load_file(path, **scene_args)`` would, and the values used are recorded
+(``PreparedScene.scene_args``). sensaov renders with the job's ``render.spp`` and, when given,
+``render.resolution``; the scene's own film size (often ``$res``) is used when the job leaves
+the resolution unset, and its sampler's ``sample_count`` (often ``$spp``) is reported as
+``PreparedScene.sample_count`` for a job that leaves spp unset. A scene argument is never
+rewritten: to change what the scene itself says, set the argument.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import os
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from sensaov_cli.errors import SceneError, SpecError
+from sensaov_cli.job.spec import CameraSpec, JobSpec
+from sensaov_cli.scene import naming
+from sensaov_cli.scene.changes import Change
+from sensaov_cli.scene.expand import ExpandedScene, SceneArgument, expand_scene
+from sensaov_cli.scene.integrator import IntegratorPlan, plan_integrator
+from sensaov_cli.scene.rewrite import bitmap_options, bitmaps_as_float
+from sensaov_cli.scene.sensors import (
+    add_inspection_sensor,
+    check_film_size,
+    choose_sensor,
+    sample_count,
+    sensor_ids,
+    set_film_size,
+)
+from sensaov_cli.scene.sharing import place_textures, split_shapegroups, split_shared_bsdfs
+from sensaov_cli.scene.source import locate_load_error, where, write_xml
+from sensaov_cli.scene.values import refuse_non_finite
+
+_CHUNK = 1 << 20  # files are hashed a MiB at a time, never read whole
+
+
+SceneChange = Change  # what the scene stage hands on: what, why, where, alters_image
+
+
+@dataclass(frozen=True)
+class PreparedScene:
+    path: Path  # the user's scene file
+    text: str  # what Mitsuba loads
+    sensor_id: str  # the objective camera's sensor in ``text``
+    sensor_ids: tuple[str, ...]  # the scene's own sensors, unnamed ones named
+    inspection_ids: dict[str, str]  # inspection camera name -> sensor id in ``text``
+    split: dict[str, tuple[str, ...]]  # shared BSDF id -> the shapes that received a copy
+    bitmap_files: tuple[str, ...]  # bitmap texture files, absolute where found
+    bitmap_options: dict[str, tuple[str, str, str]]  # file base name -> filter, wrap, note
+    materials: dict[str, str]  # shape id -> the BSDF id it uses, as the user named it
+    instances: dict[str, str]  # instance shape id -> the shapegroup id it instantiates
+    shapegroups: dict[str, tuple[str, ...]]  # shapegroup id -> ids of its member shapes
+    textures: dict[str, tuple[str, ...]]  # top-level texture id -> "object.slot" of each use
+    scene_args: dict[str, SceneArgument]  # each $name the scene used, its value and origin
+    sample_count: int | None  # the objective sensor's sampler sample_count, as the scene says
+    files: tuple[Path, ...]  # every file the scene reads
+    search_path: tuple[Path, ...]  # folders Mitsuba resolves names still relative against
+    line_sources: tuple[str | None, ...]  # line of `text` -> the user's file:line it came from
+    integration: IntegratorPlan  # the scene's integrator and depth, and the replay's
+    fingerprint: str  # sha256 of every file the scene reads and of the job's arguments
+    changes: tuple[SceneChange, ...]  # what was rewritten and why
+
+    @property
+    def scene_integrator(self) -> str:
+        """The integrator type the scene renders with (a wrapper's nested one)."""
+        return self.integration.scene_kind
+
+    @property
+    def integrator(self) -> str:
+        """The replay integrator that differentiates it: prb, or prbvolpath for media."""
+        return self.integration.replay
+
+    @property
+    def replaced_integrator(self) -> str | None:
+        """The scene's integrator when it renders other light transport than the replay."""
+        return None if self.integration.same_transport else self.integration.scene_kind
+
+    @property
+    def image_changes(self) -> tuple[SceneChange, ...]:
+        """The changes after which M is measured on another image than the scene renders."""
+        return tuple(change for change in self.changes if change.alters_image)
+
+    @property
+    def argument_values(self) -> dict[str, str]:
+        """Every ``$name`` the scene used and the value it got."""
+        return {name: argument.value for name, argument in self.scene_args.items()}
+
+    def locate(self, message: str) -> tuple[str, str | None]:
+        """Mitsuba's load error on ``text`` -> (one-line message, the user's file:line)."""
+        return locate_load_error(message, self.line_sources)
+
+
+def prepare_scene(job: JobSpec, cameras: tuple[CameraSpec, ...] = ()) -> PreparedScene:
+    """The job's scene, prepared once for a command, with a sensor for each of ``cameras``.
+
+    Every camera the job names is checked here, those not in ``cameras`` too, so ``validate``
+    and ``run`` refuse a camera the scene lacks (or a film too large) before anything renders.
+    """
+    expanded = expand_scene(job.scene, job.scene_args)
+    named = naming.name_objects(expanded.root)
+    _check_camera_ids(job, sensor_ids(expanded.root))
+    others = tuple(c for c in job.inspection_cameras if c not in cameras)
+    return _rewrite(
+        job.scene,
+        expanded,
+        named,
+        max_depth=job.render.max_depth,
+        camera=job.objective_camera,
+        resolution=job.render.resolution,
+        shared=job.parameters.shared,
+        inspection=cameras,
+        checked=others,
+    )
+
+
+def prepare_xml(
+    path: Path,
+    *,
+    max_depth: int | None,
+    camera: CameraSpec,
+    resolution: tuple[int, int] | None,
+    shared: str,
+    inspection: tuple[CameraSpec, ...] = (),
+    scene_args: Mapping[str, str] | None = None,
+) -> PreparedScene:
+    """A scene file prepared with explicit settings (``prepare_scene`` reads them from a job)."""
+    expanded = expand_scene(path, scene_args or {})
+    named = naming.name_objects(expanded.root)
+    return _rewrite(
+        path,
+        expanded,
+        named,
+        max_depth=max_depth,
+        camera=camera,
+        resolution=resolution,
+        shared=shared,
+        inspection=inspection,
+        checked=(),
+    )
+
+
+def _rewrite(
+    path: Path,
+    expanded: ExpandedScene,
+    named: dict[str, ET.Element],
+    *,
+    max_depth: int | None,
+    camera: CameraSpec,
+    resolution: tuple[int, int] | None,
+    shared: str,
+    inspection: tuple[CameraSpec, ...],
+    checked: tuple[CameraSpec, ...],
+) -> PreparedScene:
+    root = expanded.root
+    refuse_non_finite(root)  # Mitsuba loads nan and inf; the run would blame the objective
+    own_sensors = sensor_ids(root)
+    changes = list(expanded.changes)  # old formats upgraded, each with its line
+    changes += [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
+    integration = plan_integrator(root, max_depth)
+    changes += integration.changes
+    converted = [t for t in root.iter("texture") if _loads_as_integers(t)]
+    bitmaps = bitmaps_as_float(root)
+    changes += [SceneChange(f"bitmap {_file_of(t)} loaded as float", _EIGHT_BIT, where(t))
+                for t in converted]  # fmt: skip
+    groups = split_shapegroups(root) if shared == "split" else {}  # before the BSDFs
+    materials = naming.materials(root)  # before splitting: copies keep the user's name
+    textures = place_textures(root, copies=shared == "split")
+    split = split_shared_bsdfs(root) if shared == "split" else {}
+    changes += _sharing_changes(groups, textures, split, shared)
+    sensor, inspection_ids = _cameras(root, path, camera, resolution, inspection)
+    if checked:  # cameras this command does not load: placed on a copy, to refuse them early
+        _cameras(copy.deepcopy(root), path, camera, resolution, checked)
+    text, line_sources = write_xml(root)
+    return PreparedScene(
+        path=path,
+        text=text,
+        sensor_id=sensor.get("id", ""),
+        sensor_ids=own_sensors,
+        inspection_ids=inspection_ids,
+        split=split,
+        bitmap_files=bitmaps,
+        bitmap_options=bitmap_options(root),
+        materials=materials,
+        instances=naming.instances(root),
+        shapegroups=naming.shapegroups(root),
+        textures=textures,
+        scene_args=expanded.arguments,
+        sample_count=sample_count(root, sensor),
+        files=expanded.files,
+        search_path=expanded.search_path,
+        line_sources=line_sources,
+        integration=integration,
+        fingerprint=_fingerprint(expanded.files, _job_arguments(expanded), path.parent),
+        changes=tuple(changes),
+    )
+
+
+_UNNAMED = "Mitsuba keys an unnamed object by its memory address, new on every run"
+_EIGHT_BIT = "format = variant: an 8-bit texture would load as integers, which get no gradient"
+
+
+def _file_of(texture: ET.Element) -> str:
+    return Path(naming.child_value(texture, "filename") or "(no file)").name
+
+
+def _loads_as_integers(texture: ET.Element) -> bool:
+    return texture.get("type") == "bitmap" and naming.child_value(texture, "format") is None
+
+
+def _sharing_changes(
+    groups: dict[str, tuple[str, ...]],
+    textures: dict[str, tuple[str, ...]],
+    split: dict[str, tuple[str, ...]],
+    shared: str,
+) -> list[SceneChange]:
+    own = "each use gets its own parameters, so each object its own gradient (shared: split)"
+    placed = own if shared == "split" else "Mitsuba keys a top-level bitmap by memory address"
+    changes = [SceneChange(f"shapegroup {g!r} copied for {', '.join(i)}", own, "")
+               for g, i in groups.items()]  # fmt: skip
+    changes += [SceneChange(f"texture {t!r} written into {', '.join(u)}", placed, "")
+                for t, u in textures.items()]  # fmt: skip
+    changes += [SceneChange(f"bsdf {b!r} copied into {', '.join(s)}", own, "")
+                for b, s in split.items()]  # fmt: skip
+    return changes
+
+
+def _job_arguments(expanded: ExpandedScene) -> dict[str, str]:
+    """The arguments the job gave (all used: expansion refuses an unused one)."""
+    return {name: arg.value for name, arg in expanded.arguments.items() if arg.origin == "job"}
+
+
+def _check_camera_ids(job: JobSpec, ids: tuple[str, ...]) -> None:
+    """Refuse a job whose cameras name a sensor the scene lacks, naming the job's key."""
+    if not ids and job.objective_camera.look_at is None:
+        raise SceneError(
+            "the scene has no sensor",
+            where=str(job.scene),
+            hint="add one, or give objective_camera a look_at",
+        )
+    named = [("objective_camera", job.objective_camera)]
+    named += [(f"inspection_cameras[{i}].sensor", c) for i, c in enumerate(job.inspection_cameras)]
+    for key, camera in named:
+        if camera.sensor is not None and camera.sensor not in ids:
+            raise SpecError(
+                f"no sensor with id {camera.sensor!r} in {job.scene.name}",
+                where=f"{job.path}: {key}",
+                hint=f"sensors in the scene: {', '.join(ids) or 'none'}",
+            )
+
+
+def _cameras(
+    root: ET.Element,
+    path: Path,
+    camera: CameraSpec,
+    resolution: tuple[int, int] | None,
+    inspection: tuple[CameraSpec, ...],
+) -> tuple[ET.Element, dict[str, str]]:
+    """The objective sensor, and each inspection camera's own sensor id."""
+    sensor = choose_sensor(root, camera, path)
+    if resolution is not None:
+        set_film_size(root, sensor, resolution)
+    check_film_size(root, sensor, "objective camera")
+    key = "inspection camera {!r}: sensor"
+    return sensor, {
+        cam.name: add_inspection_sensor(root, cam, sensor, path, key.format(cam.name))
+        for cam in inspection
+    }
+
+
+def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: Path) -> str:
+    """sha256 over every file the scene reads (the scene, its includes, meshes, textures,
+    envmaps, spectra) and the scene arguments, so an edit to any of them counts."""
+    digest = hashlib.sha256()
+    for name, value in sorted((str(k), str(v)) for k, v in scene_args.items()):
+        digest.update(f"arg\0{name}\0{value}\0".encode())
+    for file in files:
+        # Names relative to the scene folder: moving the whole project keeps the fingerprint.
+        label = os.path.relpath(file, base.absolute()) if file.is_absolute() else str(file)
+        if not file.is_file():
+            digest.update(f"missing\0{label}\0".encode())
+            continue
+        digest.update(f"file\0{label}\0{file.stat().st_size}\0".encode())
+        with file.open("rb") as stream:
+            while chunk := stream.read(_CHUNK):
+                digest.update(chunk)
+    return digest.hexdigest()

@@ -1,0 +1,170 @@
+"""The objective and inspection cameras in the scene text sensaov hands to Mitsuba.
+
+Every id in one Mitsuba scene must be unique, films, samplers and filters included, so a
+sensor copied for an inspection camera (or a film copied for a look-at camera) loses the ids
+of the objects it carried (its ``<ref>``s keep theirs). A film shared between sensors by
+``<ref>`` is copied into a sensor before that sensor's film is resized, so resizing one camera
+never resizes another. A film sensaov resizes loses its crop window, so its image has the size
+asked for.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+from sensaov_cli.errors import SceneError
+from sensaov_cli.job.spec import CameraSpec
+from sensaov_cli.scene.naming import child_value, objects_by_id
+from sensaov_cli.scene.source import detached_copy, where
+
+OBJECTIVE_SENSOR_ID = "sensaov_objective"
+MAX_FILM_SIZE = 16384  # the largest width or height a job's resolution may ask for
+_SIZE = ("width", "height")
+_CROP = ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height")
+INSPECTION_PREFIX = "sensaov_inspect_"
+
+
+def sensor_ids(root: ET.Element) -> tuple[str, ...]:
+    """The scene's own sensors (not the ones sensaov added), in document order."""
+    return tuple(
+        s.get("id", "")
+        for s in root.findall("sensor")
+        if not s.get("id", "").startswith("sensaov_")
+    )
+
+
+def choose_sensor(
+    root: ET.Element, camera: CameraSpec, path: Path, where: str = "objective_camera"
+) -> ET.Element:
+    sensors = root.findall("sensor")
+    if camera.look_at is not None:
+        return _add_look_at_sensor(root, camera, sensors[0] if sensors else None)
+    if not sensors:
+        raise SceneError(
+            "the scene has no sensor",
+            where=str(path),
+            hint="add one, or give objective_camera a look_at",
+        )
+    if camera.sensor is None:
+        return sensors[0]
+    for sensor in sensors:
+        if sensor.get("id") == camera.sensor:
+            return sensor
+    raise SceneError(
+        f"no sensor with id {camera.sensor!r} in {path.name}",
+        where=where,
+        hint=f"sensors in the scene: {', '.join(sensor_ids(root))}",
+    )
+
+
+def add_inspection_sensor(
+    root: ET.Element, camera: CameraSpec, objective: ET.Element, path: Path, where: str
+) -> str:
+    """A sensor of its own for each inspection camera, so resolution overrides stay local."""
+    if camera.look_at is not None:
+        source = _add_look_at_sensor(root, camera, objective)
+    else:
+        chosen = objective if camera.objective else choose_sensor(root, camera, path, where)
+        source = detached_copy(chosen)
+        root.append(source)
+        own_film(root, source)
+        if camera.resolution is not None:
+            set_film_size(root, source, camera.resolution)
+    sensor_id = f"{INSPECTION_PREFIX}{camera.name}"
+    source.set("id", sensor_id)
+    check_film_size(root, source, f"inspection camera {camera.name!r}")
+    return sensor_id
+
+
+def sample_count(root: ET.Element, sensor: ET.Element) -> int | None:
+    """The sensor's sampler's ``sample_count`` as the scene sets it (e.g. its ``$spp``)."""
+    sampler = _child_object(root, sensor, "sampler")
+    value = child_value(sampler, "sample_count") if sampler is not None else None
+    return int(value) if value is not None and value.strip().lstrip("-").isdigit() else None
+
+
+def own_film(root: ET.Element, sensor: ET.Element) -> ET.Element:
+    """The sensor's film as an element of its own (a ``<ref>``'d film is copied in)."""
+    film = sensor.find("film")
+    if film is not None:
+        return film
+    shared = _child_object(root, sensor, "film")
+    if shared is None:
+        return ET.SubElement(sensor, "film", {"type": "hdrfilm"})
+    ref = next(c for c in sensor if c.tag == "ref" and c.get("id") == shared.get("id"))
+    film = detached_copy(shared)
+    film.attrib.pop("name", None)
+    if ref.get("name"):
+        film.set("name", ref.get("name", ""))
+    sensor.insert(list(sensor).index(ref), film)
+    sensor.remove(ref)
+    return film
+
+
+def set_film_size(root: ET.Element, sensor: ET.Element, resolution: tuple[int, int]) -> None:
+    """Give the sensor's own film this size; a crop window goes, so the image is the size asked
+    for (a crop would override it, or not fit in it)."""
+    film = own_film(root, sensor)
+    for old in [c for c in film if c.get("name") in (*_SIZE, *_CROP)]:
+        film.remove(old)
+    for name, value in zip(_SIZE, resolution, strict=True):
+        ET.SubElement(film, "integer", {"name": name, "value": str(value)})
+
+
+def check_film_size(root: ET.Element, sensor: ET.Element, what: str) -> None:
+    """Refuse a film larger than a job's ``resolution`` may be (e.g. ``$res`` = 99999): it
+    would only fail at render time, for want of memory."""
+    film = _child_object(root, sensor, "film")
+    for name in _SIZE if film is not None else ():
+        assert film is not None
+        prop = next((c for c in film if c.get("name") == name and c.tag == "integer"), None)
+        text = (prop.get("value") or "").strip() if prop is not None else ""
+        if text.lstrip("+-").isdigit() and len(text) < 12 and int(text) > MAX_FILM_SIZE:
+            assert prop is not None
+            raise SceneError(
+                f"{what}: film {name} {int(text)} is larger than {MAX_FILM_SIZE}",
+                where=where(prop) or where(film),
+                hint="lower it in the scene (or its scene argument), or set the job's "
+                "render.resolution",
+            )
+
+
+def _child_object(root: ET.Element, sensor: ET.Element, tag: str) -> ET.Element | None:
+    """The sensor's ``tag`` object, written inline or shared by ``<ref>``."""
+    inline = sensor.find(tag)
+    if inline is not None:
+        return inline
+    ids = objects_by_id(root)
+    refs = (ids.get(c.get("id", "")) for c in sensor if c.tag == "ref")
+    return next((target for target in refs if target is not None and target.tag == tag), None)
+
+
+def _vector(values: tuple[float, float, float]) -> str:
+    return ", ".join(repr(float(v)) for v in values)
+
+
+def _add_look_at_sensor(
+    root: ET.Element, camera: CameraSpec, template: ET.Element | None
+) -> ET.Element:
+    assert camera.look_at is not None
+    sensor = ET.SubElement(root, "sensor", {"type": "perspective", "id": OBJECTIVE_SENSOR_ID})
+    ET.SubElement(sensor, "float", {"name": "fov", "value": repr(float(camera.fov))})
+    transform = ET.SubElement(sensor, "transform", {"name": "to_world"})
+    ET.SubElement(
+        transform,
+        "lookat",
+        {
+            "origin": _vector(camera.look_at.origin),
+            "target": _vector(camera.look_at.target),
+            "up": _vector(camera.look_at.up),
+        },
+    )
+    film = _child_object(root, template, "film") if template is not None else None
+    if film is not None:
+        sensor.append(detached_copy(film))
+    else:
+        film = ET.SubElement(sensor, "film", {"type": "hdrfilm"})
+        ET.SubElement(film, "rfilter", {"type": "box"})
+    set_film_size(root, sensor, camera.resolution or (256, 256))
+    return sensor
