@@ -1,22 +1,17 @@
 """The HTTP face of ``sensaov view``: the interface of docs/view.md, its page, its saved cameras.
 
 One user on the loopback address needs no web framework: the standard library's threading
-server routes each request to :class:`~sensaov_cli.live.session.ViewSession` and writes its
-typed answer as JSON or bytes; a bad value becomes HTTP 400 with a one-line reason. Two
-browser-borne attacks on a local server are refused: a page of another site reaching it by DNS
-rebinding (the Host header must name this server) and a cross-site form posting to it (a save
-must carry the ``X-Sensaov`` header, which no form can set). The server stops when the main
-thread is interrupted (Ctrl-C, SIGTERM).
+server routes each request to :class:`~sensaov_cli.live.session.ViewSession` and writes the
+typed answer as JSON or bytes; a bad value becomes HTTP 400 with a one-line reason. Refused: a
+page of another site reaching the server by DNS rebinding (the Host header must name it) and a
+cross-site form posting to it (a save must carry the ``X-Sensaov`` header, which no form can
+set). The page (``page.html``: one file, no external assets) draws its colour bar and sunburst
+with the previews' colour table, filled in here, so legend and picture cannot disagree.
 
-The page (``page.html`` beside this module: HTML, CSS and JavaScript in one file, no external
-assets) talks to the server only through that interface. Its colour bar and sunburst use the
-very colour table the PNG previews are drawn with, filled in here, so the legend and the
-picture cannot disagree.
-
-A saved viewpoint is a job's camera: printed YAML, or appended to ``<output>/<job stem>_view.yaml``,
-the job with every camera saved so far (a later save appends to it), paths rewritten to hold
-from there. The copy is validated as a job before it replaces anything, written atomically, and
-never over a file the job reads; nothing is written anywhere else.
+A viewpoint becomes a job's camera: its YAML, or, saved, appended to
+``<output>/<job stem>_view.yaml`` (the job, paths rewritten to hold from there), which is
+validated as a job before it replaces anything, written atomically, and never over a file the
+job reads; nothing is written anywhere else.
 """
 
 from __future__ import annotations
@@ -72,6 +67,8 @@ class Answer:
 class ViewServer(ThreadingHTTPServer):
     daemon_threads = True  # a request in flight never holds the process open after a stop
 
+    session: ViewSession  # attached before the first request is accepted (:func:`serve`)
+
     def __init__(
         self,
         address: tuple[str, int],
@@ -79,27 +76,12 @@ class ViewServer(ThreadingHTTPServer):
         log: Callable[[str], None] | None,
     ):
         self.on_save, self.log = on_save, log
-        self._session: ViewSession | None = None
-        self.inputs: tuple[Path, ...] = ()
         super().__init__(address, _Handler)
-
-    @property
-    def session(self) -> ViewSession:
-        if self._session is None:
-            raise RuntimeError("the server answers once a session is attached")
-        return self._session
 
     def attach(self, session: ViewSession) -> None:
         """Answer from ``session`` (the server listens before the scene loads: a taken port
         is reported at once, not after the load)."""
-        self._session = session
-        buffer = session.buffer_path  # a saved camera never replaces the buffer or its sidecar
-        self.inputs = (
-            *session.job.input_files(),
-            *session.loaded.prepared.files,
-            buffer,
-            buffer.with_name(FORWARD_NAME),
-        )
+        self.session = session
 
     @property
     def url(self) -> str:
@@ -156,9 +138,7 @@ class _Handler(BaseHTTPRequestHandler):
         if "name" not in values:
             return _refuse(400, "a saved camera needs a name")
         request = session.request(values)
-        copy = save_viewpoint(
-            session.job, request, values["name"], session.buffer_path, self.server.inputs
-        )
+        copy = save_viewpoint(session, request, values["name"])
         text = viewpoint_yaml(request, values["name"])
         self.server.on_save(text)
         return _json({"path": str(copy), "yaml": text})
@@ -313,13 +293,14 @@ def copy_path(job: JobSpec) -> Path:
     return job.output / f"{job.path.stem}_view.yaml"
 
 
-def save_viewpoint(
-    job: JobSpec, request: ViewRequest, name: str, buffer: Path, inputs: tuple[Path, ...]
-) -> Path:
+def save_viewpoint(session: ViewSession, request: ViewRequest, name: str) -> Path:
     """Append the request's camera, named ``name``, to the job's copy; returns the copy."""
+    job, buffer = session.job, session.buffer_path
     copy = copy_path(job)
     # Before the copy is read as the base of the next save: a copy that is a link to the
-    # buffer or a scene file, or a FIFO, is refused, never parsed or waited on.
+    # buffer (or its sidecar) or a scene file, or a FIFO, is refused, never parsed or waited on.
+    inputs = (*job.input_files(), *session.loaded.prepared.files, buffer,
+              buffer.with_name(FORWARD_NAME))  # fmt: skip
     refuse_unsafe_outputs(inputs, [copy], where=str(job.path))
     check_writable(job.output, [copy.name])
     base = copy if copy.is_file() else job.path

@@ -4,19 +4,12 @@ Deferred shading made interactive (§2, §3 "Binding", Fig. 6): each view is one
 primary-visibility pass from a free camera (:mod:`sensaov_cli.render.viewpoint`, one compiled
 kernel for every pose) plus painting from the stored buffer (:mod:`.inspection`); no derivative
 is ever computed. :class:`ViewSession` answers the typed requests of :mod:`.query` with typed
-answers; the HTTP server (:mod:`.server`) routes to it and writes them as JSON or bytes.
-
-What it can paint (:class:`Sources`), per objective: the job's channels, a select query typed
-in the page (``select:<glob>``, made a channel on first use), the texel panels, and the
-forward and transport layers stored beside the buffer. Object, type and select channels are
-per-object values computed once from the buffer and painted through any camera; forward and
-transport layers are different in kind: images of the objective camera rendered by ``sensaov
-run`` (§4, §7), which no other viewpoint can re-project, offered at that camera only.
-
-A channel's "shared" scale is the one ``sensaov project`` uses (:class:`JobScales`): read over
-every camera ``project`` paints, traced as ``project`` traces them (same spp, same seed), so the
-page's colours are those of the previews and the EXR display layers. Renders run one at a time
-(one lock): the renderer is not re-entrant, and one user's page sends one request at a time.
+answers, which the server (:mod:`.server`) writes. What it can paint (:class:`Sources`): the
+job's channels, a select query typed in the page (on first use), the texel panels, and the
+forward and transport layers beside the buffer, images of the objective camera that no other
+viewpoint can re-project (§4, §7). The "shared" scale is ``sensaov project``'s
+(:class:`JobScales`). Renders run one at a time (one lock): the renderer is not re-entrant,
+and one user's page sends one request at a time anyway.
 """
 
 from __future__ import annotations
@@ -128,7 +121,6 @@ class StoredImage:
     name: str
     kind: str  # "forward" | "transport"
     data: np.ndarray
-    keys: tuple[str, ...]
     unverified: tuple[str, ...]
     note: str  # the duality check of a transport layer; the colour reduction of a forward one
 
@@ -273,20 +265,14 @@ class ViewSession:
     def _describe(self, request: ViewRequest, shown: InspectionView) -> dict[str, str]:
         """How a view was made, for the PNG's text chunks and the EXR's header."""
         look = request.pose.look_at
+        camera = {"origin": look.origin, "target": look.target, "up": look.up}
         return {
             "sensaov/made_by": json.dumps(made_by("view")),
             "sensaov/objective": request.objective,
             "sensaov/channel": request.channel,
             "sensaov/encoding": shown.legend.encoding,
             "sensaov/scale": f"{shown.legend.scale_mode};{shown.legend.scale.describe()}",
-            "sensaov/camera": json.dumps(
-                {
-                    "origin": look.origin,
-                    "target": look.target,
-                    "up": look.up,
-                    "fov": request.pose.fov,
-                }
-            ),  # fmt: skip
+            "sensaov/camera": json.dumps({**camera, "fov": request.pose.fov}),
             "sensaov/spp": str(request.spp),
             "sensaov/buffer": str(self.buffer_path),
             "sensaov/buffer_id": self.buffer_id,
@@ -349,7 +335,10 @@ def _token(name: str) -> str:
 
 
 class Sources:
-    """Every channel of every objective, by name; typed select queries added on first use."""
+    """Every channel of every objective, by name; typed select queries added on first use.
+
+    Object, type and select channels are per-object values computed once from the buffer and
+    painted through any camera; stored images are offered at the objective camera only."""
 
     def __init__(
         self,
@@ -427,22 +416,22 @@ def _stored_images(
             continue
         mono = f.data if f.data.ndim == 2 else f.data.mean(axis=2)
         note = "mean of the R, G, B derivatives" if f.data.ndim == 3 else ""
-        image = StoredImage(f"forward.{f.name}", "forward", mono, f.keys, f.unverified, note)
+        image = StoredImage(f"forward.{f.name}", "forward", mono, f.unverified, note)
         for objective in buffer.objectives:
             found[(objective.name, image.name)] = image
     for t in transport_views(buffer, data):
         verdict = "agrees" if t.agrees else "EXCEEDS TOLERANCE: do not trust this layer"
         note = f"duality residual {t.residual:.2e} (tolerance {t.tolerance:.0e}): {verdict}"
-        found[(t.objective, t.name)] = StoredImage(
-            t.name, "transport", t.data, t.keys, t.unverified, note
-        )
+        found[(t.objective, t.name)] = StoredImage(t.name, "transport", t.data, t.unverified, note)
     return found
 
 
 class JobScales:
-    """The job's shared display scale of each painted channel, under either sign
-    (:func:`~sensaov_cli.views.display_scale.shared_channel_scale`). The job's cameras are
-    traced once, on opening; each (objective, channel, sign) is computed once."""
+    """The job's shared display scale of each painted channel, under either sign: read over
+    every camera ``project`` paints, traced as it traces them (same spp, same seed), so the
+    page's colours are those of its previews and EXR display layers
+    (:func:`~sensaov_cli.views.display_scale.shared_channel_scale`). The cameras are traced
+    once, on opening; each (objective, channel, sign) is computed once."""
 
     def __init__(
         self, job: JobSpec, buffer: SensitivityBuffer, loaded: LoadedScene, lock: threading.Lock
