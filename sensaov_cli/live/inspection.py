@@ -1,20 +1,15 @@
 """One live inspection view (``sensaov view``): a channel painted through a free camera (§3).
 
 The per-object values come from the buffer once (:mod:`.channels`); each camera move only
-brings a new :class:`~.coverage.VisibilityPass`, through which they are painted and encoded
-as the page asks: signed or magnitude, linear or compressive (a log tone map around a
-threshold at 1e-3 of the peak), on the job's shared scale or the view's own. The shared scale
-is the number :func:`~.display_scale.shared_channel_scale` gives, the one ``sensaov project``
-records as ``display_scale`` and paints its previews and display layers with (p95 of |v| over
-the pixels every inspection camera paints; docs/encoding.md), so the page and the files agree;
-the view's own applies the same rule to this view's pixels alone. What the view cannot stand
-behind travels with it: the coverage of objects whose value includes a gradient that is not
-verified (drawn hatched), the objects with a value that this view does not see, and the keys
-behind both. A click on an object lists its parameters, ranked.
-
-A view is answered as bytes in memory (PNG, EXR or an object-id map), never as a file: it is
-an answer to one request. Each PNG and EXR carries the encoding, the scale and the camera in
-its header.
+brings a new :class:`~.coverage.VisibilityPass`, through which they are painted and encoded as
+the page asks: signed or magnitude, linear or compressive (a log tone map around a threshold at
+1e-3 of the peak), on the job's shared scale (``sensaov project``'s ``display_scale``, so the
+page and the files agree; docs/encoding.md) or the same rule over this view's pixels alone.
+What the view cannot stand behind travels with it: the coverage of objects whose value includes
+a gradient that is not verified (drawn hatched), the objects with a value that this view does
+not see, and the keys behind both. A click on an object lists its parameters, ranked. A view is
+answered as bytes in memory (PNG, EXR or an object-id map), never a file; each PNG and EXR
+carries the encoding, the scale and the camera in its header.
 """
 
 from __future__ import annotations
@@ -71,12 +66,13 @@ class Look:
 
 @dataclass(frozen=True)
 class Legend:
-    """What the colour bar says: the encoding, the value at each stop, and the caveats."""
+    """What the colour bar says: the encoding, the value at each stop, and the caveats (the
+    page reads it field by field, as JSON)."""
 
     encoding: str
     scale_mode: str
-    scale: Scale
     peak: float  # the value, in the channel's units, at which colours saturate
+    threshold: float  # of the log tone maps; 0 for a linear one
     stops: tuple[tuple[float, float], ...]  # (position in [-1, 1], value there)
     unverified: tuple[str, ...]  # keys of the channel whose gradient is not verified
     invisible: tuple[str, ...]  # objects with a non-zero value that this view does not see
@@ -89,6 +85,7 @@ class InspectionView:
     display: np.ndarray  # (H, W) float32 in [-1, 1]: what the colours show
     coverage: np.ndarray  # (H, W) fraction of samples that hit an object
     unverified: np.ndarray  # (H, W) coverage of objects whose value is not verified
+    scale: Scale  # what ``display`` was encoded with
     legend: Legend
 
 
@@ -161,7 +158,7 @@ def paint_view(
         scale = choose_scale(replace(encoding, normalize="shared"), {"shared": shared.value})
         rule = f"{shared.rule()}: the job's scale"
     display = np.clip(encode_image(painted, encoding, scale.threshold, scale.scale), -1.0, 1.0)
-    doubtful = unverified_objects(buffer, values)
+    doubtful = {owner for key in values.unverified for owner in buffer.param(key).owners}
     mask = visibility.paint(np.array([1.0 if name in doubtful else 0.0 for name in names]))
     seen = set(visibility.visible_objects)
     peak = peak_of(scale, encoding.tonemap)
@@ -171,12 +168,7 @@ def paint_view(
         invisible=tuple(sorted(n for n, v in per_object.items() if v and n not in seen)),
         notes=(clipped,),
     )  # fmt: skip
-    return InspectionView(painted, display, visibility.coverage_hit, mask, legend)
-
-
-def unverified_objects(buffer: SensitivityBuffer, values: ChannelValues) -> frozenset[str]:
-    """The objects whose value in this channel includes a gradient that is not verified."""
-    return frozenset(owner for key in values.unverified for owner in buffer.param(key).owners)
+    return InspectionView(painted, display, visibility.coverage_hit, mask, scale, legend)
 
 
 def paint_image(
@@ -201,7 +193,7 @@ def paint_image(
     legend = _legend(encoding.describe(), "image", scale, tonemap, unverified, (), notes)
     full = np.ones_like(display)
     doubt = full if unverified else np.zeros_like(display)
-    return InspectionView(values.astype(np.float32), display, full, doubt, legend)
+    return InspectionView(values.astype(np.float32), display, full, doubt, scale, legend)
 
 
 def _nearest(source: int, target: int) -> np.ndarray:
@@ -227,7 +219,7 @@ def paint_texel(
         scale = Scale(shown.scale.threshold, own or 1.0)  # the view's p95, in encoded units
     else:
         scale = _panel_scale(field, panel, shown.scale)
-    display = np.clip(np.asarray(data, np.float64) / scale.scale, -1.0, 1.0)
+    display = np.clip(np.asarray(data, np.float64) / scale.scale, -1.0, 1.0).astype(np.float32)
     legend = _legend(
         f"{shown.metadata['encoding']} (fixed by the job's texel channel)",
         look.scale, scale, "none" if shown.scale.threshold == 0.0 else "log",
@@ -237,9 +229,8 @@ def paint_texel(
     doubt = float(bool(legend.unverified))
     mask = visibility.paint(np.array([doubt if o in field.record.owners else 0.0
                                       for o in visibility.objects]))  # fmt: skip
-    return InspectionView(
-        data.astype(np.float32), display.astype(np.float32), visibility.coverage_hit, mask, legend
-    )
+    values = data.astype(np.float32)
+    return InspectionView(values, display, visibility.coverage_hit, mask, scale, legend)
 
 
 def _panel_scale(field: TexelField, panel: str, encoded: Scale) -> Scale:
@@ -275,7 +266,7 @@ def _legend(
     """The colour bar of ``scale``: its peak and the value at each stop, in the channel's units."""
     stops = tuple((p, value_at(p, scale, tonemap)) for p in LEGEND_STOPS)
     peak = peak_of(scale, tonemap)
-    return Legend(encoding, scale_mode, scale, peak, stops, unverified, invisible, notes)
+    return Legend(encoding, scale_mode, peak, scale.threshold, stops, unverified, invisible, notes)
 
 
 def peak_of(scale: Scale, tonemap: str) -> float:

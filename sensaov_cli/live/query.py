@@ -105,7 +105,7 @@ def pick_request(view: ViewRequest, values: Mapping[str, str]) -> PickRequest:
 
 def pose(values: Mapping[str, str], default: Pose) -> Pose:
     """The camera of a request, from the objective camera's where a value is left out."""
-    fov = _number(values, "fov", default.fov)
+    fov = _finite("fov", values["fov"]) if "fov" in values else default.fov
     if not 0.0 < fov < 180.0:
         raise RequestError(f"fov {fov:g} is outside (0, 180) degrees")
     base = default.look_at
@@ -132,10 +132,6 @@ def _vector(
         given = values[key]
         raise RequestError(f"{key} must be three finite numbers x,y,z, got {given!r}") from None
     return (x, y, z)
-
-
-def _number(values: Mapping[str, str], key: str, default: float) -> float:
-    return _finite(key, values[key]) if key in values else default
 
 
 def _finite(key: str, text: str) -> float:

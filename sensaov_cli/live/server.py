@@ -211,19 +211,8 @@ def _meta(session: ViewSession) -> Answer:
 
 def _picture(picture: Picture) -> Answer:
     """A view's bytes; its legend, size and cost in headers (the page reads them)."""
-    legend = picture.legend
-    legend_json = {
-        "encoding": legend.encoding,
-        "scale_mode": legend.scale_mode,
-        "peak": legend.peak,
-        "threshold": legend.scale.threshold,
-        "stops": legend.stops,
-        "unverified": legend.unverified,
-        "invisible": legend.invisible,
-        "notes": legend.notes,
-    }
     headers = {
-        "X-Sensaov-Legend": json.dumps(legend_json, ensure_ascii=True),
+        "X-Sensaov-Legend": json.dumps(asdict(picture.legend), ensure_ascii=True),
         "X-Sensaov-Size": f"{picture.size[0]}x{picture.size[1]}",
         "X-Sensaov-Ms": f"{picture.ms:.1f}",
     }

@@ -271,7 +271,7 @@ class ViewSession:
             "sensaov/objective": request.objective,
             "sensaov/channel": request.channel,
             "sensaov/encoding": shown.legend.encoding,
-            "sensaov/scale": f"{shown.legend.scale_mode};{shown.legend.scale.describe()}",
+            "sensaov/scale": f"{shown.legend.scale_mode};{shown.scale.describe()}",
             "sensaov/camera": json.dumps({**camera, "fov": request.pose.fov}),
             "sensaov/spp": str(request.spp),
             "sensaov/buffer": str(self.buffer_path),
