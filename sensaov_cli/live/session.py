@@ -186,9 +186,7 @@ class ViewSession:
             found = str(pick.object)
             if found not in self.buffer.objects:
                 raise UnknownNameError("object", found, self.buffer.objects)
-            summary = self._summary(request, found)
-            return Pick(request.objective, request.channel, found, self.material(found), None,
-                        summary)  # fmt: skip
+            return self._picked(request, found, None)
         visibility, shown = self._paint(request)
         with self._lock:
             hit = self.tracer.hit(request.pose, request.width, request.height, pick.x, pick.y)
@@ -199,11 +197,7 @@ class ViewSession:
         )
         value = float(shown.values[pick.y, pick.x])
         pixel = Pixel(pick.x, pick.y, coverage, hit.position, hit.distance, value)
-        if not coverage:
-            return Pick(request.objective, request.channel, None, None, pixel, None)
-        found = coverage[0][0]
-        summary = self._summary(request, found)
-        return Pick(request.objective, request.channel, found, self.material(found), pixel, summary)
+        return self._picked(request, coverage[0][0] if coverage else None, pixel)
 
     def sunburst(self, objective: str | None) -> Panel:
         name = self.buffer.objectives[0].name if objective is None else objective
@@ -211,10 +205,14 @@ class ViewSession:
         (panel,) = panels(self.buffer, [name])
         return panel
 
-    def _summary(self, request: ViewRequest, obj: str) -> ObjectSummary:
+    def _picked(self, request: ViewRequest, found: str | None, pixel: Pixel | None) -> Pick:
+        """The pick of ``found`` (None: no object under the pixel) on the request's layer."""
+        if found is None:
+            return Pick(request.objective, request.channel, None, None, pixel, None)
         source = self.sources.find(request.objective, request.channel)
         channel = source if isinstance(source, ChannelValues) else None
-        return object_summary(self.buffer, request.objective, obj, channel)
+        summary = object_summary(self.buffer, request.objective, found, channel)
+        return Pick(request.objective, request.channel, found, self.material(found), pixel, summary)
 
     def _paint(self, request: ViewRequest) -> tuple[VisibilityPass, InspectionView]:
         source = self.sources.find(request.objective, request.channel)
