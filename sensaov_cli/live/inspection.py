@@ -1,35 +1,53 @@
 """One live inspection view (``sensaov view``): a channel painted through a free camera (§3).
 
 The per-object values come from the buffer once (:mod:`.channels`); each camera move only
-brings a new :class:`~.coverage.VisibilityPass`, through which they are painted and encoded
-as the page asks: signed or magnitude, linear or compressive (a log tone map around a
-threshold at 1e-3 of the peak), on the job's shared scale (the one ``sensaov project``'s
-previews and display layers use) or the view's own (:mod:`.view_scales`). What the view cannot
-stand behind travels with it: the coverage of objects whose value includes a gradient that is
-not verified (drawn hatched), the objects with a value that this view does not see, and the
-keys behind both.
+brings a new :class:`~.coverage.VisibilityPass`, through which they are painted and encoded as
+the page asks: signed or magnitude, linear or compressive (a log tone map around a threshold at
+1e-3 of the peak), on the job's shared scale (``sensaov project``'s ``display_scale``, so the
+page and the files agree; docs/encoding.md) or the same rule over this view's pixels alone.
+What the view cannot stand behind travels with it: the coverage of objects whose value includes
+a gradient that is not verified (drawn hatched), the objects with a value that this view does
+not see, and the keys behind both. A click on an object lists its parameters, ranked. A view is
+answered as bytes in memory (PNG, EXR or an object-id map), never a file; each PNG and EXR
+carries the encoding, the scale and the camera in its header.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
-from sensaov_cli.live.scales import job_shared_scale, peak_of, value_at, view_own_scale
+from sensaov_cli.buffer.queries import combine, key_stats, rank
+from sensaov_cli.outputs.exr import encode_exr
+from sensaov_cli.outputs.png import encode_png
+from sensaov_cli.outputs.previews import BACKGROUND, diverging_rgb
 from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, clipped_share, robust_scale
-from sensaov_cli.views.encoding import Encoding, Scale, encode_image, signed_object_values
+from sensaov_cli.views.encoding import (
+    Encoding,
+    Scale,
+    choose_scale,
+    encode_image,
+    signed_object_values,
+)
+from sensaov_cli.views.summary import weakest_trust
 from sensaov_cli.views.texel_fields import TexelField
 from sensaov_cli.views.texel_passes import texel_passes, texture_footprint
+from sensaov_cli.views.uncertainty import Uncertainty
+from sensaov_cli.vocabulary import Weight
 
 SCALE_MODES = ("shared", "view")
 LEGEND_STOPS = (-1.0, -0.5, 0.0, 0.5, 1.0)
 _COMPRESSIVE = {"signed": "symlog", "magnitude": "log"}
+HATCH_PERIOD = 8  # pixels between the hatch's diagonal stripes
+HATCH_DARKEN = 0.45  # how much a stripe darkens the colour beneath it
+LISTED_COMPONENTS = 4  # a colour is listed component by component, a texture summarised
 
 
 @dataclass(frozen=True)
@@ -48,12 +66,13 @@ class Look:
 
 @dataclass(frozen=True)
 class Legend:
-    """What the colour bar says: the encoding, the value at each stop, and the caveats."""
+    """What the colour bar says: the encoding, the value at each stop, and the caveats (the
+    page reads it field by field, as JSON)."""
 
     encoding: str
     scale_mode: str
-    scale: Scale
     peak: float  # the value, in the channel's units, at which colours saturate
+    threshold: float  # of the log tone maps; 0 for a linear one
     stops: tuple[tuple[float, float], ...]  # (position in [-1, 1], value there)
     unverified: tuple[str, ...]  # keys of the channel whose gradient is not verified
     invisible: tuple[str, ...]  # objects with a non-zero value that this view does not see
@@ -66,7 +85,54 @@ class InspectionView:
     display: np.ndarray  # (H, W) float32 in [-1, 1]: what the colours show
     coverage: np.ndarray  # (H, W) fraction of samples that hit an object
     unverified: np.ndarray  # (H, W) coverage of objects whose value is not verified
+    scale: Scale  # what ``display`` was encoded with
     legend: Legend
+
+
+@dataclass(frozen=True)
+class ParameterRow:
+    """One parameter of a clicked object, with what a reader needs to judge it.
+
+    The contribution is Σ θ·∂M/∂θ (or Σ ∂M/∂θ with ``weight: raw``), with its standard error
+    where the buffer has batch statistics (None where it has none: no error is claimed that
+    was not measured). Arrays of more than four components (a texture) are summarised: the
+    value's mean and the gradient's sum, with the component count.
+    """
+
+    rank: int
+    key: str
+    type: str
+    plugin: str
+    components: int
+    value: tuple[float, ...]  # every component, or (mean,) for a larger array
+    gradient: tuple[float, ...]  # ∂M/∂θ per component, or (sum,) for a larger array
+    gradient_se: tuple[float, ...] | None  # its standard error per component (listed only)
+    score: float  # l2 of the contributions (how the rows are ranked)
+    signed: float  # Σ contributions: > 0 when scaling the parameter up raises M
+    signed_se: float | None  # standard error of ``signed``; None without batch statistics
+    trust: str
+    note: str
+    shared_with: tuple[str, ...]  # the parameter's other owners
+
+
+@dataclass(frozen=True)
+class ObjectRank:
+    """Where an object stands in a per-object channel."""
+
+    object_score: float
+    object_signed: float
+    object_rank: int
+    objects_ranked: int  # objects with a non-zero value
+
+
+@dataclass(frozen=True)
+class ObjectSummary:
+    """What a click on an object shows: its parameters ranked, their weakest trust, its rank."""
+
+    weight: Weight
+    parameters: tuple[ParameterRow, ...]
+    trust: str
+    rank: ObjectRank | None  # None for a layer that is not a per-object channel
 
 
 def paint_view(
@@ -88,33 +154,21 @@ def paint_view(
     painted = visibility.paint(np.array([per_object[name] for name in names]))
     if look.scale == "view":
         scale, rule = view_own_scale(encoding, painted), "p95 of |v| over this view's pixels"
-    else:
-        scale, rule = job_shared_scale(encoding, shared), f"{shared.rule()}: the job's scale"
+    else:  # one scale whatever the camera sees: the colours of project's pictures (Fig. 6)
+        scale = choose_scale(replace(encoding, normalize="shared"), {"shared": shared.value})
+        rule = f"{shared.rule()}: the job's scale"
     display = np.clip(encode_image(painted, encoding, scale.threshold, scale.scale), -1.0, 1.0)
-    doubtful = unverified_objects(buffer, values)
+    doubtful = {owner for key in values.unverified for owner in buffer.param(key).owners}
     mask = visibility.paint(np.array([1.0 if name in doubtful else 0.0 for name in names]))
     seen = set(visibility.visible_objects)
-    legend = Legend(
-        encoding=encoding.describe(),
-        scale_mode=look.scale,
-        scale=scale,
-        peak=peak_of(scale, encoding.tonemap),
-        stops=tuple((p, value_at(p, scale, encoding.tonemap)) for p in LEGEND_STOPS),
-        unverified=values.unverified,
+    peak = peak_of(scale, encoding.tonemap)
+    clipped = f"scale: {rule}; {clipped_share([painted], peak):.1%} of painted pixels above it"
+    legend = _legend(
+        encoding.describe(), look.scale, scale, encoding.tonemap, values.unverified,
         invisible=tuple(sorted(n for n, v in per_object.items() if v and n not in seen)),
-        notes=(_clipped_note(rule, painted, peak_of(scale, encoding.tonemap)),),
-    )
-    return InspectionView(painted, display, visibility.coverage_hit, mask, legend)
-
-
-def _clipped_note(rule: str, painted: np.ndarray, peak: float) -> str:
-    """The scale's rule and the share of this view's painted pixels it saturates."""
-    return f"scale: {rule}; {clipped_share([painted], peak):.1%} of painted pixels above it"
-
-
-def unverified_objects(buffer: SensitivityBuffer, values: ChannelValues) -> frozenset[str]:
-    """The objects whose value in this channel includes a gradient that is not verified."""
-    return frozenset(owner for key in values.unverified for owner in buffer.param(key).owners)
+        notes=(clipped,),
+    )  # fmt: skip
+    return InspectionView(painted, display, visibility.coverage_hit, mask, scale, legend)
 
 
 def paint_image(
@@ -136,19 +190,10 @@ def paint_image(
     encoding = Encoding(sign=look.sign, tonemap=tonemap, normalize="shared")
     scale = view_own_scale(encoding, np.asarray(image, np.float64))
     display = np.clip(encode_image(values, encoding, scale.threshold, scale.scale), -1.0, 1.0)
-    legend = Legend(
-        encoding=encoding.describe(),
-        scale_mode="image",
-        scale=scale,
-        peak=peak_of(scale, tonemap),
-        stops=tuple((p, value_at(p, scale, tonemap)) for p in LEGEND_STOPS),
-        unverified=unverified,
-        invisible=(),
-        notes=notes,
-    )
+    legend = _legend(encoding.describe(), "image", scale, tonemap, unverified, (), notes)
     full = np.ones_like(display)
     doubt = full if unverified else np.zeros_like(display)
-    return InspectionView(values.astype(np.float32), display, full, doubt, legend)
+    return InspectionView(values.astype(np.float32), display, full, doubt, scale, legend)
 
 
 def _nearest(source: int, target: int) -> np.ndarray:
@@ -174,24 +219,18 @@ def paint_texel(
         scale = Scale(shown.scale.threshold, own or 1.0)  # the view's p95, in encoded units
     else:
         scale = _panel_scale(field, panel, shown.scale)
-    display = np.clip(np.asarray(data, np.float64) / scale.scale, -1.0, 1.0)
-    tonemap = "none" if shown.scale.threshold == 0.0 else "log"
-    legend = Legend(
-        encoding=f"{shown.metadata['encoding']} (fixed by the job's texel channel)",
-        scale_mode=look.scale,
-        scale=scale,
-        peak=peak_of(scale, tonemap),
-        stops=tuple((p, value_at(p, scale, tonemap)) for p in LEGEND_STOPS),
-        unverified=tuple(json.loads(shown.metadata["unverified"])),
-        invisible=(),
-        notes=tuple(filter(None, shown.metadata["notes"].split(" | "))),
-    )
+    display = np.clip(np.asarray(data, np.float64) / scale.scale, -1.0, 1.0).astype(np.float32)
+    legend = _legend(
+        f"{shown.metadata['encoding']} (fixed by the job's texel channel)",
+        look.scale, scale, "none" if shown.scale.threshold == 0.0 else "log",
+        tuple(json.loads(shown.metadata["unverified"])),
+        invisible=(), notes=tuple(filter(None, shown.metadata["notes"].split(" | "))),
+    )  # fmt: skip
     doubt = float(bool(legend.unverified))
     mask = visibility.paint(np.array([doubt if o in field.record.owners else 0.0
                                       for o in visibility.objects]))  # fmt: skip
-    return InspectionView(
-        data.astype(np.float32), display.astype(np.float32), visibility.coverage_hit, mask, legend
-    )
+    values = data.astype(np.float32)
+    return InspectionView(values, display, visibility.coverage_hit, mask, scale, legend)
 
 
 def _panel_scale(field: TexelField, panel: str, encoded: Scale) -> Scale:
@@ -205,3 +244,133 @@ def _panel_scale(field: TexelField, panel: str, encoded: Scale) -> Scale:
     if encoded.threshold > 0.0:  # the panel's log tone map, around the threshold it was made with
         summed = math.log10(1.0 + summed / encoded.threshold)
     return Scale(encoded.threshold, (summed / encoded.scale) or 1.0)
+
+
+def view_own_scale(encoding: Encoding, painted: np.ndarray) -> Scale:
+    """This view's own scale: the job's rule (:func:`~.display_scale.robust_scale`) over this
+    view's painted pixels alone, so neither an object off frame (an environment light, a lamp
+    behind the camera) nor a few bright pixels wash the picture out."""
+    own = robust_scale({"view": [painted]}, scope="tile")
+    return choose_scale(replace(encoding, normalize="shared"), {"own": own.value})
+
+
+def _legend(
+    encoding: str,
+    scale_mode: str,
+    scale: Scale,
+    tonemap: str,
+    unverified: tuple[str, ...],
+    invisible: tuple[str, ...],
+    notes: tuple[str, ...],
+) -> Legend:
+    """The colour bar of ``scale``: its peak and the value at each stop, in the channel's units."""
+    stops = tuple((p, value_at(p, scale, tonemap)) for p in LEGEND_STOPS)
+    peak = peak_of(scale, tonemap)
+    return Legend(encoding, scale_mode, peak, scale.threshold, stops, unverified, invisible, notes)
+
+
+def peak_of(scale: Scale, tonemap: str) -> float:
+    """The value, in the channel's units, at which colours saturate under ``scale``."""
+    if tonemap == "none":
+        return scale.scale
+    return scale.threshold * (10.0**scale.scale - 1.0)
+
+
+def value_at(position: float, scale: Scale, tonemap: str) -> float:
+    """The channel value drawn at ``position`` in [-1, 1] of the colour bar (its inverse)."""
+    t = position * scale.scale
+    if tonemap == "none":
+        return t
+    return math.copysign(scale.threshold * (10.0 ** abs(t) - 1.0), t)
+
+
+def object_summary(
+    buffer: SensitivityBuffer, objective: str, obj: str, channel: ChannelValues | None
+) -> ObjectSummary:
+    """What a click on ``obj`` shows: its parameters ranked with the weight of ``channel`` (the
+    per-object channel on screen; None for another layer) and its rank among that channel's."""
+    weight = channel.spec.weight if channel is not None else "value"
+    rows = object_parameters(buffer, objective, obj, weight)
+    trust = weakest_trust(buffer, [r.key for r in rows]) if rows else "verified"
+    standing = None
+    if channel is not None:
+        index = buffer.objects.index(obj)
+        order = sorted(range(len(channel.magnitudes)), key=lambda i: -channel.magnitudes[i])
+        standing = ObjectRank(
+            object_score=float(channel.magnitudes[index]),
+            object_signed=float(channel.signed_sums[index]),
+            object_rank=order.index(index) + 1,
+            objects_ranked=int((channel.magnitudes > 0).sum()),
+        )
+    return ObjectSummary(weight, tuple(rows), trust, standing)
+
+
+def object_parameters(
+    buf: SensitivityBuffer, objective: str, obj: str, weight: Weight = "value"
+) -> list[ParameterRow]:
+    """The parameters ``obj`` owns, ranked by the l2 of their contributions to ``objective``."""
+    keys = [p.key for p in buf.params if obj in p.owners]
+    stats = key_stats(buf, objective, keys, weight=weight)
+    noise = Uncertainty.of(buf, objective, "l2", weight)
+    ordered = rank({key: combine([stats[key]], "l2") for key in keys})
+    rows = []
+    for index, (key, score) in enumerate(ordered, 1):
+        record = buf.param(key)
+        value = buf.value(key).astype(np.float64).ravel()
+        grad = buf.grad(objective, key).astype(np.float64).ravel()
+        listed = value.size <= LISTED_COMPONENTS
+        rows.append(
+            ParameterRow(
+                rank=index,
+                key=key,
+                type=record.type,
+                plugin=record.plugin,
+                components=int(value.size),
+                value=tuple(map(float, value)) if listed else (float(value.mean()),),
+                gradient=tuple(map(float, grad)) if listed else (float(grad.sum()),),
+                gradient_se=_gradient_se(buf, objective, key) if listed else None,
+                score=score,
+                signed=stats[key].total,
+                signed_se=None if noise is None else noise.error([key], score).signed_se,
+                trust=record.trust,
+                note=record.note,
+                shared_with=tuple(o for o in record.owners if o != obj),
+            )
+        )
+    return rows
+
+
+def _gradient_se(buf: SensitivityBuffer, objective: str, key: str) -> tuple[float, ...] | None:
+    if buf.statistics is None:
+        return None
+    return tuple(map(float, np.asarray(buf.statistics.stderr[objective][key]).ravel()))
+
+
+def view_rgb(display: np.ndarray, coverage: np.ndarray, unverified: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8: ``display`` in [-1, 1] on the previews' diverging map (blue lowers M,
+    red raises it, white is 0), blended into their dark grey by the coverage, and hatched where
+    a value includes a gradient that is not verified (never drawn plain)."""
+    colour = diverging_rgb(display, 1.0).astype(np.float64)
+    height, width = display.shape
+    rows, columns = np.indices((height, width))
+    stripe = ((rows + columns) % HATCH_PERIOD) < HATCH_PERIOD // 4
+    darken = 1.0 - HATCH_DARKEN * stripe * np.clip(unverified, 0.0, 1.0)
+    colour *= darken[..., None]
+    alpha = np.clip(coverage, 0.0, 1.0)[..., None]
+    blended = alpha * colour + (1.0 - alpha) * np.array(BACKGROUND, np.float64)
+    return np.rint(blended).astype(np.uint8)
+
+
+def view_png(shown: InspectionView, text: Mapping[str, str]) -> bytes:
+    """The view as a PNG, fast to compress (a view lives for one look)."""
+    return encode_png(view_rgb(shown.display, shown.coverage, shown.unverified), text, level=1)
+
+
+def view_exr(layer: str, shown: InspectionView, attributes: Mapping[str, str]) -> bytes:
+    """The raw layer ``<layer>.Y`` (linear, in the channel's units) as a one-layer EXR."""
+    return encode_exr({f"{layer}.Y": shown.values}, dict(attributes))
+
+
+def id_map_bytes(rank_index: np.ndarray) -> bytes:
+    """Per pixel, the index of the object with the most coverage (-1: none), int32 LE."""
+    return np.ascontiguousarray(rank_index[..., 0], dtype="<i4").tobytes()

@@ -24,9 +24,11 @@ MAX_SIDE = 2048  # a live view; larger images are `sensaov project`'s work
 MAX_SPP = 256
 DEFAULT_WIDTH = 256
 FORMATS = ("png", "exr", "ids")
-CAMERA_KEYS = ("origin", "target", "up", "fov", "width", "height")
-VIEW_KEYS = ("objective", "channel", *CAMERA_KEYS, "spp", "sign", "compressive", "scale", "format")
+POSE_KEYS = ("origin", "target", "up", "fov", "width", "height")
+VIEW_KEYS = ("objective", "channel", *POSE_KEYS, "spp", "sign", "compressive", "scale", "format")
 PICK_KEYS = (*VIEW_KEYS, "x", "y", "object")
+CAMERA_KEYS = (*VIEW_KEYS, "name")  # a viewpoint shown or saved as a job's camera
+SUNBURST_KEYS = ("objective",)
 
 Query = Mapping[str, Sequence[str]]
 
@@ -89,6 +91,7 @@ def view_request(
 
 
 def pick_request(view: ViewRequest, values: Mapping[str, str]) -> PickRequest:
+    """The pixel or the object of a pick; ``view`` is the same values read as a view."""
     if "object" in values:
         if "x" in values or "y" in values:
             raise RequestError("a pick takes either x and y or object, not both")
@@ -102,7 +105,7 @@ def pick_request(view: ViewRequest, values: Mapping[str, str]) -> PickRequest:
 
 def pose(values: Mapping[str, str], default: Pose) -> Pose:
     """The camera of a request, from the objective camera's where a value is left out."""
-    fov = _number(values, "fov", default.fov)
+    fov = _finite("fov", values["fov"]) if "fov" in values else default.fov
     if not 0.0 < fov < 180.0:
         raise RequestError(f"fov {fov:g} is outside (0, 180) degrees")
     base = default.look_at
@@ -129,10 +132,6 @@ def _vector(
         given = values[key]
         raise RequestError(f"{key} must be three finite numbers x,y,z, got {given!r}") from None
     return (x, y, z)
-
-
-def _number(values: Mapping[str, str], key: str, default: float) -> float:
-    return _finite(key, values[key]) if key in values else default
 
 
 def _finite(key: str, text: str) -> float:

@@ -1,36 +1,73 @@
-"""The HTTP face of ``sensaov view``: the standard library's threading server, routing only.
+"""The HTTP face of ``sensaov view``: the interface of docs/view.md, its page, its saved cameras.
 
-One user on the loopback address needs no web framework. Every answer is computed by
-:class:`~sensaov_cli.live.session.ViewSession`; here requests are routed, a bad value becomes
-HTTP 400 with a one-line reason, and two browser-borne attacks on a local server are refused:
-a page of another site reaching it by DNS rebinding (the Host header must name this server)
-and a cross-site form posting to it (a save must carry the ``X-Sensaov`` header, which no form
-can set). The server stops when the main thread is interrupted (Ctrl-C, SIGTERM).
+One user on the loopback address needs no web framework: the standard library's threading
+server routes each request to :class:`~sensaov_cli.live.session.ViewSession` and writes the
+typed answer as JSON or bytes; a bad value becomes HTTP 400 with a one-line reason. Refused: a
+page of another site reaching the server by DNS rebinding (the Host header must name it) and a
+cross-site form posting to it (a save must carry the ``X-Sensaov`` header, which no form can
+set). The page (``page.html``: one file, no external assets) draws its colour bar and sunburst
+with the previews' colour table, filled in here, so legend and picture cannot disagree.
+
+A viewpoint becomes a job's camera: its YAML, or, saved, appended to
+``<output>/<job stem>_view.yaml`` (the job, paths rewritten to hold from there), which is
+validated as a job before it replaces anything, written atomically, and never over a file the
+job reads; nothing is written anywhere else.
 """
 
 from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from functools import cache
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
 from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from sensaov_cli.errors import SensaovError, ServerError
-from sensaov_cli.live.page import page_html
-from sensaov_cli.live.query import VIEW_KEYS, single_values
-from sensaov_cli.live.save import save_viewpoint, viewpoint_yaml
-from sensaov_cli.live.session import Answer, ViewSession
+from sensaov_cli.errors import RequestError, SensaovError, ServerError
+from sensaov_cli.job.cameras import CameraSpec
+from sensaov_cli.job.job_copy import camera_names, camera_yaml, check_camera_name, job_copy_text
+from sensaov_cli.job.load import load_job
+from sensaov_cli.job.spec import JobSpec
+from sensaov_cli.live.query import (
+    CAMERA_KEYS,
+    PICK_KEYS,
+    SUNBURST_KEYS,
+    VIEW_KEYS,
+    ViewRequest,
+    pick_request,
+    single_values,
+)
+from sensaov_cli.live.session import REST_SPP, Pick, Picture, ViewSession
+from sensaov_cli.outputs.atomic import atomic_write, check_writable
+from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
+from sensaov_cli.outputs.previews import RDBU
+from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.pipeline.run import FORWARD_NAME
+from sensaov_cli.views.sunburst_geometry import Panel
 
+META_FORMAT = "sensaov-view"
+META_VERSION = 1
 LOOPBACK = ("127.0.0.1", "localhost", "::1", "[::1]")
 SAVE_HEADER = "X-Sensaov"
-CAMERA_KEYS = (*VIEW_KEYS, "name")
+SAVED_VIS_SPP = 16  # project's default for an inspection camera
+_TABLE_MARK = "/*RDBU*/[]"
+
+
+@dataclass(frozen=True)
+class Answer:
+    body: bytes
+    content_type: str
+    headers: dict[str, str] = field(default_factory=dict)
+    status: int = 200
 
 
 class ViewServer(ThreadingHTTPServer):
     daemon_threads = True  # a request in flight never holds the process open after a stop
+
+    session: ViewSession  # attached before the first request is accepted (:func:`serve`)
 
     def __init__(
         self,
@@ -39,27 +76,12 @@ class ViewServer(ThreadingHTTPServer):
         log: Callable[[str], None] | None,
     ):
         self.on_save, self.log = on_save, log
-        self._session: ViewSession | None = None
-        self.inputs: tuple[Path, ...] = ()
         super().__init__(address, _Handler)
-
-    @property
-    def session(self) -> ViewSession:
-        if self._session is None:
-            raise RuntimeError("the server answers once a session is attached")
-        return self._session
 
     def attach(self, session: ViewSession) -> None:
         """Answer from ``session`` (the server listens before the scene loads: a taken port
         is reported at once, not after the load)."""
-        self._session = session
-        buffer = session.buffer_path  # a saved camera never replaces the buffer or its sidecar
-        self.inputs = (
-            *session.job.input_files(),
-            *session.loaded.prepared.files,
-            buffer,
-            buffer.with_name(FORWARD_NAME),
-        )
+        self.session = session
 
     @property
     def url(self) -> str:
@@ -91,22 +113,24 @@ class _Handler(BaseHTTPRequestHandler):
         if path == "/":
             return Answer(page_html().encode(), "text/html; charset=utf-8")
         if path == "/api/meta":
-            return _json(session.meta())
+            return _meta(session)
         if path == "/api/view":
-            return session.view(query)
+            return _picture(session.view(session.request(single_values(query, VIEW_KEYS))))
         if path == "/api/pick":
-            return _json(session.pick(query))
+            values = single_values(query, PICK_KEYS)
+            return _pick(session.pick(pick_request(session.request(values), values)))
         if path == "/api/sunburst":
-            return _json(session.sunburst(query))
+            objective = single_values(query, SUNBURST_KEYS).get("objective")
+            return _sunburst(session.sunburst(objective))
         if path == "/api/camera":
             values = single_values(query, CAMERA_KEYS)
             request = session.request(values)
             return _json({"yaml": viewpoint_yaml(request, values.get("name", "view_1"))})
-        return Answer(f"no such page: {path}\n".encode(), "text/plain", {"status": "404"})
+        return _missing(path)
 
     def _post(self, path: str, query: dict[str, list[str]]) -> Answer:
         if path != "/api/camera":
-            return Answer(f"no such page: {path}\n".encode(), "text/plain", {"status": "404"})
+            return _missing(path)
         if self.headers.get(SAVE_HEADER) is None:
             return _refuse(403, f"a save must carry the {SAVE_HEADER} header")
         session = self.server.session
@@ -114,9 +138,7 @@ class _Handler(BaseHTTPRequestHandler):
         if "name" not in values:
             return _refuse(400, "a saved camera needs a name")
         request = session.request(values)
-        copy = save_viewpoint(
-            session.job, request, values["name"], session.buffer_path, self.server.inputs
-        )
+        copy = save_viewpoint(session, request, values["name"])
         text = viewpoint_yaml(request, values["name"])
         self.server.on_save(text)
         return _json({"path": str(copy), "yaml": text})
@@ -135,13 +157,11 @@ class _Handler(BaseHTTPRequestHandler):
         self._send(answer)
 
     def _send(self, answer: Answer) -> None:
-        headers = dict(answer.headers)
-        status = int(headers.pop("status", "200"))
-        self.send_response(status)
+        self.send_response(answer.status)
         self.send_header("Content-Type", answer.content_type)
         self.send_header("Content-Length", str(len(answer.body)))
         self.send_header("Cache-Control", "no-store")
-        for key, value in headers.items():
+        for key, value in answer.headers.items():
             self.send_header(key, value)
         self.end_headers()
         self.wfile.write(answer.body)
@@ -151,13 +171,141 @@ class _Handler(BaseHTTPRequestHandler):
             self.server.log(format % args)
 
 
-def _json(data: Any) -> Answer:
+@cache
+def page_html() -> str:
+    """The page's text, with the colour table filled in."""
+    text = resources.files("sensaov_cli.live").joinpath("page.html").read_text("utf-8")
+    if _TABLE_MARK not in text:
+        raise RuntimeError("page.html lost its colour table mark")
+    return text.replace(_TABLE_MARK, json.dumps(RDBU.tolist()))
+
+
+def _meta(session: ViewSession) -> Answer:
+    """What the page needs first: the buffer's names, the channels, the cameras, the defaults."""
+    buffer, first = session.buffer, session.objective_camera
+    cameras = [
+        {"name": c.name, "origin": c.pose.look_at.origin, "target": c.pose.look_at.target,
+         "up": c.pose.look_at.up, "fov": c.pose.fov, "width": c.size[0], "height": c.size[1],
+         "note": c.pose.note}
+        for c in session.cameras
+    ]  # fmt: skip
+    return _json({
+        "format": META_FORMAT,
+        "format_version": META_VERSION,
+        "job": str(session.job.path),
+        "buffer": str(session.buffer_path),
+        "buffer_id": session.buffer_id,
+        "objectives": [o.name for o in buffer.objectives],
+        "objective_values": {o.name: o.value for o in buffer.objectives},
+        "channels": session.sources.names(),
+        "objective_camera_only": session.sources.objective_only(),
+        "cameras": cameras,
+        "bounds": {"min": session.bounds[0], "max": session.bounds[1]},
+        "objects": buffer.objects,
+        "materials": {o: session.material(o) for o in buffer.objects},
+        "defaults": {"width": first.size[0], "height": first.size[1], "spp": 1,
+                     "rest_spp": REST_SPP},
+        "made_by": made_by("view"),
+    })  # fmt: skip
+
+
+def _picture(picture: Picture) -> Answer:
+    """A view's bytes; its legend, size and cost in headers (the page reads them)."""
+    headers = {
+        "X-Sensaov-Legend": json.dumps(asdict(picture.legend), ensure_ascii=True),
+        "X-Sensaov-Size": f"{picture.size[0]}x{picture.size[1]}",
+        "X-Sensaov-Ms": f"{picture.ms:.1f}",
+    }
+    return Answer(picture.body, picture.content_type, headers)
+
+
+def _pick(pick: Pick) -> Answer:
+    """A pick's JSON: a pixel's fields for a click on a pixel, the object's once there is one."""
+    body: dict[str, Any] = {"objective": pick.objective, "channel": pick.channel}
+    pixel = pick.pixel
+    if pixel is not None:
+        body.update(x=pixel.x, y=pixel.y)
+    body.update(object=pick.object, material=pick.material)
+    if pixel is not None:
+        body.update(
+            coverage=[{"object": name, "coverage": share} for name, share in pixel.coverage],
+            position=pixel.position,
+            distance=pixel.distance,
+            value=pixel.value,
+        )
+    summary = pick.summary
+    if summary is not None:
+        rows = [asdict(row) for row in summary.parameters]
+        body.update(weight=summary.weight, parameters=rows, trust=summary.trust)
+        if summary.rank is not None:
+            body.update(asdict(summary.rank))
+    return _json(body)
+
+
+def _sunburst(panel: Panel) -> Answer:
+    return _json({
+        "objective": panel.objective,
+        "value": panel.value,
+        "wedges": [asdict(w) for w in panel.wedges],
+        "no_gradient": panel.no_gradient,
+    })  # fmt: skip
+
+
+def _json(data: object) -> Answer:
     return Answer(json.dumps(data, allow_nan=False).encode(), "application/json")
 
 
 def _refuse(status: int, reason: str) -> Answer:
     line = " ".join(reason.split()) + "\n"
-    return Answer(line.encode(), "text/plain; charset=utf-8", {"status": str(status)})
+    return Answer(line.encode(), "text/plain; charset=utf-8", status=status)
+
+
+def _missing(path: str) -> Answer:
+    return Answer(f"no such page: {path}\n".encode(), "text/plain", status=404)
+
+
+def viewpoint_camera(request: ViewRequest, name: str) -> CameraSpec:
+    return CameraSpec(
+        name,
+        look_at=request.pose.look_at,
+        fov=request.pose.fov,
+        resolution=(request.width, request.height),
+        vis_spp=SAVED_VIS_SPP,
+    )
+
+
+def viewpoint_yaml(request: ViewRequest, name: str) -> str:
+    return camera_yaml(viewpoint_camera(request, name))
+
+
+def copy_path(job: JobSpec) -> Path:
+    return job.output / f"{job.path.stem}_view.yaml"
+
+
+def save_viewpoint(session: ViewSession, request: ViewRequest, name: str) -> Path:
+    """Append the request's camera, named ``name``, to the job's copy; returns the copy."""
+    job, buffer = session.job, session.buffer_path
+    copy = copy_path(job)
+    # Before the copy is read as the base of the next save: a copy that is a link to the
+    # buffer (or its sidecar) or a scene file, or a FIFO, is refused, never parsed or waited on.
+    inputs = (*job.input_files(), *session.loaded.prepared.files, buffer,
+              buffer.with_name(FORWARD_NAME))  # fmt: skip
+    refuse_unsafe_outputs(inputs, [copy], where=str(job.path))
+    check_writable(job.output, [copy.name])
+    base = copy if copy.is_file() else job.path
+    if base == copy:  # a copy edited since into no job at all: refused at its line, not parsed
+        load_job(copy)
+    problem = check_camera_name(name, camera_names(base))
+    if problem is not None:
+        raise RequestError(problem, hint="choose another name")
+    text = job_copy_text(job, base, [viewpoint_camera(request, name)], copy, buffer)
+
+    def write(tmp: Path) -> None:
+        tmp.write_text(text)
+        load_job(tmp)  # a copy that is not a valid job never replaces anything
+
+    atomic_write(copy, write)
+    return copy
 
 
 def listen(

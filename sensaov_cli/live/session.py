@@ -2,10 +2,14 @@
 
 Deferred shading made interactive (§2, §3 "Binding", Fig. 6): each view is one
 primary-visibility pass from a free camera (:mod:`sensaov_cli.render.viewpoint`, one compiled
-kernel for every pose) plus painting from the stored buffer; no derivative is ever computed.
-:class:`ViewSession` answers the interface of docs/view.md with plain values; the HTTP server
-(:mod:`.view_server`) only routes to it. Renders run one at a time (one lock): the renderer is
-not re-entrant, and one user's page sends one request at a time anyway.
+kernel for every pose) plus painting from the stored buffer (:mod:`.inspection`); no derivative
+is ever computed. :class:`ViewSession` answers the typed requests of :mod:`.query` with typed
+answers, which the server (:mod:`.server`) writes. What it can paint (:class:`Sources`): the
+job's channels, a select query typed in the page (on first use), the texel panels, and the
+forward and transport layers beside the buffer, images of the objective camera that no other
+viewpoint can re-project (§4, §7). The "shared" scale is ``sensaov project``'s
+(:class:`JobScales`). Renders run one at a time (one lock): the renderer is not re-entrant,
+and one user's page sends one request at a time anyway.
 """
 
 from __future__ import annotations
@@ -14,55 +18,58 @@ import json
 import threading
 import time
 from collections import OrderedDict
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import cast
 
+import numpy as np
+
+from sensaov_cli.buffer.forward_sidecar import check_belongs, read_forward
 from sensaov_cli.buffer.identity import buffer_id
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
+from sensaov_cli.buffer.queries import select
+from sensaov_cli.buffer.statistics import single_pass
 from sensaov_cli.errors import RequestError, UnknownNameError
-from sensaov_cli.job.spec import JobSpec
-from sensaov_cli.live.images import exr_bytes, id_map_bytes, png_bytes, view_rgb
-from sensaov_cli.live.inspection import InspectionView, paint_image, paint_texel, paint_view
-from sensaov_cli.live.job_scales import JobScales
-from sensaov_cli.live.object_parameters import object_parameters
-from sensaov_cli.live.query import (
-    PICK_KEYS,
-    VIEW_KEYS,
-    ViewRequest,
-    pick_request,
-    single_values,
-    view_request,
+from sensaov_cli.job.spec import ChannelSpec, JobSpec
+from sensaov_cli.live.inspection import (
+    InspectionView,
+    Legend,
+    ObjectSummary,
+    id_map_bytes,
+    object_summary,
+    paint_image,
+    paint_texel,
+    paint_view,
+    view_exr,
+    view_png,
 )
-from sensaov_cli.live.sources import Sources, StoredImage, TexelPanel
+from sensaov_cli.live.query import PickRequest, ViewRequest, view_request
 from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.pipeline import project_texels
 from sensaov_cli.pipeline.consistency import check_buffer_of_job
-from sensaov_cli.pipeline.project import check_fingerprint, check_objects
+from sensaov_cli.pipeline.project import check_fingerprint, check_objects, trace_camera
+from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene, load_scene
 from sensaov_cli.render.memory import check_view
-from sensaov_cli.render.viewpoint import Pose, ViewTracer, scene_bounds, sensor_pose
+from sensaov_cli.render.viewpoint import Pose, Vec3, ViewTracer, scene_bounds, sensor_pose
 from sensaov_cli.scene import prepare_scene
-from sensaov_cli.views.channels import ChannelValues
+from sensaov_cli.views.channels import ChannelValues, channel_values
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.summary import weakest_trust
-from sensaov_cli.views.sunburst_geometry import panels
+from sensaov_cli.views.display_scale import DisplayScale, shared_channel_scale
+from sensaov_cli.views.sunburst_geometry import Panel, panels
+from sensaov_cli.views.texel_fields import TexelField
+from sensaov_cli.views.texel_passes import PANELS, texture_token
+from sensaov_cli.views.transport import forward_views, transport_views
+from sensaov_cli.vocabulary import Sign
 
-META_FORMAT = "sensaov-view"
-META_VERSION = 1
 REST_SPP = 16  # what the page asks for once the mouse rests
 CACHED_PASSES = 8  # visibility passes kept: a pick or an id map reuses the view's own pass
 OBJECTIVE_POSE = "objective"  # the name project gives the objective camera too
 SAME_POSE = 1e-4  # relative: a camera this close to the objective camera is that camera
-
-
-@dataclass(frozen=True)
-class Answer:
-    body: bytes
-    content_type: str
-    headers: dict[str, str] = field(default_factory=dict)
+SELECT_PREFIX = "select:"
+OBJECTS = ChannelSpec("objects", "object")  # offered even when a job lists no object channel
 
 
 @dataclass(frozen=True)
@@ -70,6 +77,63 @@ class NamedPose:
     name: str
     pose: Pose
     size: tuple[int, int]
+
+
+@dataclass(frozen=True)
+class Picture:
+    """A view in the format asked for, with the legend it is drawn with."""
+
+    body: bytes
+    content_type: str
+    legend: Legend
+    size: tuple[int, int]  # width, height
+    ms: float  # painting and encoding, in milliseconds
+
+
+@dataclass(frozen=True)
+class Pixel:
+    """What a clicked pixel holds: the objects' coverage, the centre ray's hit, the value."""
+
+    x: int
+    y: int
+    coverage: tuple[tuple[str, float], ...]  # (object, share of the samples), largest first
+    position: Vec3 | None
+    distance: float | None
+    value: float  # the painted value, in the channel's units
+
+
+@dataclass(frozen=True)
+class Pick:
+    """A click: on a pixel, or on an object by name (a wedge of the sunburst)."""
+
+    objective: str
+    channel: str
+    object: str | None  # None: no object under the pixel
+    material: str | None
+    pixel: Pixel | None  # None: picked by name
+    summary: ObjectSummary | None  # None: no object under the pixel
+
+
+@dataclass(frozen=True, eq=False)
+class StoredImage:
+    """A layer of the objective camera: ``data`` (H, W), linear, with what it is."""
+
+    name: str
+    kind: str  # "forward" | "transport"
+    data: np.ndarray
+    unverified: tuple[str, ...]
+    note: str  # the duality check of a transport layer; the colour reduction of a forward one
+
+
+@dataclass(frozen=True, eq=False)
+class TexelPanel:
+    """One of Fig. 4's panels of a texel field: painted through the hit UVs of each view."""
+
+    field: TexelField
+    panel: str  # "object" | "texel" | "joint"
+
+
+Source = ChannelValues | StoredImage | TexelPanel
 
 
 class ViewSession:
@@ -86,113 +150,69 @@ class ViewSession:
         self.bounds = scene_bounds(loaded.scene)
         self.cameras = _cameras(job, loaded, self.bounds)
         self.buffer_id = buffer_id(buffer)  # the id project, report and rank --exr check
-        self.saved: list[Path] = []
         self._lock = threading.Lock()
         self.scales = JobScales(job, buffer, loaded, self._lock)
-        self._passes: OrderedDict[tuple[Any, ...], VisibilityPass] = OrderedDict()
+        self._passes: OrderedDict[tuple[Pose, int, int, int, bool], VisibilityPass] = OrderedDict()
 
     @property
     def objective_camera(self) -> NamedPose:
         return self.cameras[0]
 
-    def meta(self) -> dict[str, Any]:
-        first = self.objective_camera
-        return {
-            "format": META_FORMAT,
-            "format_version": META_VERSION,
-            "job": str(self.job.path),
-            "buffer": str(self.buffer_path),
-            "buffer_id": self.buffer_id,
-            "objectives": [o.name for o in self.buffer.objectives],
-            "objective_values": {o.name: o.value for o in self.buffer.objectives},
-            "channels": self.sources.names(),
-            "objective_camera_only": self.sources.objective_only(),
-            "cameras": [_camera_json(c) for c in self.cameras],
-            "bounds": {"min": list(self.bounds[0]), "max": list(self.bounds[1])},
-            "objects": list(self.buffer.objects),
-            "materials": {o: self.loaded.prepared.materials.get(o, o) for o in self.buffer.objects},
-            "defaults": {
-                "width": first.size[0],
-                "height": first.size[1],
-                "spp": 1,
-                "rest_spp": REST_SPP,
-            },  # fmt: skip
-            "made_by": made_by("view"),
-        }
+    def material(self, obj: str) -> str:
+        return self.loaded.prepared.materials.get(obj, obj)
 
-    def view(self, query: dict[str, list[str]]) -> Answer:
-        request = self.request(single_values(query, VIEW_KEYS))
+    def request(self, values: dict[str, str]) -> ViewRequest:
+        """A view request from a query's values, the objective camera's where one is left out."""
+        first = self.objective_camera
+        objective, channel = self.buffer.objectives[0].name, self.sources.names()[0]
+        return view_request(values, first.pose, first.size[0] / first.size[1], objective, channel)
+
+    def view(self, request: ViewRequest) -> Picture:
         start = time.perf_counter()
         visibility, shown = self._paint(request)
         if request.format == "ids":
             body, kind = id_map_bytes(visibility.rank_index), "application/octet-stream"
         elif request.format == "exr":
             layer = f"{request.objective}.{_token(request.channel)}"
-            body = exr_bytes(layer, shown.values, self._describe(request, shown))
-            kind = "image/x-exr"
+            body, kind = view_exr(layer, shown, self._describe(request, shown)), "image/x-exr"
         else:
-            rgb = view_rgb(shown.display, shown.coverage, shown.unverified)
-            body, kind = png_bytes(rgb, self._describe(request, shown)), "image/png"
-        headers = {
-            "X-Sensaov-Legend": json.dumps(_legend_json(shown), ensure_ascii=True),
-            "X-Sensaov-Size": f"{visibility.width}x{visibility.height}",
-            "X-Sensaov-Ms": f"{1000 * (time.perf_counter() - start):.1f}",
-        }
-        return Answer(body, kind, headers)
+            body, kind = view_png(shown, self._describe(request, shown)), "image/png"
+        ms = 1000 * (time.perf_counter() - start)
+        return Picture(body, kind, shown.legend, (visibility.width, visibility.height), ms)
 
-    def pick(self, query: dict[str, list[str]]) -> dict[str, Any]:
-        values = single_values(query, PICK_KEYS)
-        camera = {k: v for k, v in values.items() if k not in ("x", "y", "object")}
-        pick = pick_request(self.request(camera), values)
+    def pick(self, pick: PickRequest) -> Pick:
         request = pick.view
         if pick.x is None or pick.y is None:
-            found = pick.object
+            found = str(pick.object)
             if found not in self.buffer.objects:
-                raise UnknownNameError("object", str(found), self.buffer.objects)
-            return {"objective": request.objective, "channel": request.channel,
-                    "object": found, "material": self.loaded.prepared.materials.get(found, found),
-                    **self._object_summary(request, found)}  # fmt: skip
+                raise UnknownNameError("object", found, self.buffer.objects)
+            return self._picked(request, found, None)
         visibility, shown = self._paint(request)
         with self._lock:
             hit = self.tracer.hit(request.pose, request.width, request.height, pick.x, pick.y)
         index = visibility.rank_index[pick.y, pick.x]
         amount = visibility.rank_coverage[pick.y, pick.x]
-        coverage = [
-            {"object": self.buffer.objects[i], "coverage": float(c)}
-            for i, c in zip(index, amount, strict=True)
-            if i >= 0
-        ]
-        found = coverage[0]["object"] if coverage else None
-        return {
-            "objective": request.objective,
-            "channel": request.channel,
-            "x": pick.x,
-            "y": pick.y,
-            "object": found,
-            "material": self.loaded.prepared.materials.get(found, found) if found else None,
-            "coverage": coverage,
-            "position": None if hit.position is None else list(hit.position),
-            "distance": hit.distance,
-            "value": float(shown.values[pick.y, pick.x]),
-            **(self._object_summary(request, found) if found else {}),
-        }
+        coverage = tuple(
+            (self.buffer.objects[i], float(c)) for i, c in zip(index, amount, strict=True) if i >= 0
+        )
+        value = float(shown.values[pick.y, pick.x])
+        pixel = Pixel(pick.x, pick.y, coverage, hit.position, hit.distance, value)
+        return self._picked(request, coverage[0][0] if coverage else None, pixel)
 
-    def sunburst(self, query: dict[str, list[str]]) -> dict[str, Any]:
-        values = single_values(query, ("objective",))
-        name = values.get("objective", self.buffer.objectives[0].name)
+    def sunburst(self, objective: str | None) -> Panel:
+        name = self.buffer.objectives[0].name if objective is None else objective
         self.buffer.objective(name)
         (panel,) = panels(self.buffer, [name])
-        return {
-            "objective": panel.objective,
-            "value": panel.value,
-            "wedges": [asdict(w) for w in panel.wedges],
-            "no_gradient": list(panel.no_gradient),
-        }
+        return panel
 
-    def request(self, values: dict[str, str]) -> ViewRequest:
-        first = self.objective_camera
-        objective, channel = self.buffer.objectives[0].name, self.sources.names()[0]
-        return view_request(values, first.pose, first.size[0] / first.size[1], objective, channel)
+    def _picked(self, request: ViewRequest, found: str | None, pixel: Pixel | None) -> Pick:
+        """The pick of ``found`` (None: no object under the pixel) on the request's layer."""
+        if found is None:
+            return Pick(request.objective, request.channel, None, None, pixel, None)
+        source = self.sources.find(request.objective, request.channel)
+        channel = source if isinstance(source, ChannelValues) else None
+        summary = object_summary(self.buffer, request.objective, found, channel)
+        return Pick(request.objective, request.channel, found, self.material(found), pixel, summary)
 
     def _paint(self, request: ViewRequest) -> tuple[VisibilityPass, InspectionView]:
         source = self.sources.find(request.objective, request.channel)
@@ -240,43 +260,17 @@ class ViewSession:
         scale = max(1.0, *(abs(v) for v in wanted))
         return all(abs(a - b) <= SAME_POSE * scale for a, b in zip(given, wanted, strict=True))
 
-    def _object_summary(self, request: ViewRequest, obj: str) -> dict[str, Any]:
-        source = self.sources.find(request.objective, request.channel)
-        weight = source.spec.weight if isinstance(source, ChannelValues) else "value"
-        rows = object_parameters(self.buffer, request.objective, obj, weight)
-        summary: dict[str, Any] = {
-            "weight": weight,
-            "parameters": [asdict(r) for r in rows],
-            "trust": weakest_trust(self.buffer, [r.key for r in rows]) if rows else "verified",
-        }
-        if isinstance(source, ChannelValues):
-            index = self.buffer.objects.index(obj)
-            order = sorted(range(len(source.magnitudes)), key=lambda i: -source.magnitudes[i])
-            summary.update(
-                object_score=float(source.magnitudes[index]),
-                object_signed=float(source.signed_sums[index]),
-                object_rank=order.index(index) + 1,
-                objects_ranked=int((source.magnitudes > 0).sum()),
-            )
-        return summary
-
     def _describe(self, request: ViewRequest, shown: InspectionView) -> dict[str, str]:
         """How a view was made, for the PNG's text chunks and the EXR's header."""
         look = request.pose.look_at
+        camera = {"origin": look.origin, "target": look.target, "up": look.up}
         return {
             "sensaov/made_by": json.dumps(made_by("view")),
             "sensaov/objective": request.objective,
             "sensaov/channel": request.channel,
             "sensaov/encoding": shown.legend.encoding,
-            "sensaov/scale": f"{shown.legend.scale_mode};{shown.legend.scale.describe()}",
-            "sensaov/camera": json.dumps(
-                {
-                    "origin": look.origin,
-                    "target": look.target,
-                    "up": look.up,
-                    "fov": request.pose.fov,
-                }
-            ),  # fmt: skip
+            "sensaov/scale": f"{shown.legend.scale_mode};{shown.scale.describe()}",
+            "sensaov/camera": json.dumps({**camera, "fov": request.pose.fov}),
             "sensaov/spp": str(request.spp),
             "sensaov/buffer": str(self.buffer_path),
             "sensaov/buffer_id": self.buffer_id,
@@ -310,7 +304,7 @@ def open_session(
     return session
 
 
-def _cameras(job: JobSpec, loaded: LoadedScene, bounds: tuple[Any, Any]) -> list[NamedPose]:
+def _cameras(job: JobSpec, loaded: LoadedScene, bounds: tuple[Vec3, Vec3]) -> list[NamedPose]:
     """The objective camera first, then the job's other inspection cameras, as poses."""
     mi = loaded.mi
     found = [NamedPose(OBJECTIVE_POSE, sensor_pose(mi, loaded.sensor, bounds), loaded.resolution)]
@@ -327,34 +321,6 @@ def _cameras(job: JobSpec, loaded: LoadedScene, bounds: tuple[Any, Any]) -> list
     return found
 
 
-def _camera_json(camera: NamedPose) -> dict[str, Any]:
-    look = camera.pose.look_at
-    return {
-        "name": camera.name,
-        "origin": list(look.origin),
-        "target": list(look.target),
-        "up": list(look.up),
-        "fov": camera.pose.fov,
-        "width": camera.size[0],
-        "height": camera.size[1],
-        "note": camera.pose.note,
-    }
-
-
-def _legend_json(shown: InspectionView) -> dict[str, Any]:
-    legend = shown.legend
-    return {
-        "encoding": legend.encoding,
-        "scale_mode": legend.scale_mode,
-        "peak": legend.peak,
-        "threshold": legend.scale.threshold,
-        "stops": [list(stop) for stop in legend.stops],
-        "unverified": list(legend.unverified),
-        "invisible": list(legend.invisible),
-        "notes": list(legend.notes),
-    }
-
-
 def _direction(pose: Pose) -> tuple[float, ...]:
     look = pose.look_at
     d = [t - o for t, o in zip(look.target, look.origin, strict=True)]
@@ -364,3 +330,138 @@ def _direction(pose: Pose) -> tuple[float, ...]:
 
 def _token(name: str) -> str:
     return "".join(c if c.isalnum() or c == "_" else "_" for c in name)
+
+
+class Sources:
+    """Every channel of every objective, by name; typed select queries added on first use.
+
+    Object, type and select channels are per-object values computed once from the buffer and
+    painted through any camera; stored images are offered at the objective camera only."""
+
+    def __init__(
+        self,
+        job: JobSpec,
+        buffer: SensitivityBuffer,
+        buffer_path: Path,
+        fields: list[TexelField],
+    ):
+        self.buffer = buffer
+        has_objects = any(c.kind == "object" for c in job.channels)
+        specs = job.channels if has_objects else (OBJECTS, *job.channels)
+        self.untrusted = job.views.untrusted
+        self.painted = {
+            (v.objective, v.pass_name): v
+            for v in channel_values(buffer, specs, untrusted=self.untrusted)
+        }
+        self.images = _stored_images(job, buffer, buffer_path)
+        self.texels = {
+            (f.objective, f"{f.channel.name}_{texture_token(f.record.key)}_{panel}"): (
+                TexelPanel(f, panel)
+            )
+            for f in fields
+            for panel in PANELS
+        }  # the names project gives these layers
+
+    def names(self) -> list[str]:
+        """Channel names in the order the job lists them, then the stored layers."""
+        painted = dict.fromkeys(name for _, name in self.painted)
+        texels = dict.fromkeys(name for _, name in self.texels)
+        return [*painted, *texels, *self.objective_only()]
+
+    def objective_only(self) -> list[str]:
+        return list(dict.fromkeys(name for _, name in self.images))
+
+    def find(self, objective: str, channel: str) -> Source:
+        self.buffer.objective(objective)  # UnknownNameError (HTTP 400) names the known ones
+        if (objective, channel) in self.painted:
+            return self.painted[(objective, channel)]
+        if (objective, channel) in self.texels:
+            return self.texels[(objective, channel)]
+        if (objective, channel) in self.images:
+            return self.images[(objective, channel)]
+        if channel.startswith(SELECT_PREFIX):
+            return self._query(objective, channel)
+        raise UnknownNameError("channel", channel, [*self.names(), f"{SELECT_PREFIX}<glob>"])
+
+    def _query(self, objective: str, channel: str) -> ChannelValues:
+        glob = channel[len(SELECT_PREFIX) :]
+        if not glob or not select(self.buffer, glob=glob):
+            raise RequestError(
+                f"select query {glob!r} matches no parameter of the buffer",
+                hint="globs match keys such as 'white.reflectance.value' or '*.alpha'",
+            )
+        spec = ChannelSpec(f"select_{len(self.painted)}", "select", select=glob)
+        for values in channel_values(self.buffer, (spec,), untrusted=self.untrusted):
+            part = values.pass_name[len(spec.name) :]  # "" or the untrusted part's suffix
+            self.painted[(values.objective, channel + part)] = replace(
+                values, pass_name=channel + part
+            )
+        return self.painted[(objective, channel)]
+
+
+def _stored_images(
+    job: JobSpec, buffer: SensitivityBuffer, buffer_path: Path
+) -> dict[tuple[str, str], StoredImage]:
+    """The forward and transport layers of the sidecar, under every objective they apply to."""
+    path = buffer_path.with_name(FORWARD_NAME)
+    if not job.wants_forward or not single_pass(buffer.provenance) or not path.exists():
+        return {}
+    data = read_forward(path)
+    check_belongs(data, buffer, path)
+    found: dict[tuple[str, str], StoredImage] = {}
+    for f in forward_views(buffer, data):
+        if f.data is None:
+            continue
+        mono = f.data if f.data.ndim == 2 else f.data.mean(axis=2)
+        note = "mean of the R, G, B derivatives" if f.data.ndim == 3 else ""
+        image = StoredImage(f"forward.{f.name}", "forward", mono, f.unverified, note)
+        for objective in buffer.objectives:
+            found[(objective.name, image.name)] = image
+    for t in transport_views(buffer, data):
+        verdict = "agrees" if t.agrees else "EXCEEDS TOLERANCE: do not trust this layer"
+        note = f"duality residual {t.residual:.2e} (tolerance {t.tolerance:.0e}): {verdict}"
+        found[(t.objective, t.name)] = StoredImage(t.name, "transport", t.data, t.unverified, note)
+    return found
+
+
+class JobScales:
+    """The job's shared display scale of each painted channel, under either sign: read over
+    every camera ``project`` paints, traced as it traces them (same spp, same seed), so the
+    page's colours are those of its previews and EXR display layers
+    (:func:`~sensaov_cli.views.display_scale.shared_channel_scale`). The cameras are traced
+    once, on opening; each (objective, channel, sign) is computed once."""
+
+    def __init__(
+        self, job: JobSpec, buffer: SensitivityBuffer, loaded: LoadedScene, lock: threading.Lock
+    ):
+        self.job, self.buffer, self.loaded, self._lock = job, buffer, loaded, lock
+        self._passes: dict[str, VisibilityPass] = {}
+        self._scales: dict[tuple[str, str, str], DisplayScale] = {}
+
+    def of(self, values: ChannelValues, sign: str) -> DisplayScale:
+        """The shared scale of ``values``' (objective, channel), its pixels painted ``sign``
+        (signed or magnitude), linear: the job's own encoding when it is the default one."""
+        key = (values.objective, values.spec.name, sign)
+        with self._lock:  # the renderer is not re-entrant
+            if key not in self._scales:
+                linear = replace(
+                    values.spec, sign=cast(Sign, sign), tonemap="none", normalize="none"
+                )
+                self._scales[key] = shared_channel_scale(
+                    self.buffer, linear, values.objective, self._visibilities(),
+                    untrusted=self.job.views.untrusted, percentile=self.job.views.percentile,
+                )  # fmt: skip
+            return self._scales[key]
+
+    def warm(self) -> None:
+        """Trace the cameras now (``open_session``), not on the page's first request."""
+        with self._lock:
+            self._visibilities()
+
+    def _visibilities(self) -> dict[str, VisibilityPass]:
+        if not self._passes:
+            self._passes = {
+                camera.name: trace_camera(self.job, self.buffer, self.loaded, camera, False)
+                for camera in self.job.projected_cameras()
+            }
+        return self._passes
