@@ -384,11 +384,9 @@ def run_adjoint(
         results[0], image=image, grads=grads, objective_values=objective_values,
         statistics=statistics, spp=sum(spps),
     )  # fmt: skip
-    integrator_names = integrator_plan(loaded)
-    integrators = {key: name for name, keys in integrator_names.items() for key in keys}
     checked = self_check(
         loaded, objectives, result.image, result.values, result.grads,
-        result.objective_values, result.spp, integrators,
+        result.objective_values, result.spp,
     )  # fmt: skip
     return replace(
         result,
@@ -396,7 +394,9 @@ def run_adjoint(
         params=checked.params,
         checks=checked,
         provenance={
-            "gradient_integrators": {name: sorted(keys) for name, keys in integrator_names.items()},
+            "gradient_integrators": {
+                name: sorted(keys) for name, keys in integrator_plan(loaded).items()
+            },
             "self_checks": checked.figures(),
             "batches": [{"spp": n, "seed": s} for n, s in plan],
         },

@@ -91,6 +91,18 @@ def trace(
         position = film_positions(mi, width, height, spp, seed, samples=span)
         _trace_span(mi, scene, sensor, table, position, samples[span[0] : span[1]],
                     None if uv is None else uv[span[0] : span[1]])  # fmt: skip
+    return visibility_pass(objects, samples, uv, width, height, spp)
+
+
+def visibility_pass(
+    objects: tuple[str, ...],
+    samples: np.ndarray,
+    uv: np.ndarray | None,
+    width: int,
+    height: int,
+    spp: int,
+) -> VisibilityPass:
+    """The pass of per-sample object indices (and UVs, 0 where nothing is hit), rows first."""
     coverage = histogram(samples.reshape(height * width, spp))
     rank_index, rank_coverage = ranked(coverage, (height, width), spp)
     sample_uv = sample_object = None
@@ -127,13 +139,7 @@ def _trace_span(
     with dr.suspend_grad():
         ray, _ = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5, 0.5))
         si = scene.ray_intersect(ray)
-        # A hit through an instance reports the shapegroup's member in si.shape and the
-        # instance (the object people see) in si.instance; 0 there means no instance.
-        instance: Any = dr.reinterpret_array(mi.UInt32, si.instance)  # stubs say object
-        shape: Any = dr.reinterpret_array(mi.UInt32, si.shape)
-        registry = dr.select(instance != 0, instance, shape)
-        hit = si.is_valid() & (registry < dr.width(table))
-        index = dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)
+        index = object_index(mi, si, table)
         if uv is not None:  # one kernel for both: converting them apart would trace twice
             # 0 where nothing is hit, selected in the kernel: a numpy mask over every sample
             # afterwards costs more than the select.
@@ -142,6 +148,20 @@ def _trace_span(
         samples[:] = np.array(index, dtype=np.int32)
         if uv is not None:
             uv[:, 0], uv[:, 1] = np.array(hit_uv.x), np.array(hit_uv.y)
+
+
+def object_index(mi: ModuleType, si: Any, table: Any) -> Any:
+    """Per ray of ``si``, the index of the object hit (``table``: :func:`object_of_registry_id`),
+    or BACKGROUND."""
+    import drjit as dr
+
+    # A hit through an instance reports the shapegroup's member in si.shape and the instance
+    # (the object people see) in si.instance; 0 there means no instance.
+    instance: Any = dr.reinterpret_array(mi.UInt32, si.instance)  # stubs say object
+    shape: Any = dr.reinterpret_array(mi.UInt32, si.shape)
+    registry = dr.select(instance != 0, instance, shape)
+    hit = si.is_valid() & (registry < dr.width(table))
+    return dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)
 
 
 def object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> np.ndarray:

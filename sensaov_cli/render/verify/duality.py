@@ -23,7 +23,6 @@ import numpy as np
 
 from sensaov_cli.buffer.forward_sidecar import DUALITY_FLOOR, duality_tolerance
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
-from sensaov_cli.errors import SpecError
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import image_like_backward, render_primal
 from sensaov_cli.render.forward import adjoint_images, forward_image
@@ -114,10 +113,7 @@ def check_duality(
     spp = int(buffer.provenance["spp"])
     primal = np.array(render_primal(loaded, spp, int(buffer.provenance["primal_seed"])))
     adjoints = adjoint_images(loaded, objectives, primal)
-    records = {info.key: info for info in loaded.selected}
-    for key in keys or ():
-        if key not in records:
-            raise SpecError(f"{key!r} is not a selected parameter", where="--key")
+    records = {info.key: info for info in loaded.selected}  # ``keys``: checked by fdcheck.named
     tolerance = duality_tolerance(primal.shape[0] * primal.shape[1] * spp)
     rows: list[DualityCheck] = []
     for objective in objectives:

@@ -225,7 +225,6 @@ def self_check(
     grads: Mapping[str, Mapping[str, np.ndarray]],
     objective_values: Mapping[str, float],
     spp: int,
-    integrators: Mapping[str, str],
 ) -> SelfCheck:
     """Checks (a), (b), (c) on a run's gradients, given its primal image (no render)."""
     linear = {
@@ -236,7 +235,7 @@ def self_check(
         if o.spec.type in LINEAR_OBJECTIVES
     }
     emitters = emitter_terms(loaded)
-    return check(loaded.selected, values, grads, linear, emitters, spp, integrators)
+    return check(loaded.selected, values, grads, linear, emitters, spp, loaded.routes)
 
 
 def _effective_pixels(loaded: LoadedScene, objective: Objective, image: np.ndarray) -> float:
