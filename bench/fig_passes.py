@@ -38,8 +38,7 @@ class Passes:
     @staticmethod
     def load(job: Path) -> Passes:
         from sensaov_cli.job.load import load_job
-        from sensaov_cli.render.adjoint import render_primal
-        from sensaov_cli.render.leaves import enable_gradients
+        from sensaov_cli.render.adjoint import enable_gradients, render_primal
         from sensaov_cli.render.loading import load_job_scene
         from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
 
@@ -66,7 +65,7 @@ class Passes:
         """The same pass with no sensaov code: ``render_backward``, then read each gradient."""
         import drjit as dr
 
-        from sensaov_cli.render.leaves import pass_leaves
+        from sensaov_cli.render.adjoint import pass_leaves
 
         scene = self.loaded
         # Untimed: every selected parameter gradient-enabled in the scene. These are the leaves

@@ -22,11 +22,15 @@ import pytest
 from sensaov_cli.job.load import load_job
 from sensaov_cli.progress import Progress
 from sensaov_cli.render import adjoint
-from sensaov_cli.render.leaves import enable_gradients
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
 from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
-from sensaov_cli.render.verify.fdcheck import check_gradients, check_parameter
-from sensaov_cli.render.verify.gradient_audit import SAME_SEED_TOLERANCE, audit, plan_audit
+from sensaov_cli.render.verify.fdcheck import (
+    SAME_SEED_TOLERANCE,
+    audit,
+    check_parameter,
+    plan_audit,
+    representatives,
+)
 
 # Kinds whose sampling does not depend on θ: at the same seed they agree on every run.
 SAME_SEED_KINDS = {
@@ -85,7 +89,11 @@ def test_split_gradients_sum_to_the_shared_one(
 
 
 def per_type_checks(loaded: LoadedScene, objective) -> dict:  # noqa: ANN001
-    checks = check_gradients(loaded, objective, spp=64, seeds=list(range(6)))
+    seeds = list(range(6))
+    checks = [
+        check_parameter(loaded, objective, info, spp=64, seeds=seeds)
+        for info in representatives(loaded)
+    ]
     return {(c.plugin, c.type, c.key): c for c in checks}
 
 
@@ -134,7 +142,7 @@ def test_disagreement_needs_students_t_for_few_seeds() -> None:
     assert disagreement_sigmas(6) == 6.87 and disagreement_sigmas(100) == 3.29
 
 
-# --- sensaov check's plan: one seed where it suffices (render/verify/gradient_audit.py) ---------
+# --- sensaov check's plan: one seed where it suffices (render/verify/fdcheck.py) ---------------
 
 
 def test_check_plans_one_seed_where_the_value_does_not_steer_sampling(tiny) -> None:  # noqa: ANN001
@@ -170,7 +178,7 @@ def test_one_seed_agrees_to_float_precision_and_says_so_as_it_goes(tiny) -> None
 
 def test_one_seed_verdicts() -> None:
     from sensaov_cli.buffer.model import ParamRecord
-    from sensaov_cli.render.verify.gradient_audit import _one_seed  # noqa: PLC2701 - the rule itself
+    from sensaov_cli.render.verify.fdcheck import _one_seed  # noqa: PLC2701 - the rule itself
 
     info = ParamRecord("k", "reflectance", (), (3,), False, "diffuse", (), "verified", "")
     assert _one_seed(info, [1.0005], [1.0], 0.1).verdict == "agrees"
@@ -199,7 +207,7 @@ def test_a_second_pass_over_the_same_keys_reuses_its_leaves_bit_for_bit(
         assert len(updates) == 1
         again = adjoint.backward_pass(loaded, "prb", keys, adjoint_image, 4, 1)
         assert len(updates) == 1  # the leaves were reused: no update
-        enable_gradients(loaded, set())  # what a forward pass does first
+        adjoint.enable_gradients(loaded, set())  # what a forward pass does first
         after = adjoint.backward_pass(loaded, "prb", keys, adjoint_image, 4, 1)
         assert len(updates) == 3  # fresh leaves once the scene's were replaced
     assert any(np.any(grad != 0) for grad in fresh.values())

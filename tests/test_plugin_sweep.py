@@ -14,7 +14,7 @@ import pytest
 
 from sensaov_cli.job.cameras import CameraSpec
 from sensaov_cli.job.spec import ParameterSpec
-from sensaov_cli.render.leaves import enable_gradients
+from sensaov_cli.render.adjoint import enable_gradients
 from sensaov_cli.render.loading import load_scene
 from sensaov_cli.scene.legacy import PLUGINS
 from sensaov_cli.scene.prepare import prepare_xml

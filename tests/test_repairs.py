@@ -29,7 +29,7 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import render_primal
 from sensaov_cli.render.loading import assign, load_job_scene
 from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
-from sensaov_cli.render.verify.repair_plan import TEXTURE_REASON, plan
+from sensaov_cli.render.verify.repair import TEXTURE_REASON, plan
 from tests.conftest import use_scene
 
 SCENE = Path(__file__).parent / "scenes" / "repair_mix.xml"

@@ -31,7 +31,7 @@ class ParameterInventory:
     textures: dict[str, TextureSource]
     # what sensaov changed in the scene: what, why, where, and whether it alters the image
     changes: tuple[tuple[str, str, str, bool], ...]
-    # key -> why run repairs it by finite differences (budget permitting): render/repair_plan
+    # key -> why run repairs it by finite differences (budget permitting): render/verify/repair.py
     repairs: dict[str, str] = field(default_factory=dict)
 
 

@@ -1,7 +1,7 @@
 """Wire the stages of ``sensaov check``: spec -> scene -> finite differences and duality.
 
 The job's objective (the first, or the one named) is built for the objective camera and
-:func:`~sensaov_cli.render.verify.gradient_audit.audit` compares its reverse-mode gradients with
+:func:`~sensaov_cli.render.verify.fdcheck.audit` compares its reverse-mode gradients with
 central finite differences (one seed where that suffices, several where the value steers
 sampling); the stored buffer, when there is one, is replayed against forward mode
 (:func:`~sensaov_cli.render.verify.duality.check_duality`); :func:`exit_code` says whether the
@@ -24,8 +24,7 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import load_scene
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.verify.duality import FD_TOLERANCE, DualityCheck, check_duality
-from sensaov_cli.render.verify.fdcheck import GradientCheck
-from sensaov_cli.render.verify.gradient_audit import audit, plan_audit
+from sensaov_cli.render.verify.fdcheck import GradientCheck, audit, plan_audit
 from sensaov_cli.scene import prepare_scene
 
 __all__ = ["FD_TOLERANCE", "CheckReport", "check_job", "exit_code"]

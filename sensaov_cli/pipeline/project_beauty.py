@@ -25,8 +25,8 @@ from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.outputs.provenance import header_provenance
 from sensaov_cli.pipeline.merge import primal_beside
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.beauty import render_beauty
 from sensaov_cli.render.loading import LoadedScene
+from sensaov_cli.render.visibility import render_beauty
 from sensaov_cli.views.coverage import VisibilityPass
 
 

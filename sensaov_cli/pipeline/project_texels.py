@@ -11,7 +11,6 @@ import json
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -21,7 +20,7 @@ from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.texture_files import safe_file_stem, write_fig4_sheet, write_texture_files
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene
-from sensaov_cli.render.texture_modes import objects_without_uv, texture_probes
+from sensaov_cli.render.visibility import TextureProbe, objects_without_uv, texture_probes
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale
 from sensaov_cli.views.texel_fields import TexelField, texel_fields, texture_keys
@@ -67,26 +66,26 @@ def prepare(job: JobSpec, buffer: SensitivityBuffer, loaded: LoadedScene) -> lis
     return [_with_uv_note(f, no_uv) for f in fields]
 
 
-def sampling_of(probe: dict[str, Any]) -> TextureSampling:
+def sampling_of(probe: TextureProbe) -> TextureSampling:
     """The filter and wrap whose lookup reproduces the texture's own values at the probes.
 
     The scene XML's settings are preferred when they match; a texture whose values cannot tell
     the modes apart (a uniform one) keeps the XML's; one no mode reproduces (a spectral
     variant's upsampled colours) keeps them too, with a note saying the lookup is unconfirmed.
     """
-    matrix = np.array(probe["to_uv"], np.float64)
-    stated = (probe["filter"], probe["wrap"])
-    peak = float(np.abs(probe["values"]).max()) or 1.0
+    matrix = np.array(probe.to_uv, np.float64)
+    stated = (probe.filter, probe.wrap)
+    peak = float(np.abs(probe.values).max()) or 1.0
     errors = {}
     for mode in [(f, w) for f in FILTERS for w in WRAPS]:
-        got = lookup(probe["texels"], probe["uv"], TextureSampling(*mode, to_uv=matrix))
-        errors[mode] = float(np.abs(got - probe["values"]).max()) / peak
+        got = lookup(probe.texels, probe.uv, TextureSampling(*mode, to_uv=matrix))
+        errors[mode] = float(np.abs(got - probe.values).max()) / peak
     matching = [mode for mode, error in errors.items() if error <= PROBE_TOLERANCE]
     if stated in matching:  # confirmed: any doubt the XML match left is settled
         return TextureSampling(*stated, to_uv=matrix)
     if not matching:
         error = min(errors.values())
-        note = f"lookup not confirmed against Mitsuba (error {error:.1e}); {probe['note']}"
+        note = f"lookup not confirmed against Mitsuba (error {error:.1e}); {probe.note}"
         return TextureSampling(*stated, to_uv=matrix, note=note.rstrip("; "))
     chosen = matching[0]
     return TextureSampling(*chosen, to_uv=matrix, note="filter and wrap read from Mitsuba's lookup")

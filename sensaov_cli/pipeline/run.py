@@ -24,8 +24,14 @@ from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.pipeline.run_forward import forward_bound, plan_forward, run_forward
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.adjoint import AdjointResult, batch_plan, integrator_plan, run_adjoint
-from sensaov_cli.render.image_effect import ImageEffect, depth_effect
+from sensaov_cli.render.adjoint import (
+    AdjointResult,
+    ImageEffect,
+    batch_plan,
+    depth_effect,
+    integrator_plan,
+    run_adjoint,
+)
 from sensaov_cli.render.loading import LoadedScene, load_scene, refuse_non_finite
 from sensaov_cli.render.memory import check_render
 from sensaov_cli.render.objectives import Objective, build_objectives

@@ -11,6 +11,11 @@ smooth BSDFs and composites with a smooth lobe), with gradients enabled
 on those parameters only, its samples split into chunks that bound its memory. After the
 passes, :mod:`~sensaov_cli.render.verify.selfcheck` labels what the gradients themselves show to be
 wrong (docs/verification.md).
+
+A pass differentiates gradient-enabled leaves of the selected parameters. A Mitsuba scene only
+takes a new leaf through ``params.update()``, which re-derives the state of every object that
+holds one (a rough plastic's tables, a bitmap's texture) at a cost comparable to a small pass:
+so a backward pass reuses the previous one's leaves when it differentiates the same keys.
 """
 
 from __future__ import annotations
@@ -27,24 +32,21 @@ from sensaov_cli.buffer.model import ParamRecord
 from sensaov_cli.buffer.repairs import Repair
 from sensaov_cli.buffer.statistics import Statistics, combine_batches, weighted_mean
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.leaves import pass_leaves
 from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-from sensaov_cli.render.verify.selfcheck import self_check
+from sensaov_cli.render.verify.selfcheck import SelfCheck, self_check
 
 SEED_STRIDE = 0x9E3779B1  # golden-ratio stride: distinct, reproducible seeds per objective
-# Mitsuba's path integrator differentiates by recording the whole render in the AD graph:
-# 3 GB for 128x128 at 256 spp in one pass (measured, docs/verification.md). Passes of at most
-# this many samples (pixels x spp) keep it near 200 MB, for 24 % more time.
+# Mitsuba's path integrator differentiates by recording the whole render in the AD graph, whose
+# memory grows with the samples of a pass (docs/verification.md): passes of at most this many
+# samples (pixels x spp) bound it, for a little more time.
 PATH_SAMPLES_PER_PASS = 1 << 18
 # A stop (a farm's SIGTERM, Ctrl-C) can only be acted on between kernel launches: every primal
 # and prb pass is split into sub-passes of at most this many samples (pixels x spp; at least
 # 1 spp), with a check between them; small parameters' gradients are summed over sub-passes in
-# float64 (Dr.Jit's float32 atomics sum within one). Measured on 2 cores: a sub-pass costs
-# about 28 ms of launch overhead (run_adjoint at 128² x 64 spp: 1.21 s in one, 1.31 s in 4,
-# 1.63 s in 16); the demo's forward/reverse duality residuals are at most 1.7e-4 in one pass,
-# 4.4e-5 in 2 (2^19) and 1.8e-5 in 4 (2^18). 2^19 keeps them under 1e-4 and the wait for a
-# stop short (docs/exit-codes.md) for at most a few per cent (bench figures 1 and 10).
+# float64 (Dr.Jit's float32 atomics sum within one), which also shrinks the forward/reverse
+# duality residuals. Each sub-pass costs a kernel launch: this size keeps the wait for a stop
+# short (docs/exit-codes.md) for a few per cent of the time (bench/).
 SAMPLES_PER_SUBPASS = 1 << 19
 SMALL = 4096  # components up to which a gradient is summed over sub-passes in float64
 
@@ -66,6 +68,7 @@ class AdjointResult:
     spp: int = 0  # samples per pixel behind the mean (the sum over batches)
     statistics: Statistics | None = None  # standard errors, with >= 2 batches
     repairs: dict[str, Repair] = field(default_factory=dict)  # render/verify/repair.py's records
+    checks: SelfCheck | None = None  # what the self-checks found (None: one batch, not checked)
 
 
 def to_numpy(value: Any, shape: tuple[int, ...]) -> np.ndarray:
@@ -73,8 +76,11 @@ def to_numpy(value: Any, shape: tuple[int, ...]) -> np.ndarray:
     return np.array(value, dtype=np.float32, copy=True).reshape(shape)
 
 
-def render_primal(loaded: LoadedScene, spp: int, seed: int, integrator: Any = None) -> Any:
-    """The image at ``seed`` through ``integrator`` (default: the scene's prb), without AD.
+def render_primal(
+    loaded: LoadedScene, spp: int, seed: int, integrator: Any = None, sensor: Any = None
+) -> Any:
+    """The image at ``seed`` through ``integrator`` (default: the scene's prb) at ``sensor``
+    (default: the objective camera), without AD.
 
     Rendered in sub-passes (:func:`subpasses`), each weighted by its share of ``spp``; one
     sub-pass (every small render) is exactly the single render at ``seed``.
@@ -82,13 +88,12 @@ def render_primal(loaded: LoadedScene, spp: int, seed: int, integrator: Any = No
     import drjit as dr
 
     integrator = loaded.integrator if integrator is None else integrator
-    width, height = loaded.resolution
+    sensor = loaded.sensor if sensor is None else sensor
+    size = sensor.film().crop_size()
     image = None
-    for index, chunk in subpasses(width * height, spp):
+    for index, chunk in subpasses(int(size[0]) * int(size[1]), spp):
         with dr.suspend_grad():
-            part = integrator.render(
-                loaded.scene, loaded.sensor, seed=chunk_seed(seed, index), spp=chunk
-            )
+            part = integrator.render(loaded.scene, sensor, seed=chunk_seed(seed, index), spp=chunk)
             weighted = part if chunk == spp else part * (chunk / spp)
             image = weighted if image is None else image + weighted
         dr.eval(image)
@@ -127,21 +132,68 @@ def backward_pass(
     """dM/dθ for ``keys`` through integrator ``name`` ("prb": the scene's, or "path")."""
     import drjit as dr
 
-    leaves = pass_leaves(loaded, keys)
+    pass_leaves(loaded, keys)
     shapes = {info.key: info.shape for info in loaded.selected}
     if name == "prb":
-        sums = _prb_backward(loaded, adjoint_image, spp, seed, {k: leaves[k] for k in keys})
-        grads = {key: sums[key].astype(np.float32).reshape(shapes[key]) for key in keys}
-    else:
-        _path_backward(loaded, adjoint_image, spp, seed)
-        grads = {key: to_numpy(dr.grad(leaves[key]), shapes[key]) for key in keys}
-    return grads
+        sums = _prb_backward(loaded, adjoint_image, spp, seed, keys)
+        return {key: sums[key].astype(np.float32).reshape(shapes[key]) for key in keys}
+    _path_backward(loaded, adjoint_image, spp, seed)
+    return {key: to_numpy(dr.grad(loaded.leaves[key]), shapes[key]) for key in keys}
+
+
+def enable_gradients(loaded: LoadedScene, keys: set[str] | None = None) -> None:
+    """Give every selected parameter a fresh leaf of its own (``loaded.leaves``); gradients on
+    ``keys`` (default all).
+
+    The gradient is read from our leaf, never from ``params[key]``: an envmap's update replaces
+    the tensor that ``params[key]`` refers to by a copy with its halo columns filled in, and the
+    gradient of that copy reads 0 (Mitsuba 3.9.1, docs/verification.md). The other parameters
+    hold the leaf itself. Leaves not in ``keys`` are detached, so a pass differentiates nothing
+    else (prb raises if only delta-lobe parameters carry gradients; path's memory grows with them).
+    """
+    import drjit as dr
+
+    leaves = {}
+    for info in loaded.selected:
+        current = loaded.params[info.key]
+        leaf = type(current)(dr.detach(current))
+        if keys is None or info.key in keys:
+            dr.enable_grad(leaf)
+        loaded.params[info.key] = leaf
+        leaves[info.key] = leaf
+    loaded.leaves = leaves
+    loaded.held_keys = None  # fresh leaves: none a pass may reuse (see pass_leaves)
+    loaded.params.update()  # bitmap and envmap data only take the new tensor after update()
+
+
+def pass_leaves(loaded: LoadedScene, keys: set[str]) -> None:
+    """Leaves for a backward pass over ``keys`` in ``loaded.leaves``, their gradients zero.
+
+    Those of the previous backward pass when it had the same keys (every prb pass of a run but
+    the first), which skips the update; they give the same bits (tests/test_gradients.py).
+    Anything else that writes the scene's parameters (:func:`enable_gradients`,
+    ``loading.assign``) drops them.
+    """
+    import drjit as dr
+
+    wanted = frozenset(keys)
+    if loaded.held_keys == wanted:
+        for key in wanted:
+            dr.clear_grad(loaded.leaves[key])
+        return
+    enable_gradients(loaded, keys)
+    loaded.held_keys = wanted
 
 
 # What prb and path raise when no gradient-enabled parameter reaches the image (a spot light's
 # unused texture, a parameter Mitsuba does not differentiate): no gradient flows, which is a
-# finding for the self-checks (zeros), not an error.
+# finding for the self-checks (zeros), not an error; in forward mode J·v is 0.
 _NOTHING_ATTACHED = ("not attached to the AD graph", "does not depend on the input variable")
+
+
+def nothing_attached(exc: Exception) -> bool:
+    """Whether Mitsuba raised ``exc`` because no gradient-enabled parameter reaches the image."""
+    return any(message in str(exc) for message in _NOTHING_ATTACHED)
 
 
 @contextmanager
@@ -149,18 +201,20 @@ def _nothing_attached_is_zero() -> Iterator[None]:
     try:
         yield
     except Exception as exc:  # Mitsuba raises plain exceptions; anything else propagates
-        if not any(message in str(exc) for message in _NOTHING_ATTACHED):
+        if not nothing_attached(exc):
             raise
 
 
 def _prb_backward(
-    loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int, leaves: dict[str, Any]
+    loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int, keys: set[str]
 ) -> dict[str, np.ndarray]:
-    """prb's backward pass in the primal's sub-passes (same seeds, same shares of spp); each
-    sub-pass's gradient is read, added in float64 and cleared before the next."""
+    """prb's backward pass over the leaves of ``keys`` in the primal's sub-passes (same seeds,
+    same shares of spp); each sub-pass's gradient is read, added in float64 and cleared before
+    the next."""
     import drjit as dr
 
     width, height = loaded.resolution
+    leaves = {key: loaded.leaves[key] for key in keys}
     sums = {key: np.zeros(0) for key in leaves}
     chunks = sample_chunks(width * height, spp, SAMPLES_PER_SUBPASS)
     for index, chunk in subpasses(width * height, spp):
@@ -242,6 +296,20 @@ def _path_backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int)
             )  # fmt: skip
 
 
+def image_like_backward(loaded: LoadedScene, route: str, spp: int, seed: int) -> Any:
+    """The image a backward pass through ``route`` ("prb" or "path") at ``seed`` replays: the
+    primal, or path's chunks, each its share of spp (as :func:`_path_backward`)."""
+    if route == "prb":
+        return render_primal(loaded, spp, seed)
+    path = path_integrator(loaded)
+    width, height = loaded.resolution
+    chunks = path_chunks(width * height, spp)
+    return sum(
+        render_primal(loaded, chunk, chunk_seed(seed, index), path) * (chunk / spp)
+        for index, chunk in enumerate(chunks)
+    )
+
+
 @contextmanager
 def reproducible(loaded: LoadedScene, enabled: bool) -> Iterator[bool]:
     """Run the block on one CPU thread when ``enabled``; yields whether results are bit-exact.
@@ -316,19 +384,20 @@ def run_adjoint(
         results[0], image=image, grads=grads, objective_values=objective_values,
         statistics=statistics, spp=sum(spps),
     )  # fmt: skip
-    integrator_names = integrator_plan(loaded)
-    integrators = {key: name for name, keys in integrator_names.items() for key in keys}
     checked = self_check(
         loaded, objectives, result.image, result.values, result.grads,
-        result.objective_values, result.spp, integrators,
+        result.objective_values, result.spp,
     )  # fmt: skip
     return replace(
         result,
         deterministic=exact,
         params=checked.params,
+        checks=checked,
         provenance={
-            "gradient_integrators": {name: sorted(keys) for name, keys in integrator_names.items()},
-            "self_checks": checked.figures,
+            "gradient_integrators": {
+                name: sorted(keys) for name, keys in integrator_plan(loaded).items()
+            },
+            "self_checks": checked.figures(),
             "batches": [{"spp": n, "seed": s} for n, s in plan],
         },
     )
@@ -370,3 +439,45 @@ def _run_passes(
     return AdjointResult(
         np.array(image, dtype=np.float32), values, objective_values, grad_seeds, grads, spp=spp
     )
+
+
+# --- what the job's max_depth changes: the replay's image against the scene's own ------------
+#
+# Where the job's ``render.max_depth`` differs from the depth the scene renders, M is measured
+# on another image than the user's scene shows. Both are rendered at a few samples per pixel and
+# one seed, the replay as it will run and the same integrator at the scene's depth, so that the
+# warning says by how much (common random numbers: the difference is far less noisy than either).
+
+EFFECT_SPP = 8  # samples per pixel of the two renders: cheap beside a run's own passes
+
+
+@dataclass(frozen=True)
+class ImageEffect:
+    objective: str
+    value: float  # M on the image the run differentiates
+    scene_value: float  # M on the image the scene renders
+    spp: int
+
+    @property
+    def relative(self) -> float:
+        return self.value / self.scene_value - 1.0 if self.scene_value else 0.0
+
+
+def depth_effect(
+    loaded: LoadedScene, objectives: list[Objective], scene_image: dict[str, Any], seed: int
+) -> list[ImageEffect]:
+    """M of each objective on the replay's image and on the image at the scene's depth
+    (``scene_image``: the Mitsuba dict of the scene's own integrator)."""
+    spp = EFFECT_SPP
+    scene_integrator = loaded.mi.load_dict(scene_image)
+    ours = render_primal(loaded, spp, seed)
+    theirs = render_primal(loaded, spp, seed, scene_integrator)
+    return [
+        ImageEffect(
+            objective.spec.name,
+            value_and_adjoint(loaded.mi, objective, ours)[0],
+            value_and_adjoint(loaded.mi, objective, theirs)[0],
+            spp,
+        )
+        for objective in objectives
+    ]

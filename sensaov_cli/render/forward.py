@@ -19,18 +19,16 @@ import numpy as np
 from sensaov_cli import interrupts
 from sensaov_cli.render.adjoint import (
     chunk_seed,
+    enable_gradients,
     integrator_plan,
+    nothing_attached,
     path_chunks,
     path_integrator,
     reproducible,
     subpasses,
 )
-from sensaov_cli.render.leaves import enable_gradients
-from sensaov_cli.render.loading import LoadedScene
+from sensaov_cli.render.loading import LoadedScene, value_like
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-
-# What prb says when none of the pushed parameters reaches the image: J·v is 0, not an error.
-_NOTHING_ATTACHED = ("not attached to the AD graph", "does not depend on the input variable")
 
 
 @dataclass(frozen=True)
@@ -105,16 +103,17 @@ def _push(
     :func:`.adjoint.subpasses`), v pushed afresh for each: duality holds pass by pass.
     """
     if name != "prb":
-        leaves = _pushed_leaves(loaded, direction)
+        _push_leaves(loaded, direction)
         try:
-            tangents = {leaves[k]: _like(leaves[k], v) for k, v in direction.items()}
+            leaves = loaded.leaves
+            tangents = {leaves[k]: value_like(leaves[k], v) for k, v in direction.items()}
             return _path_forward(loaded, tangents, spp, seed, shape)
         finally:
             enable_gradients(loaded, set())
     width, height = loaded.resolution
     total = np.zeros(shape, np.float64)  # summed in float64 over sub-passes, as the backward
     for index, chunk in subpasses(width * height, spp):
-        _pushed_leaves(loaded, direction)
+        _push_leaves(loaded, direction)
         try:
             part = _prb_forward(loaded, chunk, chunk_seed(seed, index), shape)
         finally:
@@ -123,30 +122,18 @@ def _push(
     return total.astype(np.float32)
 
 
-def _pushed_leaves(loaded: LoadedScene, direction: dict[str, np.ndarray]) -> dict[str, Any]:
+def _push_leaves(loaded: LoadedScene, direction: dict[str, np.ndarray]) -> None:
     """Fresh leaves with gradients on the pushed keys only, their tangents set to v."""
     import drjit as dr
 
-    leaves = enable_gradients(loaded, set(direction))
+    enable_gradients(loaded, set(direction))
+    leaves = loaded.leaves
     for key, v in direction.items():
-        dr.set_grad(leaves[key], _like(leaves[key], v))
+        dr.set_grad(leaves[key], value_like(leaves[key], v))
     # ``params.update()`` may derive values from a leaf (a plastic's lobe weights from its
     # reflectance): push v through those edges now, outside prb's isolate_grad scope.
     dr.enqueue(dr.ADMode.Forward, *[leaves[key] for key in direction])
     dr.traverse(dr.ADMode.Forward, dr.ADFlag.ClearEdges)
-    return leaves
-
-
-def _like(leaf: Any, v: np.ndarray) -> Any:
-    """``v`` as a Dr.Jit value of the leaf's type (the same conversions as ``adjoint.assign``)."""
-    import drjit as dr
-
-    flat = np.ascontiguousarray(v, dtype=np.float32)
-    if dr.is_tensor_v(leaf):
-        return type(leaf)(flat)
-    if dr.size_v(leaf) == 3:  # a colour: one value per channel
-        return type(leaf)(*[float(x) for x in flat.reshape(-1)])
-    return type(leaf)(flat.reshape(-1))
 
 
 def _prb_forward(loaded: LoadedScene, spp: int, seed: int, shape: tuple[int, ...]) -> np.ndarray:
@@ -155,7 +142,7 @@ def _prb_forward(loaded: LoadedScene, spp: int, seed: int, shape: tuple[int, ...
             loaded.scene, loaded.params, sensor=loaded.sensor, seed=seed, spp=spp
         )
     except Exception as exc:
-        if not any(message in str(exc) for message in _NOTHING_ATTACHED):
+        if not nothing_attached(exc):
             raise
         return np.zeros(shape, np.float32)
     return np.array(tangent, dtype=np.float32).reshape(shape)
@@ -166,8 +153,8 @@ def _path_forward(
 ) -> np.ndarray:
     """Chunk by chunk as ``adjoint._path_backward``, through path's own ``render_forward``.
 
-    (Rendering with the AD graph and calling ``dr.forward_to`` by hand differs from it at some
-    seeds: 2e-3 against the backward pass on glass_table, measured; Mitsuba's matches to 1e-7.)
+    (Rendering with the AD graph and calling ``dr.forward_to`` by hand differs from the backward
+    pass at some seeds; Mitsuba's own ``render_forward`` matches it to float precision.)
     """
     import drjit as dr
 
@@ -185,7 +172,7 @@ def _path_forward(
                 seed=chunk_seed(seed, index), spp=chunk,
             )  # fmt: skip
         except Exception as exc:
-            if not any(message in str(exc) for message in _NOTHING_ATTACHED):
+            if not nothing_attached(exc):
                 raise
             continue
         total += np.array(part, dtype=np.float32).reshape(shape) * np.float32(chunk / spp)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -44,9 +44,11 @@ class LoadedScene:
     resolution: tuple[int, int]
     inspection_sensors: dict[str, Any]  # inspection camera name -> its own sensor
     prepared: PreparedScene  # what was loaded: the text, files, fingerprint, changes
-    # The leaves the last backward pass differentiated and its keys (leaves.pass_leaves), kept
-    # so that the next pass over the same keys skips ``params.update()``; None: make fresh ones.
-    held_leaves: tuple[frozenset[str], dict[str, Any]] | None = None
+    # The gradient-enabled leaf the scene holds for each selected key (adjoint.enable_gradients)
+    # and the keys of the backward pass that made them (adjoint.pass_leaves), so that the next
+    # pass over the same keys skips ``params.update()``; None: a pass makes fresh ones.
+    leaves: dict[str, Any] = field(default_factory=dict)
+    held_keys: frozenset[str] | None = None
 
     @property
     def integrator_type(self) -> str:
@@ -142,16 +144,18 @@ def _resolving_from(mi: ModuleType, folders: tuple[Path, ...]) -> Iterator[None]
 
 def assign(loaded: LoadedScene, key: str, array: np.ndarray) -> None:
     """Set a selected parameter to ``array`` (in its recorded shape), for finite differences."""
+    loaded.params[key] = value_like(loaded.params[key], array)
+    loaded.held_keys = None  # the scene no longer holds that leaf
+    loaded.params.update()
+
+
+def value_like(current: Any, array: np.ndarray) -> Any:
+    """``array`` (a parameter's recorded shape) as a Dr.Jit value of ``current``'s type."""
     import drjit as dr
 
-    current = loaded.params[key]
     flat = np.ascontiguousarray(array, dtype=np.float32)
     if dr.is_tensor_v(current):
-        replacement = type(current)(flat)
-    elif dr.size_v(current) == 3:  # a colour: one value per channel
-        replacement = type(current)(*[float(v) for v in flat.reshape(-1)])
-    else:
-        replacement = type(current)(flat.reshape(-1))
-    loaded.params[key] = replacement
-    loaded.held_leaves = None  # the scene no longer holds that leaf
-    loaded.params.update()
+        return type(current)(flat)
+    if dr.size_v(current) == 3:  # a colour: one value per channel
+        return type(current)(*[float(v) for v in flat.reshape(-1)])
+    return type(current)(flat.reshape(-1))

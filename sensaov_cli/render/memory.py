@@ -21,15 +21,13 @@ from sensaov_cli.limits import check_memory
 if TYPE_CHECKING:
     from sensaov_cli.render.loading import LoadedScene
 
-# Bytes per sample of one primal or backward sub-pass, film and wavefront together: measured
-# 107 per pixel at 1 spp (cbox, 1024² -> 2048²: 291 -> 626 MB); sub-passes hold at most
-# SAMPLES_PER_SUBPASS samples, or one sample per pixel.
+# Bytes per sample of one primal or backward sub-pass, film and wavefront together (measured,
+# rounded up); sub-passes hold at most SAMPLES_PER_SUBPASS samples, or one sample per pixel.
 RENDER_BYTES_PER_SAMPLE = 128
 RENDER_BYTES_PER_PIXEL_AND_OBJECTIVE = 64  # the adjoint image dM/dI and its copies
 SUBPASS_SAMPLES = 1 << 19  # render/adjoint.py's SAMPLES_PER_SUBPASS
-# The visibility pass keeps one int32 object index per sample and sorts a copy (measured
-# ~8 bytes a sample, 512² x 256 spp); with texel channels the samples' UVs and footprints
-# too (measured ~34 bytes a sample).
+# The visibility pass keeps one int32 object index per sample and sorts a copy; with texel
+# channels the samples' UVs and footprints too (measured, rounded up).
 VISIBILITY_BYTES_PER_SAMPLE = 16
 TEXEL_BYTES_PER_SAMPLE = 48
 LAYER_BYTES_PER_PIXEL = 64  # each painted layer: float32 channels, its EXR copy, its preview

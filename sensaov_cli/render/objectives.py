@@ -88,9 +88,7 @@ def _function(
         return _mean_luminance(mi, _region_mask(spec, size, where))
     if spec.type == "l2_to_target":
         return _l2_to_target(mi, _read_rgb(spec.target, size, f"{where}.target"))
-    if spec.type == "python":
-        return _user_function(spec, where, allow_python)
-    raise ObjectiveError(f"unknown objective type {spec.type!r}", where=where)
+    return _user_function(spec, where, allow_python)  # "python": the spec admits no other
 
 
 def colour_channels(channels: int) -> int:

@@ -310,14 +310,7 @@ def _slot_and_holder(
     ``glaze.roughness.color0.value`` the uniform ``color0`` sits in a checkerboard that fills
     the BSDF's ``roughness``, so its type is roughness, whatever the nesting.
     """
-    levels = 0
-    holder = node
-    while isinstance(holder, mi.Texture | mi.Volume):  # a medium's albedo is a volume
-        levels += 1
-        parent = hierarchy.get(holder)
-        if parent is None:
-            break
-        holder = parent[0]
+    levels, holder = _above_textures(mi, node, hierarchy)
     if levels == 0 or len(parts) <= levels:
         return parts[-1], node
     return parts[-1 - levels], holder
@@ -325,13 +318,20 @@ def _slot_and_holder(
 
 def _in_medium(mi: ModuleType, node: Any, hierarchy: Any) -> bool:
     """Whether ``node`` is a medium, its phase function, or a volume or texture inside one."""
-    holder = node
+    return isinstance(_above_textures(mi, node, hierarchy)[1], mi.Medium | mi.PhaseFunction)
+
+
+def _above_textures(mi: ModuleType, node: Any, hierarchy: Any) -> tuple[int, Any]:
+    """The texture levels above ``node`` (a medium's albedo is a volume) and the node they end
+    in: the plugin they fill a slot of, or the outermost texture when none holds it."""
+    levels, holder = 0, node
     while isinstance(holder, mi.Texture | mi.Volume):
+        levels += 1
         parent = hierarchy.get(holder)
         if parent is None:
             break
         holder = parent[0]
-    return isinstance(holder, mi.Medium | mi.PhaseFunction)
+    return levels, holder
 
 
 def value_shape(array: Any) -> tuple[int, ...]:

@@ -2,7 +2,7 @@
 
 Dr.Jit compiles one kernel per distinct trace and bakes literal constants into it (MITSUBA-NOTES):
 a camera built from Python floats, or a film size or spp written as Python ints, would compile
-a new kernel on every move of the mouse (about 40 ms of LLVM work each on 2 cores). Here every
+a new kernel on every move of the mouse. Here every
 number that changes between views (the camera's frame and field of view, the image size, spp,
 the seed) enters the trace as an opaque Dr.Jit variable, so every view after the first reuses
 the compiled kernel (``tests/test_view.py`` checks the kernel history). Rays follow Mitsuba's
@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.job.cameras import LookAt
-from sensaov_cli.render.visibility import object_of_registry_id
-from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass, histogram, ranked
+from sensaov_cli.render.visibility import object_index, object_of_registry_id, visibility_pass
+from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass
 
 Vec3 = tuple[float, float, float]
 NEAR_CLIP = 0.01  # Mitsuba's perspective default, which a job's look_at camera gets
@@ -34,6 +34,18 @@ class Pose:
     look_at: LookAt
     fov: float
     note: str = ""  # what the pose leaves out of the scene's own sensor, if anything
+
+
+@dataclass(frozen=True)
+class Frame:
+    """A pinhole's frame in world space: origin, unit axes, and the tangents of its half fields."""
+
+    origin: list[float]
+    forward: list[float]
+    right: list[float]
+    up: list[float]
+    tan_x: float
+    tan_y: float
 
 
 @dataclass(frozen=True)
@@ -62,22 +74,15 @@ class ViewTracer:
         with dr.suspend_grad():
             ray = self._rays(pose, width, height, spp, seed)
             si = self.scene.ray_intersect(ray)
-            index = self._object_index(si)
+            index = object_index(self.mi, si, self._table)
             if with_uv:  # one kernel for both: converting them apart would trace twice
                 dr.eval(index, si.uv)
             samples = np.array(index, dtype=np.int32)
             uv = np.stack([np.array(si.uv.x), np.array(si.uv.y)], axis=1) if with_uv else None
-        coverage = histogram(samples.reshape(height * width, spp))
-        rank_index, rank_coverage = ranked(coverage, (height, width), spp)
-        sample_uv = sample_object = None
         if uv is not None:
             uv[samples == BACKGROUND] = 0.0
-            sample_uv = uv.astype(np.float32).reshape(height, width, spp, 2)
-            sample_object = samples.reshape(height, width, spp)
-        return VisibilityPass(
-            width, height, spp, self.objects, sample_uv, coverage, rank_index, rank_coverage,
-            sample_object,
-        )  # fmt: skip
+            uv = uv.astype(np.float32)
+        return visibility_pass(self.objects, samples, uv, width, height, spp)
 
     def hit(self, pose: Pose, width: int, height: int, x: int, y: int) -> Hit:
         """The ray through the centre of pixel (x, y): the object there, the point and distance."""
@@ -90,7 +95,7 @@ class ViewTracer:
             v = dr.opaque(mi.Float, (y + 0.5) / height)
             ray = self._ray(frame, mi.Point2f(u, v))
             si = self.scene.ray_intersect(ray)
-            index = int(np.array(self._object_index(si))[0])
+            index = int(np.array(object_index(mi, si, self._table))[0])
             if not bool(np.array(si.is_valid())[0]):
                 return Hit(index, None, None)
             position = tuple(float(np.array(c)[0]) for c in si.p)
@@ -115,32 +120,21 @@ class ViewTracer:
         film = mi.Point2f(x / dr.opaque(mi.Float, width), y / dr.opaque(mi.Float, height))
         return self._ray(_frame(pose, width, height), film)
 
-    def _ray(self, frame: dict[str, Any], film: Any) -> Any:
+    def _ray(self, frame: Frame, film: Any) -> Any:
         """Mitsuba's pinhole: film x grows to the camera's right, film y downwards."""
         import drjit as dr
 
         mi = self.mi
-        o, f, r, u = (dr.opaque(mi.Vector3f, list(frame[k])) for k in ("o", "f", "r", "u"))
-        tan_x, tan_y = dr.opaque(mi.Float, frame["tan_x"]), dr.opaque(mi.Float, frame["tan_y"])
+        axes = (frame.origin, frame.forward, frame.right, frame.up)
+        o, f, r, u = (dr.opaque(mi.Vector3f, axis) for axis in axes)
+        tan_x, tan_y = dr.opaque(mi.Float, frame.tan_x), dr.opaque(mi.Float, frame.tan_y)
         direction = f + r * ((2.0 * film.x - 1.0) * tan_x) + u * ((1.0 - 2.0 * film.y) * tan_y)
         # Rays start on the near clip plane, at Mitsuba's default distance, as its sensor's do.
         start = o + direction * dr.opaque(mi.Float, NEAR_CLIP)
         return mi.Ray3f(mi.Point3f(start), dr.normalize(direction))
 
-    def _object_index(self, si: Any) -> Any:
-        """Per ray, the index in ``objects`` of the object hit, or BACKGROUND."""
-        import drjit as dr
 
-        mi = self.mi
-        # A hit through an instance reports the instance (the object people see) in si.instance.
-        instance: Any = dr.reinterpret_array(mi.UInt32, si.instance)
-        shape: Any = dr.reinterpret_array(mi.UInt32, si.shape)
-        registry = dr.select(instance != 0, instance, shape)
-        hit = si.is_valid() & (registry < dr.width(self._table))
-        return dr.select(hit, dr.gather(mi.Int32, self._table, registry, hit), BACKGROUND)
-
-
-def _frame(pose: Pose, width: int, height: int) -> dict[str, Any]:
+def _frame(pose: Pose, width: int, height: int) -> Frame:
     """The camera frame of Mitsuba's ``look_at`` (its x axis is the camera's left)."""
     origin = np.array(pose.look_at.origin, np.float64)
     forward = np.array(pose.look_at.target, np.float64) - origin
@@ -149,14 +143,14 @@ def _frame(pose: Pose, width: int, height: int) -> dict[str, Any]:
     left /= np.linalg.norm(left)
     up = np.cross(forward, left)
     tan_x = math.tan(math.radians(pose.fov) / 2.0)
-    return {
-        "o": origin.tolist(),
-        "f": forward.tolist(),
-        "r": (-left).tolist(),
-        "u": up.tolist(),
-        "tan_x": tan_x,
-        "tan_y": tan_x * height / width,
-    }
+    return Frame(
+        origin.tolist(),
+        forward.tolist(),
+        (-left).tolist(),
+        up.tolist(),
+        tan_x,
+        tan_x * height / width,
+    )
 
 
 def sensor_pose(mi: ModuleType, sensor: Any, bounds: tuple[Vec3, Vec3]) -> Pose:

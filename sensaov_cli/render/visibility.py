@@ -1,26 +1,39 @@
-"""The primary-visibility pass: which object each camera sample sees (paper §3 "Binding").
+"""What an inspection camera's layers are painted from: primary visibility, texture lookups,
+the beauty pass.
 
-Rays are traced per sample with gradients suspended, so this pass never differentiates. From
-the per-sample object ids come the ranked per-pixel coverages a Cryptomatte stores (box filter:
+The primary-visibility pass: which object each camera sample sees (paper §3 "Binding"). Rays
+are traced per sample with gradients suspended, so this pass never differentiates. From the
+per-sample object ids come the ranked per-pixel coverages a Cryptomatte stores (box filter:
 the fraction of a pixel's samples that hit each object). The ``aov`` integrator's averaged
 ``shape_index`` is no use here: it yields fractional ids at edges.
+
+A texel field is painted through the hit UVs and the same lookup Mitsuba's ``bitmap`` plugin
+performs, so the project stage needs the lookup's settings as plain data (:func:`texture_probes`).
+
+The beauty pass is a short full path trace (no gradients) so a compositor has the picture the
+sensitivities are painted over; its alpha is the visibility pass's coverage, so the two line up.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
+from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
 
 import numpy as np
 
 from sensaov_cli import interrupts
+from sensaov_cli.render.adjoint import render_primal
+from sensaov_cli.render.loading import LoadedScene
+from sensaov_cli.scene.rewrite import DEFAULT_FILTER, DEFAULT_WRAP
 from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass, histogram, ranked
 
 # A stop (SIGTERM, Ctrl-C) is acted on between kernel launches: the pass traces at most this
-# many samples per launch, so it stops within one chunk (~50 ms on 2 cores) instead of after
-# the whole view (a 512² camera at 64 spp: 16.7 M samples, ~2 s; more with heavy geometry).
+# many samples per launch, so it stops within one chunk instead of after the whole view.
 SAMPLES_PER_CHUNK = 1 << 19
+PROBES, PROBE_SEED = 256, 9  # random UVs at which a texture's own lookup is read
 
 
 def film_positions(
@@ -78,6 +91,18 @@ def trace(
         position = film_positions(mi, width, height, spp, seed, samples=span)
         _trace_span(mi, scene, sensor, table, position, samples[span[0] : span[1]],
                     None if uv is None else uv[span[0] : span[1]])  # fmt: skip
+    return visibility_pass(objects, samples, uv, width, height, spp)
+
+
+def visibility_pass(
+    objects: tuple[str, ...],
+    samples: np.ndarray,
+    uv: np.ndarray | None,
+    width: int,
+    height: int,
+    spp: int,
+) -> VisibilityPass:
+    """The pass of per-sample object indices (and UVs, 0 where nothing is hit), rows first."""
     coverage = histogram(samples.reshape(height * width, spp))
     rank_index, rank_coverage = ranked(coverage, (height, width), spp)
     sample_uv = sample_object = None
@@ -114,21 +139,29 @@ def _trace_span(
     with dr.suspend_grad():
         ray, _ = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5, 0.5))
         si = scene.ray_intersect(ray)
-        # A hit through an instance reports the shapegroup's member in si.shape and the
-        # instance (the object people see) in si.instance; 0 there means no instance.
-        instance: Any = dr.reinterpret_array(mi.UInt32, si.instance)  # stubs say object
-        shape: Any = dr.reinterpret_array(mi.UInt32, si.shape)
-        registry = dr.select(instance != 0, instance, shape)
-        hit = si.is_valid() & (registry < dr.width(table))
-        index = dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)
+        index = object_index(mi, si, table)
         if uv is not None:  # one kernel for both: converting them apart would trace twice
             # 0 where nothing is hit, selected in the kernel: a numpy mask over every sample
-            # afterwards cost more than the select (issue 23).
+            # afterwards costs more than the select.
             hit_uv = dr.select(index != BACKGROUND, si.uv, mi.Point2f(0.0, 0.0))
             dr.eval(index, hit_uv)
         samples[:] = np.array(index, dtype=np.int32)
         if uv is not None:
             uv[:, 0], uv[:, 1] = np.array(hit_uv.x), np.array(hit_uv.y)
+
+
+def object_index(mi: ModuleType, si: Any, table: Any) -> Any:
+    """Per ray of ``si``, the index of the object hit (``table``: :func:`object_of_registry_id`),
+    or BACKGROUND."""
+    import drjit as dr
+
+    # A hit through an instance reports the shapegroup's member in si.shape and the instance
+    # (the object people see) in si.instance; 0 there means no instance.
+    instance: Any = dr.reinterpret_array(mi.UInt32, si.instance)  # stubs say object
+    shape: Any = dr.reinterpret_array(mi.UInt32, si.shape)
+    registry = dr.select(instance != 0, instance, shape)
+    hit = si.is_valid() & (registry < dr.width(table))
+    return dr.select(hit, dr.gather(mi.Int32, table, registry, hit), BACKGROUND)
 
 
 def object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> np.ndarray:
@@ -144,3 +177,75 @@ def object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) 
     for registry, index in pairs.items():
         table[registry] = index
     return table
+
+
+def render_beauty(
+    loaded: LoadedScene, sensor: Any, visibility: VisibilityPass, spp: int, seed: int
+) -> np.ndarray | None:
+    """A quick RGBA render at the inspection camera (alpha = visibility coverage); gradients off.
+
+    Rendered in the primal's sub-passes: a stop is acted on within one of them."""
+    if spp <= 0:
+        return None
+    image = render_primal(loaded, spp, seed, sensor=sensor)
+    rgb = np.array(image, dtype=np.float32)[..., :3]
+    if rgb.shape[2] < 3:  # a mono variant renders Y (and A): show it grey
+        rgb = np.repeat(rgb[..., :1], 3, axis=2)
+    return np.concatenate([rgb, visibility.coverage_hit[..., None]], axis=2)
+
+
+@dataclass(frozen=True)
+class TextureProbe:
+    """What pins a bitmap texture's lookup down: the scene XML's settings, ``to_uv``, the
+    texels, and the texture's own values at PROBES random UVs, which the project stage matches
+    against every filter and wrap mode (a file used with several settings cannot fool that)."""
+
+    filter: str
+    wrap: str
+    note: str
+    to_uv: np.ndarray  # 3x3
+    texels: np.ndarray  # (H, W, C)
+    uv: np.ndarray  # (PROBES, 2)
+    values: np.ndarray  # (PROBES, C)
+
+
+def texture_probes(
+    mi: ModuleType, params: Any, keys: tuple[str, ...], options: dict[str, tuple[str, str, str]]
+) -> dict[str, TextureProbe]:
+    """Per texture ``data`` key, its probe. ``to_uv`` is a traversed parameter; ``filter_type``
+    and ``wrap_mode`` are not exposed by the plugin's Python binding, so they are read from the
+    prepared scene (``options``: ``PreparedScene.bitmap_options``) and confirmed by probing."""
+    import drjit as dr
+
+    rng = np.random.default_rng(PROBE_SEED)
+    result = {}
+    for key in keys:
+        node = params.properties[key][2]
+        match = re.search(r'name = "([^"]*)"', str(node))
+        found = options.get(match.group(1) if match else "", None)
+        filter_type, wrap, note = found or (DEFAULT_FILTER, DEFAULT_WRAP, "")
+        to_uv_key = key[: -len("data")] + "to_uv"
+        matrix = np.eye(3)
+        if to_uv_key in params.keys():
+            matrix = np.array(params[to_uv_key].matrix, dtype=np.float64).reshape(3, 3)
+        texels = np.array(params[key], dtype=np.float64)
+        uv = rng.uniform(-1.5, 2.5, (PROBES, 2))
+        with dr.suspend_grad():
+            si = dr.zeros(mi.SurfaceInteraction3f, PROBES)
+            si.uv = mi.Point2f(uv[:, 0], uv[:, 1])
+            if texels.shape[2] == 1:
+                values = np.array(node.eval_1(si), dtype=np.float64)[:, None]
+            else:
+                values = np.array(node.eval(si), dtype=np.float64).T
+        result[key] = TextureProbe(filter_type, wrap, note, matrix, texels, uv, values)
+    return result
+
+
+def objects_without_uv(mi: ModuleType, scene: Any, objects: tuple[str, ...]) -> tuple[str, ...]:
+    """Meshes without texture coordinates: Mitsuba reads texel (0, 0) wherever they are hit."""
+    missing = []
+    for number, shape in enumerate(scene.shapes()):
+        name = shape.id() or f"shape_{number}"
+        if name in objects and shape.is_mesh() and not shape.has_vertex_texcoords():
+            missing.append(name)
+    return tuple(sorted(missing))

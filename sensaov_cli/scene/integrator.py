@@ -19,7 +19,7 @@ spp under AD. The replay renders what the scene renders:
 Every change is returned as a :class:`Change`; one that alters the image (another depth, other
 light transport) says so. Where the job changes the depth, the plan carries the replay at the
 scene's own depth, so that the effect can be measured by rendering both at one seed
-(``render/image_effect.py``).
+(``render/adjoint.py``, ``depth_effect``).
 """
 
 from __future__ import annotations

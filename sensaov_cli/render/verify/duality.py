@@ -23,14 +23,8 @@ import numpy as np
 
 from sensaov_cli.buffer.forward_sidecar import DUALITY_FLOOR, duality_tolerance
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
-from sensaov_cli.errors import SpecError
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.adjoint import (
-    chunk_seed,
-    path_chunks,
-    path_integrator,
-    render_primal,
-)
+from sensaov_cli.render.adjoint import image_like_backward, render_primal
 from sensaov_cli.render.forward import adjoint_images, forward_image
 from sensaov_cli.render.loading import LoadedScene, assign
 from sensaov_cli.render.objectives import Objective
@@ -119,10 +113,7 @@ def check_duality(
     spp = int(buffer.provenance["spp"])
     primal = np.array(render_primal(loaded, spp, int(buffer.provenance["primal_seed"])))
     adjoints = adjoint_images(loaded, objectives, primal)
-    records = {info.key: info for info in loaded.selected}
-    for key in keys or ():
-        if key not in records:
-            raise SpecError(f"{key!r} is not a selected parameter", where="--key")
+    records = {info.key: info for info in loaded.selected}  # ``keys``: checked by fdcheck.named
     tolerance = duality_tolerance(primal.shape[0] * primal.shape[1] * spp)
     rows: list[DualityCheck] = []
     for objective in objectives:
@@ -180,22 +171,8 @@ def _image_difference(
     try:
         for sign in (1, -1):
             assign(loaded, info.key, theta + sign * eps * v)
-            sides.append(image_like_backward(loaded, info, spp, seed).astype(np.float64))
+            image = image_like_backward(loaded, loaded.routes[info.key], spp, seed)
+            sides.append(np.array(image, np.float32).astype(np.float64))
     finally:
         assign(loaded, info.key, theta)
     return (sides[0] - sides[1]) / (2 * eps)
-
-
-def image_like_backward(loaded: LoadedScene, info: ParamRecord, spp: int, seed: int) -> np.ndarray:
-    """The image the backward pass of ``info`` at ``seed`` replays (path: its chunks)."""
-    if loaded.routes[info.key] == "prb":
-        return np.array(render_primal(loaded, spp, seed), np.float32)
-    path = path_integrator(loaded)
-    width, height = loaded.resolution
-    chunks = path_chunks(width * height, spp)
-    parts = [
-        np.array(render_primal(loaded, chunk, chunk_seed(seed, i), path), np.float32)
-        * (chunk / spp)
-        for i, chunk in enumerate(chunks)
-    ]
-    return np.sum(parts, axis=0)

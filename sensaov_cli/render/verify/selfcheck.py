@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -62,9 +62,36 @@ class LinearObjective:
 
 
 @dataclass(frozen=True)
+class Identity:
+    """One emission identity of check (c): its two sides and whether they agree."""
+
+    objective: str
+    check: str
+    lhs: float
+    rhs: float
+    relative_difference: float
+    tolerance: float
+    passed: bool
+    keys: tuple[str, ...]  # the parameters it involves
+    summary: str
+
+
+@dataclass(frozen=True)
 class SelfCheck:
     params: tuple[ParamRecord, ...]  # the records with their labels after the checks
-    figures: dict[str, Any]  # what was checked and found, for the buffer's provenance
+    no_gradient: tuple[str, ...]  # keys whose gradient is identically 0 for every objective
+    zero_components: dict[str, int]  # key -> how many of its throughput components are 0
+    identities: tuple[Identity, ...]
+
+    def figures(self) -> dict[str, Any]:
+        """What was checked and found, as the buffer's provenance records it."""
+        return {
+            "no_gradient": list(self.no_gradient),
+            "zero_components": dict(self.zero_components),
+            "emission_identities": [
+                {**asdict(identity), "keys": list(identity.keys)} for identity in self.identities
+            ],
+        }
 
 
 def check(
@@ -86,19 +113,15 @@ def check(
         identities += _identities(name, objective, contributions, emitters, spp)
     suspect: dict[str, list[str]] = {}
     for identity in identities:
-        if not identity["passed"]:
-            for key in identity["keys"]:
-                suspect.setdefault(key, []).append(identity["summary"])
+        if not identity.passed:
+            for key in identity.keys:
+                suspect.setdefault(key, []).append(identity.summary)
     labelled = tuple(
         _label(r, values[r.key], integrators[r.key] if r.key in no_flow else None, zeros, suspect)
         for r in records
     )
-    figures = {
-        "no_gradient": no_flow,
-        "zero_components": {key: len(where) for key, where in zeros.items()},
-        "emission_identities": identities,
-    }
-    return SelfCheck(labelled, figures)
+    counts = {key: len(where) for key, where in zeros.items()}
+    return SelfCheck(labelled, tuple(no_flow), counts, tuple(identities))
 
 
 def _contribution(value: np.ndarray, grad: np.ndarray) -> float:
@@ -155,15 +178,11 @@ def tolerance(spp: int, effective_pixels: float) -> float:
 
 def _identity(
     objective: str, what: str, lhs: float, rhs: float, tol: float, keys: Sequence[str]
-) -> dict[str, Any]:
+) -> Identity:
     scale = max(abs(lhs), abs(rhs))
     gap = (lhs - rhs) / scale if scale > 0 else 0.0
     summary = f"{what} for {objective!r}: {lhs:.4g} vs {rhs:.4g} ({gap:+.1%}, tolerance {tol:.1%})"
-    return {
-        "objective": objective, "check": what, "lhs": lhs, "rhs": rhs,
-        "relative_difference": gap, "tolerance": tol, "passed": abs(gap) <= tol,
-        "keys": list(keys), "summary": summary,
-    }  # fmt: skip
+    return Identity(objective, what, lhs, rhs, gap, tol, abs(gap) <= tol, tuple(keys), summary)
 
 
 def _identities(
@@ -172,7 +191,7 @@ def _identities(
     contributions: Mapping[str, float],
     emitters: Sequence[EmitterTerms],
     spp: int,
-) -> list[dict[str, Any]]:
+) -> list[Identity]:
     def total(keys: Sequence[str]) -> float:
         return math.fsum(contributions[k] for k in keys)
 
@@ -206,7 +225,6 @@ def self_check(
     grads: Mapping[str, Mapping[str, np.ndarray]],
     objective_values: Mapping[str, float],
     spp: int,
-    integrators: Mapping[str, str],
 ) -> SelfCheck:
     """Checks (a), (b), (c) on a run's gradients, given its primal image (no render)."""
     linear = {
@@ -217,7 +235,7 @@ def self_check(
         if o.spec.type in LINEAR_OBJECTIVES
     }
     emitters = emitter_terms(loaded)
-    return check(loaded.selected, values, grads, linear, emitters, spp, integrators)
+    return check(loaded.selected, values, grads, linear, emitters, spp, loaded.routes)
 
 
 def _effective_pixels(loaded: LoadedScene, objective: Objective, image: np.ndarray) -> float:
