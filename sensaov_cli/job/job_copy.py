@@ -16,9 +16,8 @@ from typing import Any
 
 import yaml
 
-from sensaov_cli.job.cameras import CameraSpec
 from sensaov_cli.job.fields import NAME_PATTERN
-from sensaov_cli.job.spec import JobSpec
+from sensaov_cli.job.spec import CameraSpec, JobSpec
 
 RESERVED_NAMES = ("primal", "buffer", "objective")
 

@@ -11,10 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from sensaov_cli.errors import RequestError
-from sensaov_cli.job.cameras import CameraSpec
 from sensaov_cli.job.job_copy import camera_names, camera_yaml, check_camera_name, job_copy_text
 from sensaov_cli.job.load import load_job
-from sensaov_cli.job.spec import JobSpec
+from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.live.query import ViewRequest
 from sensaov_cli.outputs.atomic import atomic_write, check_writable
 from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs

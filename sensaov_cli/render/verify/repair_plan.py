@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sensaov_cli.buffer.model import ParamRecord
-from sensaov_cli.job.render_settings import RepairSpec
+from sensaov_cli.job.spec import RepairSpec
 from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.verify.selfcheck import THROUGHPUT_TYPES
 from sensaov_cli.render.verify.trust import (
