@@ -13,7 +13,7 @@ import re
 from types import ModuleType
 from typing import Any
 
-from sensaov_cli.scene.rewrite import DEFAULT_FILTER, DEFAULT_WRAP
+from sensaov_cli.scene.prepare import DEFAULT_FILTER, DEFAULT_WRAP
 
 PROBES, PROBE_SEED = 256, 9
 
