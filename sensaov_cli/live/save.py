@@ -11,8 +11,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from sensaov_cli.errors import RequestError
-from sensaov_cli.job.job_copy import camera_names, camera_yaml, check_camera_name, job_copy_text
-from sensaov_cli.job.load import load_job
+from sensaov_cli.job.load import (
+    camera_names,
+    camera_yaml,
+    check_camera_name,
+    job_copy_text,
+    load_job,
+)
 from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.live.query import ViewRequest
 from sensaov_cli.outputs.atomic import atomic_write, check_writable
