@@ -122,14 +122,6 @@ class BufferWriteError(SensaovError):
     """The buffer file could not be written (no such directory, no permission, disk full)."""
 
 
-class WriteError(SensaovError):
-    """An output could not be written (disk full, I/O error): nothing partial was left."""
-
-
-class OutOfMemoryError(SensaovError):
-    """The machine ran out of memory (a huge film, spp or buffer)."""
-
-
 class UnknownNameError(SensaovError):
     """A name (objective, parameter key, object, type) the buffer does not hold."""
 

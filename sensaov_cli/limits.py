@@ -15,6 +15,7 @@ import os
 import re
 import resource
 import stat
+from dataclasses import dataclass
 from pathlib import Path
 
 from sensaov_cli.errors import InputFileError, MemoryBudgetError, SensaovError
@@ -41,10 +42,11 @@ def regular_file(
 ) -> int:
     """The size of ``path`` if it is a regular file of at most ``cap`` bytes; else ``error``
     (located at ``where``, default the path), saying what the file is instead."""
+    reading = _Reading(path, what, where, error)
     try:
-        return _checked(os.stat(path), path, what, cap, where, error)
+        return reading.checked(os.stat(path), cap)
     except OSError as exc:
-        raise _unreadable(exc, path, what, where, error) from None
+        raise reading.unreadable(exc) from None
 
 
 def read_regular(
@@ -58,63 +60,60 @@ def read_regular(
     """The bytes of ``path``, checked as :func:`regular_file` on the open descriptor itself (a
     file swapped for a FIFO after a check cannot block: it is opened non-blocking), and never
     more than ``cap`` bytes read (a file that grows while it is read is refused too)."""
+    reading = _Reading(path, what, where, error)
     try:
         descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
     except OSError as exc:
-        raise _unreadable(exc, path, what, where, error) from None
+        raise reading.unreadable(exc) from None
     try:
-        _checked(os.fstat(descriptor), path, what, cap, where, error)
+        reading.checked(os.fstat(descriptor), cap)
         os.set_blocking(descriptor, True)
         with os.fdopen(descriptor, "rb", closefd=False) as stream:
             data = stream.read(cap + 1)
     except OSError as exc:
-        raise _unreadable(exc, path, what, where, error) from None
+        raise reading.unreadable(exc) from None
     finally:
         os.close(descriptor)
     if len(data) > cap:
-        subject = f"{what} {path}" if where else f"the {what}"
-        raise error(f"{subject} grew past {_size(cap)} while it was read", where=where or str(path))
+        raise reading.refusal(f" grew past {_size(cap)} while it was read")
     return data
 
 
-def _checked(
-    info: os.stat_result,
-    path: Path,
-    what: str,
-    cap: int | None,
-    where: str | None,
-    error: type[SensaovError],
-) -> int:
-    subject = f"{what} {path}" if where else f"the {what}"
-    if stat.S_ISDIR(info.st_mode):
-        raise error(f"{subject} is a directory, not a file", where=where or str(path))
-    if not stat.S_ISREG(info.st_mode):
-        kind = next((name for test, name in _KINDS if test(info.st_mode)), "no regular file")
-        raise error(
-            f"{subject} is {kind}, not a regular file",
-            where=where or str(path),
-            hint="sensaov reads regular files only: a FIFO would block it, a device never end",
-        )
-    if cap is not None and info.st_size > cap:
-        raise error(
-            f"{subject} is {_size(info.st_size)}, over the {_size(cap)} sensaov reads",
-            where=where or str(path),
-            hint=f"is this the right file? a {what} is far smaller",
-        )
-    return info.st_size
+@dataclass(frozen=True)
+class _Reading:
+    """A file being checked: what a refusal calls it, where it is located, what it raises."""
 
+    path: Path
+    what: str
+    where: str | None
+    error: type[SensaovError]
 
-def _unreadable(
-    exc: OSError, path: Path, what: str, where: str | None, error: type[SensaovError]
-) -> SensaovError:
-    subject = f"{what} {path}" if where else f"the {what}"
-    if exc.errno == errno.ENOENT:
-        message = f"{subject} does not exist"
-    elif exc.errno == errno.ELOOP:
-        message = f"{subject} is a loop of symbolic links"
-    else:
-        message = f"cannot read {subject}: {exc.strerror or exc}"
-    return error(message, where=where or str(path))
+    def refusal(self, said: str, hint: str | None = None, *, before: str = "") -> SensaovError:
+        subject = f"{self.what} {self.path}" if self.where else f"the {self.what}"
+        return self.error(f"{before}{subject}{said}", where=self.where or str(self.path), hint=hint)
+
+    def checked(self, info: os.stat_result, cap: int | None) -> int:
+        if stat.S_ISDIR(info.st_mode):
+            raise self.refusal(" is a directory, not a file")
+        if not stat.S_ISREG(info.st_mode):
+            kind = next((name for test, name in _KINDS if test(info.st_mode)), "no regular file")
+            raise self.refusal(
+                f" is {kind}, not a regular file",
+                "sensaov reads regular files only: a FIFO would block it, a device never end",
+            )
+        if cap is not None and info.st_size > cap:
+            raise self.refusal(
+                f" is {_size(info.st_size)}, over the {_size(cap)} sensaov reads",
+                f"is this the right file? a {self.what} is far smaller",
+            )
+        return info.st_size
+
+    def unreadable(self, exc: OSError) -> SensaovError:
+        if exc.errno == errno.ENOENT:
+            return self.refusal(" does not exist")
+        if exc.errno == errno.ELOOP:
+            return self.refusal(" is a loop of symbolic links")
+        return self.refusal(f": {exc.strerror or exc}", before="cannot read ")
 
 
 def memory_budget() -> tuple[int, str]:

@@ -14,9 +14,16 @@ import pytest
 import yaml
 
 from sensaov_cli.errors import EXIT_BAD_INPUT, SpecError
-from sensaov_cli.job.cameras import CameraSpec, LookAt
 from sensaov_cli.job.load import SUPPORTED_VERSIONS, job_schema, load_job
-from sensaov_cli.job.spec import ChannelSpec, JobSpec, ObjectiveSpec, ParameterSpec, RenderSpec
+from sensaov_cli.job.spec import (
+    CameraSpec,
+    ChannelSpec,
+    JobSpec,
+    LookAt,
+    ObjectiveSpec,
+    ParameterSpec,
+    RenderSpec,
+)
 
 from .spec_cases import CASE_PARAMS, SpecCase, expected_where, write_fixture
 

@@ -12,8 +12,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from sensaov_cli.job.cameras import CameraSpec
-from sensaov_cli.job.spec import ParameterSpec
+from sensaov_cli.job.spec import CameraSpec, ParameterSpec
 from sensaov_cli.render.adjoint import enable_gradients
 from sensaov_cli.render.loading import load_scene
 from sensaov_cli.scene.legacy import PLUGINS

@@ -16,8 +16,8 @@ import pytest
 
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_OK, SceneError
-from sensaov_cli.job.cameras import CameraSpec
 from sensaov_cli.job.load import load_job
+from sensaov_cli.job.spec import CameraSpec
 from sensaov_cli.render.adjoint import render_primal
 from sensaov_cli.render.loading import load_job_scene
 from sensaov_cli.render.objectives import REC709_LUMA

@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from sensaov_cli.errors import SceneError
-from sensaov_cli.job.cameras import CameraSpec, LookAt
 from sensaov_cli.job.load import load_job
+from sensaov_cli.job.spec import CameraSpec, LookAt
 from sensaov_cli.pipeline.validate import validate_job
 from sensaov_cli.scene.expand import expand_scene
 from sensaov_cli.scene.naming import name_objects

@@ -38,8 +38,8 @@ from sensaov_cli.errors import (
     EXIT_TERMINATED,
     RequestError,
 )
-from sensaov_cli.job.cameras import LookAt
 from sensaov_cli.job.load import load_job
+from sensaov_cli.job.spec import LookAt
 from sensaov_cli.live.query import single_values, view_request
 from sensaov_cli.live.server import ViewServer, copy_path
 from sensaov_cli.live.session import ViewSession, open_session

@@ -1,6 +1,6 @@
 """The field types of a job file: strict scalars, fixed-length lists, checked paths.
 
-Shared by the dataclasses of :mod:`.job`; no pydantic here (the markers of
+Shared by the dataclasses of :mod:`.spec`; no pydantic here (the markers of
 :mod:`.markers` speak to pydantic when it asks). Types are strict where YAML makes mistakes
 easy: ``"64"`` is not an integer and ``true`` is not a number, but ``40`` is accepted where a
 float is expected. Our own checks raise :class:`Problem`, which carries the key path below the

@@ -1,11 +1,12 @@
-"""Read a job file into a :class:`~.job.JobSpec`, or say where it is wrong; its JSON Schema.
+"""The job file in YAML: read into a :class:`~.spec.JobSpec` (or where it is wrong), written back.
 
-:func:`load_job` reads the file (``yaml.safe_load`` semantics, see :mod:`.yaml_source`),
-validates it straight into the dataclasses of :mod:`.job` (pydantic reads their fields, see
-:mod:`.shapes`), and returns the :class:`JobSpec` with every path resolved against the job
+:func:`load_job` reads the file (``yaml.safe_load`` semantics, see :func:`read_yaml`),
+validates it straight into the dataclasses of :mod:`.spec` (pydantic reads their fields, see
+:mod:`.markers`), and returns the :class:`JobSpec` with every path resolved against the job
 file's directory. Anything wrong raises one :class:`~sensaov_cli.errors.SpecError` located as
 ``<job>:<line>: <key path>``: the first problem in the file, by line. :func:`job_schema` is the
-JSON Schema of the format.
+JSON Schema of the format. :func:`job_copy_text` writes the job file back, with cameras
+saved from ``sensaov view``.
 
 The format is documented in ``docs/job-spec.md``.
 """
@@ -13,25 +14,33 @@ The format is documented in ``docs/job-spec.md``.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 import re
+from collections.abc import Sequence
+from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 from typing import Any
 
+import yaml
 from pydantic import TypeAdapter, ValidationError
-from pydantic.json_schema import GenerateJsonSchema
+from pydantic.json_schema import GenerateJsonSchema, JsonSchemaValue
 from pydantic_core import ErrorDetails
 
 from sensaov_cli.errors import SpecError
-from sensaov_cli.job.fields import PATTERN_MEANINGS
+from sensaov_cli.job.fields import NAME_PATTERN, PATTERN_MEANINGS
+from sensaov_cli.job.markers import UNION
 from sensaov_cli.job.problems import Problem, close_match, describe
-from sensaov_cli.job.shapes import UNION
-from sensaov_cli.job.spec import JobSpec
-from sensaov_cli.job.yaml_source import KeyPath, YamlDocument, read_yaml, spec_error
+from sensaov_cli.job.spec import CameraSpec, JobSpec
+from sensaov_cli.limits import read_regular
 
 SUPPORTED_VERSIONS = (1,)
+MAX_JOB_BYTES = 16 << 20
+KeyPath = tuple[Any, ...]
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+_PLAIN_KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
 def load_job(path: Path) -> JobSpec:
@@ -77,7 +86,7 @@ def _tags_in(schema: Any) -> set[str]:
 class _JobFileSchema(GenerateJsonSchema):
     """Fields untitled, every definition titled by its name, defaults as a job file writes them."""
 
-    def generate(self, schema: Any, mode: Any = "validation") -> dict[str, Any]:
+    def generate(self, schema: Any, mode: Any = "validation") -> JsonSchemaValue:
         json_schema = super().generate(schema, mode)
         # A section has its class's title already; a shape (MeanLuminanceObjective) has none.
         for name, definition in json_schema.get("$defs", {}).items():
@@ -157,7 +166,7 @@ def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
         problem: Problem = ctx["error"]
         return path + problem.at, problem.message, problem.hint
     if kind == UNION:
-        return _explain_union(path, ctx, value)
+        return _explain_union(path, error)
     if kind == "missing":
         return path, "missing required key", None
     if kind == "literal_error":
@@ -172,10 +181,9 @@ def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
     return path, _reword(error), _quoted_number_hint(kind, value)
 
 
-def _explain_union(
-    path: KeyPath, ctx: dict[str, Any], value: Any
-) -> tuple[KeyPath, str, str | None]:
+def _explain_union(path: KeyPath, error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
     """Why no member of a tagged union fits: not a mapping, or a missing or unknown tag."""
+    ctx, value = error.get("ctx", {}), error["input"]
     field, choices = ctx["field"], tuple(ctx["choices"].split(","))
     if not isinstance(value, dict):
         return path, f"must be {ctx['expects']}, got {describe(value)}", None
@@ -226,3 +234,212 @@ def _quoted_number_hint(kind: str, value: Any) -> str | None:
             return None
         return "write the number without quotes"
     return None
+
+
+# --- the YAML, read as yaml.safe_load reads it, with the line of every key path ---
+#
+# yaml.safe_load forgets where things were and silently keeps the last of two equal keys. The
+# node tree is composed with the same SafeLoader, walked once to note the line of each key path
+# and refuse duplicate keys, then constructed from the same tree, so the data is exactly what
+# safe_load returns.
+
+
+def format_key_path(path: KeyPath) -> str:
+    """``("objectives", 1, "region")`` -> ``objectives[1].region``."""
+    text = ""
+    for part in path:
+        if isinstance(part, int) and not isinstance(part, bool):
+            text += f"[{part}]"
+        elif isinstance(part, str) and _PLAIN_KEY.fullmatch(part):
+            text += f".{part}" if text else part
+        else:
+            # Odd keys (spaces, newlines, numbers) are quoted so the path stays one line.
+            text += f"[{json.dumps(part) if isinstance(part, str) else repr(part)}]"
+    return text
+
+
+def spec_error(
+    shown: str, line: int | None, path: KeyPath, message: str, hint: str | None = None
+) -> SpecError:
+    """A SpecError located as ``<job>:<line>: <key path>``, on one line whatever the inputs."""
+    where = shown if line is None else f"{shown}:{line}"
+    if path:
+        where += f": {format_key_path(path)}"
+    return SpecError(_one_line(message), where=where, hint=_one_line(hint) if hint else None)
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+@dataclass(frozen=True)
+class YamlDocument:
+    """The data of a job file and the line (1-based) where each key path is written."""
+
+    data: Any
+    lines: dict[KeyPath, int]
+
+    def line_of(self, path: KeyPath) -> int | None:
+        """The line of ``path``, or of its nearest written ancestor (for a missing key)."""
+        for end in range(len(path), -1, -1):
+            line = self.lines.get(tuple(path[:end]))
+            if line is not None:
+                return line
+        return None
+
+
+def read_yaml(path: Path, shown: str) -> YamlDocument:
+    """Read and parse ``path``; every failure is a SpecError located in ``shown``."""
+    # A regular file of sane size: a FIFO would block forever, /dev/zero never end.
+    raw = read_regular(path, "job file", cap=MAX_JOB_BYTES, error=SpecError)
+    try:
+        return _parse(raw, shown)
+    except yaml.MarkedYAMLError as exc:
+        raise _syntax_error(exc, shown) from None
+    except yaml.YAMLError as exc:
+        raise spec_error(shown, None, (), f"YAML error: {exc}") from None
+    except RecursionError:
+        raise spec_error(shown, None, (), "YAML nested too deeply") from None
+
+
+def _parse(raw: bytes, shown: str) -> YamlDocument:
+    loader = yaml.SafeLoader(raw)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            raise spec_error(shown, None, (), "the job file is empty", "start with 'version: 1'")
+        lines: dict[KeyPath, int] = {(): node.start_mark.line + 1}
+        _walk(loader, node, (), lines, set(), shown)
+        data = loader.construct_document(node)
+    finally:
+        loader.dispose()
+    return YamlDocument(data, lines)
+
+
+def _walk(
+    loader: yaml.SafeLoader,
+    node: yaml.Node,
+    path: KeyPath,
+    lines: dict[KeyPath, int],
+    seen: set[int],
+    shown: str,
+) -> None:
+    """Note the line of every key and item below ``node``; refuse duplicate keys."""
+    # An alias repeats a node; walking it once keeps "billion laughs" documents cheap.
+    if id(node) in seen:
+        return
+    seen.add(id(node))
+    if isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            lines.setdefault(path + (index,), item.start_mark.line + 1)
+            _walk(loader, item, path + (index,), lines, seen, shown)
+    elif isinstance(node, yaml.MappingNode):
+        first: dict[Any, int] = {}
+        for key_node, value_node in node.value:
+            if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == _MERGE_TAG:
+                continue  # merge keys and complex keys are left to the constructor
+            key = loader.construct_object(key_node)
+            line = key_node.start_mark.line + 1
+            if key in first:
+                raise spec_error(
+                    shown,
+                    line,
+                    path + (key,),
+                    f"duplicate key (first given on line {first[key]})",
+                    "YAML would silently keep only the last one; remove one",
+                )
+            first[key] = line
+            lines.setdefault(path + (key,), line)
+            _walk(loader, value_node, path + (key,), lines, seen, shown)
+
+
+def _syntax_error(exc: yaml.MarkedYAMLError, shown: str) -> SpecError:
+    mark = exc.problem_mark or exc.context_mark
+    line = mark.line + 1 if mark is not None else None
+    parts = [part for part in (exc.context, exc.problem) if part]
+    return spec_error(shown, line, (), "invalid YAML: " + ", ".join(parts))
+
+
+# --- a viewpoint saved from sensaov view: a camera entry, or a copy of the job file ---------
+#
+# The camera entry is what ``inspection_cameras`` takes (a ``look_at`` camera), so the same view
+# can be projected on a farm. The copy is the job as written (read back as ``yaml.safe_load``
+# reads it, so its comments are not kept) with the cameras appended and every path rewritten
+# relative to where the copy lies, so that it names the same scene, files and output folder.
+
+RESERVED_NAMES = ("primal", "buffer", "objective")
+
+
+def camera_entry(camera: CameraSpec) -> dict[str, Any]:
+    """The mapping a job's ``inspection_cameras`` list takes for a ``look_at`` camera."""
+    assert camera.look_at is not None and camera.resolution is not None
+    look = camera.look_at
+    return {
+        "name": camera.name,
+        "look_at": {
+            "origin": [_round(v) for v in look.origin],
+            "target": [_round(v) for v in look.target],
+            "up": [_round(v) for v in look.up],
+        },
+        "fov": _round(camera.fov),
+        "resolution": list(camera.resolution),
+        "vis_spp": camera.vis_spp,
+    }
+
+
+def camera_yaml(camera: CameraSpec) -> str:
+    """The camera as one YAML list item, ready to paste under ``inspection_cameras:``."""
+    return yaml.safe_dump([camera_entry(camera)], sort_keys=False, default_flow_style=None)
+
+
+def check_camera_name(name: str, taken: Sequence[str]) -> str | None:
+    """Why ``name`` cannot name a new inspection camera, or None when it can."""
+    if not re.fullmatch(NAME_PATTERN, name):
+        return f"camera name {name!r} must be a letter then up to 31 letters, digits or _"
+    if name in RESERVED_NAMES:
+        return f"camera name {name!r} is reserved"
+    if name in taken:
+        return f"the job already has an inspection camera named {name!r}"
+    return None
+
+
+def job_copy_text(
+    job: JobSpec, base: Path, cameras: Sequence[CameraSpec], copy: Path, buffer: Path
+) -> str:
+    """The job file ``base`` (the job itself, or an earlier copy of it) with ``cameras``
+    appended, its paths rewritten for a file at ``copy``; ``buffer`` is named in its header."""
+    data = yaml.safe_load(base.read_text())
+    folder = copy.parent
+    data["scene"] = _relative(job.scene, folder)
+    data["output"] = _relative(job.output, folder)
+    for raw, objective in zip(data.get("objectives") or [], job.objectives, strict=False):
+        for field in ("mask", "target", "path"):
+            value = getattr(objective, field)
+            if isinstance(raw, dict) and value is not None:
+                raw[field] = _relative(value, folder)
+    listed = data.get("inspection_cameras") or []
+    data["inspection_cameras"] = [*listed, *(camera_entry(c) for c in cameras)]
+    default = os.path.abspath(buffer) == os.path.abspath(job.output / "buffer.npz")
+    option = "" if default else f" --buffer {os.path.abspath(buffer)}"
+    head = (
+        f"# {job.path.name} with cameras saved by 'sensaov view' (comments of the original are "
+        "not kept;\n# paths are relative to this file). Project them with:\n"
+        f"#   sensaov project {copy.name}{option}\n"
+    )
+    return head + yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+
+
+def camera_names(path: Path) -> tuple[str, ...]:
+    """The names of the inspection cameras a job file lists (read as written)."""
+    data = yaml.safe_load(path.read_text()) or {}
+    listed = data.get("inspection_cameras") or []
+    return tuple(str(c.get("name")) for c in listed if isinstance(c, dict))
+
+
+def _relative(path: Path, folder: Path) -> str:
+    return os.path.relpath(os.path.abspath(path), os.path.abspath(folder))
+
+
+def _round(value: float) -> float:
+    """Six significant digits: a camera moved by a mouse needs no more, and reads better."""
+    return float(f"{value:.6g}")

@@ -1,27 +1,98 @@
-"""``Annotated`` markers that say how a job file writes a field, without importing pydantic.
+"""How a job file writes a field: ``Annotated`` markers, and the pydantic schemas they build.
 
-The dataclasses of :mod:`.job` are the one definition of every field; these markers add
+The dataclasses of :mod:`.spec` are the one definition of every field; these markers add
 what a job file needs besides the type: checks, descriptions, which shapes of a class take
 the field. pydantic ignores metadata it does not know, so a marker is inert until pydantic
 asks it (``__get_pydantic_core_schema__``, ``__get_pydantic_json_schema__``): pydantic is
-loaded by then, and anything longer than a line is done in :mod:`.shapes`.
-
+loaded by then, and imported here only inside those hooks, so :mod:`.spec` loads no pydantic.
 Each marker is a plain class, hashable by identity, because typing hashes an ``Annotated``
 that stands in ``X | None``. ``annotated_types`` constraints (``Ge``, ``MinLen``) sit beside
-these; pydantic reads those itself (but see :class:`MinItems`). The markers that need no help
-from :mod:`.shapes` (:class:`Doc`, :class:`Given`, :class:`In`, :class:`Setting`) live in
-:mod:`.plain_markers`, which :mod:`.shapes` reads without importing this module back.
+these; pydantic reads those itself (but see :class:`MinItems`).
+
+How the schemas read a job file: a section (render, parameters, look_at, the job) is one
+mapping whose keys are its fields, bar those the loader gives. A class written in several
+shapes is a tagged union of such mappings, each taking the fields marked ``In`` that shape and
+the fields marked nowhere: objectives by ``type``, channels by ``kind``, inspection cameras by
+the key that picks their kind, and ``objective_camera`` as a sensor id, a mapping or null.
+Every mapping refuses an unknown key before it looks at any value, and its values become the
+dataclass through the class's own ``__init__``, so ``__post_init__`` checks hold for a job
+file too.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import operator
+import os
+import types
 from collections.abc import Callable
+from dataclasses import MISSING, dataclass, field
+from functools import cache, reduce
 from pathlib import Path
-from typing import Any
+from typing import (
+    TYPE_CHECKING,
+    Annotated,
+    Any,
+    Literal,
+    Union,
+    get_args,
+    get_origin,
+    get_type_hints,
+)
 
-from sensaov_cli.job.plain_markers import Doc, Given, In, Setting
+from annotated_types import MinLen
 
-__all__ = ["Doc", "Given", "In", "Setting"]  # re-exported: every marker is taken from here
+from sensaov_cli.job.problems import Problem, describe, did_you_mean
+
+if TYPE_CHECKING:  # pydantic is imported where it is called: spec.py loads none of it
+    from pydantic import GetCoreSchemaHandler
+    from pydantic.json_schema import JsonSchemaValue
+    from pydantic_core import CoreSchema, core_schema
+
+# The error type of a value that picks no member of a union; its context says why.
+UNION = "sensaov_union"
+
+
+class Doc:
+    """A field's description in the JSON Schema."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+    def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> JsonSchemaValue:
+        return {**handler(schema), "description": self.text}
+
+
+class Given:
+    """Not a key of the job file: the loader gives the value, in its context as ``key``."""
+
+    def __init__(self, key: str) -> None:
+        self.key = key
+
+
+class In:
+    """The field is a key of these shapes of its class only (objective types, camera kinds).
+
+    There it may be ``required``, or have a ``default`` and a ``doc`` of its own.
+    """
+
+    def __init__(
+        self, *shapes: str, required: bool = False, default: Any = MISSING, doc: str | None = None
+    ) -> None:
+        self.shapes, self.required, self.default, self.doc = shapes, required, default, doc
+
+
+class Setting:
+    """Keys of pydantic's core schema of a scalar: ``strict``, ``pattern``, ``allow_inf_nan``."""
+
+    def __init__(self, **settings: Any) -> None:
+        self.settings = settings
+
+    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
+        return {**handler(source), **self.settings}
+
+
+_TEXT = Annotated[str, Setting(strict=True), MinLen(1)]  # a tag or a sensor id: fields.Text
 
 
 class Before:
@@ -51,10 +122,10 @@ class After:
 class Json:
     """What the JSON Schema must add to the type's own (or, with ``replace``, say instead)."""
 
-    def __init__(self, schema: dict[str, Any], *, replace: bool = False) -> None:
+    def __init__(self, schema: JsonSchemaValue, *, replace: bool = False) -> None:
         self.schema, self.replace = schema, replace
 
-    def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> dict[str, Any]:
+    def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> JsonSchemaValue:
         return dict(self.schema) if self.replace else {**handler(schema), **self.schema}
 
 
@@ -79,35 +150,48 @@ class MinItems:
 
         return core_schema.no_info_after_validator_function(check, handler(source))
 
-    def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> dict[str, Any]:
+    def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> JsonSchemaValue:
         return {**handler(schema), "minItems": self.n}
 
 
 class JobPath:
     """A path written relative to the job file, read as an absolute path that ``check`` accepts.
 
-    ``check(path, job_dir)`` raises :class:`~.fields.Problem`. With ``null_means``, leaving
+    ``check(path, job_dir)`` raises :class:`~.problems.Problem`. With ``null_means``, leaving
     the key out or writing null stands for that path ("{stem}": the job file's name without
-    its suffix), unchecked.
+    its suffix), unchecked. The job file is ``context["job"]`` of the validation.
     """
 
     def __init__(self, check: Callable[[Path, Path], None], null_means: str | None = None):
         self.check, self.null_means = check, null_means
 
-    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
-        from sensaov_cli.job import shapes
+    def __get_pydantic_core_schema__(self, source: Any, handler: GetCoreSchemaHandler) -> Any:
+        from pydantic_core import core_schema
 
-        return shapes.job_path_schema(self, handler)
+        def read(value: str | None, info: core_schema.ValidationInfo) -> Path:
+            job: Path = (info.context or {})["job"]
+            if value is None:
+                assert self.null_means is not None
+                return _resolve(job.parent, self.null_means.format(stem=job.stem))
+            path = _resolve(job.parent, value)
+            self.check(path, job.parent)
+            return path
+
+        text = handler.generate_schema(_TEXT)
+        if self.null_means is None:
+            return core_schema.with_info_after_validator_function(read, text)
+        nullable = core_schema.with_info_after_validator_function(
+            read, core_schema.nullable_schema(text)
+        )
+        return core_schema.with_default_schema(nullable, default=None, validate_default=True)
 
 
 class Section:
     """Base of a class that a job file writes as one mapping of its fields."""
 
     @classmethod
-    def __get_pydantic_core_schema__(cls, source: Any, handler: Any) -> Any:
-        from sensaov_cli.job import shapes
-
-        return shapes.section_schema(cls, handler)
+    def __get_pydantic_core_schema__(cls, source: Any, handler: GetCoreSchemaHandler) -> Any:
+        return _mapping(_Form(cls, _keys(cls, None), cls.__name__, section=True), handler)
 
 
 class Tagged:
@@ -119,10 +203,25 @@ class Tagged:
     def __init__(self, field: str, expects: str, noun: str) -> None:
         self.field, self.expects, self.noun = field, expects, noun
 
-    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
-        from sensaov_cli.job import shapes
+    def __get_pydantic_core_schema__(self, cls: type, handler: GetCoreSchemaHandler) -> Any:
+        tag = self.field
+        values: tuple[str, ...] = get_args(get_type_hints(cls)[tag])
 
-        return shapes.tagged_schema(source, self, handler)
+        def tagged(key: _Key, value: str) -> _Key:
+            # Within its shape the tag has the one value.
+            return _Key(tag, Literal[value], MISSING) if key.name == tag else key
+
+        shapes = {value: [tagged(key, value) for key in _keys(cls, value)] for value in values}
+        members = {}
+        for value, keys in _ordered(shapes, lambda value: tag).items():
+            form = _Form(cls, keys, _camel(value) + self.noun, owner=f" for {tag} {value}")
+            members[f"{tag}: {value}"] = _mapping(form, handler)
+
+        def pick(value: Any) -> str | None:
+            chosen = value.get(tag) if isinstance(value, dict) else None
+            return f"{tag}: {chosen}" if isinstance(chosen, str) and chosen in values else None
+
+        return _union(members, pick, self.expects, field=tag, choices=values)
 
 
 class TaggedByKey:
@@ -146,10 +245,22 @@ class TaggedByKey:
         self.keys, self.owners, self.noun = keys, owners, noun
         self.expects, self.missing, self.clash = expects, missing, clash
 
-    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
-        from sensaov_cli.job import shapes
+    def __get_pydantic_core_schema__(self, cls: type, handler: GetCoreSchemaHandler) -> Any:
+        shapes = _ordered({key: _keys(cls, key) for key in self.keys}, lambda key: key)
 
-        return shapes.tagged_by_key_schema(source, self, handler)
+        def clash(key: Any) -> Problem | None:
+            return Problem(self.clash.format(key), at=(key,)) if key in self.keys else None
+
+        members = {}
+        for (key, keys), owner in zip(shapes.items(), self.owners, strict=True):
+            form = _Form(cls, keys, _camel(key) + self.noun, owner=owner, unknown=clash)
+            members[f"with {key}"] = _mapping(form, handler)
+
+        def pick(value: Any) -> str | None:
+            present = [key for key in self.keys if isinstance(value, dict) and key in value]
+            return f"with {present[0]}" if present else None
+
+        return _union(members, pick, self.expects, message=self.missing)
 
 
 class SensorOrPlaced:
@@ -161,7 +272,212 @@ class SensorOrPlaced:
     def __init__(self, placed: str, name: str) -> None:
         self.placed, self.name = placed, name
 
-    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
-        from sensaov_cli.job import shapes
+    def __get_pydantic_core_schema__(self, cls: type, handler: GetCoreSchemaHandler) -> Any:
+        from pydantic_core import core_schema
 
-        return shapes.sensor_or_placed_schema(source, self, handler)
+        name = self.name
+        placed = _Form(cls, _keys(cls, self.placed), "ObjectiveLookAt", fixed={"name": name})
+        members = {
+            "sensor id": core_schema.no_info_after_validator_function(
+                lambda sensor: cls(name=name, sensor=sensor), handler.generate_schema(_TEXT)
+            ),
+            "look_at mapping": _mapping(placed, handler),
+            "first sensor": core_schema.no_info_after_validator_function(
+                lambda _: cls(name=name), core_schema.none_schema()
+            ),
+        }
+
+        def pick(value: Any) -> str | None:
+            if value is None:
+                return "first sensor"
+            if isinstance(value, str):
+                return "sensor id"
+            return "look_at mapping" if isinstance(value, dict) else None
+
+        union = _union(members, pick, "a sensor id or a mapping with look_at")
+        return core_schema.with_default_schema(union, default=None, validate_default=True)
+
+
+# --- the schemas' parts --------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Key:
+    name: str
+    hint: Any  # the field's type in this shape
+    default: Any  # MISSING: the key is required
+
+
+@dataclass(frozen=True)
+class _Form:
+    """One mapping a class is written as."""
+
+    cls: type
+    keys: list[_Key]
+    ref: str  # the name of its definition in the JSON Schema
+    owner: str = ""  # names the shape in an unknown-key error: " for type python"
+    fixed: dict[str, str] = field(default_factory=dict)  # fields the shape does not write
+    unknown: Callable[[Any], Problem | None] = lambda key: None  # a better word for a key
+    section: bool = False  # the whole class: its schema takes the class's name and docstring
+
+
+def _resolve(base: Path, relative: str) -> Path:
+    # abspath, not resolve(): keep the user's symlinks, so paths read as they were written.
+    return Path(os.path.abspath(base / relative))
+
+
+@dataclass(frozen=True)
+class _Declared:
+    """A field of a dataclass, its type and the markers of its ``Annotated`` type."""
+
+    field: dataclasses.Field[Any]
+    hint: Any
+    metadata: tuple[Any, ...]
+
+
+@cache
+def _declared(cls: type) -> tuple[_Declared, ...]:
+    # Once per class: each evaluation of the (string) annotations makes new markers, and the
+    # shapes of a class compare their keys.
+    hints = get_type_hints(cls, include_extras=True)
+    return tuple(
+        _Declared(each, hints[each.name], getattr(hints[each.name], "__metadata__", ()))
+        for each in dataclasses.fields(cls)
+    )
+
+
+def _keys(cls: type, shape: str | None) -> list[_Key]:
+    """The keys ``cls`` takes in ``shape`` (None: a section), in the order of its fields."""
+    keys = []
+    for each in _declared(cls):
+        places = [item for item in each.metadata if isinstance(item, In)]
+        here = next((place for place in places if shape in place.shapes), None)
+        if any(isinstance(item, Given) for item in each.metadata) or (places and here is None):
+            continue
+        keys.append(_key(each.field, each.hint, here))
+    return keys
+
+
+def _key(field: dataclasses.Field[Any], hint: Any, here: In | None) -> _Key:
+    default = field.default
+    if default is MISSING and field.default_factory is not MISSING:
+        default = field.default_factory()  # a mutable default (scene_args: {})
+    if here is not None:
+        if here.required:
+            default = MISSING
+        elif here.default is not MISSING:
+            default = here.default
+        if here.doc is not None:
+            hint = Annotated[hint, Doc(here.doc)]
+    # null is accepted only where it is the default: written null means left out.
+    return _Key(field.name, hint if default is None else _not_null(hint), default)
+
+
+def _ordered(
+    shapes: dict[str, list[_Key]], picked_by: Callable[[str], str]
+) -> dict[str, list[_Key]]:
+    """Each shape's keys as a base class and its subclasses would list them.
+
+    First the keys alike in every shape, then the key that picks the shape, then its own.
+    """
+    first, *others = shapes.values()
+    shared = {key.name for key in first if all(key in keys for keys in others)}
+    return {
+        shape: sorted(keys, key=lambda key: (key.name not in shared, key.name != picked_by(shape)))
+        for shape, keys in shapes.items()
+    }
+
+
+def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
+    """The keys of ``form`` as a mapping, unknown keys refused first, read into its class."""
+    from pydantic_core import core_schema
+
+    fields = {key.name: _field(key, handler) for key in form.keys}
+    names = tuple(fields)
+    given = _given(form.cls)
+
+    def build(values: dict[str, Any], info: core_schema.ValidationInfo) -> Any:
+        context = info.context or {}
+        loaded = {name: context[key] for name, key in given.items()}
+        return form.cls(**values, **form.fixed, **loaded)
+
+    def known(data: Any) -> Any:
+        for key in data if isinstance(data, dict) else ():
+            if key not in names:
+                raise form.unknown(key) or Problem(
+                    f"unknown key {describe(key)}{form.owner}",
+                    at=(key,),
+                    hint=did_you_mean(key, names, "keys"),
+                )
+        return data
+
+    # A section's class gives its definition a title and description; load.py titles the rest.
+    cls = form.cls if form.section else None
+    typed = core_schema.typed_dict_schema(fields, cls=cls, extra_behavior="forbid")
+    read = core_schema.with_info_after_validator_function(build, typed)
+    return core_schema.no_info_before_validator_function(known, read, ref=form.ref)
+
+
+def _given(cls: type) -> dict[str, str]:
+    """The fields of ``cls`` the loader gives, and their keys in its context."""
+    return {
+        each.field.name: item.key
+        for each in _declared(cls)
+        for item in each.metadata
+        if isinstance(item, Given)
+    }
+
+
+def _field(key: _Key, handler: GetCoreSchemaHandler) -> core_schema.TypedDictField:
+    from pydantic_core import core_schema
+
+    schema = handler.generate_schema(key.hint)
+    # A marker may already have given the key its default (a path that null stands for).
+    if key.default is not MISSING and schema["type"] != "default":
+        schema = core_schema.with_default_schema(schema, default=key.default)
+    return core_schema.typed_dict_field(schema, required=schema["type"] != "default")
+
+
+def _union(
+    members: dict[str, CoreSchema],
+    pick: Callable[[Any], str | None],
+    expects: str,
+    *,
+    field: str = "",
+    choices: tuple[str, ...] = (),
+    message: str = "",
+) -> CoreSchema:
+    """The member ``pick`` names; a value that picks none is a UNION error, told by context.
+
+    Not a mapping (``expects``), ``field`` missing or not one of ``choices``, or ``message``.
+    The members' names stand in error locations, so each has a space: no key is named so.
+    """
+    from pydantic_core import core_schema
+
+    # pydantic takes only scalars in the context, hence the joined choices.
+    context: dict[str, int | str | float] = {
+        "field": field,
+        "choices": ",".join(choices),
+        "expects": expects,
+        "message": message,
+    }
+    return core_schema.tagged_union_schema(
+        members,
+        pick,
+        custom_error_type=UNION,
+        custom_error_message=expects,
+        custom_error_context=context,
+    )
+
+
+def _not_null(hint: Any) -> Any:
+    """``hint`` without None among its members."""
+    if get_origin(hint) is Annotated:
+        return Annotated[(_not_null(hint.__origin__), *hint.__metadata__)]
+    if get_origin(hint) in (Union, types.UnionType):
+        return reduce(operator.or_, [arg for arg in get_args(hint) if arg is not type(None)])
+    return hint
+
+
+def _camel(snake: str) -> str:
+    return "".join(word.capitalize() for word in snake.split("_"))

@@ -1,7 +1,8 @@
 """What a job file gets wrong, in our words: :class:`Problem` and the helpers its messages use.
 
-Plain Python: the field types (:mod:`.fields`), the schemas (:mod:`.shapes`) and the loader
-(:mod:`.load`) all raise or word problems with these, and none of them is imported back.
+Plain Python: the field types (:mod:`.fields`), the markers and their schemas
+(:mod:`.markers`) and the loader (:mod:`.load`) all raise or word problems with these, and
+none of them is imported back.
 """
 
 from __future__ import annotations

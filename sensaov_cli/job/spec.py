@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,22 +25,28 @@ from typing import Annotated, Any, Literal
 
 from annotated_types import Ge, Gt, Le, Lt
 
-from sensaov_cli.job.cameras import PLACED, CameraSpec, InspectionCamera
 from sensaov_cli.job.fields import (
     STRICT,
+    Fov,
     Function,
     Globs,
     JobDir,
     JobFile,
+    MaxDepth,
     Name,
     Number,
     OutputDir,
     Region,
+    Resolution,
     SceneArgs,
     Text,
+    TrueFlag,
+    Vector,
+    VisSpp,
     unique_names,
 )
 from sensaov_cli.job.markers import (
+    After,
     Doc,
     Given,
     In,
@@ -47,9 +54,9 @@ from sensaov_cli.job.markers import (
     Section,
     SensorOrPlaced,
     Tagged,
+    TaggedByKey,
 )
 from sensaov_cli.job.problems import Problem
-from sensaov_cli.job.render_settings import RenderSpec, RepairSpec
 from sensaov_cli.vocabulary import (
     Aggregate,
     ChannelKind,
@@ -65,6 +72,171 @@ from sensaov_cli.vocabulary import (
     Variant,
     Weight,
 )
+
+# --- cameras: a job's objective camera and its inspection cameras (paper Fig. 6) ---
+
+# The shapes of a camera: an inspection camera's, named by the key that picks its kind, and
+# the mapping that places the objective camera.
+LOOK_AT, SENSOR, OBJECTIVE, PLACED = "look_at", "sensor", "objective", "placed"
+INSPECTION = (LOOK_AT, SENSOR, OBJECTIVE)
+
+
+@dataclass(frozen=True)
+class LookAt(Section):
+    """A camera placed at origin, looking at target, with up pointing up."""
+
+    origin: Vector
+    target: Vector
+    up: Vector
+
+    def __post_init__(self) -> None:
+        view = [t - o for t, o in zip(self.target, self.origin, strict=True)]
+        if not any(view):
+            raise Problem("target must differ from origin", at=("target",))
+        # The camera frame is built from up x (target - origin); parallel vectors give NaNs.
+        ux, uy, uz = self.up
+        vx, vy, vz = view
+        cross = (uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx)
+        if math.hypot(*cross) <= 1e-9 * math.hypot(*view) * max(math.hypot(*self.up), 1e-300):
+            raise Problem("up must not be zero or parallel to target - origin", at=("up",))
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """A camera: a scene sensor, a look_at camera, or (inspection only) the objective camera.
+
+    The objective camera is named "objective"; with neither sensor nor look_at it is the
+    scene's first sensor.
+    """
+
+    name: Annotated[Name, In(*INSPECTION), Doc("Unique among inspection cameras; the EXR name.")]
+    sensor: Annotated[
+        Text | None, In(SENSOR, required=True), Doc("Id of a sensor in the scene.")
+    ] = None
+    look_at: Annotated[LookAt | None, In(LOOK_AT, PLACED, required=True)] = None
+    fov: Annotated[Fov, In(LOOK_AT, PLACED)] = 40.0
+    resolution: Annotated[
+        Resolution | None,
+        In(LOOK_AT, default=(256, 256), doc="[width, height]."),
+        In(SENSOR, doc="null = the sensor's film."),
+        In(OBJECTIVE, doc="null = the objective camera's resolution."),
+        In(PLACED, doc="[width, height]; null = 256 x 256. render.resolution overrides it."),
+    ] = None
+    objective: Annotated[TrueFlag, In(OBJECTIVE, required=True), Doc("The objective camera.")] = (
+        False
+    )
+    vis_spp: Annotated[VisSpp, In(*INSPECTION)] = 16
+
+
+def _inspection_name(camera: CameraSpec) -> CameraSpec:
+    if camera.name in ("primal", "buffer"):  # <output>/<camera>.exr must not clobber run's files
+        raise Problem(
+            f"the name {camera.name!r} is reserved: 'sensaov run' writes {camera.name} files",
+            at=("name",),
+            hint="choose another name",
+        )
+    if camera.name == "objective" and not camera.objective:
+        raise Problem(
+            "the name 'objective' is reserved for the objective camera",
+            at=("name",),
+            hint="use 'objective: true' to mean that camera, or choose another name",
+        )
+    return camera
+
+
+InspectionCamera = Annotated[
+    CameraSpec,
+    TaggedByKey(
+        INSPECTION,
+        owners=(" for a look_at camera", " for a sensor camera", " for the objective camera"),
+        expects="a mapping with name and one of look_at, sensor or objective",
+        missing="an inspection camera needs one of look_at, sensor or objective: true",
+        clash="an inspection camera takes only one of look_at, sensor or objective; "
+        "this one also has {}",
+        noun="Inspection",
+    ),
+    After(_inspection_name),
+]
+
+
+# --- how run renders (render:) and repairs what Mitsuba gets wrong (repair:) ---
+
+
+@dataclass(frozen=True)
+class RenderSpec(Section):
+    """How the objective camera's image is rendered and differentiated."""
+
+    spp: Annotated[int, STRICT, Ge(1), Lt(2**32), Doc("Samples per pixel (32-bit).")] = 64
+    max_depth: Annotated[
+        MaxDepth | None,
+        Doc(
+            "Longest path; -1 = unbounded; null = the scene's own (its integrator's max_depth, "
+            "or that integrator's default)."
+        ),
+    ] = None
+    seed: Annotated[int, STRICT, Ge(0), Lt(2**31), Doc("Sampler seed.")] = 0
+    resolution: Annotated[
+        Resolution | None,
+        Doc("[width, height] of the objective render; null = its film's size."),
+    ] = None
+    deterministic: Annotated[
+        bool,
+        STRICT,
+        Doc(
+            "Byte-identical buffers for the same job and seed: on the CPU backend the "
+            "backward passes then run on one thread (parallel atomic adds sum in varying "
+            "order). Off by default: the differences are far below Monte Carlo noise."
+        ),
+    ] = False
+    batches: Annotated[
+        int,
+        STRICT,
+        Ge(1),
+        Le(1024),
+        Doc(
+            "Independent batches of spp/batches samples, each with its own primal and backward "
+            "passes; with 2 or more the buffer stores standard errors (docs/farm.md)."
+        ),
+    ] = 1
+
+    def __post_init__(self) -> None:
+        if self.batches > self.spp:
+            raise Problem(
+                f"batches ({self.batches}) cannot exceed spp ({self.spp})", at=("batches",)
+            )
+
+
+@dataclass(frozen=True)
+class RepairSpec(Section):
+    """Gradients Mitsuba is known to get wrong, computed again by finite differences."""
+
+    budget: Annotated[
+        float,
+        STRICT,
+        Ge(0),
+        Le(1000),
+        Doc(
+            "Extra samples for repairs, a multiple of the run's own (its primal and backward "
+            "passes); 0 repairs nothing. What does not fit stays labelled and is named."
+        ),
+    ] = 1.0
+    seeds: Annotated[
+        int,
+        STRICT,
+        Ge(2),
+        Le(64),
+        Doc(
+            "Seeds per repair: both sides of a difference share a seed's samples, the "
+            "standard error comes from the seeds' spread."
+        ),
+    ] = 4
+    step: Annotated[
+        float | None,
+        STRICT,
+        Gt(0),
+        Le(0.5),
+        Doc("Relative step: ε = step · max(1, |θ|); null = the measured step of each kind."),
+    ] = None
 
 
 @dataclass(frozen=True)
@@ -147,7 +319,7 @@ class ObjectiveSpec:
                 at=("mask",) if both else (),
             )
 
-    def definition(self) -> dict[str, Any]:
+    def definition(self) -> dict[str, str | list[float]]:
         """The objective as written down in outputs: its non-None fields, JSON-able."""
         fields = _jsonable(dataclasses.asdict(self), None)
         return {key: value for key, value in fields.items() if value is not None}
@@ -300,8 +472,7 @@ class JobSpec(Section):
 
     def to_dict(self) -> dict[str, Any]:
         """The whole spec as a canonical JSON-able dict (absolute paths as strings)."""
-        result: dict[str, Any] = _jsonable(dataclasses.asdict(self), None)
-        return result
+        return dict(_jsonable(dataclasses.asdict(self), None))
 
     def job_hash(self) -> str:
         """sha256 of the spec without ``path``, its paths relative to the job's directory.

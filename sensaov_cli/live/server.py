@@ -27,10 +27,14 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from sensaov_cli.errors import RequestError, SensaovError, ServerError
-from sensaov_cli.job.cameras import CameraSpec
-from sensaov_cli.job.job_copy import camera_names, camera_yaml, check_camera_name, job_copy_text
-from sensaov_cli.job.load import load_job
-from sensaov_cli.job.spec import JobSpec
+from sensaov_cli.job.load import (
+    camera_names,
+    camera_yaml,
+    check_camera_name,
+    job_copy_text,
+    load_job,
+)
+from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.live.query import (
     CAMERA_KEYS,
     PICK_KEYS,

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli.job.cameras import LookAt
+from sensaov_cli.job.spec import LookAt
 from sensaov_cli.render.visibility import object_index, object_of_registry_id, visibility_pass
 from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass
 

@@ -27,7 +27,7 @@ import numpy as np
 from sensaov_cli import interrupts
 from sensaov_cli.render.adjoint import render_primal
 from sensaov_cli.render.loading import LoadedScene
-from sensaov_cli.scene.rewrite import DEFAULT_FILTER, DEFAULT_WRAP
+from sensaov_cli.scene.prepare import DEFAULT_FILTER, DEFAULT_WRAP
 from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass, histogram, ranked
 
 # A stop (SIGTERM, Ctrl-C) is acted on between kernel launches: the pass traces at most this

@@ -2,28 +2,38 @@
 
 sensaov rewrites the scene before Mitsuba sees it, so the rewrite has to see what Mitsuba
 would: the reference is ``src/core/parser.cpp`` (``parse_xml_node``, ``substitute_parameters``,
-``parse_file_impl``); the measured behaviour is in the issue-8 research notes. What is done:
+``parse_file_impl``), and what 3.9.1 was measured to do. What is done:
 
 - ``<include>`` is replaced by the included file's objects (a ``<scene>`` root) or by its root
   object (any other root, under the include's ``name``). The file is found next to the including
   file first, then in the folders of the files that include that one and the ``<path>``
   folders declared so far; cycles are refused (Mitsuba would only stop at its depth limit,
   which is kept: 15).
-- ``$name`` substitution runs on every attribute in document order (arguments.py).
+- ``$name`` substitution runs on every attribute in document order, as
+  ``substitute_parameters`` does: one table is shared by the main file and every file it
+  includes, job arguments first, ``<default>`` adds a name only if it is absent (so defaults
+  leak out of included files), plain substring replacement longest name first, ``\\$`` escapes
+  a dollar. A ``$`` left over is an error at its file and line, and so is a job argument the
+  scene never uses (Mitsuba refuses both).
 - ``<path>`` adds a search folder; ``<alias>`` is resolved into the ``<ref>``s that use it.
 - Plugin file names (meshes, bitmaps, envmaps) are resolved the way Mitsuba resolves them at
   instantiation: against the main file's folder and the main file's ``<path>`` folders, never
   an included file's folder. A ``<spectrum filename>`` is resolved when it is read, with the
   folders of the files that include its file (measured: not its own file's folder). Found
   names are made absolute, so a scene loaded from a string resolves them the same.
-- Files of a format version below 2.0 get Mitsuba's upgrade (upgrade.py), and what 3.9.1
-  lacks of 0.5/0.6 is upgraded or refused (legacy.py). Missing files, unknown elements and
-  plugins, unsupported old properties are gathered and reported together (changes.py).
+- Files of a format version below 2.0 get Mitsuba's upgrade (``transform_upgrade``), per
+  object by the version of the file it was read from, before the files are merged into one
+  text with a single version: property names camelCase -> snake_case,
+  ``diffuse.diffuse_reflectance`` -> ``reflectance``, ``uoffset``/``voffset``/``uscale``/
+  ``vscale`` -> a ``to_uv`` transform. What else 3.9.1 lacks of 0.5/0.6 is upgraded or
+  refused (legacy.py). Missing files, unknown elements and plugins, unsupported old
+  properties are gathered and reported together (``Refusals``, source.py).
 """
 
 from __future__ import annotations
 
 import os
+import re
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -31,18 +41,19 @@ from pathlib import Path
 
 from sensaov_cli.errors import SceneError
 from sensaov_cli.limits import regular_file
-from sensaov_cli.scene.arguments import Parameters, SceneArgument, shorten
-from sensaov_cli.scene.changes import Change, Refusals
 from sensaov_cli.scene.declared_sizes import check_declared_size
-from sensaov_cli.scene.legacy import refuse_unknown_plugins, srgb_element
+from sensaov_cli.scene.legacy import refuse_unknown_plugins, srgb_element, upgrade_object
 from sensaov_cli.scene.source import (
     OBJECT_TAGS,
+    Change,
+    Refusals,
     is_object,
+    new_element,
     read_xml,
+    source_file,
     user_attributes,
     where,
 )
-from sensaov_cli.scene.upgrade import upgrade_legacy
 
 MAX_INCLUDE_DEPTH = 15  # Mitsuba's ParserConfig.max_include_depth
 # Every tag Mitsuba 3.9.1's parser knows (interpret_tag); any other is "an unsupported XML
@@ -320,3 +331,156 @@ def _refuse_nesting(path: Path, chain: tuple[Path, ...], origin: str) -> None:
         raise SceneError(
             f"include depth exceeds Mitsuba's limit of {MAX_INCLUDE_DEPTH}", where=origin
         )
+
+
+# --- $name arguments: Mitsuba's SortedParameters ---------------------------------------
+
+_SHOWN = 60  # characters of a long value shown in a message
+_PARAMETER_NAME = re.compile(r"[A-Za-z0-9_]*")
+
+
+def shorten(value: str) -> str:
+    """A value as a message shows it: at most 60 characters and an ellipsis."""
+    return value if len(value) <= _SHOWN else value[:_SHOWN] + "…"
+
+
+@dataclass(frozen=True)
+class SceneArgument:
+    """A ``$name`` the scene was expanded with: its value and where it came from."""
+
+    value: str
+    origin: str  # "job", or the file:line of the scene's <default>
+
+
+@dataclass
+class _Parameter:
+    key: str  # "$name"
+    value: str
+    origin: str
+    used: bool  # Mitsuba's flag: a job argument never used is an error, a default never is
+    substituted: bool = False
+
+
+class Parameters:
+    """Mitsuba's SortedParameters: one table for the main file and all its includes."""
+
+    def __init__(self, scene_args: Mapping[str, object]) -> None:
+        # Mitsuba turns every keyword argument into text with Python's str().
+        given = [_Parameter(f"${k}", str(v), "job", False) for k, v in scene_args.items()]
+        self.table = sorted(given, key=lambda p: -len(p.key))
+
+    def default(self, name: str, value: str, origin: str) -> None:
+        if any(p.key == f"${name}" for p in self.table):
+            return  # job arguments and earlier defaults win
+        new = _Parameter(f"${name}", value, origin, True)
+        shorter = (i for i, p in enumerate(self.table) if len(new.key) > len(p.key))
+        self.table.insert(next(shorter, len(self.table)), new)  # longest names first
+
+    def substitute(self, value: str, origin: str) -> str:
+        for param in self.table:
+            pos = value.find(param.key)
+            while pos != -1:
+                if pos > 0 and value[pos - 1] == "\\":
+                    pos += len(param.key)
+                else:
+                    value = value[:pos] + param.value + value[pos + len(param.key) :]
+                    param.used = param.substituted = True
+                    pos += len(param.value)
+                pos = value.find(param.key, pos)
+        _refuse_unresolved(value, origin)
+        return value.replace("\\$", "$")
+
+    def arguments(self) -> dict[str, SceneArgument]:
+        """The arguments the scene text actually used, with their values."""
+        return {p.key[1:]: SceneArgument(p.value, p.origin) for p in self.table if p.substituted}
+
+    def refuse_unused(self, path: Path) -> None:
+        unused = [p.key[1:] for p in self.table if p.origin == "job" and not p.used]
+        if unused:
+            known = sorted(p.key[1:] for p in self.table if p.used)
+            raise SceneError(
+                f"scene argument {unused[0]!r} is not used by the scene",
+                where=str(path),
+                hint=f"arguments the scene has: {', '.join(known) or 'none'}",
+            )
+
+
+def _refuse_unresolved(value: str, origin: str) -> None:
+    for pos, char in enumerate(value):
+        if char != "$" or (pos > 0 and value[pos - 1] == "\\"):
+            continue
+        name = _PARAMETER_NAME.match(value, pos + 1)
+        name_text = shorten(name.group() if name else "")
+        if not name_text:
+            raise SceneError(
+                "a '$' that names no scene argument", where=origin, hint="write \\$ for a '$'"
+            )
+        raise SceneError(
+            f"scene argument ${name_text} has no value",
+            where=origin,
+            hint=f"set it in the job (scene_args: {{{name_text}: ...}}) "
+            f'or give the scene a <default name="{name_text}" value="..."/>',
+        )
+
+
+# --- Mitsuba's upgrade of files older than format 2.0 ---------------------------------
+
+_UV_NAMES = ("uoffset", "voffset", "uscale", "vscale")
+
+
+def upgrade_legacy(
+    root: ET.Element, legacy_files: set[str], changes: list[Change], refusals: Refusals
+) -> None:
+    """Upgrade every object read from one of ``legacy_files`` (paths as read): Mitsuba's own
+    renaming, then what 3.9.1 lacks of 0.5/0.6 (legacy.py), listed in ``changes``."""
+    if not legacy_files:
+        return
+    for element in list(root.iter()):
+        if is_object(element) and source_file(element) in legacy_files:
+            _upgrade(element)
+            upgrade_object(element, changes, refusals)
+
+
+def snake_case(name: str) -> str:
+    """Mitsuba's camel_to_underscore_case, character for character."""
+    out: list[str] = []
+    i = 0
+    while i < len(name):
+        if i > 0 and name[i - 1].islower() and name[i].isupper():
+            out.append("_" + name[i].lower())
+            while i + 1 < len(name) and name[i + 1].isupper():
+                i += 1
+                out.append(name[i].lower())
+        else:
+            out.append(name[i])
+        i += 1
+    return "".join(out)
+
+
+def _upgrade(element: ET.Element) -> None:
+    # A child's name is a property of this object, so this object's file version decides.
+    for child in element:
+        if child.get("name"):
+            child.set("name", snake_case(child.get("name", "")))
+    if element.tag == "bsdf" and element.get("type") == "diffuse":
+        for child in element:
+            if child.get("name") == "diffuse_reflectance":
+                child.set("name", "reflectance")
+    _uv_transform(element)
+
+
+def _uv_transform(element: ET.Element) -> None:
+    found = {c.get("name"): c for c in element if c.get("name") in _UV_NAMES}
+    if not found:
+        return
+    for child in found.values():
+        element.remove(child)
+    first = next(iter(found.values()))
+    values = {name: child.get("value", "") for name, child in found.items()}
+    transform = new_element("transform", {"name": "to_uv"}, like=first)
+    # Mitsuba builds scale(s) * translate(o): the translation applies first, as written here.
+    offset = {axis: values[n] for axis, n in (("x", "uoffset"), ("y", "voffset")) if n in values}
+    scale = {axis: values[n] for axis, n in (("x", "uscale"), ("y", "vscale")) if n in values}
+    transform.append(new_element("translate", offset, like=first))
+    transform.append(new_element("scale", scale, like=first))
+    element.append(transform)

@@ -28,9 +28,8 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
 from sensaov_cli.errors import SceneError
-from sensaov_cli.scene.changes import Change
 from sensaov_cli.scene.naming import child_value
-from sensaov_cli.scene.source import where
+from sensaov_cli.scene.source import Change, where
 
 # Integrators whose image is their nested integrator's.
 _WRAPPERS = frozenset({"moment", "stokes", "aov", "adaptive", "irrcache", "multichannel"})

@@ -1,6 +1,6 @@
 """Mitsuba 0.5/0.6 constructs that Mitsuba 3.9.1 does not read: upgraded, or refused, listed.
 
-Mitsuba 3 upgrades old files only by renaming camelCase properties (upgrade.py). Scenes
+Mitsuba 3 upgrades old files only by renaming camelCase properties (expand.py). Scenes
 exported for 0.5/0.6 (Bitterli's interiors, say) also use plugins and properties that 3.9.1
 refuses; each is upgraded here where Mitsuba 3 has a counterpart, with a :class:`Change` naming
 the file and line, or refused where it has none, gathered so that one pass reports them all.
@@ -14,8 +14,7 @@ import re
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 
-from sensaov_cli.scene.changes import MITSUBA, Change, Refusals
-from sensaov_cli.scene.source import new_element, where
+from sensaov_cli.scene.source import MITSUBA, Change, Refusals, new_element, where
 
 # (tag, 0.5 type) -> (3.9.1 type, why, alters the image)
 _RENAMED_PLUGINS = {

@@ -68,8 +68,7 @@ def name_objects(root: ET.Element) -> dict[str, ET.Element]:
         if element.get("id") or _take_emitter_id(element, referenced):
             continue
         base = f"{group}_{position[group]}" if group is not None else _base_name(element, ids)
-        element.set("id", _unique(_sanitize(base), taken))
-        taken.add(element.get("id", ""))
+        element.set("id", fresh_id(_sanitize(base), taken))
         named[element.get("id", "")] = element
     return named
 
@@ -132,11 +131,13 @@ def _sanitize(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_]", "_", name) or "object"
 
 
-def _unique(base: str, taken: set[str]) -> str:
+def fresh_id(base: str, taken: set[str]) -> str:
+    """``base``, or ``base_1``, ``base_2``, … : the first not in ``taken``, which now holds it."""
     name, counter = base, 0
     while name in taken:
         counter += 1
         name = f"{base}_{counter}"
+    taken.add(name)
     return name
 
 

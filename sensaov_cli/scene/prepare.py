@@ -6,7 +6,10 @@ then rewritten, and the text is handed to ``mitsuba.load_string``. Every command
 scene once, here, and passes the :class:`PreparedScene` down. What the rewrite changes, and
 why, is listed in ``PreparedScene.changes``:
 
-- the integrator and 8-bit bitmaps (rewrite.py);
+- the integrator (integrator.py); bitmap textures, nested ones too, load as float
+  (``format = variant``) so their texels receive gradients (8-bit textures load as
+  non-differentiable integers by default); envmaps load their images as float already and
+  take no ``format``;
 - unnamed objects get stable ids people recognise (naming.py); Mitsuba would key them by
   memory address;
 - a top-level texture used through ``<ref>`` is written where it is used: Mitsuba keys a
@@ -18,7 +21,8 @@ why, is listed in ``PreparedScene.changes``:
   object gets its own gradient (the copies' gradients sum to the shared one); a shapegroup
   used by several instances is copied for each instance first (sharing.py);
 - the objective camera is chosen, added (inline ``look_at``) or resized, and each inspection
-  camera gets a sensor of its own (sensors.py).
+  camera gets a sensor of its own (sensors.py);
+- every number of a value element is checked finite (as float32) at its file and line.
 
 Scene arguments and the job's render settings: ``scene_args`` fill the scene's ``$name``s as
 ``mitsuba.load_file(path, **scene_args)`` would, and the values used are recorded
@@ -33,7 +37,9 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import math
 import os
+import re
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -42,10 +48,8 @@ from pathlib import Path
 from sensaov_cli.errors import SceneError, SpecError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.scene import naming
-from sensaov_cli.scene.changes import Change
 from sensaov_cli.scene.expand import ExpandedScene, SceneArgument, expand_scene
 from sensaov_cli.scene.integrator import IntegratorPlan, plan_integrator
-from sensaov_cli.scene.rewrite import bitmap_options, bitmaps_as_float
 from sensaov_cli.scene.sensors import (
     add_inspection_sensor,
     check_film_size,
@@ -55,10 +59,10 @@ from sensaov_cli.scene.sensors import (
     set_film_size,
 )
 from sensaov_cli.scene.sharing import place_textures, split_shapegroups, split_shared_bsdfs
-from sensaov_cli.scene.source import locate_load_error, where, write_xml
-from sensaov_cli.scene.values import refuse_non_finite
+from sensaov_cli.scene.source import Change, locate_load_error, user_attributes, where, write_xml
 
 _CHUNK = 1 << 20  # files are hashed a MiB at a time, never read whole
+DEFAULT_FILTER, DEFAULT_WRAP = "bilinear", "repeat"  # a bitmap's lookup when the scene sets none
 
 
 SceneChange = Change  # what the scene stage hands on: what, why, where, alters_image
@@ -179,16 +183,15 @@ def _rewrite(
     checked: tuple[CameraSpec, ...],
 ) -> PreparedScene:
     root = expanded.root
-    refuse_non_finite(root)  # Mitsuba loads nan and inf; the run would blame the objective
+    _refuse_non_finite_numbers(root)
     own_sensors = sensor_ids(root)
     changes = list(expanded.changes)  # old formats upgraded, each with its line
     changes += [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
     integration = plan_integrator(root, max_depth)
     changes += integration.changes
-    converted = [t for t in root.iter("texture") if _loads_as_integers(t)]
-    bitmaps = bitmaps_as_float(root)
-    changes += [SceneChange(f"bitmap {_file_of(t)} loaded as float", _EIGHT_BIT, where(t))
-                for t in converted]  # fmt: skip
+    bitmaps, converted = _bitmaps_as_float(root)
+    changes += [SceneChange(f"bitmap {Path(f).name} loaded as float", _EIGHT_BIT, where(t))
+                for t, f in converted]  # fmt: skip
     groups = split_shapegroups(root) if shared == "split" else {}  # before the BSDFs
     materials = naming.materials(root)  # before splitting: copies keep the user's name
     textures = place_textures(root, copies=shared == "split")
@@ -206,7 +209,7 @@ def _rewrite(
         inspection_ids=inspection_ids,
         split=split,
         bitmap_files=bitmaps,
-        bitmap_options=bitmap_options(root),
+        bitmap_options=_bitmap_options(root),
         materials=materials,
         instances=naming.instances(root),
         shapegroups=naming.shapegroups(root),
@@ -224,14 +227,6 @@ def _rewrite(
 
 _UNNAMED = "Mitsuba keys an unnamed object by its memory address, new on every run"
 _EIGHT_BIT = "format = variant: an 8-bit texture would load as integers, which get no gradient"
-
-
-def _file_of(texture: ET.Element) -> str:
-    return Path(naming.child_value(texture, "filename") or "(no file)").name
-
-
-def _loads_as_integers(texture: ET.Element) -> bool:
-    return texture.get("type") == "bitmap" and naming.child_value(texture, "format") is None
 
 
 def _sharing_changes(
@@ -311,3 +306,91 @@ def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: P
             while chunk := stream.read(_CHUNK):
                 digest.update(chunk)
     return digest.hexdigest()
+
+
+# --- bitmaps: loaded as float; their lookup settings, which the plugin's binding hides ---
+
+
+def _bitmaps_as_float(
+    root: ET.Element,
+) -> tuple[tuple[str, ...], list[tuple[ET.Element, str]]]:
+    """Load every bitmap texture as float: every bitmap's file name, as written, and each
+    texture that had no ``format`` (it would have loaded as integers) with its file name."""
+    files, converted = [], []
+    for texture in root.iter("texture"):
+        if texture.get("type") != "bitmap":
+            continue
+        filename = naming.child_value(texture, "filename")
+        if filename is not None:
+            files.append(filename)
+        if naming.child_value(texture, "format") is None:
+            converted.append((texture, filename or "(no file)"))
+            ET.SubElement(texture, "string", {"name": "format", "value": "variant"})
+    return tuple(files), converted
+
+
+def _bitmap_options(root: ET.Element) -> dict[str, tuple[str, str, str]]:
+    """File base name -> (filter_type, wrap_mode, note) of every bitmap in the scene.
+
+    Matched to a loaded texture by its file's base name (the name the plugin prints); where one
+    file is used with two different settings the first is taken and a note says so.
+    """
+    options: dict[str, tuple[str, str, str]] = {}
+    for texture in root.iter("texture"):
+        filename = naming.child_value(texture, "filename")
+        if texture.get("type") != "bitmap" or filename is None:
+            continue
+        found = (
+            naming.child_value(texture, "filter_type") or DEFAULT_FILTER,
+            naming.child_value(texture, "wrap_mode") or DEFAULT_WRAP,
+        )
+        name = Path(filename).name
+        if name in options and options[name][:2] != found:
+            first = options[name]
+            note = f"{name} is used with several filter/wrap settings; the first is shown"
+            options[name] = (first[0], first[1], note)
+        else:
+            options.setdefault(name, (*found, ""))
+    return options
+
+
+# --- numbers Mitsuba would read as NaN or infinity ---
+
+_VALUE_TAGS = frozenset(
+    "float rgb spectrum point vector translate scale rotate matrix lookat".split()
+)
+_NOT_NUMBERS = frozenset({"name", "id", "type", "filename"})
+_SEPARATORS = re.compile(r"[\s,:]+")
+FLOAT32_MAX = 3.4028234663852886e38
+
+
+def _refuse_non_finite_numbers(root: ET.Element) -> None:
+    """Raise :class:`SceneError` at the first value element holding NaN or an infinity.
+
+    Mitsuba reads ``nan`` and ``inf`` (and ``1e39``, infinite as float32) wherever a number
+    goes, and loads the scene; the run would then fail at the first objective, blaming it.
+    """
+    for element in root.iter():
+        if element.tag not in _VALUE_TAGS:
+            continue
+        for attribute, text in user_attributes(element):
+            if attribute in _NOT_NUMBERS:
+                continue
+            bad = next((t for t in _SEPARATORS.split(text) if _not_finite(t)), None)
+            if bad is not None:
+                name = element.get("name")
+                what = f'<{element.tag} name="{name}">' if name else f"<{element.tag}>"
+                raise SceneError(
+                    f"{what} {attribute}={bad!r} is not a finite number",
+                    where=where(element),
+                    hint="Mitsuba would load it and render NaN: write a finite float32, "
+                    "at most 3.4e38",
+                )
+
+
+def _not_finite(token: str) -> bool:
+    try:
+        value = float(token)
+    except ValueError:
+        return False  # not a number at all: Mitsuba says so itself
+    return not math.isfinite(value) or abs(value) > FLOAT32_MAX

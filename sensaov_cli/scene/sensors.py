@@ -116,12 +116,14 @@ def check_film_size(root: ET.Element, sensor: ET.Element, what: str) -> None:
     """Refuse a film larger than a job's ``resolution`` may be (e.g. ``$res`` = 99999): it
     would only fail at render time, for want of memory."""
     film = _child_object(root, sensor, "film")
-    for name in _SIZE if film is not None else ():
-        assert film is not None
+    if film is None:
+        return
+    for name in _SIZE:
         prop = next((c for c in film if c.get("name") == name and c.tag == "integer"), None)
-        text = (prop.get("value") or "").strip() if prop is not None else ""
+        if prop is None:
+            continue
+        text = (prop.get("value") or "").strip()
         if text.lstrip("+-").isdigit() and len(text) < 12 and int(text) > MAX_FILM_SIZE:
-            assert prop is not None
             raise SceneError(
                 f"{what}: film {name} {int(text)} is larger than {MAX_FILM_SIZE}",
                 where=where(prop) or where(film),

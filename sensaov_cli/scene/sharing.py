@@ -8,6 +8,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from collections import Counter
 
+from sensaov_cli.scene.naming import fresh_id
 from sensaov_cli.scene.source import detached_copy
 
 
@@ -150,17 +151,8 @@ def _refd_from_outside(root: ET.Element, group: ET.Element) -> bool:
 
 def _group_copy(group: ET.Element, suffix: str, taken: set[str]) -> ET.Element:
     copy = detached_copy(group)
-    copy.set("id", _fresh(f"{group.get('id')}_{suffix}", taken))
+    copy.set("id", fresh_id(f"{group.get('id')}_{suffix}", taken))
     for member, copied in zip(group, copy, strict=True):
         if member.tag == "shape" and member.get("id"):
-            copied.set("id", _fresh(f"{member.get('id')}_{suffix}", taken))
+            copied.set("id", fresh_id(f"{member.get('id')}_{suffix}", taken))
     return copy
-
-
-def _fresh(base: str, taken: set[str]) -> str:
-    name, counter = base, 0
-    while name in taken:
-        counter += 1
-        name = f"{base}_{counter}"
-    taken.add(name)
-    return name

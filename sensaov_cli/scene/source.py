@@ -1,10 +1,16 @@
-"""Scene XML files with the file and line of every element, and the way back from Mitsuba.
+"""Scene XML files with the file and line of every element, what is told there, and the way
+back from Mitsuba.
 
 Elements read here carry their origin (``file:line``) in a private attribute that survives
 ``copy.deepcopy`` (split BSDFs, inlined textures, sensor copies keep pointing at the user's
 line) and is never written out. :func:`write_xml` puts every element on a line of its own and
 returns, per line of the text Mitsuba reads, the user's ``file:line`` it came from, so that a
 load error Mitsuba reports as ``string (line L, col C)`` can be told at the user's file.
+
+What preparing a scene changes in it (a :class:`Change`, listed by ``sensaov params`` and in a
+buffer's provenance) and what it finds Mitsuba would refuse (:class:`Refusals`, gathered over
+the whole scene: every missing file, every unsupported plugin or property, reported together
+so that a user fixes them in one round, before Mitsuba starts) are told at those lines too.
 """
 
 from __future__ import annotations
@@ -12,6 +18,9 @@ from __future__ import annotations
 import copy
 import re
 import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 from xml.parsers import expat
 
@@ -163,3 +172,45 @@ def locate_load_error(message: str, sources: tuple[str | None, ...]) -> tuple[st
     parts = [part.strip() for part in text.splitlines() if part.strip()]
     text = _LONG_QUOTED.sub(lambda m: f'"{m.group(1)[:60]}…"', " ".join(parts))
     return text or "Mitsuba could not load the scene", found
+
+
+MITSUBA = "Mitsuba 3.9.1"
+
+
+@dataclass(frozen=True)
+class Change:
+    """One thing sensaov changed in the scene before Mitsuba loads it, and why."""
+
+    what: str
+    why: str
+    where: str  # the user's file:line it concerns ("" where the scene says nothing)
+    alters_image: bool = False  # M is measured on another image than the scene renders
+
+
+@dataclass
+class Refusals:
+    """Problems found so far, each a :class:`SceneError` with its file and line."""
+
+    found: list[SceneError] = field(default_factory=list)
+
+    def add(self, message: str, where: str, hint: str | None = None) -> None:
+        self.found.append(SceneError(message, where=where, hint=hint))
+
+    @contextmanager
+    def gathered(self) -> Iterator[None]:
+        """Run a step that may refuse the scene; its refusal is kept, and the pass goes on."""
+        try:
+            yield
+        except SceneError as exc:
+            self.found.append(exc)
+
+    def raise_all(self, scene: str) -> None:
+        """One error naming every problem found (the one itself where there is one)."""
+        if len(self.found) == 1:
+            raise self.found[0]
+        if self.found:
+            listed = "; ".join(f"[{i}] {exc}" for i, exc in enumerate(self.found, 1))
+            raise SceneError(
+                f"{len(self.found)} problems {MITSUBA} would refuse the scene for: {listed}",
+                where=scene,
+            )

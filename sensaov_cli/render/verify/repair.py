@@ -45,7 +45,7 @@ from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import ParamRecord
 from sensaov_cli.buffer.repairs import Repair
 from sensaov_cli.buffer.statistics import with_batch_estimates
-from sensaov_cli.job.render_settings import RepairSpec
+from sensaov_cli.job.spec import RepairSpec
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, derived_seed, integrator_plan, render_primal
 from sensaov_cli.render.loading import LoadedScene, assign
