@@ -18,8 +18,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sensaov_cli.buffer.identity import buffer_id
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.model import SensitivityBuffer, buffer_id
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import RequestError, UnknownNameError
 from sensaov_cli.job.spec import JobSpec

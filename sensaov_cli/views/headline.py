@@ -20,7 +20,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
-from sensaov_cli.buffer.param_sums import hidden_by_zero
+from sensaov_cli.buffer.statistics import hidden_by_zero
 from sensaov_cli.errors import QueryError
 from sensaov_cli.vocabulary import UNTRUSTED_MODES, Trust
 
