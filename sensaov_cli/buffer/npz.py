@@ -30,7 +30,7 @@ import zlib
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import AbstractContextManager, contextmanager, nullcontext
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, BinaryIO
 
@@ -219,42 +219,9 @@ class _Malformed(ValueError):
         self.hint = hint
 
 
-class _Inconsistent(ValueError):
+def _inconsistent(message: str) -> _Malformed:
     """The archive, its storage and its members disagree; the message says how."""
-
-
-class Archive:
-    """The members of one archive, read from ``file`` (open for reading, kept open) on demand."""
-
-    def __init__(self, file: BinaryIO) -> None:
-        count = _entry_count(file)
-        if count > MAX_MEMBERS:
-            raise _Inconsistent(f"{count} members, more than the {MAX_MEMBERS} a buffer may hold")
-        self._zip = zipfile.ZipFile(file)
-        infos = self._zip.infolist()
-        twice = sorted(name for name, n in Counter(i.filename for i in infos).items() if n > 1)
-        if twice:  # np.load would silently read one of them
-            raise _Inconsistent(f"archive members appear twice: {twice[:_SHOWN_NAMES]}")
-        self.members = {i.filename.removesuffix(".npy"): i for i in infos}
-
-    def declared(self, name: str) -> tuple[tuple[int, ...], np.dtype]:
-        """A member's shape and dtype, from its .npy header only."""
-        with self._zip.open(self.members[name]) as stream:
-            return _npy_header(stream)[:2]
-
-    def array(self, name: str, check: Callable[[tuple[int, ...], np.dtype], None]) -> np.ndarray:
-        """A member's array (read-only), its declared shape and dtype ``check``ed before its
-        data is read; zipfile checks its CRC as the last byte is read."""
-        with self._zip.open(self.members[name]) as stream:
-            shape, dtype, fortran = _npy_header(stream)
-            check(shape, dtype)
-            if dtype.hasobject:
-                raise _Inconsistent(f"member {name!r} holds Python objects")
-            size = math.prod(shape) * dtype.itemsize
-            body = stream.read(size)
-            if len(body) != size or stream.read(1):
-                raise _Inconsistent(f"member {name!r} is not the size its header declares")
-        return np.frombuffer(body, dtype).reshape(shape, order="F" if fortran else "C")
+    return _Malformed(f"inconsistent buffer: {message}")
 
 
 def _entry_count(file: BinaryIO) -> int:
@@ -265,13 +232,13 @@ def _entry_count(file: BinaryIO) -> int:
     tail = file.read()
     found = tail.rfind(_END)
     if found < 0 or tail_start + found + 22 > size:
-        raise _Inconsistent("not a zip archive: no end of central directory")
+        raise _inconsistent("not a zip archive: no end of central directory")
     (count,) = struct.unpack_from("<H", tail, found + 10)
     locator = found - 20
     if count == 0xFFFF and locator >= 0 and tail[locator : locator + 4] == _END64_LOCATOR:
         (offset,) = struct.unpack_from("<Q", tail, locator + 8)
         if offset + 56 > size:
-            raise _Inconsistent("corrupt zip64 end record")
+            raise _inconsistent("corrupt zip64 end record")
         file.seek(offset)
         (count,) = struct.unpack_from("<Q", file.read(56), 32)
     return int(count)
@@ -305,10 +272,6 @@ def _reading(path: Path) -> Iterator[None]:
     """Every error of reading ``path`` as one BufferFormatError naming the file."""
     try:
         yield
-    except _Inconsistent as exc:
-        raise BufferFormatError(
-            f"inconsistent buffer: {exc}", where=str(path), hint=_REGENERATE
-        ) from exc
     except _Malformed as exc:
         raise BufferFormatError(str(exc), where=str(path), hint=exc.hint) from exc
     except SensaovError as exc:  # the arrays read, but construction found them inconsistent
@@ -368,28 +331,50 @@ class _LazyArrays(Mapping[str, np.ndarray]):
         return key in self._known
 
 
-class _Members:
-    """The archive's members as the header names them: each checked, read once, and noted."""
+class Archive:
+    """The members of one archive, read from ``file`` (open for reading, kept open) on demand,
+    each checked and read once; ``used`` notes those the header names."""
 
-    def __init__(self, archive: Archive) -> None:
-        self.archive = archive
+    def __init__(self, file: BinaryIO) -> None:
+        count = _entry_count(file)
+        if count > MAX_MEMBERS:
+            raise _inconsistent(f"{count} members, more than the {MAX_MEMBERS} a buffer may hold")
+        self._zip = zipfile.ZipFile(file)
+        infos = self._zip.infolist()
+        twice = sorted(name for name, n in Counter(i.filename for i in infos).items() if n > 1)
+        if twice:  # np.load would silently read one of them
+            raise _inconsistent(f"archive members appear twice: {twice[:_SHOWN_NAMES]}")
+        self.members = {i.filename.removesuffix(".npy"): i for i in infos}
         self.used: set[str] = set()
         self._read: dict[str, np.ndarray] = {}
         self._zeros: dict[tuple[int, ...], np.ndarray] = {}
 
+    def array(self, name: str, check: Callable[[tuple[int, ...], np.dtype], None]) -> np.ndarray:
+        """A member's array (read-only), its declared shape and dtype ``check``ed before its
+        data is read; zipfile checks its CRC as the last byte is read."""
+        with self._zip.open(self.members[name]) as stream:
+            shape, dtype, fortran = _npy_header(stream)
+            check(shape, dtype)
+            if dtype.hasobject:
+                raise _inconsistent(f"member {name!r} holds Python objects")
+            size = math.prod(shape) * dtype.itemsize
+            body = stream.read(size)
+            if len(body) != size or stream.read(1):
+                raise _inconsistent(f"member {name!r} is not the size its header declares")
+        return np.frombuffer(body, dtype).reshape(shape, order="F" if fortran else "C")
+
     def declared(self, name: str, shape: tuple[int, ...]) -> None:
         """The member exists and its .npy header declares ``shape`` (nothing else is read)."""
-        if name not in self.archive.members:
-            raise _Inconsistent(f"missing array {name!r}")
-        _check_shape(name, shape, self.archive.declared(name)[0])
-        self.used.add(name)
+        self._named(name)
+        with self._zip.open(self.members[name]) as stream:
+            _check_shape(name, shape, _npy_header(stream)[0])
 
     def float32(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
         """A float32 member of ``shape``, finite, native and C-contiguous (read once)."""
         if name not in self._read:
-            arr = self._member(name, shape, "f4")
+            arr = self._float(name, shape, "f4")
             if not np.isfinite(arr).all():
-                raise _Inconsistent(f"array {name!r} holds NaN or infinity")
+                raise _inconsistent(f"array {name!r} holds NaN or infinity")
             if not arr.flags.c_contiguous or not arr.dtype.isnative:
                 arr = np.ascontiguousarray(arr, np.float32)
                 arr.flags.writeable = False
@@ -397,19 +382,21 @@ class _Members:
         return self._read[name]
 
     def float64(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
-        return self._member(name, shape, "f8")
+        return self._float(name, shape, "f8")
 
-    def _member(self, name: str, shape: tuple[int, ...], kind: str) -> np.ndarray:
-        if name not in self.archive.members:
-            raise _Inconsistent(f"missing array {name!r}")
-
+    def _float(self, name: str, shape: tuple[int, ...], kind: str) -> np.ndarray:
         def check(declared: tuple[int, ...], dtype: np.dtype) -> None:
             _check_shape(name, shape, declared)
             if dtype.kind + str(dtype.itemsize) != kind:
-                raise _Inconsistent(f"array {name!r} is {dtype}, not {np.dtype(kind)}")
+                raise _inconsistent(f"array {name!r} is {dtype}, not {np.dtype(kind)}")
 
+        self._named(name)
+        return self.array(name, check)
+
+    def _named(self, name: str) -> None:
+        if name not in self.members:
+            raise _inconsistent(f"missing array {name!r}")
         self.used.add(name)
-        return self.archive.array(name, check)
 
     def zeros(self, shape: tuple[int, ...]) -> np.ndarray:
         """An all-zero gradient (not stored): one read-only array per shape."""
@@ -421,7 +408,7 @@ class _Members:
 
 def _check_shape(name: str, expected: tuple[int, ...], declared: tuple[int, ...]) -> None:
     if tuple(declared) != expected:
-        raise _Inconsistent(
+        raise _inconsistent(
             f"array {name!r} has shape {tuple(declared)}, its record declares {expected}"
         )
 
@@ -436,11 +423,10 @@ def _read_archive(archive: Archive, guard: Guard | None) -> SensitivityBuffer:
     names = [o.name for o in objectives]
     with_stderr = header["statistics"] is not None
     slots = _slots(header["storage"], params, len(names), with_stderr)
-    members = _Members(archive)
-    values, grads, stderr = _arrays(members, params, slots, names, with_stderr, guard)
-    sums = _read_sums(members, params, names)
-    statistics = _read_statistics(members, header["statistics"], len(params), names, stderr)
-    expected = {HEADER_MEMBER} | members.used
+    values, grads, stderr = _arrays(archive, params, slots, names, with_stderr, guard)
+    sums = _read_sums(archive, params, names)
+    statistics = _read_statistics(archive, header["statistics"], len(params), names, stderr)
+    expected = {HEADER_MEMBER} | archive.used
     if set(archive.members) != expected:
         found = set(archive.members)
         raise _Malformed(f"inconsistent buffer: {_differences('arrays', expected, found)}")
@@ -459,7 +445,7 @@ def _read_archive(archive: Archive, guard: Guard | None) -> SensitivityBuffer:
 
 
 def _arrays(
-    members: _Members,
+    members: Archive,
     params: tuple[ParamRecord, ...],
     slots: list[_Slot],
     names: list[str],
@@ -501,7 +487,7 @@ def _arrays(
                 arr = members.zeros(shape) if index is None else members.float32(
                     _texture(texture, index), shape)  # fmt: skip
             if kind == "stderrs" and not (arr >= 0).all():
-                raise _Inconsistent(f"bad standard error of {key!r}")
+                raise _inconsistent(f"bad standard error of {key!r}")
             return arr
 
         return resolve
@@ -524,17 +510,17 @@ def _slice(flat: np.ndarray, offset: int, shape: tuple[int, ...]) -> np.ndarray:
 
 
 def _read_sums(
-    members: _Members, params: tuple[ParamRecord, ...], names: list[str]
+    members: Archive, params: tuple[ParamRecord, ...], names: list[str]
 ) -> ParamSums | None:
     """The parameter sums the file stores (optional: all their members, or none)."""
-    if VALUE_MEANS_MEMBER not in members.archive.members:
+    if VALUE_MEANS_MEMBER not in members.members:
         return None
     count = len(params)
     tables = {n: members.float64(_packed("sums", j), (count, len(SUMS_COLUMNS)))
               for j, n in enumerate(names)}  # fmt: skip
     means = members.float64(VALUE_MEANS_MEMBER, (count,))
     if not all(np.isfinite(a).all() for a in [*tables.values(), means]):
-        raise _Inconsistent("parameter sums hold NaN or infinity")
+        raise _inconsistent("parameter sums hold NaN or infinity")
     return ParamSums(tuple(p.key for p in params), tables, means)
 
 
@@ -543,7 +529,7 @@ def _read_header(archive: Archive) -> dict[str, Any]:
         if dtype.kind != "U" or shape != ():
             raise _Malformed("not a sensaov buffer: 'header' is not a 0-d unicode array", _FOREIGN)
         if dtype.itemsize > _HEADER_BYTES:  # a header claiming gigabytes is not read
-            raise _Inconsistent(f"{HEADER_MEMBER!r} declares {dtype.itemsize} bytes")
+            raise _inconsistent(f"{HEADER_MEMBER!r} declares {dtype.itemsize} bytes")
 
     header = json.loads(str(archive.array(HEADER_MEMBER, check)[()]))
     if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
@@ -611,8 +597,6 @@ _OBJECTIVE_FIELDS: dict[str, _Check] = {
     "name": _NAME, "definition": (lambda v: isinstance(v, dict), "a JSON object"),
     "value": (_number, "a finite number"), "grad_seed": (_is_int, "an integer"),
 }  # fmt: skip
-assert tuple(_PARAM_FIELDS) == tuple(f.name for f in fields(ParamRecord))
-assert tuple(_OBJECTIVE_FIELDS) == tuple(f.name for f in fields(ObjectiveRecord))
 
 
 def _entry(entry: Any, checks: dict[str, _Check], index: int, where: str) -> Any:
@@ -650,38 +634,38 @@ def _slots(
 ) -> list[_Slot]:
     """The storage object, checked: the packed parameters tile ``values`` in buffer order."""
     if not isinstance(storage, dict) or set(storage) != {"packed", "params"}:
-        raise _Inconsistent("'storage' must have exactly 'packed' and 'params'")
+        raise _inconsistent("'storage' must have exactly 'packed' and 'params'")
     entries = storage["params"]
     if not isinstance(entries, list) or len(entries) != len(params):
-        raise _Inconsistent("'storage.params' must have one entry per parameter")
+        raise _inconsistent("'storage.params' must have one entry per parameter")
     slots, offset = [], 0
     for i, (p, entry) in enumerate(zip(params, entries, strict=True)):
         where = f"storage.params[{i}]"
         if not p.is_texture:
             if entry != {"offset": offset}:
-                raise _Inconsistent(f"{where} must be {{'offset': {offset}}}")
+                raise _inconsistent(f"{where} must be {{'offset': {offset}}}")
             slots.append(_Slot(offset))
             offset += math.prod(p.shape)
             continue
         names = {"value", "grads"} | ({"stderrs"} if with_stderr else set())
         if not isinstance(entry, dict) or set(entry) != names:
-            raise _Inconsistent(f"{where} must have exactly {sorted(names)}")
+            raise _inconsistent(f"{where} must have exactly {sorted(names)}")
         if not _index(entry["value"]):
-            raise _Inconsistent(f"{where}.value must be a member index")
+            raise _inconsistent(f"{where}.value must be a member index")
         for name in sorted(names - {"value"}):
             listed = entry[name]
             ok = isinstance(listed, list) and len(listed) == objectives
             if not ok or not all(i is None or _index(i) for i in listed):
-                raise _Inconsistent(f"{where}.{name} must hold an index or null per objective")
+                raise _inconsistent(f"{where}.{name} must hold an index or null per objective")
         slots.append(_Slot(None, entry["value"], tuple(entry["grads"]),
                            tuple(entry.get("stderrs", ()))))  # fmt: skip
     if storage["packed"] != offset or not _index(offset):
-        raise _Inconsistent(f"'storage.packed' must be {offset}, the packed components")
+        raise _inconsistent(f"'storage.packed' must be {offset}, the packed components")
     return slots
 
 
 def _read_statistics(
-    members: _Members, entry: Any, params: int, names: list[str], stderr: Any
+    members: Archive, entry: Any, params: int, names: list[str], stderr: Any
 ) -> Statistics | None:
     if entry is None:
         return None
@@ -713,7 +697,7 @@ _REPAIR_FIELDS = ("reason", "step", "spp", "seeds", "one_sided", "estimates", "r
                   "seconds")  # fmt: skip
 
 
-def _repairs(entry: dict[str, Any]) -> dict[str, Repair]:
+def _repairs(entry: Any) -> dict[str, Repair]:
     """The header's ``repairs`` (key -> record); anything malformed names the record."""
     return {str(key): _repair(e, f"repairs[{key!r}]") for key, e in entry.items()}
 

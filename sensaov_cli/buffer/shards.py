@@ -50,21 +50,20 @@ class ShardTask:
 class Shard:
     path: Path
     buffer: SensitivityBuffer
-    task: ShardTask | None  # None: made without --shard
+    task: ShardTask
 
     @property
     def index(self) -> tuple[int, int]:
-        assert self.task is not None  # _check_alike refuses a file that is not a shard
         return self.task.index, self.task.count
 
 
-def shard_task(path: Path, provenance: Mapping[str, Any]) -> ShardTask | None:
-    """What merge reads of a shard's provenance; None for a buffer made without --shard.
-    Refuses one whose provenance lacks it, or holds it in another form."""
+def shard_task(path: Path, provenance: Mapping[str, Any]) -> ShardTask:
+    """What merge reads of a shard's provenance; refuses a buffer made without --shard, or
+    one whose provenance lacks what merge reads, or holds it in another form."""
     task = _field(path, provenance, "task", dict)
     shard = task.get("shard")
     if shard is None:
-        return None  # not a shard at all: merge says so, in those words
+        raise MergeError("not a shard (made without --shard)", where=str(path))
     if not isinstance(shard, dict):
         raise _bad(path, "task.shard", shard, "a mapping {index, count}")
     count = _integer(path, shard, "count", "task.shard.count", 1, MAX_SHARDS)
@@ -113,7 +112,6 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
         raise MergeError("no shards given")
     _check_alike(shards)
     first = shards[0]
-    assert first.task is not None
     count = first.task.count
     job_objectives = list(first.task.objectives)
     by_index: dict[int, list[Shard]] = {}
@@ -132,7 +130,7 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
         merged_grads.append(shard_grads)
         merged_values.append(values)
         spp.append(spps)
-        seeds.append(_task(by_index[index][0]).seed)
+        seeds.append(by_index[index][0].task.seed)
     _check_spp_total(shards, sum(spp))
     keys = first.buffer.keys
     grads, objective_values, statistics = combine_batches(
@@ -155,11 +153,6 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
     )
 
 
-def _task(shard: Shard) -> ShardTask:
-    assert shard.task is not None  # _check_alike refuses a file that is not a shard
-    return shard.task
-
-
 def _check_alike(shards: Sequence[Shard]) -> None:
     first = shards[0]
     seen: dict[Path, Path] = {}
@@ -169,8 +162,6 @@ def _check_alike(shards: Sequence[Shard]) -> None:
         if resolved in seen:
             raise MergeError("the same file is given twice", where=where)
         seen[resolved] = shard.path
-        if shard.task is None:
-            raise MergeError("not a shard (made without --shard)", where=where)
         made, reference = shard.buffer.provenance, first.buffer.provenance
         for field, what in (("scene_fingerprint", "scene"), ("job_hash", "job")):
             if made.get(field) != reference.get(field):
@@ -189,7 +180,7 @@ def _check_spp_total(shards: Sequence[Shard], total: int) -> None:
     """The shards split the job's render.spp between them (``batch_plan``): a shard that says
     it holds more samples than it does would weigh more in the mean, silently."""
     for shard in shards:
-        wanted = _task(shard).job_spp
+        wanted = shard.task.job_spp
         if wanted != total:
             raise MergeError(
                 f"the shards hold {total} spp in all, but their job's render.spp is {wanted}",
@@ -215,7 +206,7 @@ def _one_index(
     """One shard's gradients and objective values (its objectives may be in several files)."""
     grads: dict[str, Mapping[str, np.ndarray]] = {}
     values: dict[str, float] = {}
-    spps = {_task(f).spp for f in files}
+    spps = {f.task.spp for f in files}
     if len(spps) > 1:
         raise MergeError(f"files of shard {index}/{count} disagree on spp: {sorted(spps)}")
     for shard in files:
@@ -298,7 +289,7 @@ def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:
         task={"shard": None, "objectives": None},
         # what each shard (one batch of the merge) rendered; per-shard timings do not add up
         batches=[
-            {"spp": _task(s).spp, "seed": _task(s).seed}
+            {"spp": s.task.spp, "seed": s.task.seed}
             for s in {s.index[0]: s for s in shards}.values()
         ],
         timings_s={},
