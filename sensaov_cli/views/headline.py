@@ -105,7 +105,7 @@ def zero_valued(
     sums = buf.sums
     for key in buf.keys if keys is None else keys:
         record = buf.param(key)
-        if sums is not None:  # stored by the writer (buffer/param_sums.py): no texel is read
+        if sums is not None:  # stored by the writer (buffer/npz.py): no texel is read
             hidden, raw = sums.hidden(objective, key)
         else:
             hidden, raw = hidden_by_zero(buf.value(key), buf.grad(objective, key))
