@@ -13,8 +13,8 @@ from bench.jobs import Workspace
 from bench.results import Figure, Row, fmt
 from bench.settings import Settings
 from bench.timing import Stats, interleave
-from sensaov_cli.buffer.npz import read_buffer
-from sensaov_cli.outputs.buffer_file import write_buffer
+from sensaov_cli.buffer.npz import buffer_writer, read_buffer
+from sensaov_cli.outputs.atomic import atomic_write
 
 if TYPE_CHECKING:
     from sensaov_cli.buffer.model import SensitivityBuffer
@@ -75,7 +75,7 @@ def buffer_io(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figure:
 def _save(buffer: SensitivityBuffer, path: Path) -> Callable[[], float]:
     def measure() -> float:
         start = time.perf_counter()
-        write_buffer(path, buffer)
+        atomic_write(path, buffer_writer(buffer))
         return time.perf_counter() - start
 
     return measure

@@ -14,7 +14,8 @@ from bench.jobs import SCENES, Workspace
 from bench.results import Figure, Row, fmt
 from bench.settings import Settings
 from bench.timing import interleave, synced
-from sensaov_cli.outputs.buffer_file import write_buffer
+from sensaov_cli.buffer.npz import buffer_writer
+from sensaov_cli.outputs.atomic import atomic_write
 
 
 def farm(ws: Workspace, s: Settings, log: Callable[[str], None]) -> Figure:
@@ -144,7 +145,7 @@ def _merge(ws: Workspace, s: Settings) -> Row:
             provenance, shard.objects, shard.params, shard.objectives, dict(shard.values), grads
         )
         path = folder / f"buffer.shard-{i}-of-4.npz"
-        write_buffer(path, shard)
+        atomic_write(path, buffer_writer(shard))
         write_exr(path.with_name(f"primal.shard-{i}-of-4.exr"), {"Y": np.zeros((8, 8))}, {})
         paths.append(path)
     size = paths[0].stat().st_size / MB

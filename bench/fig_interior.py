@@ -22,8 +22,8 @@ from bench.results import Figure, Goal, Row, fmt
 from bench.settings import Settings
 from bench.timing import Stats, interleave, run_child
 from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
-from sensaov_cli.buffer.npz import read_buffer
-from sensaov_cli.outputs.buffer_file import write_buffer
+from sensaov_cli.buffer.npz import buffer_writer, read_buffer
+from sensaov_cli.outputs.atomic import atomic_write
 
 MB = 1e6
 Log = Callable[[str], None]
@@ -116,9 +116,9 @@ def interior(ws: Workspace, s: Settings, log: Log) -> Figure:
     buffer = kitchen(side)
     path = ws.root / "interior" / "buffer.npz"
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_buffer(path, buffer)
+    atomic_write(path, buffer_writer(buffer))
     many = ws.root / "interior" / "many.npz"
-    write_buffer(many, many_parameters(8000))
+    atomic_write(many, buffer_writer(many_parameters(8000)))
     forged = _forged(path, ws.root / "interior" / "forged.npz")
     commands = {
         "rank": [SENSAOV, "rank", str(path)],

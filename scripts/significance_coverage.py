@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sensaov_cli.buffer.student_t import interval_factor
+from sensaov_cli.buffer.statistics import interval_factor
 from sensaov_cli.job.load import load_job
 from sensaov_cli.pipeline.run import run_job
 from sensaov_cli.progress import Progress

@@ -118,10 +118,6 @@ class NonFiniteGradientError(BufferContentError):
         self.key = key
 
 
-class BufferWriteError(SensaovError):
-    """The buffer file could not be written (no such directory, no permission, disk full)."""
-
-
 class UnknownNameError(SensaovError):
     """A name (objective, parameter key, object, type) the buffer does not hold."""
 

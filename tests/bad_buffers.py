@@ -1,5 +1,6 @@
-"""Bad buffers, cut at test time from a good one written by the current writer, so the corpus
-follows the format (tests/data/bad/README.md). Each maker writes one file and returns it."""
+"""Buffer files for tests: ``write_buffer`` writes one as ``sensaov run`` does (atomically, in the
+current format), and bad ones are cut at test time from a good one, so the corpus follows the
+format (tests/data/bad/README.md). Each maker writes one file and returns it."""
 
 from __future__ import annotations
 
@@ -12,12 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from sensaov_cli.buffer.model import (
-    HEADER_MEMBER,
-    ObjectiveRecord,
-    ParamRecord,
-    SensitivityBuffer,
-)
+from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.npz import HEADER_MEMBER, buffer_writer
+from sensaov_cli.outputs.atomic import atomic_write
+
+
+def write_buffer(path: Path, buffer: SensitivityBuffer) -> None:
+    """Write ``buffer`` to ``path``; a failure leaves any file there as it was."""
+    atomic_write(Path(path), buffer_writer(buffer))
 
 
 def good_buffer(key: str = "box.bsdf.reflectance.value", objective: str = "m") -> SensitivityBuffer:
@@ -115,6 +118,7 @@ MAKERS: dict[str, Callable[[Path, Path], None]] = {
         bad, [(n, d) for n, d in members(good) if not n.startswith(HEADER_MEMBER)]
     ),
     "unknown version": _header_edit(_set(("format_version",), 99)),
+    "older version": _header_edit(_set(("format_version",), 3)),
     "foreign format": _header_edit(_set(("format",), "someone-else")),
     "zip bomb": _zip_bomb,
     "extra member": lambda good, bad: write_members(
@@ -149,7 +153,7 @@ MAKERS: dict[str, Callable[[Path, Path], None]] = {
     "no repairs field": _header_edit(lambda h: h.pop("repairs")),
 }
 
-# The reader of format 3 (issue 13) refuses these; the format-2 reader accepts them.
+# Refused by the reader, where np.load reads them: a twin member, a version 4.0.
 STRICT_READER: dict[str, Callable[[Path, Path], None]] = {
     "duplicate member": lambda good, bad: write_members(
         bad, members(good) + [m for m in members(good) if not m[0].startswith(HEADER_MEMBER)]

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from sensaov_cli.errors import EXIT_BAD_INPUT
-from sensaov_cli.outputs.buffer_file import write_buffer
+from tests.bad_buffers import write_buffer
 
 from .bad_buffers import MAKERS, STRICT_READER, good_buffer
 from .conftest import ROOT, SCENES

@@ -1,6 +1,6 @@
 """Bench figure 10 merges shards it writes itself: they must stay shards merge accepts.
 
-The rules merge checks a shard's provenance by (buffer/shard_metadata.py) grew after the
+The rules merge checks a shard's provenance by (buffer/shards.py) grew after the
 figure was written, and a full ``make bench`` failed on figure 10 after 14 minutes; this
 runs the figure's merge at the quick settings in a fraction of a second.
 """

@@ -15,11 +15,10 @@ import yaml
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from sensaov_cli.buffer.model import HEADER_MEMBER
-from sensaov_cli.buffer.npz import read_buffer
+from sensaov_cli.buffer.npz import HEADER_MEMBER, read_buffer
 from sensaov_cli.errors import SensaovError
 from sensaov_cli.job.load import load_job
-from sensaov_cli.outputs.buffer_file import write_buffer
+from tests.bad_buffers import write_buffer
 
 from .bad_buffers import good_buffer, members, write_members
 from .conftest import SCENES

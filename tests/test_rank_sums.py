@@ -1,4 +1,4 @@
-"""`rank` from each parameter's stored sums (buffer format 4, issues 19 and 21).
+"""`rank` from each parameter's stored sums (buffer format 4).
 
 The writer stores Σc², Σc, the zero-value counts and each value's mean per parameter; `rank`
 reads the file lazily and never decodes a texture's texels. Its every output must be the one
@@ -18,15 +18,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sensaov_cli.buffer.archive import Archive
 from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
-from sensaov_cli.buffer.npz import read_buffer
+from sensaov_cli.buffer.npz import Archive, read_buffer
 from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import BufferFormatError
-from sensaov_cli.outputs.buffer_file import write_buffer
 from sensaov_cli.outputs.rankings import ranking_csv, ranking_dict, ranking_text
 from sensaov_cli.pipeline.rank import rank_by_cut, rank_summary, summary_of
 from sensaov_cli.views.hierarchy import rankings
+from tests.bad_buffers import write_buffer
 
 OBJECTIVES = ("luma", "centre")
 TEXEL_MEMBERS = ("texture_", "texgrad_", "texstderr_")
@@ -142,9 +141,9 @@ def test_rank_reads_no_texel(
     read: list[str] = []
     original = Archive.array
 
-    def counting(self: Archive, name: str) -> np.ndarray:
+    def counting(self: Archive, name: str, check: Any) -> np.ndarray:
         read.append(name)
-        return original(self, name)
+        return original(self, name, check)
 
     monkeypatch.setattr(Archive, "array", counting)
     _, path = written

@@ -1,4 +1,4 @@
-"""Student's t, the rule behind a ranking's `significant` column (buffer/student_t.py)."""
+"""Student's t, the rule behind a ranking's `significant` column (buffer/statistics.py)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from sensaov_cli.buffer.student_t import interval_factor, t_cdf, t_quantile
+from sensaov_cli.buffer.statistics import interval_factor, t_cdf, t_quantile
 
 # Two-sided 95 % points of Student's t (any statistics table).
 TABLE = {1: 12.7062, 2: 4.3027, 3: 3.1824, 4: 2.7764, 9: 2.2622, 30: 2.0423}

@@ -100,7 +100,17 @@ def forward_writer(data: ForwardData) -> Callable[[Path], None]:
         "ties": data.ties,
         "provenance": data.provenance,
         "objectives": objectives,
-        "passes": [_pass_json(p) for p in data.passes],
+        "passes": [
+            {
+                "keys": list(p.keys),
+                "direction": p.direction,
+                "seed": p.seed,
+                "seconds": round(p.seconds, 4),
+                "integrators": list(p.integrators),
+                "failure": p.failure,
+            }
+            for p in data.passes
+        ],  # fmt: skip
         "layers": [layer.__dict__ for layer in data.layers],
     }
     members = {HEADER: np.array(json.dumps(header, allow_nan=False))}
@@ -110,17 +120,6 @@ def forward_writer(data: ForwardData) -> Callable[[Path], None]:
         if p.image is not None:
             members[f"image_{i}"] = np.ascontiguousarray(p.image, np.float32)
     return archive_writer(members)
-
-
-def _pass_json(p: ForwardPass) -> dict[str, Any]:
-    return {
-        "keys": list(p.keys),
-        "direction": p.direction,
-        "seed": p.seed,
-        "seconds": round(p.seconds, 4),
-        "integrators": list(p.integrators),
-        "failure": p.failure,
-    }
 
 
 def read_forward(path: Path) -> ForwardData:
@@ -154,21 +153,16 @@ def read_forward(path: Path) -> ForwardData:
 _AGAIN = "re-run 'sensaov run' to write it again"
 
 
-def _pass(npz: Any, index: int, entry: dict[str, Any]) -> ForwardPass:
+def _pass(npz: Any, index: int, entry: Any) -> ForwardPass:
     failure = str(entry["failure"])
     image = None if failure else np.array(npz[f"image_{index}"], np.float32)
     _require(
         image is None or bool(np.all(np.isfinite(image))), f"image_{index} holds NaN or infinity"
     )
     return ForwardPass(
-        tuple(entry["keys"]),
-        str(entry["direction"]),
-        int(entry["seed"]),
-        float(entry["seconds"]),
-        tuple(entry["integrators"]),
-        failure,
-        image,
-    )
+        tuple(entry["keys"]), str(entry["direction"]), int(entry["seed"]),
+        float(entry["seconds"]), tuple(entry["integrators"]), failure, image,
+    )  # fmt: skip
 
 
 def _require(ok: bool, message: str) -> None:

@@ -1,36 +1,33 @@
 """The sensitivity buffer: dM/dθ for every selected scene parameter, per objective (§2).
 
 One reverse-mode pass per objective fills it; every view afterwards is a re-projection of the
-stored buffer, never a second differentiation. The file is a plain ``.npz`` readable with
-``np.load(path, allow_pickle=False)``; its layout (format version 4) is specified in
-``docs/buffer-format.md``. This module needs numpy only: loading a buffer never imports Mitsuba.
+stored buffer, never a second differentiation. Its file format is buffer/npz.py's
+(``docs/buffer-format.md``), which validates what it reads; the records here trust their
+types. This module needs numpy only: loading a buffer never imports Mitsuba.
+
+Which buffer an output was made from: every buffer ``run`` or ``merge`` writes carries a fresh
+random ``buffer_id`` in its provenance, and ``run_version``: the hash of what ``run`` read of the
+job (``JobSpec.run_hash``). Every output made from a buffer (EXRs, previews, the report) records
+both, so a command that reads outputs together refuses to mix two states
+(docs/buffer-format.md, "Identity").
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Iterable, Mapping, Sequence
+import hashlib
+import json
+import uuid
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import InitVar, dataclass, field
 from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 
-from sensaov_cli.buffer.lazy import LazyArrays, each_checked
-from sensaov_cli.buffer.param_sums import ParamSums, check_sums
-from sensaov_cli.buffer.record_fields import json_copy, require, shape_tuple, str_tuple
 from sensaov_cli.buffer.repairs import Repair
-from sensaov_cli.buffer.statistics import Statistics
-from sensaov_cli.errors import (
-    BufferContentError,
-    NonFiniteGradientError,
-    UnknownNameError,
-)
-from sensaov_cli.vocabulary import ESTIMATORS, TRUSTS, Estimator, Trust
-
-FORMAT_NAME = "sensaov-buffer"
-FORMAT_VERSION = 4
-HEADER_MEMBER = "header"
+from sensaov_cli.buffer.statistics import ParamSums, Statistics
+from sensaov_cli.errors import BufferContentError, NonFiniteGradientError, UnknownNameError
+from sensaov_cli.vocabulary import Estimator, Trust
 
 
 @dataclass(frozen=True)
@@ -54,34 +51,6 @@ class ParamRecord:
     def verified(self) -> bool:
         return self.trust == "verified"
 
-    def __post_init__(self) -> None:
-        plain = (type(self.key) is str and self.key != "" and type(self.type) is str
-                 and self.type != "" and type(self.plugin) is str and type(self.note) is str
-                 and type(self.is_texture) is bool and self.trust in TRUSTS
-                 and self.estimator in ESTIMATORS)  # fmt: skip
-        if not plain:  # the common case skips the checks that name the field that is wrong
-            self._check_fields()
-        what = f"parameter {self.key!r}"
-        object.__setattr__(self, "owners", str_tuple(self.owners, f"{what}: owners"))
-        object.__setattr__(self, "flags", str_tuple(self.flags, f"{what}: flags"))
-        object.__setattr__(self, "shape", shape_tuple(self.shape, f"{what}: shape"))
-
-    def _check_fields(self) -> None:
-        for name in ("key", "type"):
-            value = getattr(self, name)
-            if not isinstance(value, str) or value == "":
-                raise BufferContentError(f"parameter {name} must be a string")
-        what = f"parameter {self.key!r}"
-        for name, kind in (("plugin", str), ("note", str), ("is_texture", bool)):
-            if not isinstance(getattr(self, name), kind):
-                raise BufferContentError(f"{what}: {name} must be a {kind.__name__}")
-        if self.trust not in TRUSTS:
-            raise BufferContentError(f"{what}: trust {self.trust!r} is not one of {TRUSTS}")
-        if self.estimator not in ESTIMATORS:
-            raise BufferContentError(
-                f"{what}: estimator {self.estimator!r} is not one of {ESTIMATORS}"
-            )
-
 
 @dataclass(frozen=True)
 class ExcludedParam:
@@ -104,54 +73,33 @@ class ObjectiveRecord:
     """One scalar objective M: how it was defined, its value at the primal, the backward seed."""
 
     name: str
-    definition: dict[str, Any]
+    definition: dict[str, Any]  # the job's objective entry, as JSON
     value: float
     grad_seed: int
 
     def __post_init__(self) -> None:
-        require(isinstance(self.name, str) and self.name != "", "objective name must be a string")
-        what = f"objective {self.name!r}"
-        require(isinstance(self.definition, dict), f"{what}: definition must be a dict")
-        object.__setattr__(self, "definition", json_copy(self.definition, f"{what}: definition"))
-        require(
-            isinstance(self.value, int | float | np.floating) and not isinstance(self.value, bool),
-            f"{what}: value must be a number",
+        # As the file stores them: a record saves and loads back equal (tuples become lists).
+        object.__setattr__(
+            self, "definition", _json_copy(self.definition, f"objective {self.name!r}: definition")
         )
-        require(math.isfinite(self.value), f"{what}: value M is {self.value}, not finite")
         object.__setattr__(self, "value", float(self.value))
-        require(
-            isinstance(self.grad_seed, int | np.integer) and not isinstance(self.grad_seed, bool),
-            f"{what}: grad_seed must be an integer",
-        )
-        object.__setattr__(self, "grad_seed", int(self.grad_seed))
 
 
-def _frozen_array(
-    data: Any, shape: tuple[int, ...], what: Callable[[], str], copy: bool, count: bool = True
-) -> tuple[np.ndarray, int]:
-    """A read-only, C-contiguous float32 copy of ``data`` and its count of NaN/inf components.
-
-    With ``copy=False`` an array that is already native float32 and C-contiguous is frozen in
-    place; only the reader asks for that, for arrays nothing else holds. With ``count=False``
-    the count is 0: the reader has checked every member it read to be finite already.
-    ``what()`` names the array in a message, built only on failure.
-    """
+def _json_copy(data: Any, what: str) -> Any:
     try:
-        arr = data if isinstance(data, np.ndarray) else np.asarray(data)
+        return json.loads(json.dumps(data, allow_nan=False))
     except (TypeError, ValueError) as exc:
-        raise BufferContentError(f"{what()} is not an array: {exc}") from exc
-    if arr.dtype.kind not in "fiu":
-        raise BufferContentError(f"{what()} has dtype {arr.dtype}; expected real numbers")
+        raise BufferContentError(f"{what} is not JSON-able: {exc}") from exc
+
+
+def _frozen_array(given: Any, shape: tuple[int, ...], what: str) -> tuple[np.ndarray, int]:
+    """A read-only, C-contiguous float32 copy of ``given`` and its count of NaN/inf components."""
+    arr = np.asarray(given)
     if arr.shape != shape:
-        raise BufferContentError(f"{what()} has shape {arr.shape}; the record says {shape}")
-    arr = np.array(arr, dtype=np.float32, order="C", copy=True if copy else None)
+        raise BufferContentError(f"{what} has shape {arr.shape}; the record says {shape}")
+    arr = np.array(arr, dtype=np.float32, order="C", copy=True)
     arr.flags.writeable = False
-    return arr, int(arr.size - np.count_nonzero(np.isfinite(arr))) if count else 0
-
-
-def _named(what: str, record: ParamRecord) -> Callable[[], str]:
-    """``what`` of a parameter, as a message names it (built only when one is needed)."""
-    return lambda: f"{what} of {record.key!r}"
+    return arr, int(arr.size - np.count_nonzero(np.isfinite(arr)))
 
 
 def _check_unique(kind: str, names: Sequence[str]) -> None:
@@ -162,9 +110,15 @@ def _check_unique(kind: str, names: Sequence[str]) -> None:
         seen.add(name)
 
 
-def _check_no_extra(kind: str, given: Iterable[str], known: Iterable[str]) -> None:
-    extra = sorted(set(given) - set(known))
-    require(not extra, f"{kind} for undeclared names: {', '.join(map(repr, extra))}")
+def _check_keys(kind: str, given: Iterable[str], known: Sequence[str], missing: str) -> None:
+    """``given`` names exactly ``known``: ``missing`` (formatted with the name) if one lacks."""
+    given = set(given)
+    extra = sorted(given - set(known))
+    if extra:
+        raise BufferContentError(f"{kind} for undeclared names: {', '.join(map(repr, extra))}")
+    for name in known:
+        if name not in given:
+            raise BufferContentError(missing.format(name))
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -173,7 +127,9 @@ class SensitivityBuffer:
 
     Construction copies every array to a read-only C-contiguous float32 array and refuses an
     inconsistent buffer (:class:`BufferContentError`) or a NaN/inf gradient
-    (:class:`NonFiniteGradientError`), so a stored buffer is always complete and finite.
+    (:class:`NonFiniteGradientError`), so a stored buffer is always complete and finite. With
+    ``_copy_arrays=False`` the arrays are taken as given: the reader's, checked as it read them
+    (and read on first use where it reads lazily), or those of a buffer already built.
     """
 
     provenance: dict[str, Any]
@@ -185,7 +141,7 @@ class SensitivityBuffer:
     statistics: Statistics | None = None  # standard errors, from >= 2 batches or shards
     # key -> how its gradient was repaired: every "finite-difference" parameter has one
     repairs: Mapping[str, Repair] = field(default_factory=dict)
-    # each parameter's sums as the file stores them (format 4): rankings read them, not texels
+    # each parameter's sums as the file stores them: rankings read them, not texels
     sums: ParamSums | None = None
     _by_key: Mapping[str, ParamRecord] = field(init=False)
     _by_name: Mapping[str, ObjectiveRecord] = field(init=False)
@@ -193,21 +149,12 @@ class SensitivityBuffer:
 
     def __post_init__(self, _copy_arrays: bool) -> None:
         set_ = object.__setattr__
-        require(isinstance(self.provenance, dict), "provenance must be a dict")
-        set_(self, "provenance", json_copy(self.provenance, "provenance"))
-        objects = str_tuple(self.objects, "objects")
-        _check_unique("object", objects)
-        set_(self, "objects", tuple(sorted(objects)))
-        set_(self, "params", tuple(self.params))
-        set_(self, "objectives", tuple(self.objectives))
-        require(all(isinstance(p, ParamRecord) for p in self.params), "params must be ParamRecords")
-        require(
-            all(isinstance(o, ObjectiveRecord) for o in self.objectives),
-            "objectives must be ObjectiveRecords",
-        )
+        set_(self, "provenance", _json_copy(self.provenance, "provenance"))
+        _check_unique("object", self.objects)
+        set_(self, "objects", tuple(sorted(self.objects)))
         _check_unique("parameter key", [p.key for p in self.params])
         _check_unique("objective", [o.name for o in self.objectives])
-        known_objects = set(objects)
+        known_objects = set(self.objects)
         for p in self.params:
             unknown = [o for o in p.owners if o not in known_objects]
             if unknown:
@@ -216,93 +163,73 @@ class SensitivityBuffer:
                 )
         set_(self, "_by_key", MappingProxyType({p.key: p for p in self.params}))
         set_(self, "_by_name", MappingProxyType({o.name: o for o in self.objectives}))
-        set_(self, "values", MappingProxyType(self._checked_values(self.values, _copy_arrays)))
-        set_(self, "grads", MappingProxyType(self._checked_grads(self.grads, _copy_arrays)))
+        if _copy_arrays:
+            set_(self, "values", self._copied_values())
+            set_(self, "grads", self._copied_grads())
+        set_(self, "values", MappingProxyType(self.values))
+        set_(
+            self, "grads", MappingProxyType({n: MappingProxyType(g) for n, g in self.grads.items()})
+        )
         if self.statistics is not None:
             self._check_statistics(self.statistics)
-        set_(self, "repairs", MappingProxyType(self._checked_repairs(self.repairs)))
-        if self.sums is not None:
-            problem = check_sums(self.sums, self.keys, [o.name for o in self.objectives])
-            require(problem is None, str(problem))
+        self._check_repairs()
+        set_(self, "repairs", MappingProxyType(dict(self.repairs)))
 
-    def _checked_repairs(self, repairs: Mapping[str, Repair]) -> dict[str, Repair]:
-        _check_no_extra("repairs", repairs, self._by_key)
-        names = sorted(o.name for o in self.objectives)
+    def _copied_values(self) -> dict[str, np.ndarray]:
+        _check_keys("values", self.values, self.keys, "parameter {!r} has no value")
+        values = {}
         for p in self.params:
-            repair = repairs.get(p.key)
-            if repair is None:
-                needed = p.estimator == "finite-difference"
-                require(not needed, f"parameter {p.key!r} is repaired but has no repair record")
-                continue
-            require(isinstance(repair, Repair), f"repair of {p.key!r} must be a Repair")
-            require(
-                p.estimator in ("finite-difference", "mixed"),
-                f"parameter {p.key!r} has a repair record but estimator {p.estimator!r}",
-            )
-            require(sorted(repair.estimates) == names, f"repair of {p.key!r}: objectives differ")
-            size = int(np.prod(p.shape))
-            require(repair.components == size, f"repair of {p.key!r} has the wrong size")
-        return dict(repairs)
-
-    def _check_statistics(self, statistics: Statistics) -> None:
-        require(isinstance(statistics, Statistics), "statistics must be a Statistics")
-        names = [o.name for o in self.objectives]
-        require(sorted(statistics.stderr) == sorted(names), "statistics: objectives differ")
-        require(sorted(statistics.batch_sums) == sorted(names), "batch sums: objectives differ")
-        require(
-            sorted(statistics.objective_values) == sorted(names), "batch values: objectives differ"
-        )
-        for name in names:
-            sums = statistics.batch_sums[name]
-            require(sums.shape[0] == len(self.params), f"batch sums of {name!r}: wrong length")
-            given = statistics.stderr[name]
-            _check_no_extra(f"standard errors of {name!r}", given, self._by_key)
-            if isinstance(given, LazyArrays):
-                continue  # the reader checks each array as it reads it (npz.py)
-            for p in self.params:
-                if p.key not in given:
-                    raise BufferContentError(
-                        f"objective {name!r} has no standard error for {p.key!r}"
-                    )
-                arr, bad = _frozen_array(given[p.key], p.shape, _named("standard error", p), False)
-                if bad or not (arr >= 0).all():
-                    raise BufferContentError(f"bad standard error of {p.key!r}")
-
-    def _checked_values(self, values: Mapping[str, Any], copy: bool) -> Mapping[str, np.ndarray]:
-        _check_no_extra("values", values, self._by_key)
-        for p in self.params:
-            if p.key not in values:
-                raise BufferContentError(f"parameter {p.key!r} has no value")
-
-        def check(key: str, given: Any) -> np.ndarray:
-            p = self._by_key[key]
-            arr, bad = _frozen_array(given, p.shape, _named("value", p), copy, copy)
+            values[p.key], bad = _frozen_array(self.values[p.key], p.shape, f"value of {p.key!r}")
             if bad:
                 raise BufferContentError(f"value of {p.key!r} has {bad} components NaN or infinite")
-            return arr
+        return values
 
-        return each_checked(values, self.keys, check)
-
-    def _checked_grads(self, grads: Mapping[str, Mapping[str, Any]], copy: bool) -> dict[str, Any]:
-        _check_no_extra("gradients", grads, self._by_name)
-        checked: dict[str, Any] = {}
-        for o in self.objectives:
-            require(o.name in grads, f"objective {o.name!r} has no gradients")
-            given = grads[o.name]
-            _check_no_extra(f"gradients of {o.name!r}", given, self._by_key)
+    def _copied_grads(self) -> dict[str, Mapping[str, np.ndarray]]:
+        names = [o.name for o in self.objectives]
+        _check_keys("gradients", self.grads, names, "objective {!r} has no gradients")
+        grads: dict[str, Mapping[str, np.ndarray]] = {}
+        for name in names:
+            given, copied = self.grads[name], {}
+            missing = f"objective {name!r} has no gradient for {{!r}}"
+            _check_keys(f"gradients of {name!r}", given, self.keys, missing)
             for p in self.params:
-                if p.key not in given:
-                    raise BufferContentError(f"objective {o.name!r} has no gradient for {p.key!r}")
-
-            def check(key: str, given: Any, name: str = o.name) -> np.ndarray:
-                p, what = self._by_key[key], f"gradient of {name!r}"
-                arr, bad = _frozen_array(given, p.shape, _named(what, p), copy, copy)
+                what = f"gradient of {name!r} of {p.key!r}"
+                copied[p.key], bad = _frozen_array(given[p.key], p.shape, what)
                 if bad:
-                    raise NonFiniteGradientError(name, p.key, bad, arr.size)
-                return arr
+                    raise NonFiniteGradientError(name, p.key, bad, copied[p.key].size)
+            grads[name] = copied
+        return grads
 
-            checked[o.name] = MappingProxyType(each_checked(given, self.keys, check))
-        return checked
+    def _check_statistics(self, statistics: Statistics) -> None:
+        """Statistics of these objectives: a file's header names them (its arrays the reader
+        reads by this buffer's records; the tool computes its own)."""
+        names = sorted(o.name for o in self.objectives)
+        by_objective = (("statistics", statistics.stderr), ("batch sums", statistics.batch_sums),
+                        ("batch values", statistics.objective_values))  # fmt: skip
+        for what, named in by_objective:
+            if sorted(named) != names:
+                raise BufferContentError(f"{what}: objectives differ")
+
+    def _check_repairs(self) -> None:
+        extra = sorted(set(self.repairs) - set(self._by_key))
+        if extra:
+            raise BufferContentError(f"repairs for undeclared names: {', '.join(map(repr, extra))}")
+        names = sorted(o.name for o in self.objectives)
+        for p in self.params:
+            repair = self.repairs.get(p.key)
+            if repair is None:
+                if p.estimator == "finite-difference":
+                    raise BufferContentError(
+                        f"parameter {p.key!r} is repaired but has no repair record"
+                    )
+            elif p.estimator not in ("finite-difference", "mixed"):
+                raise BufferContentError(
+                    f"parameter {p.key!r} has a repair record but estimator {p.estimator!r}"
+                )
+            elif sorted(repair.estimates) != names:
+                raise BufferContentError(f"repair of {p.key!r}: objectives differ")
+            elif repair.components != int(np.prod(p.shape)):
+                raise BufferContentError(f"repair of {p.key!r} has the wrong size")
 
     def __repr__(self) -> str:
         return (
@@ -344,23 +271,45 @@ class SensitivityBuffer:
         """The distinct parameter types, sorted."""
         return tuple(sorted({p.type for p in self.params}))
 
-    def tree(self) -> dict[str, Any]:
-        """The parameters as a tree over their dotted keys (§2); leaves are ParamRecords.
 
-        Where a key is both a parameter and the prefix of another ("a.b" and "a.b.c"), the
-        parameter sits under the empty name in its node: ``tree["a"]["b"][""]``.
-        """
-        root: dict[str, Any] = {}
-        for record in self.params:
-            *parents, leaf = record.key.split(".")
-            node = root
-            for part in parents:
-                child = node.setdefault(part, {})
-                if isinstance(child, ParamRecord):
-                    child = node[part] = {"": child}
-                node = child
-            if isinstance(node.get(leaf), dict):
-                node[leaf][""] = record
-            else:
-                node[leaf] = record
-        return root
+# --- identity: which buffer, which job version -------------------------------------------
+
+BUFFER_ID = "buffer_id"
+RUN_VERSION = "run_version"
+LEGACY_PREFIX = "legacy-"  # a buffer written before ids existed: named by its provenance
+# What every output made from a buffer records (EXR header attributes, PNG text chunks, the
+# previews' manifests): the buffer's id, the run version it records and the job_hash of the
+# job that made the output (project's job may differ from run's in cameras and channels).
+STAMP_BUFFER = "sensaov/buffer_id"
+STAMP_RUN = "sensaov/run_version"
+STAMP_JOB = "sensaov/job_hash"
+
+
+def new_buffer_id() -> str:
+    """A fresh id for a buffer about to be written (random: two runs never share one)."""
+    return uuid.uuid4().hex[:16]
+
+
+def buffer_id(buf: SensitivityBuffer) -> str:
+    """The buffer's id; a buffer without one is named by a hash of its provenance (which holds
+    its creation time and timings, so two runs still differ)."""
+    return provenance_id(buf.provenance)
+
+
+def provenance_id(provenance: dict[str, Any]) -> str:
+    recorded = provenance.get(BUFFER_ID)
+    if isinstance(recorded, str) and recorded:
+        return recorded
+    text = json.dumps(provenance, sort_keys=True, default=str)
+    return LEGACY_PREFIX + hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def run_version(buf: SensitivityBuffer) -> str | None:
+    """The job version the buffer was made from, or None for a buffer without the field."""
+    recorded = buf.provenance.get(RUN_VERSION)
+    return recorded if isinstance(recorded, str) and recorded else None
+
+
+def stamp(buf: SensitivityBuffer, job_hash: str) -> dict[str, str]:
+    """The attributes an output made from ``buf`` by a job hashing to ``job_hash`` records."""
+    return {STAMP_BUFFER: buffer_id(buf), STAMP_RUN: run_version(buf) or "", STAMP_JOB: job_hash}

@@ -20,7 +20,7 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 
 from sensaov_cli.buffer.model import SensitivityBuffer
-from sensaov_cli.buffer.param_sums import KeyStats, stats_of
+from sensaov_cli.buffer.statistics import KeyStats, stats_of
 from sensaov_cli.errors import QueryError, UnknownNameError
 from sensaov_cli.vocabulary import AGGREGATES, GROUPINGS, WEIGHTS, Aggregate, Grouping, Weight
 

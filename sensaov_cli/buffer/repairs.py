@@ -8,7 +8,7 @@ weight at 0 or 1) takes the one-sided (−3 M(θ; s) + 4 M(θ + h e_c; s) − M(
 h = ±ε away from the bound, as accurate.
 A :class:`Repair` keeps every seed's estimate, so the stored gradient's standard error and its
 sign's significance come from its own spread, and the reverse-mode gradient it replaced (duality
-with forward mode holds for that one). numpy only; the header's JSON form is here too.
+with forward mode holds for that one). numpy only; the header's JSON form is buffer/npz.py's.
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -26,7 +25,6 @@ from sensaov_cli.errors import BufferContentError
 # when |Σc| exceeds this many standard errors of a repair's own few seeds (3.18 at 4 seeds).
 _T_975 = {1: 12.71, 2: 4.30, 3: 3.18, 4: 2.78, 5: 2.57, 6: 2.45, 7: 2.36, 8: 2.31, 9: 2.26,
           10: 2.23, 15: 2.13, 20: 2.09, 30: 2.04}  # fmt: skip
-FIELDS = ("reason", "step", "spp", "seeds", "one_sided", "estimates", "reverse", "seconds")
 
 
 def t_975(seeds: int) -> float:
@@ -108,71 +106,3 @@ class Repair:
 def _require(ok: bool, message: str) -> None:
     if not ok:
         raise BufferContentError(message)
-
-
-def repair_json(repair: Repair) -> dict[str, Any]:
-    """The record as the buffer header stores it (version 4: docs/buffer-format.md)."""
-    return {
-        "reason": repair.reason,
-        "step": repair.step,
-        "spp": list(repair.spp),
-        "seeds": list(repair.seeds),
-        "one_sided": [list(pair) for pair in repair.one_sided],
-        "estimates": {k: np.asarray(v, np.float64).tolist() for k, v in repair.estimates.items()},
-        "reverse": {k: np.asarray(v, np.float64).tolist() for k, v in repair.reverse.items()},
-        "seconds": repair.seconds,
-    }
-
-
-def repairs_from_json(entry: Any) -> dict[str, Repair]:
-    """The header's ``repairs`` (key -> record) read back, or BufferContentError."""
-    if not isinstance(entry, dict):
-        raise BufferContentError("the header's 'repairs' must be a JSON object")
-    return {str(key): repair_from_json(e, f"repairs[{key!r}]") for key, e in entry.items()}
-
-
-def repair_from_json(entry: Any, where: str) -> Repair:
-    """A record read back; anything malformed raises BufferContentError naming ``where``."""
-    if not isinstance(entry, dict) or set(entry) != set(FIELDS):
-        raise BufferContentError(f"{where} must be an object with fields {list(FIELDS)}")
-    try:
-        return Repair(
-            reason=str(entry["reason"]),
-            step=float(entry["step"]),
-            spp=tuple(_integers(entry["spp"])),
-            seeds=tuple(_integers(entry["seeds"])),
-            one_sided=tuple(_pair(p) for p in _list(entry["one_sided"])),
-            estimates={str(k): np.asarray(v, np.float64) for k, v in _dict(entry, "estimates")},
-            reverse={str(k): np.asarray(v, np.float64) for k, v in _dict(entry, "reverse")},
-            seconds=float(entry["seconds"]),
-        )
-    except (TypeError, ValueError, BufferContentError) as exc:
-        raise BufferContentError(f"{where}: {exc}") from exc
-
-
-def _integers(items: Any) -> list[int]:
-    if not isinstance(items, list) or not all(
-        isinstance(n, int) and not isinstance(n, bool) for n in items
-    ):
-        raise ValueError(f"expected a list of integers, got {items!r}")
-    return items
-
-
-def _list(items: Any) -> list[Any]:
-    if not isinstance(items, list):
-        raise ValueError(f"expected a list, got {items!r}")
-    return items
-
-
-def _pair(item: Any) -> tuple[int, int]:
-    index, sign = _integers(item) if isinstance(item, list) and len(item) == 2 else (None, None)
-    if index is None or sign is None:
-        raise ValueError(f"one_sided entries are [index, sign] pairs, got {item!r}")
-    return index, sign
-
-
-def _dict(entry: Mapping[str, Any], name: str) -> list[tuple[str, Any]]:
-    value = entry[name]
-    if not isinstance(value, dict):
-        raise ValueError(f"{name} must map objective names to lists")
-    return list(value.items())

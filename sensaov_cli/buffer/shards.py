@@ -4,11 +4,19 @@
 the merge of n shards is the estimate one run with ``render.batches: n`` gives, standard errors
 included (each shard is a batch). Shards may also split objectives (``--objective``): every
 (shard, objective) pair must be present exactly once. Anything else is refused with the reason.
+
+What merge relies on in a shard's provenance comes from a file and is checked where it is read
+(:func:`shard_task`): which shard it is (``task.shard.index`` of ``count``), how many samples it
+holds (``spp``, which over all shards adds up to the job's ``job_spp``), its seed
+(``primal_seed``), the job's objectives (``job.objectives``) and the image size
+(``resolution``). A missing key, a string, a float, an index outside 1..N or ``spp`` 0 would end
+in an internal error, or in a shard silently left out of (or over-weighted in) the mean: each
+is refused (exit 2), naming the shard file and the key.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -22,36 +30,90 @@ from sensaov_cli.errors import MergeError
 
 # How bad a label is, for the merged record: the worst any shard found (no_gradient apart).
 _SEVERITY = ("verified", "unverified", "suspect", "biased")
+MAX_SHARDS = 1 << 20  # far above any farm; a count beyond it is a damaged file
+_HINT = "the file is not a shard as 'sensaov run --shard I/N' writes it: run that shard again"
+
+
+@dataclass(frozen=True)
+class ShardTask:
+    """What a shard's provenance says it holds, as merge reads it."""
+
+    index: int  # 1..count
+    count: int
+    spp: int
+    job_spp: int
+    seed: int  # primal_seed
+    objectives: tuple[str, ...]  # the whole job's, in job order
 
 
 @dataclass(frozen=True)
 class Shard:
     path: Path
     buffer: SensitivityBuffer
-    version: int  # the file's format version
-
-    @property
-    def task(self) -> dict[str, Any]:
-        return self.buffer.provenance.get("task") or {}
+    task: ShardTask
 
     @property
     def index(self) -> tuple[int, int]:
-        shard = self.task.get("shard") or {}
-        return int(shard["index"]), int(shard["count"])
-
-    @property
-    def objectives(self) -> tuple[str, ...]:
-        return tuple(o.name for o in self.buffer.objectives)
+        return self.task.index, self.task.count
 
 
-def merge_shards(shards: Sequence[Shard], current_version: int) -> SensitivityBuffer:
+def shard_task(path: Path, provenance: Mapping[str, Any]) -> ShardTask:
+    """What merge reads of a shard's provenance; refuses a buffer made without --shard, or
+    one whose provenance lacks what merge reads, or holds it in another form."""
+    task = _field(path, provenance, "task", dict)
+    shard = task.get("shard")
+    if shard is None:
+        raise MergeError("not a shard (made without --shard)", where=str(path))
+    if not isinstance(shard, dict):
+        raise _bad(path, "task.shard", shard, "a mapping {index, count}")
+    count = _integer(path, shard, "count", "task.shard.count", 1, MAX_SHARDS)
+    index = _integer(path, shard, "index", "task.shard.index", 1, count)
+    spp = _integer(path, provenance, "spp", "spp", 1, 2**32 - 1)
+    job_spp = _integer(path, provenance, "job_spp", "job_spp", 1, 2**32 - 1)
+    seed = _integer(path, provenance, "primal_seed", "primal_seed", 0, 2**32 - 1)
+    objectives = _field(path, _field(path, provenance, "job", dict), "objectives", list)
+    names = [entry.get("name") if isinstance(entry, dict) else None for entry in objectives]
+    if not names or not all(isinstance(name, str) for name in names):
+        raise _bad(path, "job.objectives", objectives, "a list of objectives with names")
+    size = provenance.get("resolution")
+    if not (isinstance(size, list) and len(size) == 2 and all(_is_int(n, 1) for n in size)):
+        raise _bad(path, "resolution", size, "[width, height]")
+    return ShardTask(index, count, spp, job_spp, seed, tuple(map(str, names)))
+
+
+def _field(path: Path, mapping: Mapping[str, Any], key: str, kind: type) -> Any:
+    value = mapping.get(key)
+    if not isinstance(value, kind):
+        raise _bad(path, key, value, "a mapping" if kind is dict else "a list")
+    return value
+
+
+def _integer(
+    path: Path, mapping: Mapping[str, Any], key: str, shown: str, least: int, most: int
+) -> int:
+    value = mapping.get(key)
+    if not isinstance(value, int) or not _is_int(value, least, most):
+        raise _bad(path, shown, value, f"an integer from {least} to {most}")
+    return value
+
+
+def _is_int(value: Any, least: int, most: int = 2**63) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and least <= value <= most
+
+
+def _bad(path: Path, key: str, value: Any, expected: str) -> MergeError:
+    shown = "missing" if value is None else f"{type(value).__name__} {str(value)[:40]!r}"
+    return MergeError(f"provenance {key} is {shown}, not {expected}", where=str(path), hint=_HINT)
+
+
+def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
     """The merged buffer; :class:`MergeError` (one line, exit 2) if the shards do not fit."""
     if len(shards) < 1:
         raise MergeError("no shards given")
-    _check_alike(shards, current_version)
+    _check_alike(shards)
     first = shards[0]
-    count = first.index[1]
-    job_objectives = [o["name"] for o in first.buffer.provenance["job"]["objectives"]]
+    count = first.task.count
+    job_objectives = list(first.task.objectives)
     by_index: dict[int, list[Shard]] = {}
     for shard in shards:
         by_index.setdefault(shard.index[0], []).append(shard)
@@ -64,11 +126,11 @@ def merge_shards(shards: Sequence[Shard], current_version: int) -> SensitivityBu
         )
     merged_grads, merged_values, spp, seeds = [], [], [], []
     for index in range(1, count + 1):
-        grads, values, spps = _one_index(by_index[index], job_objectives, index, count)
-        merged_grads.append(grads)
+        shard_grads, values, spps = _one_index(by_index[index], job_objectives, index, count)
+        merged_grads.append(shard_grads)
         merged_values.append(values)
         spp.append(spps)
-        seeds.append(int(by_index[index][0].buffer.provenance["primal_seed"]))
+        seeds.append(by_index[index][0].task.seed)
     _check_spp_total(shards, sum(spp))
     keys = first.buffer.keys
     grads, objective_values, statistics = combine_batches(
@@ -91,7 +153,7 @@ def merge_shards(shards: Sequence[Shard], current_version: int) -> SensitivityBu
     )
 
 
-def _check_alike(shards: Sequence[Shard], current_version: int) -> None:
+def _check_alike(shards: Sequence[Shard]) -> None:
     first = shards[0]
     seen: dict[Path, Path] = {}
     for shard in shards:
@@ -100,14 +162,6 @@ def _check_alike(shards: Sequence[Shard], current_version: int) -> None:
         if resolved in seen:
             raise MergeError("the same file is given twice", where=where)
         seen[resolved] = shard.path
-        if shard.version != current_version:
-            raise MergeError(
-                f"buffer format version {shard.version}, not {current_version}",
-                where=where,
-                hint="re-run the shard with this sensaov",
-            )
-        if not shard.task.get("shard"):
-            raise MergeError("not a shard (made without --shard)", where=where)
         made, reference = shard.buffer.provenance, first.buffer.provenance
         for field, what in (("scene_fingerprint", "scene"), ("job_hash", "job")):
             if made.get(field) != reference.get(field):
@@ -126,7 +180,7 @@ def _check_spp_total(shards: Sequence[Shard], total: int) -> None:
     """The shards split the job's render.spp between them (``batch_plan``): a shard that says
     it holds more samples than it does would weigh more in the mean, silently."""
     for shard in shards:
-        wanted = shard.buffer.provenance.get("job_spp")
+        wanted = shard.task.job_spp
         if wanted != total:
             raise MergeError(
                 f"the shards hold {total} spp in all, but their job's render.spp is {wanted}",
@@ -148,11 +202,11 @@ def _check_parameters(shard: Shard, first: Shard) -> None:
 
 def _one_index(
     files: list[Shard], job_objectives: list[str], index: int, count: int
-) -> tuple[dict[str, Any], dict[str, float], int]:
+) -> tuple[dict[str, Mapping[str, np.ndarray]], dict[str, float], int]:
     """One shard's gradients and objective values (its objectives may be in several files)."""
-    grads: dict[str, Any] = {}
+    grads: dict[str, Mapping[str, np.ndarray]] = {}
     values: dict[str, float] = {}
-    spps = {int(f.buffer.provenance["spp"]) for f in files}
+    spps = {f.task.spp for f in files}
     if len(spps) > 1:
         raise MergeError(f"files of shard {index}/{count} disagree on spp: {sorted(spps)}")
     for shard in files:
@@ -179,7 +233,9 @@ _MIXED_NOTE = (
 )
 
 
-def _merged_records(shards: Sequence[Shard], grads: dict[str, Any]) -> tuple[ParamRecord, ...]:
+def _merged_records(
+    shards: Sequence[Shard], grads: Mapping[str, Mapping[str, np.ndarray]]
+) -> tuple[ParamRecord, ...]:
     """Each parameter with the worst label a shard gave it; no_gradient only if the merged
     gradient is 0 for every objective; estimator "mixed" (and biased) where shards differ."""
     merged = []
@@ -233,17 +289,14 @@ def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:
         task={"shard": None, "objectives": None},
         # what each shard (one batch of the merge) rendered; per-shard timings do not add up
         batches=[
-            {
-                "spp": int(s.buffer.provenance["spp"]),
-                "seed": int(s.buffer.provenance["primal_seed"]),
-            }
+            {"spp": s.task.spp, "seed": s.task.seed}
             for s in {s.index[0]: s for s in shards}.values()
         ],
         timings_s={},
         merged_from=[
             {
                 "file": s.path.name,
-                "task": s.task,
+                "task": s.buffer.provenance["task"],
                 "spp": s.buffer.provenance.get("spp"),
                 "created_utc": s.buffer.provenance.get("created_utc"),
                 "deterministic": s.buffer.provenance.get("deterministic"),

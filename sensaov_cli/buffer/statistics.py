@@ -13,12 +13,25 @@ as one batch. The buffer keeps the spp-weighted mean, and from the k batch means
   without keeping the batches' arrays: Σ g_b and Σ θ g_b (the signed sums, exact), and
   ⟨ḡ, g_b⟩ and ⟨θḡ, θg_b⟩, the batch's projection on the mean (the ℓ2 norm's first-order,
   delta-method linearisation: ‖ḡ_G‖ ≈ Σ_{p∈G} ⟨ḡ_p, g_{p,b}⟩ / ‖ḡ_G‖, correlations included).
+
+Each parameter's sums (:class:`ParamSums`), stored beside its arrays, are what a ranking reads
+instead of texels: per objective the sufficient statistics of its contributions c for both
+weights (Σc², Σc; the count is the parameter's size) and what value weighting hides (the
+components with θ = 0 and ∂M/∂θ ≠ 0, and then Σ ∂M/∂θ); per parameter, the mean of its value.
+The writer computes them with the very functions the queries use on arrays, so a ranking read
+from the sums is the ranking computed from the arrays, to the last bit (tests/test_rank_sums.py).
+
+A mean over k batches has a standard error estimated from those same k batches, so
+(mean − truth) / SE follows Student's t with k − 1 degrees of freedom, not a normal law: with
+4 batches a ±2 SE interval covers about 86 %, not 95 %; the 95 % interval is ±3.18 SE
+(:func:`interval_factor`, standard library only).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -28,6 +41,9 @@ from sensaov_cli.errors import BufferContentError
 # Columns of ``batch_sums[objective]`` (P, k, 4): which statistic, by weight.
 SUM_RAW, SUM_VALUE, PROJ_RAW, PROJ_VALUE = range(4)
 COLUMNS = ("sum_raw", "sum_value", "projection_raw", "projection_value")
+# The columns of an objective's parameter sums, one row per parameter (docs/buffer-format.md).
+SUMS_COLUMNS = ("sum_sq_value", "total_value", "sum_sq_raw", "total_raw", "hidden", "raw_signed")
+SIGNIFICANCE_LEVEL = 0.95  # two-sided: a sign is significant when outside the 95 % interval
 
 
 @dataclass(frozen=True)
@@ -174,3 +190,152 @@ def with_batch_estimates(
             sums[name][index, b] = batch_row(stack[b], mean.astype(np.float64), theta)
         means[name] = mean
     return replace(statistics, stderr=stderr, batch_sums=sums), means
+
+
+@dataclass(frozen=True)
+class KeyStats:
+    """The sufficient statistics of one parameter's contributions c for one objective."""
+
+    sum_sq: float  # Σ c²
+    total: float  # Σ c
+    count: int  # number of components
+
+
+def stats_of(grad: np.ndarray, value: np.ndarray | None) -> KeyStats:
+    """Σc², Σc and the count of c = value·grad (or grad, without a value)."""
+    if not grad.any():  # an untouched texture (no gradient): one cheap pass, no float64 copy
+        return KeyStats(sum_sq=0.0, total=0.0, count=grad.size)
+    c = (
+        grad.ravel().astype(np.float64)
+        if value is None
+        else np.multiply(grad.ravel(), value.ravel(), dtype=np.float64)
+    )
+    return KeyStats(sum_sq=float(c @ c), total=float(c.sum()), count=c.size)
+
+
+def hidden_by_zero(value: np.ndarray, grad: np.ndarray) -> tuple[int, float]:
+    """Components with θ = 0 where ∂M/∂θ ≠ 0, and Σ ∂M/∂θ when there are any (else 0.0)."""
+    hidden = int(np.count_nonzero((value == 0) & (grad != 0)))
+    return hidden, float(grad.astype(np.float64).sum()) if hidden else 0.0
+
+
+def mean_value(value: np.ndarray) -> float | None:
+    """One number for a value array (a colour, a texture): its mean; None when it is empty."""
+    return float(value.astype("float64").mean()) if value.size else None
+
+
+@dataclass(frozen=True, eq=False)
+class ParamSums:
+    """The sums of every parameter (``keys``, buffer order): per objective a (P, 6) table."""
+
+    keys: tuple[str, ...]
+    tables: Mapping[str, np.ndarray]  # objective -> (P, len(SUMS_COLUMNS)) float64
+    value_means: np.ndarray  # (P,) float64; 0.0 for an empty value
+    _row: Mapping[str, int] = field(init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_row", {key: i for i, key in enumerate(self.keys)})
+
+    def stats(self, objective: str, key: str, weight: str, count: int) -> KeyStats:
+        row = self.tables[objective][self._row[key]]
+        first = 0 if weight == "value" else 2
+        return KeyStats(sum_sq=float(row[first]), total=float(row[first + 1]), count=count)
+
+    def hidden(self, objective: str, key: str) -> tuple[int, float]:
+        row = self.tables[objective][self._row[key]]
+        return int(row[4]), float(row[5])
+
+    def mean(self, key: str, size: int) -> float | None:
+        return float(self.value_means[self._row[key]]) if size else None
+
+
+def sums_of(
+    keys: Sequence[str],
+    values: Mapping[str, np.ndarray],
+    grads: Mapping[str, Mapping[str, np.ndarray]],
+) -> ParamSums:
+    """The sums computed from the arrays (copies sharing their arrays are summed once)."""
+    tables = {}
+    for objective, per_key in grads.items():
+        done: dict[tuple[int, int], tuple[float, ...]] = {}
+        rows = []
+        for key in keys:
+            grad, value = per_key[key], values[key]
+            pair = (id(grad), id(value))
+            if pair not in done:
+                by_value, raw = stats_of(grad, value), stats_of(grad, None)
+                hidden, raw_signed = hidden_by_zero(value, grad)
+                done[pair] = (by_value.sum_sq, by_value.total, raw.sum_sq, raw.total,
+                              float(hidden), raw_signed)  # fmt: skip
+            rows.append(done[pair])
+        tables[objective] = np.array(rows, np.float64).reshape(len(keys), len(SUMS_COLUMNS))
+    means = [mean_value(values[key]) for key in keys]
+    value_means = np.array([0.0 if m is None else m for m in means], np.float64)
+    return ParamSums(tuple(keys), tables, value_means)
+
+
+def t_cdf(x: float, dof: float) -> float:
+    """P(T ≤ x) for Student's t with ``dof`` > 0 degrees of freedom."""
+    if not dof > 0:
+        raise ValueError(f"degrees of freedom must be positive, got {dof}")
+    if x == 0.0:
+        return 0.5
+    tail = 0.5 * _incomplete_beta(dof / (dof + x * x), dof / 2.0, 0.5)
+    return 1.0 - tail if x > 0 else tail
+
+
+def t_quantile(probability: float, dof: float) -> float:
+    """The x with P(T ≤ x) = ``probability`` (bisection on :func:`t_cdf`, to 1e-12)."""
+    if not 0.0 < probability < 1.0:
+        raise ValueError(f"probability must lie in (0, 1), got {probability}")
+    if probability < 0.5:
+        return -t_quantile(1.0 - probability, dof)
+    low, high = 0.0, 1.0
+    while t_cdf(high, dof) < probability:
+        high *= 2.0
+    while high - low > 1e-12 * max(1.0, high):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if t_cdf(middle, dof) < probability else (low, middle)
+    return 0.5 * (low + high)
+
+
+def interval_factor(batches: int, level: float = SIGNIFICANCE_LEVEL) -> float:
+    """How many standard errors from ``batches`` batches make a two-sided ``level`` interval."""
+    if batches < 2:
+        raise ValueError(f"a standard error needs at least 2 batches, got {batches}")
+    return t_quantile(0.5 + level / 2.0, batches - 1)
+
+
+def _incomplete_beta(x: float, a: float, b: float) -> float:
+    """The regularised incomplete beta function I_x(a, b), by its continued fraction."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    log_front = (
+        math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x) + b * math.log1p(-x)
+    )
+    if x < (a + 1.0) / (a + b + 2.0):
+        return math.exp(log_front) * _fraction(x, a, b) / a
+    return 1.0 - math.exp(log_front) * _fraction(1.0 - x, b, a) / b
+
+
+def _fraction(x: float, a: float, b: float) -> float:
+    """The continued fraction of I_x(a, b) (modified Lentz), converging for x < (a+1)/(a+b+2)."""
+    tiny = 1e-300
+    c, d = 1.0, 1.0 - (a + b) * x / (a + 1.0)
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    result = d
+    for m in range(1, 300):
+        for numerator in (
+            m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),
+            -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1)),
+        ):
+            d = 1.0 + numerator * d
+            d = 1.0 / (d if abs(d) > tiny else tiny)
+            c = 1.0 + numerator / c
+            c = c if abs(c) > tiny else tiny
+            result *= c * d
+        if abs(c * d - 1.0) < 1e-15:
+            break
+    return result

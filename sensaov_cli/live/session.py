@@ -25,8 +25,7 @@ from typing import cast
 import numpy as np
 
 from sensaov_cli.buffer.forward_sidecar import check_belongs, read_forward
-from sensaov_cli.buffer.identity import buffer_id
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.model import SensitivityBuffer, buffer_id
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import select
 from sensaov_cli.buffer.statistics import single_pass

@@ -2,7 +2,7 @@
 
 A buffer records the job version it was made from (``run_version``, :meth:`JobSpec.run_hash`);
 every EXR, preview and manifest made from a buffer records the buffer's id and the hash of the
-job that made it (:func:`sensaov_cli.buffer.identity.stamp`). A command that reads outputs
+job that made it (:func:`sensaov_cli.buffer.model.stamp`). A command that reads outputs
 together refuses, in one line with exit 2, anything that would mix two states: a buffer from
 another version of the job, an EXR or a preview from another buffer (docs/buffer-format.md,
 "Identity").
@@ -15,8 +15,13 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from sensaov_cli.buffer.identity import STAMP_BUFFER, STAMP_JOB, buffer_id, run_version
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.model import (
+    STAMP_BUFFER,
+    STAMP_JOB,
+    SensitivityBuffer,
+    buffer_id,
+    run_version,
+)
 from sensaov_cli.errors import StaleInputError
 from sensaov_cli.job.spec import JobSpec
 

@@ -13,11 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from sensaov_cli import interrupts
-from sensaov_cli.buffer.identity import BUFFER_ID, new_buffer_id
-from sensaov_cli.buffer.model import FORMAT_VERSION, SensitivityBuffer
-from sensaov_cli.buffer.npz import buffer_writer, read_buffer_versioned
-from sensaov_cli.buffer.shard_metadata import check_shard_metadata
-from sensaov_cli.buffer.shards import Shard, merge_shards
+from sensaov_cli.buffer.model import BUFFER_ID, SensitivityBuffer, new_buffer_id
+from sensaov_cli.buffer.npz import buffer_writer, read_buffer
+from sensaov_cli.buffer.shards import Shard, merge_shards, shard_task
 from sensaov_cli.buffer.statistics import weighted_mean
 from sensaov_cli.errors import MergeError, SensaovError
 from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
@@ -52,16 +50,15 @@ def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> Merge
     shards = []
     with progress.stage("read_s", f"reading {len(paths)} shard(s)"):
         for path in paths:
-            buffer, version = read_buffer_versioned(path)
-            check_shard_metadata(path, buffer.provenance)
-            shards.append(Shard(path, buffer, version))
+            buffer = read_buffer(path)
+            shards.append(Shard(path, buffer, shard_task(path, buffer.provenance)))
     read = [*paths, *map(primal_beside, paths)]
     read += [path for shard in shards for path in recorded_inputs(shard.buffer.provenance)]
     refuse_unsafe_outputs(
         read, [output, primal_path], where=str(output), hint="name another file with -o"
     )
     with progress.stage("merge_s", "merging"):
-        merged = merge_shards(shards, FORMAT_VERSION)
+        merged = merge_shards(shards)
         # A merge is a new buffer: outputs made from a shard (or an earlier merge) are not its.
         merged.provenance.update(made_by("merge"), **{BUFFER_ID: new_buffer_id()})
         primal = _merged_primal(shards)

@@ -17,8 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from sensaov_cli import interrupts
-from sensaov_cli.buffer.identity import stamp
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.model import SensitivityBuffer, stamp
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import FingerprintMismatch, SpecError
 from sensaov_cli.job.spec import CameraSpec, JobSpec

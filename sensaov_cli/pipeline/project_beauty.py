@@ -18,8 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli.buffer.identity import buffer_id, provenance_id
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.model import SensitivityBuffer, buffer_id, provenance_id
 from sensaov_cli.errors import SensaovError
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.outputs.provenance import header_provenance

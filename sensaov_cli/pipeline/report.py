@@ -16,8 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli.buffer.identity import buffer_id, provenance_id, run_version
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.model import SensitivityBuffer, buffer_id, provenance_id, run_version
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import OutputError, SensaovError, StaleInputError
 from sensaov_cli.job.spec import CameraSpec, JobSpec

@@ -13,8 +13,13 @@ from typing import Any
 
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.forward_sidecar import forward_writer
-from sensaov_cli.buffer.identity import BUFFER_ID, RUN_VERSION, new_buffer_id
-from sensaov_cli.buffer.model import ObjectiveRecord, SensitivityBuffer
+from sensaov_cli.buffer.model import (
+    BUFFER_ID,
+    RUN_VERSION,
+    ObjectiveRecord,
+    SensitivityBuffer,
+    new_buffer_id,
+)
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer
 from sensaov_cli.errors import SensaovError, SpecError
 from sensaov_cli.job.spec import JobSpec

@@ -20,7 +20,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
-from sensaov_cli.buffer.param_sums import hidden_by_zero
+from sensaov_cli.buffer.statistics import hidden_by_zero
 from sensaov_cli.errors import QueryError
 from sensaov_cli.vocabulary import UNTRUSTED_MODES, Trust
 
@@ -105,7 +105,7 @@ def zero_valued(
     sums = buf.sums
     for key in buf.keys if keys is None else keys:
         record = buf.param(key)
-        if sums is not None:  # stored by the writer (buffer/param_sums.py): no texel is read
+        if sums is not None:  # stored by the writer (buffer/npz.py): no texel is read
             hidden, raw = sums.hidden(objective, key)
         else:
             hidden, raw = hidden_by_zero(buf.value(key), buf.grad(objective, key))

@@ -24,8 +24,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
-from sensaov_cli.buffer.param_sums import mean_value
 from sensaov_cli.buffer.queries import KeyStats, key_stats, rank, scores
+from sensaov_cli.buffer.statistics import mean_value
 from sensaov_cli.errors import QueryError
 from sensaov_cli.views.headline import ZeroValued, split_groups, zero_valued
 from sensaov_cli.views.summary import ranked_groups, weakest_trust

@@ -21,11 +21,12 @@ from sensaov_cli.buffer.statistics import (
     COLUMNS,
     PROJ_RAW,
     PROJ_VALUE,
+    SIGNIFICANCE_LEVEL,
     SUM_RAW,
     SUM_VALUE,
+    interval_factor,
     pooled_stderr,
 )
-from sensaov_cli.buffer.student_t import SIGNIFICANCE_LEVEL, interval_factor
 from sensaov_cli.vocabulary import Aggregate, Weight
 
 STABILITY_TOP = 3  # the ranking's top this many rows must keep their order
