@@ -22,6 +22,7 @@ from sensaov_cli.outputs.atomic import atomic_write_all
 from sensaov_cli.outputs.exr import exr_writer
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, write_png
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
+from sensaov_cli.views.headline import TRUSTED
 from sensaov_cli.views.pooling import white_noise_factor
 from sensaov_cli.views.texel_fields import TexelField
 from sensaov_cli.views.texel_passes import TexelPass
@@ -113,23 +114,24 @@ def _png_writer(field: TexelField) -> Callable[[Path], None]:
 def write_fig4_sheet(
     path: Path,
     camera: str,
+    field: TexelField,
     passes: Sequence[TexelPass],
     scales: Sequence[float],
     stamp: Mapping[str, str],
 ) -> Path:
     """Fig. 4: the object, per-texel and joint panels of one texture side by side, each
     titled with the value at which it saturates (its display scale, in the layer's metadata)."""
-    tiles = []
-    for texel_pass, scale in zip(passes, scales, strict=True):
-        tile = _enlarged(diverging_rgb(_luminance(texel_pass.data), scale))
-        mark = " !" if json.loads(texel_pass.metadata.get("unverified", "[]")) else ""
-        tiles.append((f"{texel_pass.panel} ±{scale:.2e}{mark}", tile))
-    meta = passes[0].metadata
-    title = f"{camera}: {meta['texture']} (object | per texel | joint share; ! = not trusted)"
+    mark = " !" if field.record.trust not in TRUSTED else ""
+    tiles = [
+        (f"{p.panel} ±{scale:.2e}{mark}", _enlarged(diverging_rgb(_luminance(p.data), scale)))
+        for p, scale in zip(passes, scales, strict=True)
+    ]
+    texture = field.record.key
+    title = f"{camera}: {texture} (object | per texel | joint share; ! = not trusted)"
     notes = ["each panel at its own display scale (shared by every camera); the joint panel "
              "at 1 = the object's value spread evenly over the texture"]  # fmt: skip
     sheet = contact_sheet(tiles, len(tiles), scale=1.0, title=title, notes=notes)
-    write_png(path, sheet, {**stamp, "sensaov/camera": camera, "sensaov/texture": meta["texture"]})
+    write_png(path, sheet, {**stamp, "sensaov/camera": camera, "sensaov/texture": texture})
     return path
 
 
