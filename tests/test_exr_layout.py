@@ -56,8 +56,6 @@ def write_synthetic(path: Path, seed: int = 0) -> tuple[np.ndarray, list[Sensiti
     layers = synthetic_layers(rng)
     write_layered_exr(
         path,
-        width=WIDTH,
-        height=HEIGHT,
         beauty=beauty,
         cryptomattes=[synthetic_crypto()],
         layers=layers,
@@ -196,9 +194,7 @@ def test_sanitised_names_keep_originals_in_metadata(tmp_path: Path) -> None:
         SensitivityLayer("sky_region", "bsdf_albedo", np.ones((HEIGHT, WIDTH)), {"buffer": "b"}),
     ]
     path = tmp_path / "names.exr"
-    write_layered_exr(
-        path, width=WIDTH, height=HEIGHT, beauty=None, cryptomattes=[], layers=layers, attributes={}
-    )
+    write_layered_exr(path, beauty=None, cryptomattes=[], layers=layers, attributes={})
     spec, channels, attributes = oiio_read(path)
     names = layer_names(layers)
     assert sorted(channels) == sorted(f"{name}.Y" for name in names)
@@ -212,8 +208,6 @@ def _refused(tmp_path: Path, layer: SensitivityLayer, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         write_layered_exr(
             tmp_path / "refused.exr",
-            width=WIDTH,
-            height=HEIGHT,
             beauty=None,
             cryptomattes=[],
             layers=[layer],
@@ -251,7 +245,7 @@ def test_bad_input_is_refused(tmp_path: Path, change: dict[str, Any], message: s
     arguments: dict[str, Any] = {"beauty": None, "cryptomattes": [], "layers": [], "attributes": {}}
     arguments |= {"beauty": np.zeros((HEIGHT, WIDTH, 3))} | change
     with pytest.raises(ValueError, match=message):
-        write_layered_exr(tmp_path / "bad.exr", width=WIDTH, height=HEIGHT, **arguments)
+        write_layered_exr(tmp_path / "bad.exr", **arguments)
     assert list(tmp_path.iterdir()) == []
 
 

@@ -78,12 +78,12 @@ def write_previews(
                     "sensaov/scale": repr(scale.value), "sensaov/scale_rule": scale.rule(),
                     "sensaov/encoding": layer.metadata.get("encoding", "")}  # fmt: skip
             title = f"{layer.objective}.{layer.pass_name} ({camera})"
-            tile = _enlarged(rgb, SINGLE_TILE_WIDTH)
+            tile = enlarged(rgb, SINGLE_TILE_WIDTH)
             sheet = contact_sheet([(_label(layer, scale), tile)], 1, scale=scale.value,
                                   title=title, notes=entry.notes)  # fmt: skip
             queue.put(folder / entry.file, sheet, text)
             written.append(entry)
-            sheets[layer.objective].append((_label(layer, scale), _enlarged(rgb, MIN_TILE_WIDTH)))
+            sheets[layer.objective].append((_label(layer, scale), enlarged(rgb, MIN_TILE_WIDTH)))
         for objective, tiles in sheets.items():
             file = f"{file_token(camera)}_{file_token(objective)}.png"
             notes = _sheet_notes(layers, objective)
@@ -169,11 +169,11 @@ def _layer_entry(
         rule=scale.rule(),
         clipped=here,
         clipped_all=scale.clipped,
-        notes=tuple(legend_notes(layer, scale, here, values)),
+        notes=tuple(_legend_notes(layer, scale, here, values)),
     )
 
 
-def legend_notes(
+def _legend_notes(
     layer: SensitivityLayer, scale: DisplayScale, here: float, values: np.ndarray
 ) -> list[str]:
     """The lines under a single preview's colour bar (ASCII: the font has no θ or ∂)."""
@@ -247,6 +247,7 @@ def _label(layer: SensitivityLayer, scale: DisplayScale) -> str:
     return f"{layer.pass_name} ±{scale.value:.2e}{tile}{marks}"
 
 
-def _enlarged(tile: np.ndarray, width: int) -> np.ndarray:
+def enlarged(tile: np.ndarray, width: int = SINGLE_TILE_WIDTH) -> np.ndarray:
+    """``tile`` repeated (nearest neighbour) to at least ``width`` pixels across."""
     factor = -(-width // tile.shape[1])  # ceil
     return np.repeat(np.repeat(tile, factor, axis=0), factor, axis=1) if factor > 1 else tile

@@ -119,8 +119,6 @@ class SensitivityLayer:
 def write_layered_exr(
     path: Path,
     *,
-    width: int,
-    height: int,
     beauty: np.ndarray | None,
     cryptomattes: Sequence[CryptoLayer],
     layers: Sequence[SensitivityLayer],
@@ -128,7 +126,6 @@ def write_layered_exr(
 ) -> None:
     """Write the compositor EXR atomically; refuse layers a compositor could not use (a name
     clash, NaN or infinity) before any file is touched."""
-    shape = (height, width)
     header = {"sensaov/format": FORMAT_NAME, "sensaov/format_version": str(FORMAT_VERSION)}
     channels: dict[str, np.ndarray] = {}
     if beauty is not None:
@@ -146,7 +143,7 @@ def write_layered_exr(
         for index in range(cryptomatte.layer_count(crypto.ranks))
     }
     for layer, name in zip(layers, layer_names(layers, reserved=reserved), strict=True):
-        channels.update(_sensitivity_channels(layer, name, shape))
+        channels.update(_sensitivity_channels(layer, name))
         header.update(layer_metadata(layer, name))
     header.update(attributes)
     write_exr(path, channels, header)
@@ -310,9 +307,7 @@ def _check_unique(names: Sequence[str], reserved: set[str] | frozenset[str]) -> 
         )
 
 
-def _sensitivity_channels(
-    layer: SensitivityLayer, name: str, shape: tuple[int, int]
-) -> dict[str, np.ndarray]:
+def _sensitivity_channels(layer: SensitivityLayer, name: str) -> dict[str, np.ndarray]:
     data = layer.data if layer.kind == "display" else _as_float32(layer.data)
     bad = _non_finite(data)
     if bad:  # a render's NaN or an encoding's overflow: a compositor multiply spreads it

@@ -601,8 +601,6 @@ def _project_camera(
     interrupts.check()
     write_layered_exr(
         path,
-        width=visibility.width,
-        height=visibility.height,
         beauty=beauty,
         cryptomattes=[crypto, material],
         layers=[layer for pair in pairs for layer in pair],
