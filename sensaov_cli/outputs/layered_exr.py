@@ -26,6 +26,7 @@ from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -47,6 +48,8 @@ DISPLAY_ENCODING = (
     "linear Rec. 709 (its sRGB encoding is the previews' colours); black where nothing is hit"
 )
 DUALITY_FAILED = "EXCEEDS TOLERANCE: do not trust this layer"
+# What a layer shows: "" a buffer channel's values, or a forward, transport, texel or display one.
+LayerKind = Literal["", "forward", "transport", "texel", "display"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -94,7 +97,7 @@ class SensitivityLayer:
     pass_name: str
     data: np.ndarray
     metadata: Mapping[str, str] = field(default_factory=dict)
-    kind: str = ""  # "forward", "transport", "texel", "display"; "" for a buffer channel's
+    kind: LayerKind = ""
     group: ScaleGroup = ScaleGroup("")  # "": in no group (written without one)
     part: str | None = None  # "trusted" / "untrusted" / "all" for a buffer channel's
     invisible: tuple[str, ...] | None = None  # objects it paints that this camera does not see

@@ -175,7 +175,7 @@ def run_job(
     forward = None
     if forward_wanted:
         forward = run_forward(job, loaded, objectives, buffer, result.image, progress)
-        progress.skip(planned_forward - len(forward.passes) if forward else planned_forward)
+        progress.skip(planned_forward - len(forward.passes))
         # The buffer's times cover every pass of the run, forward passes included.
         timed = {**buffer.provenance, "timings_s": dict(progress.timings),
                  "wall_time_s": round(time.perf_counter() - started, 4)}  # fmt: skip
@@ -402,10 +402,8 @@ def run_forward(
     buffer: SensitivityBuffer,
     primal: np.ndarray,
     progress: Progress,
-) -> ForwardData | None:
-    """Render every forward pass the job asks for; None when it asks for none."""
-    if not job.wants_forward:
-        return None
+) -> ForwardData:
+    """Render every forward pass the job asks for."""
     seeds = {o.name: o.grad_seed for o in buffer.objectives}
     first = buffer.objectives[0].name
     backward_s = progress.timings.get(f"backward_{first}_s", 0.0)
@@ -468,22 +466,18 @@ def _top_layers(
     return layers
 
 
+@dataclass
 class _Passes:
     """Forward passes rendered so far, one per (keys, direction, seed)."""
 
-    def __init__(
-        self,
-        loaded: LoadedScene,
-        buffer: SensitivityBuffer,
-        job: JobSpec,
-        shape: tuple[int, ...],
-        progress: Progress,
-        backward_s: float,
-    ) -> None:
-        self.loaded, self.buffer, self.job, self.shape = loaded, buffer, job, shape
-        self.progress, self.backward_s = progress, backward_s
-        self.passes: list[ForwardPass] = []
-        self.index: dict[tuple[tuple[str, ...], str, int], int] = {}
+    loaded: LoadedScene
+    buffer: SensitivityBuffer
+    job: JobSpec
+    shape: tuple[int, ...]
+    progress: Progress
+    backward_s: float
+    passes: list[ForwardPass] = dataclasses.field(default_factory=list)
+    index: dict[tuple[tuple[str, ...], str, int], int] = dataclasses.field(default_factory=dict)
 
     def get(self, group: _ForwardGroup, seed: int) -> int:
         key = (tuple(sorted(group.keys)), group.direction, seed)
@@ -504,17 +498,10 @@ class _Passes:
         )
         if result.failure:
             self.progress.note(f"warning: Mitsuba cannot push '{group.name}': {result.failure}")
-        self.passes.append(
-            ForwardPass(
-                group.keys,
-                group.direction,
-                seed,
-                result.seconds,
-                result.integrators,
-                result.failure,
-                result.image,
-            )  # fmt: skip
-        )
+        self.passes.append(ForwardPass(
+            group.keys, group.direction, seed, result.seconds, result.integrators, result.failure,
+            result.image,
+        ))  # fmt: skip
         self.index[key] = n
         return n
 
