@@ -262,7 +262,9 @@ def forward_layers(
         meta = {**common, **_forward_meta(f.keys, f.direction, f.seed, f.unverified)}
         meta["aliases"] = json.dumps(list(f.aliases))
         group = ScaleGroup(f"forward/{f.name}")
-        layers.append(SensitivityLayer("forward", f.name, f.data, meta, "forward", group))
+        layers.append(
+            SensitivityLayer("forward", f.name, f.data, meta, kind="forward", group=group)
+        )
     for t in transport_views(buffer, data):
         meta = {**common, **_forward_meta(t.keys, t.direction, t.seed, t.unverified)}
         meta.update(
@@ -274,7 +276,8 @@ def forward_layers(
         )
         group = ScaleGroup(f"{t.objective}/{_transport_group(job, t.source, t.name)}")
         layers.append(SensitivityLayer(
-            t.objective, t.name, t.data, meta, "transport", group, duality_agrees=t.agrees
+            t.objective, t.name, t.data, meta, kind="transport", group=group,
+            duality_agrees=t.agrees,
         ))  # fmt: skip
     return layers
 
@@ -394,8 +397,8 @@ def _texel_panels(
                 1.0 if texel_pass.panel == "joint" else None,
             )
             layers.append(SensitivityLayer(
-                field.objective, texel_pass.pass_name, texel_pass.data, metadata, "texel", group,
-                invisible=(),
+                field.objective, texel_pass.pass_name, texel_pass.data, metadata, kind="texel",
+                group=group, invisible=(),
             ))  # fmt: skip
         result.append(_TexelPanels(field, passes, layers))
     return result
