@@ -74,7 +74,8 @@ class Task:
         middle = "".join(f".{part}" for part in parts)
         return f"buffer{middle}.npz", f"primal{middle}.exr"
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> dict[str, dict[str, int] | list[str] | None]:
+        """The task as the buffer's provenance records it (``--resume`` compares it)."""
         shard = {"index": self.shard[0], "count": self.shard[1]} if self.shard else None
         return {"shard": shard, "objectives": list(self.objectives) or None}
 
