@@ -79,7 +79,7 @@ def _projection_job(ws: Workspace, s: Settings, scene: str) -> Path:
 
 def _objective_job(ws: Workspace, s: Settings, scene: str) -> Path:
     """A job whose only view is the objective camera at the view size: its beauty is the run's
-    primal (project_beauty.py), so the default view renders no path trace."""
+    primal (pipeline/project.py), so the default view renders no path trace."""
     return ws.job(
         f"proj_objective_{scene}",
         SCENES[scene],

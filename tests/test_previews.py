@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -200,9 +199,9 @@ def test_a_contact_sheet_names_what_its_tiles_cannot_show(tmp_path: Path) -> Non
     scale = robust_scale({"cam": [data]})
     meta = {"encoding": "linear", "unverified": "[]"}
     layers = [
-        (SensitivityLayer("m", "objects", data, {**meta, "invisible": '["light", "sky"]'}), scale),
-        (SensitivityLayer("m", "types_radiance", data, {**meta, "invisible": '["light"]'}), scale),
-        (SensitivityLayer("m", "walls", data, {**meta, "duality": "disagrees"}), scale),
+        (SensitivityLayer("m", "objects", data, meta, invisible=("light", "sky")), scale),
+        (SensitivityLayer("m", "types_radiance", data, meta, invisible=("light",)), scale),
+        (SensitivityLayer("m", "walls", data, meta, duality_agrees=False), scale),
         (SensitivityLayer("other", "objects", data, meta), scale),
     ]
 
@@ -219,8 +218,8 @@ def test_a_contact_sheet_names_what_its_tiles_cannot_show(tmp_path: Path) -> Non
     assert "duality check FAILED, do not trust (marked !): walls" in notes
     assert not any("not in this view" in n or "FAILED" in n for n in sheets["other"].notes)
     assert sheets["m"].notes[0].startswith("duality check FAILED")  # first: never cut off
-    many = json.dumps([f"object_{i:02d}" for i in range(20)])
-    crowded = [(SensitivityLayer("m", "objects", data, {**meta, "invisible": many}), scale)]
+    many = tuple(f"object_{i:02d}" for i in range(20))
+    crowded = [(SensitivityLayer("m", "objects", data, meta, invisible=many), scale)]
     (sheet,) = [e for e in write_previews(tmp_path, "c2", crowded, None, Visibility(), {})
                 if e.kind == "sheet"]  # fmt: skip
     assert sheet.notes[-1].endswith("object_05 (objects); and 14 more")

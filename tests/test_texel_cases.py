@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.pipeline.project_texels import sampling_of
+from sensaov_cli.pipeline.project import sampling_of
 from sensaov_cli.render.visibility import texture_probes
 
 from .conftest import sensaov, use_scene, write_job

@@ -78,9 +78,9 @@ def console() -> None:
     """The ``sensaov`` executable: :func:`main`, then the process ends at once.
 
     Once a command is over (its files closed, its line printed), what the interpreter's
-    finalisation still does is tear down Dr.Jit, LLVM and every module: 0.15-0.18 s of a 2-3 s
-    ``project`` or ``run``, in which Python has already put SIGTERM back to its default, so a
-    farm's SIGTERM then killed a finished process (status -15, no line). Here the streams are
+    finalisation still does is tear down Dr.Jit, LLVM and every module, a noticeable share of a
+    short ``project`` or ``run``, in which Python has already put SIGTERM back to its default, so
+    a farm's SIGTERM then killed a finished process (status -15, no line). Here the streams are
     flushed and the process exits with the command's code, as a stop already does
     (``options._stopped``). Of the exit handlers it skips, sensaov's own, which removes its
     scratch folders (matplotlib's cache of a sunburst), runs here first. A flush that fails

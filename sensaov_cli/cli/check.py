@@ -7,22 +7,12 @@ from pathlib import Path
 
 import click
 
-from sensaov_cli.cli.options import (
-    EXIT_CODES_EPILOG,
-    FilePath,
-    allow_python_option,
-    echo_json,
-    job_argument,
-    json_option,
-    progress_option,
-    quiet_option,
-    reports_errors,
-)
+from sensaov_cli.cli import options
 
 
-@click.command(epilog=EXIT_CODES_EPILOG)
-@job_argument
-@json_option
+@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.job_argument
+@options.json_option
 @click.option("--objective", help="Objective to check (default: the job's first).")
 @click.option("--spp", type=click.IntRange(min=1), help="Samples per pixel (default: the job's).")
 @click.option(
@@ -44,7 +34,7 @@ from sensaov_cli.cli.options import (
 @click.option(
     "--buffer",
     "buffer_path",
-    type=FilePath(path_type=Path, dir_okay=False),
+    type=options.FilePath(path_type=Path, dir_okay=False),
     help="Buffer whose gradients the duality column checks (default: <output>/buffer.npz).",
 )
 @click.option(
@@ -56,10 +46,10 @@ from sensaov_cli.cli.options import (
     help="Duality column: random directions per parameter, besides ones [default: 0; 2 "
     "with --full].",
 )  # fmt: skip
-@allow_python_option
-@quiet_option
-@progress_option
-@reports_errors
+@options.allow_python_option
+@options.quiet_option
+@options.progress_option
+@options.reports_errors
 def check(
     job: Path,
     as_json: bool,
@@ -102,8 +92,6 @@ def check(
       sensaov check configs/cbox.yaml --full --spp 256 --seeds 12   # the audit
       sensaov check configs/cbox.yaml --key glass.eta --spp 1024 --seeds 12
     """
-    from dataclasses import asdict
-
     from sensaov_cli.job.load import load_job
     from sensaov_cli.outputs.check_tables import checks_text, duality_text
     from sensaov_cli.pipeline.check import FD_TOLERANCE, check_job, exit_code
@@ -119,21 +107,7 @@ def check(
         missing = buffer_path or spec.output / "buffer.npz"
         click.echo(f"sensaov: no buffer at {missing}: duality column skipped", err=True)
     if as_json:
-        echo_json(
-            {
-                "finite_differences": [asdict(r) for r in report.gradients],
-                "not_measured": [{"key": k, "why": why} for k, why in report.not_measured],
-                "duality": [
-                    {
-                        **asdict(d),
-                        "duality_error": d.duality_error,
-                        "central_error": d.central_error,
-                        "verdict": d.verdict,
-                    }
-                    for d in report.duality
-                ],  # fmt: skip
-            }
-        )
+        options.echo_json(report.as_json())
     else:
         click.echo(checks_text(report.gradients))
         for key, why in report.not_measured:

@@ -6,27 +6,23 @@ from pathlib import Path
 
 import click
 
-from sensaov_cli.cli.options import (
-    EXIT_CODES_EPILOG,
-    FilePath,
-    progress_option,
-    quiet_option,
-    reports_errors,
+from sensaov_cli.cli import options
+
+
+@click.command(epilog=options.EXIT_CODES_EPILOG)
+@click.argument(
+    "shards", nargs=-1, required=True, type=options.FilePath(path_type=Path, dir_okay=False)
 )
-
-
-@click.command(epilog=EXIT_CODES_EPILOG)
-@click.argument("shards", nargs=-1, required=True, type=FilePath(path_type=Path, dir_okay=False))
 @click.option(
     "-o",
     "--output",
     required=True,
-    type=FilePath(path_type=Path, dir_okay=False),
+    type=options.FilePath(path_type=Path, dir_okay=False),
     help="The merged buffer; its primal is written beside it (buffer -> primal, .exr).",
 )
-@quiet_option
-@progress_option
-@reports_errors
+@options.quiet_option
+@options.progress_option
+@options.reports_errors
 def merge(shards: tuple[Path, ...], output: Path, quiet: bool, progress_style: str) -> None:
     """Merge the shards of a job ('sensaov run JOB --shard I/N') into one buffer.
 

@@ -159,8 +159,8 @@ def _silence(descriptor: int) -> None:
 def _stopped(earlier: int) -> None:
     """Report a stop and end the process at once with 130/143. Interpreter finalisation is
     skipped on purpose: a stop that arrived while Dr.Jit initialised could otherwise end the
-    process by SIGINT (exit -2) after the line was printed (seen in 3 of 10 runs with SIGTERM
-    0.2 s after start). Outputs are settled here: temporaries removed, nothing else is open."""
+    process by SIGINT (exit -2) after the line was printed (seen with a SIGTERM soon after
+    start). Outputs are settled here: temporaries removed, nothing else is open."""
     code = interrupts.exit_code()
     try:
         _fail(f"stopped by {interrupts.signal_name()}", code, earlier)

@@ -6,22 +6,16 @@ from pathlib import Path
 
 import click
 
-from sensaov_cli.cli.options import (
-    EXIT_CODES_EPILOG,
-    echo_json,
-    job_argument,
-    json_option,
-    reports_errors,
-)
+from sensaov_cli.cli import options
 
 
-@click.command(epilog=EXIT_CODES_EPILOG)
-@job_argument
-@json_option
+@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.job_argument
+@options.json_option
 @click.option(
     "--all", "show_all", is_flag=True, help="List every excluded key, not only a count per reason."
 )
-@reports_errors
+@options.reports_errors
 def params(job: Path, as_json: bool, show_all: bool) -> None:
     """Show which scene parameters enter the buffer, their owners and types.
 
@@ -39,6 +33,6 @@ def params(job: Path, as_json: bool, show_all: bool) -> None:
 
     inventory = parameter_inventory(load_job(job))
     if as_json:
-        echo_json(params_dict(inventory))
+        options.echo_json(params_dict(inventory))
     else:
         click.echo(params_text(inventory, show_all=show_all))

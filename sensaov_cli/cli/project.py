@@ -6,26 +6,18 @@ from pathlib import Path
 
 import click
 
-from sensaov_cli.cli.options import (
-    EXIT_CODES_EPILOG,
-    FilePath,
-    echo_json,
-    job_argument,
-    json_option,
-    quiet_option,
-    reports_errors,
-)
+from sensaov_cli.cli import options
 
 
-@click.command(epilog=EXIT_CODES_EPILOG)
-@job_argument
+@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.job_argument
 @click.option(
     "--camera", "cameras", multiple=True, help="Only this camera (repeatable); default: all."
 )
 @click.option(
     "--buffer",
     "buffer_path",
-    type=FilePath(path_type=Path),
+    type=options.FilePath(path_type=Path),
     help="Buffer to project (default: <output>/buffer.npz of the job).",
 )
 @click.option("--png", is_flag=True, help="Also write PNG previews and a contact sheet per camera.")
@@ -44,9 +36,9 @@ from sensaov_cli.cli.options import (
     is_flag=True,
     help="Project even if the scene or the job changed since the buffer was made.",
 )
-@json_option
-@quiet_option
-@reports_errors
+@options.json_option
+@options.quiet_option
+@options.reports_errors
 def project(
     job: Path,
     cameras: tuple[str, ...],
@@ -95,7 +87,7 @@ def project(
         progress=Progress(quiet=quiet),
     )
     if as_json:
-        echo_json([asdict(v) for v in views], default=str)
+        options.echo_json([asdict(v) for v in views], default=str)
         return
     for view in views:
         extra = f" (+{len(view.previews)} PNG)" if view.previews else ""

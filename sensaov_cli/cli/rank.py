@@ -3,58 +3,46 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import cast
 
 import click
 
-from sensaov_cli.cli.options import (
-    EXIT_CODES_EPILOG,
-    FilePath,
-    aggregate_option,
-    echo_json,
-    json_option,
-    objective_option,
-    reports_errors,
-    top_option,
-    untrusted_option,
-    weight_option,
-)
+from sensaov_cli.cli import options
 from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
 
 
-@click.command(epilog=EXIT_CODES_EPILOG)
-@click.argument("buffer", type=FilePath(path_type=Path))
+@click.command(epilog=options.EXIT_CODES_EPILOG)
+@click.argument("buffer", type=options.FilePath(path_type=Path))
 @click.option(
     "--by",
     type=click.Choice(CUTS),
     help="One table per objective at this cut, with share, signed sum, sign, value, trust.",
 )
-@objective_option("Rank only this objective (repeatable; with --by).", multiple=True)
-@json_option
+@options.objective_option("Rank only this objective (repeatable; with --by).", multiple=True)
+@options.json_option
 @click.option("--csv", "as_csv", is_flag=True, help="Print CSV on stdout (with --by).")
 @click.option(
     "--exr",
     "exrs",
     multiple=True,
-    type=FilePath(path_type=Path),
+    type=options.FilePath(path_type=Path),
     help="A camera's EXR from 'sensaov project' (repeatable): label rows off-frame for it.",
 )
-@top_option("Rows per table.")
-@aggregate_option
-@weight_option
-@untrusted_option
-@reports_errors
+@options.top_option("Rows per table.")
+@options.aggregate_option
+@options.weight_option
+@options.untrusted_option
+@options.reports_errors
 def rank(
     buffer: Path,
-    by: str | None,
+    by: Cut | None,
     objective: tuple[str, ...],
     as_json: bool,
     as_csv: bool,
     exrs: tuple[Path, ...],
     top: int,
-    aggregate: str,
-    weight: str,
-    untrusted: str,
+    aggregate: Aggregate,  # click.Choice gives one of these
+    weight: Weight,
+    untrusted: Untrusted,
 ) -> None:
     """Rank parameters, objects and types from a stored buffer (numpy only, no rendering).
 
@@ -79,19 +67,17 @@ def rank(
     from sensaov_cli.pipeline.rank import rank_by_cut, rank_summary, refuse_options
 
     refuse_options(by=by, objective=bool(objective), as_json=as_json, as_csv=as_csv, exr=bool(exrs))
-    method, weighting = cast(Aggregate, aggregate), cast(Weight, weight)
-    apart = cast(Untrusted, untrusted)
     if by is None:
         result = rank_summary(
-            buffer, as_json=as_json, top=top, method=method, weight=weighting, untrusted=apart
+            buffer, as_json=as_json, top=top, method=aggregate, weight=weight, untrusted=untrusted
         )
     else:
         style = "json" if as_json else "csv" if as_csv else "text"
         result = rank_by_cut(
-            buffer, by=cast(Cut, by), objectives=objective, style=style, exrs=exrs, top=top,
-            method=method, weight=weighting, untrusted=apart,
+            buffer, by=by, objectives=objective, style=style, exrs=exrs, top=top,
+            method=aggregate, weight=weight, untrusted=untrusted,
         )  # fmt: skip
     if isinstance(result, dict):
-        echo_json(result)
+        options.echo_json(result)
     else:  # the summary is a block of lines; a table or CSV ends with its own newline
         click.echo(result, nl=by is None)

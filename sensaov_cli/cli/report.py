@@ -6,18 +6,18 @@ from pathlib import Path
 
 import click
 
-from sensaov_cli.cli.options import EXIT_CODES_EPILOG, FilePath, job_argument, reports_errors
+from sensaov_cli.cli import options
 
 
-@click.command(epilog=EXIT_CODES_EPILOG)
-@job_argument
+@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.job_argument
 @click.option(
     "-o",
     "--output",
-    type=FilePath(path_type=Path),
+    type=options.FilePath(path_type=Path),
     help="The page to write (default: <output>/report.html of the job).",
 )
-@reports_errors
+@options.reports_errors
 def report(job: Path, output: Path | None) -> None:
     """Write one HTML page of a job's outputs: nothing is rendered again.
 

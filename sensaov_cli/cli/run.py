@@ -7,19 +7,7 @@ from pathlib import Path
 
 import click
 
-from sensaov_cli.cli.options import (
-    EXIT_CODES_EPILOG,
-    allow_python_option,
-    echo_json,
-    job_argument,
-    json_option,
-    objective_option,
-    progress_option,
-    quiet_option,
-    reports_errors,
-    stdout_to_stderr,
-    top_option,
-)
+from sensaov_cli.cli import options
 
 
 def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[int, int] | None:
@@ -32,12 +20,12 @@ def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tup
     return int(match.group(1)), int(match.group(2))
 
 
-@click.command(epilog=EXIT_CODES_EPILOG)
-@job_argument
-@json_option
-@quiet_option
-@top_option("Rows per table in the summary.")
-@allow_python_option
+@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.job_argument
+@options.json_option
+@options.quiet_option
+@options.top_option("Rows per table in the summary.")
+@options.allow_python_option
 @click.option(
     "--shard",
     metavar="I/N",
@@ -45,7 +33,7 @@ def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tup
     help="Render shard I of N (1/N of render.spp, its own seed) into buffer.shard-I-of-N.npz; "
     "'sensaov merge' combines the N shards.",
 )
-@objective_option(
+@options.objective_option(
     "Differentiate this objective only (repeatable): one farm task per pass.", multiple=True
 )
 @click.option(
@@ -53,8 +41,8 @@ def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tup
     is_flag=True,
     help="Skip the work if this task's outputs are complete and were made by this job.",
 )
-@progress_option
-@reports_errors
+@options.progress_option
+@options.reports_errors
 def run(
     job: Path,
     as_json: bool,
@@ -85,7 +73,7 @@ def run(
     from sensaov_cli.progress import Progress
 
     spec = load_job(job)
-    with stdout_to_stderr():  # an objective's print() must not end up in the summary
+    with options.stdout_to_stderr():  # an objective's print() must not end up in the summary
         outputs = run_job(
             spec,
             allow_python=allow_python,
@@ -96,7 +84,7 @@ def run(
     summary = summary_of(outputs.buffer, as_json=as_json, top=top, untrusted=spec.views.untrusted)
     if isinstance(summary, dict):
         summary["files"] = {"buffer": str(outputs.buffer_path), "primal": str(outputs.primal_path)}
-        echo_json(summary)
+        options.echo_json(summary)
     else:
         click.echo(summary)
         click.echo(f"wrote {outputs.buffer_path} and {outputs.primal_path}")

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import click
 
-from sensaov_cli.cli.options import EXIT_CODES_EPILOG, echo_json, reports_errors
+from sensaov_cli.cli import options
 
 
-@click.command(epilog=EXIT_CODES_EPILOG)
-@reports_errors
+@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.reports_errors
 def schema() -> None:
     """Print the JSON Schema of the job format (for editors and CI linting).
 
@@ -18,4 +18,4 @@ def schema() -> None:
     """
     from sensaov_cli.job.load import job_schema
 
-    echo_json(job_schema(), sort_keys=True)
+    options.echo_json(job_schema(), sort_keys=True)

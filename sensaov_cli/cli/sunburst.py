@@ -3,25 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import cast
 
 import click
 
-from sensaov_cli.cli.options import (
-    EXIT_CODES_EPILOG,
-    FilePath,
-    aggregate_option,
-    objective_option,
-    reports_errors,
-    untrusted_option,
-    weight_option,
-)
+from sensaov_cli.cli import options
 from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Untrusted, Weight
 
 
-@click.command(epilog=EXIT_CODES_EPILOG)
-@click.argument("buffer", type=FilePath(path_type=Path))
-@objective_option(
+@click.command(epilog=options.EXIT_CODES_EPILOG)
+@click.argument("buffer", type=options.FilePath(path_type=Path))
+@options.objective_option(
     "Draw only this objective (repeatable; default: one disc per objective).", multiple=True
 )
 @click.option(
@@ -31,25 +22,25 @@ from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Untrusted, Weight
     show_default=True,
     help="The rings between the objective and the parameters, innermost first.",
 )
-@aggregate_option
-@weight_option
-@untrusted_option
+@options.aggregate_option
+@options.weight_option
+@options.untrusted_option
 @click.option(
     "-o",
     "--output",
-    type=FilePath(path_type=Path),
+    type=options.FilePath(path_type=Path),
     default=Path("sunburst.svg"),
     show_default=True,
     help="The file to write: .svg or .png.",
 )
-@reports_errors
+@options.reports_errors
 def sunburst(
     buffer: Path,
     objective: tuple[str, ...],
-    order: str,
-    aggregate: str,
-    weight: str,
-    untrusted: str,
+    order: Order,  # click.Choice gives one of these
+    aggregate: Aggregate,
+    weight: Weight,
+    untrusted: Untrusted,
     output: Path,
 ) -> None:
     """Draw a sunburst of a stored buffer (numpy and matplotlib, no rendering).
@@ -70,12 +61,7 @@ def sunburst(
     from sensaov_cli.pipeline.sunburst import draw_sunburst
 
     written = draw_sunburst(
-        buffer,
-        output,
-        objectives=objective,
-        order=cast(Order, order),
-        method=cast(Aggregate, aggregate),
-        weight=cast(Weight, weight),
-        untrusted=cast(Untrusted, untrusted),
-    )
+        buffer, output, objectives=objective, order=order, method=aggregate, weight=weight,
+        untrusted=untrusted,
+    )  # fmt: skip
     click.echo(str(written))

@@ -6,12 +6,12 @@ from pathlib import Path
 
 import click
 
-from sensaov_cli.cli.options import EXIT_CODES_EPILOG, job_argument, reports_errors
+from sensaov_cli.cli import options
 
 
-@click.command(epilog=EXIT_CODES_EPILOG)
-@job_argument
-@reports_errors
+@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.job_argument
+@options.reports_errors
 def validate(job: Path) -> None:
     """Check a job file and its scene's XML without rendering.
 

@@ -7,17 +7,11 @@ from pathlib import Path
 
 import click
 
-from sensaov_cli.cli.options import (
-    EXIT_CODES_EPILOG,
-    FilePath,
-    job_argument,
-    quiet_option,
-    reports_errors,
-)
+from sensaov_cli.cli import options
 
 
-@click.command(epilog=EXIT_CODES_EPILOG)
-@job_argument
+@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.job_argument
 @click.option(
     "--port",
     type=click.IntRange(0, 65535),
@@ -36,7 +30,7 @@ from sensaov_cli.cli.options import (
 @click.option(
     "--buffer",
     "buffer_path",
-    type=FilePath(path_type=Path),
+    type=options.FilePath(path_type=Path),
     help="Buffer to inspect (default: <output>/buffer.npz of the job).",
 )
 @click.option(
@@ -45,8 +39,8 @@ from sensaov_cli.cli.options import (
     help="Inspect even if the scene or the job changed since the buffer was made.",
 )
 @click.option("--log", "log_requests", is_flag=True, help="Print every request on stderr.")
-@quiet_option
-@reports_errors
+@options.quiet_option
+@options.reports_errors
 def view(
     job: Path,
     port: int,

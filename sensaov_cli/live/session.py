@@ -45,9 +45,13 @@ from sensaov_cli.live.inspection import (
 )
 from sensaov_cli.live.query import PickRequest, ViewRequest, view_request
 from sensaov_cli.outputs.provenance import made_by
-from sensaov_cli.pipeline import project_texels
 from sensaov_cli.pipeline.consistency import check_buffer_of_job
-from sensaov_cli.pipeline.project import check_fingerprint, check_objects, trace_camera
+from sensaov_cli.pipeline.project import (
+    check_fingerprint,
+    check_objects,
+    prepare_texel_fields,
+    trace_camera,
+)
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene, load_scene
@@ -142,9 +146,7 @@ class ViewSession:
         self, job: JobSpec, buffer: SensitivityBuffer, buffer_path: Path, loaded: LoadedScene
     ):
         self.job, self.buffer, self.buffer_path, self.loaded = job, buffer, buffer_path, loaded
-        self.sources = Sources(
-            job, buffer, buffer_path, project_texels.prepare(job, buffer, loaded)
-        )
+        self.sources = Sources(job, buffer, buffer_path, prepare_texel_fields(job, buffer, loaded))
         self.tracer = ViewTracer(loaded.mi, loaded.scene, buffer.objects)
         self.bounds = scene_bounds(loaded.scene)
         self.cameras = _cameras(job, loaded, self.bounds)

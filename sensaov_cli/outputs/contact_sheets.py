@@ -70,7 +70,7 @@ def write_previews(
     sheets: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
     with PngQueue() as queue:  # each PNG compresses while the next picture is drawn
         for layer, scale in layers:
-            values = signed_pixels(layer.data, layer.metadata.get("kind", ""))
+            values = signed_pixels(layer.data, layer.kind)
             rgb = _picture(values, scale.value, layer, beauty, visibility)
             entry = _layer_entry(camera, layer, scale, values)
             names = {"sensaov/camera": camera, "sensaov/objective": layer.objective}
@@ -78,12 +78,12 @@ def write_previews(
                     "sensaov/scale": repr(scale.value), "sensaov/scale_rule": scale.rule(),
                     "sensaov/encoding": layer.metadata.get("encoding", "")}  # fmt: skip
             title = f"{layer.objective}.{layer.pass_name} ({camera})"
-            tile = _enlarged(rgb, SINGLE_TILE_WIDTH)
+            tile = enlarged(rgb, SINGLE_TILE_WIDTH)
             sheet = contact_sheet([(_label(layer, scale), tile)], 1, scale=scale.value,
                                   title=title, notes=entry.notes)  # fmt: skip
             queue.put(folder / entry.file, sheet, text)
             written.append(entry)
-            sheets[layer.objective].append((_label(layer, scale), _enlarged(rgb, MIN_TILE_WIDTH)))
+            sheets[layer.objective].append((_label(layer, scale), enlarged(rgb, MIN_TILE_WIDTH)))
         for objective, tiles in sheets.items():
             file = f"{file_token(camera)}_{file_token(objective)}.png"
             notes = _sheet_notes(layers, objective)
@@ -148,7 +148,7 @@ def _picture(
     rgb = diverging_rgb(values, scale)
     if beauty is not None:
         rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
-    if layer.metadata.get("part") == "untrusted":
+    if layer.untrusted:
         rgb = hatch(rgb, values != 0)
     return rgb
 
@@ -163,21 +163,20 @@ def _layer_entry(
         kind="layer",
         objective=layer.objective,
         pass_name=layer.pass_name,
-        part=layer.metadata.get("part", "all"),
+        part=layer.part or "all",
         scale=scale.value,
         scope=scale.scope,
         rule=scale.rule(),
         clipped=here,
         clipped_all=scale.clipped,
-        notes=tuple(legend_notes(layer, scale, here, values)),
+        notes=tuple(_legend_notes(layer, scale, here, values)),
     )
 
 
-def legend_notes(
+def _legend_notes(
     layer: SensitivityLayer, scale: DisplayScale, here: float, values: np.ndarray
 ) -> list[str]:
     """The lines under a single preview's colour bar (ASCII: the font has no θ or ∂)."""
-    meta = layer.metadata
     scope = {"shared": "shared scale", "tile": "per-tile scale", "fixed": "fixed scale"}
     lines = [f"{scope[scale.scope]} ±{scale.value:.3g}: {scale.rule()}"]
     if scale.value == 0:
@@ -189,21 +188,21 @@ def legend_notes(
             f"clipped: {100 * here:.1f} % of this view's non-zero pixels "
             f"({100 * scale.clipped:.1f} % over the rule's cameras)"
         )
-    left_out = json.loads(meta.get("left_out", "{}"))
-    if meta.get("part") == "untrusted":
+    left_out = layer.left_out or {}
+    if layer.untrusted:
         held = ", ".join(f"{name} ({len(keys)})" for name, keys in sorted(left_out.items()))
         lines.append(f"{UNTRUSTED_NOTE}: by object (parameters): {held}")
     elif left_out:
         lines.append(f"left out (untrusted, see {layer.pass_name}_untrusted): "
                      + ", ".join(sorted(left_out)))  # fmt: skip
-    zero = json.loads(meta.get("zero_valued", "{}"))
+    zero = layer.zero_valued or {}
     if zero:
         raw = ", ".join(f"{k} (raw dM/dtheta {v:+.2e})" for k, v in zero.items())
         lines.append(f"theta = 0, scored 0 whatever the gradient: {raw}")
-    invisible = json.loads(meta.get("invisible", "[]"))
+    invisible = layer.invisible or ()
     if invisible:
         lines.append("not in this view: " + ", ".join(invisible))
-    if meta.get("duality", "agrees") != "agrees":
+    if layer.duality_failed:
         lines.append("duality check FAILED: do not trust this layer")
     return lines
 
@@ -218,18 +217,17 @@ def _sheet_notes(
         f"colour bar in units of each tile's scale (±, in its label); scales: "
         f"{', '.join(scopes)}{shared}"
     ]
-    if any(layer.metadata.get("part") == "untrusted" for layer, _ in mine):
+    if any(layer.untrusted for layer, _ in mine):
         notes.append(UNTRUSTED_NOTE)
     # What the tiles cannot show, as their single previews say it: a tile is never read as
     # "no sensitivity" where the check failed or the objects carrying it are off-frame. The
     # failure first and the objects capped: the sheet draws at most MAX_NOTES wrapped lines.
-    failed = [layer.pass_name for layer, _ in mine
-              if layer.metadata.get("duality", "agrees") != "agrees"]  # fmt: skip
+    failed = [layer.pass_name for layer, _ in mine if layer.duality_failed]
     if failed:
         notes.insert(0, "duality check FAILED, do not trust (marked !): " + ", ".join(failed))
     unseen: dict[str, list[str]] = defaultdict(list)
     for layer, _ in mine:
-        for name in json.loads(layer.metadata.get("invisible", "[]")):
+        for name in layer.invisible or ():
             unseen[name].append(layer.pass_name)
     if unseen:
         named = [f"{name} ({', '.join(passes)})" for name, passes in sorted(unseen.items())]
@@ -241,14 +239,15 @@ def _sheet_notes(
 
 
 def _label(layer: SensitivityLayer, scale: DisplayScale) -> str:
-    marks = " //" if layer.metadata.get("part") == "untrusted" else ""
-    marks += " !" if layer.metadata.get("duality", "agrees") != "agrees" else ""
+    marks = " //" if layer.untrusted else ""
+    marks += " !" if layer.duality_failed else ""
     tile = " tile" if scale.scope == "tile" else ""
     if scale.value == 0:
         return f"{layer.pass_name}: 0 everywhere{marks}"
     return f"{layer.pass_name} ±{scale.value:.2e}{tile}{marks}"
 
 
-def _enlarged(tile: np.ndarray, width: int) -> np.ndarray:
+def enlarged(tile: np.ndarray, width: int = SINGLE_TILE_WIDTH) -> np.ndarray:
+    """``tile`` repeated (nearest neighbour) to at least ``width`` pixels across."""
     factor = -(-width // tile.shape[1])  # ceil
     return np.repeat(np.repeat(tile, factor, axis=0), factor, axis=1) if factor > 1 else tile

@@ -1,4 +1,5 @@
-"""The multilayer EXR a compositor opens: beauty, Cryptomatte ID layers and sensitivity passes.
+"""The multilayer EXR a compositor opens: beauty, Cryptomatte ID layers, sensitivity passes and
+their display layers.
 
 One file per camera. Channel names follow ``Layer.Pass.Channel`` — here
 ``objective.pass.Y`` (or ``.R/.G/.B``) — beside a plain ``R,G,B,A`` beauty and a real
@@ -7,21 +8,33 @@ Compositors are strict about names (MITSUBA-NOTES "Compositors"): every token is
 ``[A-Za-z0-9_]`` and at most 63 bytes, names stay unique, and the original names go into the
 metadata. Everything is float32 with ZIP compression: half floats would destroy Cryptomatte IDs
 and small sensitivities alike. The layout is specified in ``docs/exr-layout.md``.
+
+A raw layer keeps its values untouched (a few 1e-2 at most, often 1e-5: black in any viewer).
+Its display layer ``<objective>.<pass>_display.R/G/B`` holds the previews' picture of it: the
+signed value at the group's display scale (:mod:`sensaov_cli.views.display_scale`) on the
+diverging RdBu map (blue lowers M, red raises it, near-white 0), as linear Rec. 709 values whose
+sRGB encoding is exactly the previews' colours, stored as half floats; where the camera hits
+nothing it is black. Both layers record the scale, its rule and the share of pixels it clips.
+Layers carry typed values; :func:`layer_metadata` alone turns them into header strings.
 """
 
 from __future__ import annotations
 
+import json
 import re
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
 from sensaov_cli.errors import ExrError
 from sensaov_cli.outputs import cryptomatte
 from sensaov_cli.outputs.exr import write_exr
+from sensaov_cli.outputs.previews import diverging_linear, diverging_linear_planes
+from sensaov_cli.views.display_scale import DisplayScale, clipped_share, signed_pixels
 
 FORMAT_NAME = "sensaov-aov-exr"
 FORMAT_VERSION = 2  # 2: display layers, display scales, trust parts, stamps (exr-layout.md)
@@ -29,29 +42,14 @@ TOKEN_BYTES = 63  # Blender keeps layer and pass names in 64-byte buffers
 SUFFIX_HEX = 6
 BEAUTY_CHANNELS = ("R", "G", "B", "A")
 _UNSAFE = re.compile(r"[^A-Za-z0-9_]")
-_METADATA_KEY = re.compile(r"[A-Za-z0-9_]+")
-_RENAME_TYPE = "two Cryptomatte types share a metadata key; rename one"
-_RENAME_LAYER = "two sensitivity layers share a metadata key; rename one"
-_RENAME_ATTRIBUTE = "the layout writes this attribute itself; pick another key"
-_WRITER_KEYS = frozenset({"name", "objective", "pass", "channels"})
-# Attributes the EXR header itself defines; a caller's attribute must not replace one.
-_STANDARD_ATTRIBUTES = frozenset(
-    {
-        "channels",
-        "chunkCount",
-        "compression",
-        "dataWindow",
-        "displayWindow",
-        "lineOrder",
-        "name",
-        "pixelAspectRatio",
-        "screenWindowCenter",
-        "screenWindowWidth",
-        "tiles",
-        "type",
-        "version",
-    }
+DISPLAY_SUFFIX = "_display"
+DISPLAY_ENCODING = (
+    "RdBu diverging map of the raw layer at +-display_scale (blue < 0 < red, near-white 0), "
+    "linear Rec. 709 (its sRGB encoding is the previews' colours); black where nothing is hit"
 )
+DUALITY_FAILED = "EXCEEDS TOLERANCE: do not trust this layer"
+# What a layer shows: "" a buffer channel's values, or a forward, transport, texel or display one.
+LayerKind = Literal["", "forward", "transport", "texel", "display"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,87 +68,88 @@ class CryptoLayer:
     ordered: bool = False  # ranks already in order, empty last at 0 (a visibility pass's)
 
 
+@dataclass(frozen=True)
+class ScaleGroup:
+    """The layers whose pictures share one display scale, and how a layer takes part in it."""
+
+    name: str  # e.g. ``<objective>/<channel>``
+    role: str | None = None  # REFERENCE sets the scale, FOLLOWER follows it; None: not recorded
+    fixed: float | None = None  # set by what the layer means (1: an even spread), not its pixels
+
+
+@dataclass(frozen=True)
+class Display:
+    """The display scale a layer is pictured at, and the share of this camera's pixels it clips."""
+
+    scale: DisplayScale
+    clipped: float
+
+
 @dataclass(frozen=True, eq=False)
 class SensitivityLayer:
     """One sensitivity pass: (H, W) data becomes channel ``Y``, (H, W, 3) becomes ``R, G, B``.
 
-    ``metadata`` (selection, aggregate, weight, encoding, scale, spp, buffer, original_name …)
-    is written under ``sensaov/<key>/``; ``original_name`` defaults to ``objective.pass_name``.
+    ``metadata`` (selection, aggregate, weight, encoding, spp, buffer …) is written as it is
+    under ``sensaov/<key>/``; the typed fields after it are written there too, when set.
     """
 
     objective: str
     pass_name: str
     data: np.ndarray
     metadata: Mapping[str, str] = field(default_factory=dict)
+    kind: LayerKind = ""
+    group: ScaleGroup = ScaleGroup("")  # "": in no group (written without one)
+    part: str | None = None  # "trusted" / "untrusted" / "all" for a buffer channel's
+    invisible: tuple[str, ...] | None = None  # objects it paints that this camera does not see
+    left_out: Mapping[str, tuple[str, ...]] | None = None  # object -> its untrusted keys
+    zero_valued: Mapping[str, float] | None = None  # key -> raw sum of dM/dtheta at theta = 0
+    duality_agrees: bool | None = None  # a transport layer's duality check
+    display: Display | None = None
 
     @property
     def original_name(self) -> str:
         return f"{self.objective}.{self.pass_name}"
 
+    @property
+    def untrusted(self) -> bool:
+        return self.part == "untrusted"
+
+    @property
+    def duality_failed(self) -> bool:
+        return self.duality_agrees is False
+
 
 def write_layered_exr(
     path: Path,
     *,
-    width: int,
-    height: int,
     beauty: np.ndarray | None,
     cryptomattes: Sequence[CryptoLayer],
     layers: Sequence[SensitivityLayer],
     attributes: dict[str, str],
 ) -> None:
-    """Write the compositor EXR atomically; refuse bad input before any file is touched.
-
-    Raises :class:`ExrError` (a ``ValueError``) for a wrong shape, NaN or infinity in
-    sensitivity data, two layers with the same objective and pass, or a caller attribute that
-    would replace one the layout owns.
-    """
-    channels, header = assemble_layers(
-        width=width,
-        height=height,
-        beauty=beauty,
-        cryptomattes=cryptomattes,
-        layers=layers,
-        attributes=attributes,
-    )
-    write_exr(path, channels, header)
-
-
-def assemble_layers(
-    *,
-    width: int,
-    height: int,
-    beauty: np.ndarray | None,
-    cryptomattes: Sequence[CryptoLayer],
-    layers: Sequence[SensitivityLayer],
-    attributes: dict[str, str],
-) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """The channels and header strings :func:`write_layered_exr` writes, without writing."""
-    if not all(isinstance(n, int | np.integer) and n > 0 for n in (width, height)):
-        raise ExrError(f"image size must be positive integers, got {width} x {height}")
-    shape = (int(height), int(width))
-    parts: list[dict[str, np.ndarray]] = []
-    header = {
-        "sensaov/format": FORMAT_NAME,
-        "sensaov/format_version": str(FORMAT_VERSION),
-    }
+    """Write the compositor EXR atomically; refuse layers a compositor could not use (a name
+    clash, NaN or infinity) before any file is touched."""
+    header = {"sensaov/format": FORMAT_NAME, "sensaov/format_version": str(FORMAT_VERSION)}
+    channels: dict[str, np.ndarray] = {}
     if beauty is not None:
-        parts.append(_beauty_channels(beauty, shape))
+        image = _as_float32(beauty)
+        channels.update({n: image[..., i] for i, n in enumerate(BEAUTY_CHANNELS[: image.shape[2]])})
     for crypto in cryptomattes:
-        parts.append(_crypto_channels(crypto, shape))
-        _merge(header, cryptomatte.metadata(crypto.type_name, crypto.names), _RENAME_TYPE)
+        channels.update(cryptomatte.rank_channels(
+            crypto.type_name, crypto.names, crypto.rank_index, crypto.rank_coverage, crypto.ranks,
+            ordered=crypto.ordered,
+        ))  # fmt: skip
+        header.update(cryptomatte.metadata(crypto.type_name, crypto.names))
     reserved = {
         f"{crypto.type_name}{index:02d}"
         for crypto in cryptomattes
         for index in range(cryptomatte.layer_count(crypto.ranks))
     }
     for layer, name in zip(layers, layer_names(layers, reserved=reserved), strict=True):
-        parts.append(_sensitivity_channels(layer, name, shape))
-        _merge(header, layer_metadata(layer, name), _RENAME_LAYER)
-    channels = _union(parts)
-    if not channels:
-        raise ExrError("nothing to write: no beauty, no Cryptomatte and no sensitivity layer")
-    _merge(header, _checked_attributes(attributes), _RENAME_ATTRIBUTE)
-    return channels, header
+        channels.update(_sensitivity_channels(layer, name))
+        header.update(layer_metadata(layer, name))
+    header.update(attributes)
+    write_exr(path, channels, header)
 
 
 def sanitise_token(text: str) -> tuple[str, bool]:
@@ -204,29 +203,95 @@ def layer_names(
     return names
 
 
-def layer_key(name: str) -> str:
-    """The metadata key of a layer: 7 hex digits of the hash of its final ``objective.pass``."""
-    return cryptomatte.layer_key(name)
-
-
 def layer_metadata(layer: SensitivityLayer, name: str) -> dict[str, str]:
-    """``sensaov/<key>/...`` attributes of one layer: name, objective, pass, channels + caller's."""
-    for key, value in layer.metadata.items():
-        if key in _WRITER_KEYS or not _METADATA_KEY.fullmatch(key) or not isinstance(value, str):
-            raise ExrError(
-                f"metadata {key!r}: {value!r} of layer {layer.original_name!r} cannot be written",
-                hint=f"keys from [A-Za-z0-9_] other than {sorted(_WRITER_KEYS)}, values str",
-            )
-    prefix = f"sensaov/{layer_key(name)}"
+    """``sensaov/<key>/...`` attributes of one layer: name, objective, pass, channels, its
+    metadata and its typed fields, as header strings."""
     entries = {
         "name": name,
         "objective": layer.objective,
         "pass": layer.pass_name,
-        "channels": ",".join(_data_channels(np.asarray(layer.data))),
+        "channels": ",".join(("Y",) if layer.data.ndim == 2 else ("R", "G", "B")),
         "original_name": layer.original_name,
         **layer.metadata,
     }
+    if layer.kind:
+        entries["kind"] = layer.kind
+    if layer.group.name:
+        entries["scale_group"] = layer.group.name
+        if layer.group.role is not None:
+            entries["scale_role"] = layer.group.role
+        if layer.group.fixed is not None:
+            entries["scale_fixed"] = repr(layer.group.fixed)
+    if layer.part is not None:
+        entries["part"] = layer.part
+    if layer.invisible is not None:
+        entries["invisible"] = json.dumps(list(layer.invisible))
+    if layer.left_out is not None:
+        entries["left_out"] = json.dumps({k: list(v) for k, v in layer.left_out.items()})
+    if layer.zero_valued is not None:
+        entries["zero_valued"] = json.dumps(dict(layer.zero_valued))
+    if layer.duality_agrees is not None:
+        entries["duality"] = "agrees" if layer.duality_agrees else DUALITY_FAILED
+    if layer.display is not None:
+        entries.update(_display_metadata(layer.display))
+    prefix = f"sensaov/{cryptomatte.layer_key(name)}"
     return {f"{prefix}/{key}": value for key, value in entries.items()}
+
+
+def _display_metadata(display: Display) -> dict[str, str]:
+    """What a raw layer and its display layer both record about the picture's scale."""
+    scale = display.scale
+    return {
+        "display_scale": repr(scale.value),
+        "display_rule": scale.rule(),
+        "display_scope": scale.scope,
+        "display_cameras": json.dumps(list(scale.cameras)),
+        "display_clipped": repr(display.clipped),  # this camera's share of its non-zero pixels
+        "display_clipped_all": repr(scale.clipped),  # every camera of the rule, weighted equally
+    }
+
+
+def display_background(hit: np.ndarray) -> np.ndarray:
+    """(3, H, W) half planes: the display colour of a zero pixel of one camera, whatever the
+    layer. Zero is the map's centre at every scale; it fades to black with ``hit``, the
+    camera's per-pixel coverage by any object: the float32 colour times the float32 coverage
+    clipped to [0, 1], rounded to half once. Computed once per camera, shared by its layers."""
+    centre = diverging_linear(np.zeros(1), 1.0)[0]  # (3,) float32, the same at every scale
+    fade = np.clip(np.asarray(hit, np.float32), 0.0, 1.0)
+    return (centre[:, None, None] * fade[None]).astype(np.float16)
+
+
+def with_display(
+    layer: SensitivityLayer, scale: DisplayScale, background: np.ndarray
+) -> tuple[SensitivityLayer, SensitivityLayer]:
+    """The raw layer with its display scale, and its display layer (``background``: the
+    camera's :func:`display_background`, shown where the layer is zero)."""
+    values = signed_pixels(layer.data, layer.kind)
+    shown = Display(scale, clipped_share([values], scale.value))
+    # Stored as half: a picture in [0, 1] needs no more (its sRGB 8-bit codes are the same as
+    # float32's, tested), and half the bytes make the EXR write faster. Drawn as planes, so
+    # each EXR channel is contiguous as it is; the layer sees (H, W, 3).
+    planes = diverging_linear_planes(values, scale.value, np.float16)
+    np.copyto(planes, background, where=(values == 0)[None])
+    display_name = layer.pass_name + DISPLAY_SUFFIX
+    metadata = {**layer.metadata, "display_layer": f"{layer.objective}.{display_name}"}
+    raw = replace(layer, metadata=metadata, display=shown)
+    display = SensitivityLayer(
+        layer.objective,
+        display_name,
+        planes.transpose(1, 2, 0),
+        {
+            **{k: v for k, v in layer.metadata.items() if k in ("camera", "buffer")},
+            "display_of": layer.original_name,
+            "encoding": DISPLAY_ENCODING,
+        },
+        kind="display",
+        group=ScaleGroup(layer.group.name),
+        part=layer.part,
+        left_out=layer.left_out,
+        display=shown,
+    )
+    return raw, display
 
 
 def _with_suffix(token: str, original: str) -> str:
@@ -237,7 +302,7 @@ def _with_suffix(token: str, original: str) -> str:
 def _check_unique(names: Sequence[str], reserved: set[str] | frozenset[str]) -> None:
     views = [name.replace(".", "_") for name in names] + sorted(reserved)
     clashing = sorted(view for view, count in Counter(views).items() if count > 1)
-    keys = Counter(layer_key(name) for name in names)
+    keys = Counter(cryptomatte.layer_key(name) for name in names)
     if clashing or len(keys) < len(names):
         raise ExrError(
             f"sensitivity layer names still clash after sanitising: {clashing or sorted(keys)}",
@@ -245,48 +310,10 @@ def _check_unique(names: Sequence[str], reserved: set[str] | frozenset[str]) -> 
         )
 
 
-def _data_channels(data: np.ndarray) -> tuple[str, ...]:
-    return ("Y",) if data.ndim == 2 else ("R", "G", "B")
-
-
-def _beauty_channels(beauty: np.ndarray, shape: tuple[int, int]) -> dict[str, np.ndarray]:
-    image = np.asarray(beauty)
-    if image.ndim != 3 or image.shape[:2] != shape or image.shape[2] not in (3, 4):
-        raise ExrError(
-            f"beauty has shape {image.shape}; expected {shape + (3,)} or {shape + (4,)}",
-            hint="pass the RGB or RGBA render at the file's resolution",
-        )
-    image = _as_float32(image, "beauty")
-    return {name: image[..., index] for index, name in enumerate(BEAUTY_CHANNELS[: image.shape[2]])}
-
-
-def _crypto_channels(crypto: CryptoLayer, shape: tuple[int, int]) -> dict[str, np.ndarray]:
-    index = np.asarray(crypto.rank_index)
-    if index.shape[:2] != shape:
-        raise ExrError(
-            f"Cryptomatte {crypto.type_name!r} has shape {index.shape}; "
-            f"expected {shape} plus a rank axis",
-            hint="compute visibility at the file's resolution",
-        )
-    return cryptomatte.rank_channels(
-        crypto.type_name, crypto.names, index, crypto.rank_coverage, crypto.ranks,
-        ordered=crypto.ordered,
-    )  # fmt: skip
-
-
-def _sensitivity_channels(
-    layer: SensitivityLayer, name: str, shape: tuple[int, int]
-) -> dict[str, np.ndarray]:
-    data = np.asarray(layer.data)
-    if data.shape[:2] != shape or data.ndim not in (2, 3) or data.shape[2:] not in ((), (3,)):
-        raise ExrError(
-            f"sensitivity layer {layer.original_name!r} has shape {data.shape}; "
-            f"expected {shape} (one Y channel) or {shape + (3,)} (R, G, B)",
-        )
-    if data.dtype != np.float16 or layer.metadata.get("kind") != "display":
-        data = _as_float32(data, f"sensitivity layer {layer.original_name!r}")
+def _sensitivity_channels(layer: SensitivityLayer, name: str) -> dict[str, np.ndarray]:
+    data = layer.data if layer.kind == "display" else _as_float32(layer.data)
     bad = _non_finite(data)
-    if bad:
+    if bad:  # a render's NaN or an encoding's overflow: a compositor multiply spreads it
         raise ExrError(
             f"sensitivity layer {layer.original_name!r} has {bad} of {data.size} values NaN "
             f"or infinite (after conversion to {data.dtype})",
@@ -306,37 +333,6 @@ def _non_finite(data: np.ndarray) -> int:
     return int(np.count_nonzero(~np.isfinite(data)))
 
 
-def _as_float32(data: np.ndarray, what: str) -> np.ndarray:
-    if data.dtype.kind not in "fiu":
-        raise ExrError(f"{what} holds {data.dtype} values; expected real numbers")
+def _as_float32(data: np.ndarray) -> np.ndarray:
     with np.errstate(over="ignore"):  # an overflow becomes inf, which the caller reports
         return np.ascontiguousarray(data, dtype=np.float32)
-
-
-def _union(parts: Sequence[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    names = Counter(name for part in parts for name in part)
-    duplicates = sorted(name for name, count in names.items() if count > 1)
-    if duplicates:
-        raise ExrError(
-            f"channel {duplicates[0]!r} would be written twice",
-            hint="give each Cryptomatte type its own name",
-        )
-    return {name: data for part in parts for name, data in part.items()}
-
-
-def _merge(header: dict[str, str], extra: Mapping[str, str], hint: str) -> None:
-    clash = sorted(set(header) & set(extra))
-    if clash:
-        raise ExrError(f"header attribute {clash[0]!r} would be written twice", hint=hint)
-    header.update(extra)
-
-
-def _checked_attributes(attributes: Mapping[str, str]) -> dict[str, str]:
-    for key, value in attributes.items():
-        if key in _STANDARD_ATTRIBUTES or not isinstance(value, str):
-            raise ExrError(
-                f"attribute {key!r}: {value!r} cannot be written",
-                hint="attributes are str -> str and cannot replace a standard EXR attribute "
-                f"({', '.join(sorted(_STANDARD_ATTRIBUTES))})",
-            )
-    return dict(attributes)

@@ -19,9 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from sensaov_cli.outputs.atomic import atomic_write_all
+from sensaov_cli.outputs.contact_sheets import enlarged
 from sensaov_cli.outputs.exr import exr_writer
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, write_png
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
+from sensaov_cli.views.headline import TRUSTED
 from sensaov_cli.views.pooling import white_noise_factor
 from sensaov_cli.views.texel_fields import TexelField
 from sensaov_cli.views.texel_passes import TexelPass
@@ -29,7 +31,6 @@ from sensaov_cli.views.texel_passes import TexelPass
 FORMAT_NAME = "sensaov-texel-exr"
 FORMAT_VERSION = 1
 _UNSAFE = re.compile(r"[^A-Za-z0-9_-]")
-TILE_WIDTH = 256
 
 
 def safe_file_stem(key: str) -> str:
@@ -40,16 +41,13 @@ def safe_file_stem(key: str) -> str:
     return stem
 
 
-def texture_paths(folder: Path, fields: Sequence[TexelField]) -> list[Path]:
-    return [folder / f"{safe_file_stem(f.record.key)}.{f.objective}.exr" for f in fields]
-
-
 def write_texture_files(
     folder: Path, fields: Sequence[TexelField], buffer_path: Path
 ) -> tuple[Path, ...]:
     """One EXR and one PNG per (texture, objective), all replaced together."""
     files: list[tuple[Path, Callable[[Path], None]]] = []
-    for field, path in zip(fields, texture_paths(folder, fields), strict=True):
+    for field in fields:
+        path = folder / f"{safe_file_stem(field.record.key)}.{field.objective}.exr"
         files.append((path, exr_writer(_channels(field), _attributes(field, buffer_path))))
         files.append((path.with_suffix(".png"), _png_writer(field)))
     folder.mkdir(parents=True, exist_ok=True)
@@ -101,7 +99,7 @@ def _attributes(field: TexelField, buffer_path: Path) -> dict[str, str]:
 def _png_writer(field: TexelField) -> Callable[[Path], None]:
     values = field.pooled.sum(axis=2)
     peak = float(np.abs(values).max())
-    rgb = _enlarged(diverging_rgb(values, peak))
+    rgb = enlarged(diverging_rgb(values, peak))
 
     def write(tmp: Path) -> None:
         # write_png renames into ``tmp`` itself; atomic_write_all then renames the whole set.
@@ -113,30 +111,26 @@ def _png_writer(field: TexelField) -> Callable[[Path], None]:
 def write_fig4_sheet(
     path: Path,
     camera: str,
+    field: TexelField,
     passes: Sequence[TexelPass],
     scales: Sequence[float],
     stamp: Mapping[str, str],
 ) -> Path:
     """Fig. 4: the object, per-texel and joint panels of one texture side by side, each
     titled with the value at which it saturates (its display scale, in the layer's metadata)."""
-    tiles = []
-    for texel_pass, scale in zip(passes, scales, strict=True):
-        tile = _enlarged(diverging_rgb(_luminance(texel_pass.data), scale))
-        mark = " !" if json.loads(texel_pass.metadata.get("unverified", "[]")) else ""
-        tiles.append((f"{texel_pass.panel} ±{scale:.2e}{mark}", tile))
-    meta = passes[0].metadata
-    title = f"{camera}: {meta['texture']} (object | per texel | joint share; ! = not trusted)"
+    mark = " !" if field.record.trust not in TRUSTED else ""
+    tiles = [
+        (f"{p.panel} ±{scale:.2e}{mark}", enlarged(diverging_rgb(_luminance(p.data), scale)))
+        for p, scale in zip(passes, scales, strict=True)
+    ]
+    texture = field.record.key
+    title = f"{camera}: {texture} (object | per texel | joint share; ! = not trusted)"
     notes = ["each panel at its own display scale (shared by every camera); the joint panel "
              "at 1 = the object's value spread evenly over the texture"]  # fmt: skip
     sheet = contact_sheet(tiles, len(tiles), scale=1.0, title=title, notes=notes)
-    write_png(path, sheet, {**stamp, "sensaov/camera": camera, "sensaov/texture": meta["texture"]})
+    write_png(path, sheet, {**stamp, "sensaov/camera": camera, "sensaov/texture": texture})
     return path
 
 
 def _luminance(data: np.ndarray) -> np.ndarray:
     return data if data.ndim == 2 else data.sum(axis=2)
-
-
-def _enlarged(tile: np.ndarray) -> np.ndarray:
-    factor = -(-TILE_WIDTH // tile.shape[1])
-    return np.repeat(np.repeat(tile, factor, axis=0), factor, axis=1) if factor > 1 else tile

@@ -11,7 +11,7 @@ result is a failure. Every render is a progress line.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from sensaov_cli.buffer.model import SensitivityBuffer
@@ -41,6 +41,19 @@ class CheckReport:
     duality: list[DualityCheck]  # the stored buffer against forward mode; [] without one
     buffer_path: Path | None  # the buffer the duality column checked; None: there is none
     not_measured: tuple[tuple[str, str], ...] = ()  # (key, why) of kinds left out
+
+    def as_json(self) -> dict[str, list[dict[str, object]]]:
+        """What ``sensaov check --json`` prints."""
+        duality = [
+            {**asdict(d), "duality_error": d.duality_error, "central_error": d.central_error,
+             "verdict": d.verdict}
+            for d in self.duality
+        ]  # fmt: skip
+        return {
+            "finite_differences": [asdict(r) for r in self.gradients],
+            "not_measured": [{"key": k, "why": why} for k, why in self.not_measured],
+            "duality": duality,
+        }
 
 
 def check_job(

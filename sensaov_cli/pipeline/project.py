@@ -6,36 +6,56 @@ picture of a layer saturates at its group's display scale (views/display_scale.p
 (objective, channel) read from the pixels of *every* camera of the job, so each camera's
 visibility is traced even when ``--camera`` picks one (primary rays only, a fraction of a view's
 cost): farm tasks that each write one camera derive the very same scales.
+
+The command reads top-down: checks, then the camera-independent layers (forward and transport
+from run's sidecar, texel fields through the scene's texture lookups), then each camera's
+visibility, the shared scales, and one EXR per camera with its beauty: run's own primal for the
+objective camera when it can stand in, else a quick path trace.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from sensaov_cli import interrupts
-from sensaov_cli.buffer.model import SensitivityBuffer, stamp
+from sensaov_cli.buffer.forward_sidecar import check_belongs, read_forward
+from sensaov_cli.buffer.model import SensitivityBuffer, buffer_id, provenance_id, stamp
 from sensaov_cli.buffer.npz import read_buffer
-from sensaov_cli.errors import FingerprintMismatch, SpecError
+from sensaov_cli.buffer.statistics import single_pass
+from sensaov_cli.errors import FingerprintMismatch, SensaovError, SpecError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.outputs.atomic import check_writable
-from sensaov_cli.outputs.display_layers import display_background, scale_of, with_display
-from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write_layered_exr
+from sensaov_cli.outputs.exr import read_exr
+from sensaov_cli.outputs.layered_exr import (
+    CryptoLayer,
+    ScaleGroup,
+    SensitivityLayer,
+    display_background,
+    with_display,
+    write_layered_exr,
+)
 from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
-from sensaov_cli.outputs.provenance import made_by, provenance_attributes
-from sensaov_cli.pipeline import project_texels
+from sensaov_cli.outputs.provenance import header_provenance, made_by, provenance_attributes
+from sensaov_cli.outputs.texture_files import safe_file_stem, write_fig4_sheet, write_texture_files
 from sensaov_cli.pipeline.consistency import check_buffer_of_job
 from sensaov_cli.pipeline.merge import primal_beside
-from sensaov_cli.pipeline.project_beauty import RunBeauty, run_beauty, view_beauty
-from sensaov_cli.pipeline.project_forward import projected_layers
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene, load_scene
 from sensaov_cli.render.memory import check_job, sensor_sizes
-from sensaov_cli.render.visibility import trace
+from sensaov_cli.render.visibility import (
+    TextureProbe,
+    objects_without_uv,
+    render_beauty,
+    texture_probes,
+    trace,
+)
 from sensaov_cli.scene import prepare_scene
 from sensaov_cli.views.channels import ChannelValues, channel_values
 from sensaov_cli.views.coverage import VisibilityPass, ranked
@@ -47,12 +67,17 @@ from sensaov_cli.views.display_scale import (
     signed_pixels,
 )
 from sensaov_cli.views.painting import paint_pass
-from sensaov_cli.views.texel_fields import TexelField
-from sensaov_cli.views.texel_passes import TexelPass
+from sensaov_cli.views.texel_fields import TexelField, texel_fields, texture_keys
+from sensaov_cli.views.texel_passes import TexelPass, texel_passes, texture_footprint
+from sensaov_cli.views.texels import FILTERS, WRAPS, Footprint, TextureSampling, lookup
+from sensaov_cli.views.transport import forward_views, transport_views
 
 # The quick pass's spp: a reference for the compositor, and a full path trace. The objective
-# camera shows run's own primal instead when it can (project_beauty.py).
+# camera shows run's own primal instead when it can (run_beauty).
 DEFAULT_BEAUTY_SPP = 4
+PROBE_TOLERANCE = 1e-4  # relative to the texture's largest value; float32 lookups agree to ~1e-6
+
+Scales = dict[tuple[str, str], DisplayScale]  # (camera, scale group) -> its display scale
 
 
 @dataclass(frozen=True)
@@ -84,8 +109,8 @@ def project_job(
     check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
     if not force:
         check_buffer_of_job(job, buffer, buffer_path, override="pass --force to project it anyway")
-    texel_folder = ["textures/"] if any(c.kind == "texel" for c in job.channels) else []
-    folders = texel_folder + ["previews/"] * png
+    texel_stage = any(channel.kind == "texel" for channel in job.channels)
+    folders = ["textures/"] * texel_stage + ["previews/"] * png
     check_writable(job.output, [f"{camera.name}.exr" for camera in chosen] + folders)
     refuse_unsafe_outputs(
         (
@@ -100,15 +125,19 @@ def project_job(
         where=str(job.path),
     )
     passes = channel_values(buffer, job.channels, untrusted=job.views.untrusted)
-    forward = projected_layers(job, buffer, buffer_path, progress)  # the objective camera's
-    project_texels.check_texel_channels(job, buffer)
-    texel_stage = any(channel.kind == "texel" for channel in job.channels)
+    forward = forward_layers(job, buffer, buffer_path, progress)  # the objective camera's
+    check_texel_channels(job, buffer)
     progress.plan(2 + texel_stage + len(chosen))  # load, visibility, texels, one per view
     with progress.stage("load_s", f"loading {job.scene.name} with {len(every)} camera(s)"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     check_objects(buffer, loaded, buffer_path)
     _check_views(job, every, loaded, bool(forward))  # before the first view writes a file
-    texels = project_texels.project_fields(job, buffer, loaded, buffer_path, progress)
+    texels: list[TexelField] = []
+    if texel_stage:
+        with progress.stage("texels_s", "texel fields and <output>/textures"):
+            texels = prepare_texel_fields(job, buffer, loaded)
+            if texels:
+                write_texture_files(job.output / "textures", texels, buffer_path)
     with progress.stage("visibility_s", f"visibility of {len(every)} camera(s) and scales"):
         traced = {c.name: trace_camera(job, buffer, loaded, c, bool(texels)) for c in every}
         raw = {
@@ -132,81 +161,7 @@ def project_job(
     return views
 
 
-def _check_views(
-    job: JobSpec, cameras: list[CameraSpec], loaded: LoadedScene, forward: bool
-) -> None:
-    """What a view would refuse, refused before the first one writes its EXR (exit 2 means
-    nothing was written): settings over the memory budget, forward layers at another size."""
-    sizes = sensor_sizes(loaded)
-    check_job(job, sizes)
-    objective = next((c.name for c in cameras if c.objective), None)
-    if forward and objective is not None and sizes[objective] != loaded.resolution:
-        raise SpecError(
-            "forward and transport layers are rendered at render.resolution, "
-            "but the objective inspection camera has another resolution",
-            where=f"inspection_cameras: {objective}",
-            hint="leave that camera's resolution null",
-        )
-
-
-def trace_camera(
-    job: JobSpec, buffer: SensitivityBuffer, loaded: LoadedScene, camera: CameraSpec, uv: bool
-) -> VisibilityPass:
-    """``camera``'s visibility pass as ``project`` paints and scales it (``view`` reuses it)."""
-    sensor = loaded.inspection_sensors[camera.name]
-    return trace(
-        loaded.mi, loaded.scene, sensor, buffer.objects, camera.vis_spp,
-        seed=job.render.seed, with_uv=uv,
-    )  # fmt: skip
-
-
-@dataclass(frozen=True)
-class _RawLayers:
-    """One camera's sensitivity layers before their display scales are known."""
-
-    layers: list[SensitivityLayer]
-    fields: list[TexelField]
-    texel_panels: list[tuple[list[TexelPass], list[SensitivityLayer]]]  # per field
-
-
-def _raw_layers(
-    passes: list[ChannelValues],
-    visibility: VisibilityPass,
-    buffer_path: Path,
-    camera: CameraSpec,
-    forward: list[SensitivityLayer],
-    texels: list[TexelField],
-) -> _RawLayers:
-    layers = [_layer(p, visibility, buffer_path, camera) for p in passes]
-    if camera.objective:
-        layers += forward  # its size was checked before any view was written (_check_views)
-    panels = project_texels.camera_layers(texels, visibility, buffer_path, camera.name)
-    layers += [layer for _, texel_layers in panels for layer in texel_layers]
-    return _RawLayers(layers, texels, panels)
-
-
-def _scales(job: JobSpec, raw: dict[str, _RawLayers]) -> dict[tuple[str, str], DisplayScale]:
-    """Every (camera, scale group)'s display scale, under the job's ``views`` settings."""
-    entries = {
-        camera: [
-            (
-                layer.metadata["scale_group"],
-                layer.metadata.get("scale_role", REFERENCE),
-                signed_pixels(layer.data, layer.metadata.get("kind", "")),
-            )
-            for layer in found.layers
-        ]  # fmt: skip
-        for camera, found in raw.items()
-    }
-    fixed = {
-        layer.metadata["scale_group"]: float(layer.metadata["scale_fixed"])
-        for found in raw.values()
-        for layer in found.layers
-        if "scale_fixed" in layer.metadata
-    }
-    return group_scales(
-        entries, percentile=job.views.percentile, scope=job.views.scale, fixed=fixed
-    )
+# --- checks before anything is written --------------------------------------------------------
 
 
 def check_fingerprint(
@@ -230,6 +185,13 @@ def check_objects(buffer: SensitivityBuffer, loaded: LoadedScene, path: Path) ->
         )
 
 
+def check_texel_channels(job: JobSpec, buffer: SensitivityBuffer) -> None:
+    """Refuse a texel channel that selects no texture before anything is rendered."""
+    for index, channel in enumerate(job.channels):
+        if channel.kind == "texel":
+            texture_keys(buffer, channel, index)
+
+
 def _cameras(job: JobSpec, names: tuple[str, ...]) -> list[CameraSpec]:
     """The job's inspection cameras plus the objective camera (once), or the named ones."""
     cameras = list(job.projected_cameras())
@@ -246,82 +208,241 @@ def _cameras(job: JobSpec, names: tuple[str, ...]) -> list[CameraSpec]:
     return [known[name] for name in names]
 
 
-def _project_camera(
-    job: JobSpec,
-    buffer: SensitivityBuffer,
-    buffer_path: Path,
-    loaded: LoadedScene,
-    camera: CameraSpec,
-    visibility: VisibilityPass,
-    raw: _RawLayers,
-    scales: dict[tuple[str, str], DisplayScale],
-    png: bool,
-    beauty_spp: int,
-    reused: RunBeauty | None,
-) -> ProjectedView:
+def _check_views(
+    job: JobSpec, cameras: list[CameraSpec], loaded: LoadedScene, forward: bool
+) -> None:
+    """What a view would refuse, refused before the first one writes its EXR (exit 2 means
+    nothing was written): settings over the memory budget, forward layers at another size."""
+    sizes = sensor_sizes(loaded)
+    check_job(job, sizes)
+    objective = next((c.name for c in cameras if c.objective), None)
+    if forward and objective is not None and sizes[objective] != loaded.resolution:
+        raise SpecError(
+            "forward and transport layers are rendered at render.resolution, "
+            "but the objective inspection camera has another resolution",
+            where=f"inspection_cameras: {objective}",
+            hint="leave that camera's resolution null",
+        )
+
+
+# --- forward and transport layers: the objective camera's, from run's sidecar (§4, §7) -------
+
+
+def forward_layers(
+    job: JobSpec, buffer: SensitivityBuffer, buffer_path: Path, progress: Progress
+) -> list[SensitivityLayer]:
+    """The objective camera's forward and transport layers, each in its display scale group:
+    a forward channel alone, a transport entry's layers per objective, a transport channel's
+    top objects per (objective, channel).
+
+    Empty when the job asks for no forward pass. A pass Mitsuba could not push is reported,
+    never written as a black image.
+    """
+    if not job.wants_forward:
+        return []
+    if not single_pass(buffer.provenance):
+        progress.note(
+            "no forward or transport layers: this buffer is a shard, an objective task or the "
+            "mean of several batches or shards; those are rendered by single-batch runs only "
+            "(docs/farm.md)"
+        )
+        return []
+    path = buffer_path.with_name(FORWARD_NAME)
+    if not path.exists():  # a FIFO or a folder there is refused by read_forward, by name
+        raise SpecError(
+            f"the job asks for forward channels but {path.name} is missing",
+            where=str(path),
+            hint="re-run 'sensaov run' (it writes the buffer and its forward images together)",
+        )
+    data = read_forward(path)
+    check_belongs(data, buffer, path)
+    common = {"buffer": str(buffer_path), "forward_file": str(path), "camera": "objective"}
+    layers = []
+    for f in forward_views(buffer, data):
+        if f.data is None:
+            progress.note(f"warning: no layer forward.{f.name}: Mitsuba failed: {f.failure}")
+            continue
+        meta = {**common, **_forward_meta(f.keys, f.direction, f.seed, f.unverified)}
+        meta["aliases"] = json.dumps(list(f.aliases))
+        group = ScaleGroup(f"forward/{f.name}")
+        layers.append(
+            SensitivityLayer("forward", f.name, f.data, meta, kind="forward", group=group)
+        )
+    for t in transport_views(buffer, data):
+        meta = {**common, **_forward_meta(t.keys, t.direction, t.seed, t.unverified)}
+        meta.update(
+            aliases=json.dumps(list(t.aliases)),
+            forward_sum=repr(t.forward_sum),
+            reverse=repr(t.reverse),
+            duality_residual=repr(t.residual),
+            duality_tolerance=repr(t.tolerance),
+        )
+        group = ScaleGroup(f"{t.objective}/{_transport_group(job, t.source, t.name)}")
+        layers.append(SensitivityLayer(
+            t.objective, t.name, t.data, meta, kind="transport", group=group,
+            duality_agrees=t.agrees,
+        ))  # fmt: skip
+    return layers
+
+
+def _transport_group(job: JobSpec, source: str, name: str) -> str:
+    """A transport channel's layers share their channel's scale; an entry's has its own."""
+    match = re.match(r"channels\[(\d+)\]", source)
+    if match and int(match.group(1)) < len(job.channels):
+        return job.channels[int(match.group(1))].name
+    return name
+
+
+def _forward_meta(
+    keys: tuple[str, ...], direction: str, seed: int, unverified: tuple[str, ...]
+) -> dict[str, str]:
+    return {
+        "keys": json.dumps(list(keys)),
+        "direction": direction,
+        "seed": str(seed),
+        "encoding": "none (linear)",
+        "unverified": json.dumps(list(unverified)),
+    }
+
+
+# --- texel fields: from the buffer, looked up as the scene's textures are --------------------
+
+
+def prepare_texel_fields(
+    job: JobSpec, buffer: SensitivityBuffer, loaded: LoadedScene
+) -> list[TexelField]:
+    """Every texel field of the job's texel channels, with the scene's lookup settings."""
+    channels = [(i, c) for i, c in enumerate(job.channels) if c.kind == "texel"]
+    if not channels:
+        return []
+    keys = tuple(dict.fromkeys(k for i, c in channels for k in texture_keys(buffer, c, i)))
+    probes = texture_probes(loaded.mi, loaded.params, keys, loaded.prepared.bitmap_options)
+    samplings = {key: sampling_of(probe) for key, probe in probes.items()}
+    no_uv = set(objects_without_uv(loaded.mi, loaded.scene, buffer.objects))
+    fields = [f for i, c in channels for f in texel_fields(buffer, c, i, samplings)]
+    return [_with_uv_note(f, no_uv) for f in fields]
+
+
+def sampling_of(probe: TextureProbe) -> TextureSampling:
+    """The filter and wrap whose lookup reproduces the texture's own values at the probes.
+
+    The scene XML's settings are preferred when they match; a texture whose values cannot tell
+    the modes apart (a uniform one) keeps the XML's; one no mode reproduces (a spectral
+    variant's upsampled colours) keeps them too, with a note saying the lookup is unconfirmed.
+    """
+    matrix = np.array(probe.to_uv, np.float64)
+    stated = (probe.filter, probe.wrap)
+    peak = float(np.abs(probe.values).max()) or 1.0
+    errors = {}
+    for mode in [(f, w) for f in FILTERS for w in WRAPS]:
+        got = lookup(probe.texels, probe.uv, TextureSampling(*mode, to_uv=matrix))
+        errors[mode] = float(np.abs(got - probe.values).max()) / peak
+    matching = [mode for mode, error in errors.items() if error <= PROBE_TOLERANCE]
+    if stated in matching:  # confirmed: any doubt the XML match left is settled
+        return TextureSampling(*stated, to_uv=matrix)
+    if not matching:
+        error = min(errors.values())
+        note = f"lookup not confirmed against Mitsuba (error {error:.1e}); {probe.note}"
+        return TextureSampling(*stated, to_uv=matrix, note=note.rstrip("; "))
+    chosen = matching[0]
+    return TextureSampling(*chosen, to_uv=matrix, note="filter and wrap read from Mitsuba's lookup")
+
+
+def _with_uv_note(field: TexelField, no_uv: set[str]) -> TexelField:
+    missing = sorted(no_uv.intersection(field.record.owners))
+    if not missing:
+        return field
+    note = (
+        f"{', '.join(missing)} has no UV coordinates: Mitsuba looks the texture up at each "
+        "triangle's barycentric (b1, b2), so the field repeats per triangle"
+    )
+    return replace(field, notes=(*field.notes, note))
+
+
+@dataclass(frozen=True)
+class _TexelPanels:
+    """One texel field in one camera: Fig. 4's three panels and the layers they become."""
+
+    field: TexelField
+    passes: list[TexelPass]
+    layers: list[SensitivityLayer]
+
+
+def _texel_panels(
+    fields: list[TexelField], visibility: VisibilityPass, buffer_path: Path, camera: str
+) -> list[_TexelPanels]:
+    """Per field, its three panels and their layers.
+
+    A panel's display scale is shared by every texture of its (objective, channel) and every
+    camera; the joint panel's is fixed at 1, its meaning (the object's value spread evenly)."""
+    result = []
+    footprints: dict[tuple[str, str], Footprint] = {}  # one per texture and lookup, not per field
+    for field in fields:
+        look = (field.record.key, field.sampling.describe())
+        if look not in footprints:
+            footprints[look] = texture_footprint(field, visibility)
+        passes = texel_passes(field, visibility, footprints[look])
+        layers = []
+        for texel_pass in passes:
+            metadata = {
+                **texel_pass.metadata,
+                "selection": f"texture={field.record.key}",
+                "aggregate": "none (per texel component)",
+                "weight": field.channel.weight,
+                "spp": str(visibility.spp),
+                "buffer": str(buffer_path),
+                "camera": camera,
+                "keys": json.dumps([field.record.key]),
+            }
+            group = ScaleGroup(
+                f"{field.objective}/{field.channel.name}/{texel_pass.panel}",
+                REFERENCE,
+                1.0 if texel_pass.panel == "joint" else None,
+            )
+            layers.append(SensitivityLayer(
+                field.objective, texel_pass.pass_name, texel_pass.data, metadata, kind="texel",
+                group=group, invisible=(),
+            ))  # fmt: skip
+        result.append(_TexelPanels(field, passes, layers))
+    return result
+
+
+# --- each camera's layers and the scales they share --------------------------------------------
+
+
+def trace_camera(
+    job: JobSpec, buffer: SensitivityBuffer, loaded: LoadedScene, camera: CameraSpec, uv: bool
+) -> VisibilityPass:
+    """``camera``'s visibility pass as ``project`` paints and scales it (``view`` reuses it)."""
     sensor = loaded.inspection_sensors[camera.name]
-    beauty, made = view_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed, reused)
-    shown = [(layer, scale_of(scales, camera.name, layer)) for layer in raw.layers]
-    background = display_background(visibility.coverage_hit)  # once per view, every layer's
-    pairs = [with_display(layer, scale, background) for layer, scale in shown]
-    crypto = CryptoLayer(
-        "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage,
-        ordered=True,  # coverage.ranked builds them in Cryptomatte's order
+    return trace(
+        loaded.mi, loaded.scene, sensor, buffer.objects, camera.vis_spp,
+        seed=job.render.seed, with_uv=uv,
     )  # fmt: skip
-    material = _material_cryptomatte(visibility, loaded.prepared.materials)
-    path = job.output / f"{camera.name}.exr"
-    made_from = stamp(buffer, job.job_hash())
-    attributes = {**_attributes(buffer, buffer_path, camera, beauty_spp, made), **made_from}
-    interrupts.check()
-    write_layered_exr(
-        path,
-        width=visibility.width,
-        height=visibility.height,
-        beauty=beauty,
-        cryptomattes=[crypto, material],
-        layers=[layer for pair in pairs for layer in pair],
-        attributes=attributes,
-    )
-    previews: tuple[Path, ...] = ()
-    if png:
-        previews = _write_previews(job, camera, raw, scales, shown, beauty, visibility, made_from)
-    return ProjectedView(
-        camera.name, path, visibility.width, visibility.height, visibility.spp, 0.0, previews, made
-    )
 
 
-def _write_previews(
-    job: JobSpec,
-    camera: CameraSpec,
-    raw: _RawLayers,
-    scales: dict[tuple[str, str], DisplayScale],
-    shown: list[tuple[SensitivityLayer, DisplayScale]],
-    beauty: np.ndarray | None,
+@dataclass(frozen=True)
+class _RawLayers:
+    """One camera's sensitivity layers before their display scales are known."""
+
+    layers: list[SensitivityLayer]
+    texel_panels: list[_TexelPanels]
+
+
+def _raw_layers(
+    passes: list[ChannelValues],
     visibility: VisibilityPass,
-    made_from: dict[str, str],
-) -> tuple[Path, ...]:
-    """The camera's PNG previews, its Fig. 4 sheets and, last, its manifest (report's index)."""
-    from sensaov_cli.outputs.contact_sheets import PreviewFile, write_manifest, write_previews
-
-    folder = job.output / "previews"
-    files = write_previews(folder, camera.name, shown, beauty, visibility, made_from)
-    for path, field in project_texels.write_fig4_sheets(
-        folder, camera.name, raw.fields, raw.texel_panels, scales, made_from
-    ):
-        files.append(PreviewFile(path.name, "fig4", field.objective, field.record.key))
-    manifest = write_manifest(folder, camera.name, files, made_from)
-    return (*(folder / f.file for f in files), manifest)
-
-
-def _material_cryptomatte(visibility: VisibilityPass, materials: dict[str, str]) -> CryptoLayer:
-    """CryptoMaterial: the object coverage regrouped by the BSDF each object uses."""
-    names = sorted({materials.get(obj, obj) for obj in visibility.objects})
-    group_of = np.array(
-        [names.index(materials.get(obj, obj)) for obj in visibility.objects], np.int32
-    )
-    coverage = visibility.coverage.regroup(group_of)
-    index, amount = ranked(coverage, (visibility.height, visibility.width), visibility.spp)
-    return CryptoLayer("CryptoMaterial", tuple(names), index, amount, ordered=True)
+    buffer_path: Path,
+    camera: CameraSpec,
+    forward: list[SensitivityLayer],
+    texels: list[TexelField],
+) -> _RawLayers:
+    layers = [_layer(p, visibility, buffer_path, camera) for p in passes]
+    if camera.objective:
+        layers += forward  # its size was checked before any view was written (_check_views)
+    panels = _texel_panels(texels, visibility, buffer_path, camera.name)
+    layers += [layer for panel in panels for layer in panel.layers]
+    return _RawLayers(layers, panels)
 
 
 def _layer(
@@ -342,15 +463,199 @@ def _layer(
         "keys": json.dumps(list(values.keys)),
         "unverified": json.dumps(list(values.unverified)),
         "estimators": json.dumps(values.estimators),
-        "invisible": json.dumps(list(painted.invisible)),
-        "original_name": f"{values.objective}.{values.pass_name}",
-        "part": values.part,
-        "left_out": json.dumps(values.left_out or {}),
-        "zero_valued": json.dumps(values.zero_valued or {}),
-        "scale_group": values.scale_group,
-        "scale_role": FOLLOWER if values.part == "untrusted" else REFERENCE,
     }
-    return SensitivityLayer(values.objective, values.pass_name, painted.data, metadata)
+    role = FOLLOWER if values.part == "untrusted" else REFERENCE
+    return SensitivityLayer(
+        values.objective,
+        values.pass_name,
+        painted.data,
+        metadata,
+        group=ScaleGroup(values.scale_group, role),
+        part=values.part,
+        invisible=painted.invisible,
+        left_out=values.left_out or {},
+        zero_valued=values.zero_valued or {},
+    )
+
+
+def _scales(job: JobSpec, raw: dict[str, _RawLayers]) -> Scales:
+    """Every (camera, scale group)'s display scale, under the job's ``views`` settings."""
+    entries = {
+        camera: [
+            (layer.group.name, layer.group.role or REFERENCE, signed_pixels(layer.data, layer.kind))
+            for layer in found.layers
+        ]
+        for camera, found in raw.items()
+    }
+    fixed = {
+        layer.group.name: layer.group.fixed
+        for found in raw.values()
+        for layer in found.layers
+        if layer.group.fixed is not None
+    }
+    return group_scales(
+        entries, percentile=job.views.percentile, scope=job.views.scale, fixed=fixed
+    )
+
+
+# --- the beauty under a view ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RunBeauty:
+    """The run's primal, read once before the views: linear RGB and how it was made.
+
+    The objective camera sees exactly what ``sensaov run`` rendered, at the run's spp, so its
+    ``primal.exr`` is that camera's beauty when it was written with this very buffer (the buffer
+    id its provenance records) at the view's size and with at least the spp asked for; reading
+    it costs milliseconds where the quick path trace costs more than the rest of the view.
+    """
+
+    rgb: np.ndarray  # (H, W, 3) float32
+    path: Path
+    spp: int
+
+    def describe(self) -> str:
+        return f"{self.path.name} of the buffer's run ({self.spp} spp)"
+
+
+def run_beauty(
+    buffer: SensitivityBuffer, buffer_path: Path, spp: int, progress: Progress
+) -> RunBeauty | None:
+    """The primal written with ``buffer``, if it can stand in for a ``spp``-sample beauty: none
+    beside the buffer is passed over silently, one unreadable, from another buffer or with
+    fewer samples in one line."""
+    path = primal_beside(buffer_path)
+    if spp <= 0 or not path.is_file():
+        return None
+    try:
+        channels, header = read_exr(path, "run's primal image")
+    except SensaovError as error:
+        progress.note(f"{path.name} not used as the objective camera's beauty: {error}")
+        return None
+    provenance = header_provenance(header)
+    recorded = int(provenance.get("spp") or 0) if provenance is not None else 0
+    reason = None
+    if provenance is None or provenance_id(provenance) != buffer_id(buffer):
+        reason = "it was not written with this buffer"
+    elif recorded < spp:
+        reason = f"it has {recorded} spp, fewer than the {spp} asked for"
+    rgb = _rgb(channels)
+    if reason is None and rgb is None:
+        reason = "it has no R, G, B or Y channels"
+    if reason is not None or rgb is None:
+        progress.note(f"{path.name} not used as the objective camera's beauty: {reason}")
+        return None
+    return RunBeauty(rgb, path, recorded)
+
+
+def _rgb(channels: dict[str, np.ndarray]) -> np.ndarray | None:
+    if all(name in channels for name in ("R", "G", "B")):
+        return np.stack([channels[n] for n in ("R", "G", "B")], axis=-1).astype(np.float32)
+    if "Y" in channels:  # a mono variant's primal: shown grey, as the quick pass shows it
+        return np.repeat(channels["Y"][..., None], 3, axis=2).astype(np.float32)
+    return None
+
+
+def _view_beauty(
+    loaded: LoadedScene,
+    sensor: Any,
+    visibility: VisibilityPass,
+    spp: int,
+    seed: int,
+    reused: RunBeauty | None,
+) -> tuple[np.ndarray | None, str]:
+    """The view's RGBA beauty (alpha: the visibility coverage) and what it is."""
+    if spp <= 0:
+        return None, "none (--beauty-spp 0)"
+    if reused is not None and reused.rgb.shape[:2] == (visibility.height, visibility.width):
+        alpha = visibility.coverage_hit[..., None].astype(np.float32)
+        return np.concatenate([reused.rgb, alpha], axis=2), reused.describe()
+    image = render_beauty(loaded, sensor, visibility, spp, seed)
+    return image, f"path trace at {spp} spp"
+
+
+# --- one camera's files --------------------------------------------------------------------------
+
+
+def _project_camera(
+    job: JobSpec,
+    buffer: SensitivityBuffer,
+    buffer_path: Path,
+    loaded: LoadedScene,
+    camera: CameraSpec,
+    visibility: VisibilityPass,
+    raw: _RawLayers,
+    scales: Scales,
+    png: bool,
+    beauty_spp: int,
+    reused: RunBeauty | None,
+) -> ProjectedView:
+    sensor = loaded.inspection_sensors[camera.name]
+    beauty, made = _view_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed, reused)
+    shown = [(layer, scales[(camera.name, layer.group.name)]) for layer in raw.layers]
+    background = display_background(visibility.coverage_hit)  # once per view, every layer's
+    pairs = [with_display(layer, scale, background) for layer, scale in shown]
+    crypto = CryptoLayer(
+        "CryptoObject", buffer.objects, visibility.rank_index, visibility.rank_coverage,
+        ordered=True,  # coverage.ranked builds them in Cryptomatte's order
+    )  # fmt: skip
+    material = _material_cryptomatte(visibility, loaded.prepared.materials)
+    path = job.output / f"{camera.name}.exr"
+    made_from = stamp(buffer, job.job_hash())
+    attributes = {**_attributes(buffer, buffer_path, camera, beauty_spp, made), **made_from}
+    interrupts.check()
+    write_layered_exr(
+        path,
+        beauty=beauty,
+        cryptomattes=[crypto, material],
+        layers=[layer for pair in pairs for layer in pair],
+        attributes=attributes,
+    )
+    previews: tuple[Path, ...] = ()
+    if png:
+        previews = _write_previews(job, camera, raw, scales, shown, beauty, visibility, made_from)
+    return ProjectedView(
+        camera.name, path, visibility.width, visibility.height, visibility.spp, 0.0, previews, made
+    )
+
+
+def _write_previews(
+    job: JobSpec,
+    camera: CameraSpec,
+    raw: _RawLayers,
+    scales: Scales,
+    shown: list[tuple[SensitivityLayer, DisplayScale]],
+    beauty: np.ndarray | None,
+    visibility: VisibilityPass,
+    made_from: dict[str, str],
+) -> tuple[Path, ...]:
+    """The camera's PNG previews, its Fig. 4 sheets (``<camera>_<objective>_<texture>_fig4.png``
+    per texel field) and, last, its manifest (report's index)."""
+    from sensaov_cli.outputs.contact_sheets import PreviewFile, write_manifest, write_previews
+
+    folder = job.output / "previews"
+    files = write_previews(folder, camera.name, shown, beauty, visibility, made_from)
+    for panels in raw.texel_panels:
+        field = panels.field
+        stem = f"{camera.name}_{field.objective}_{field.channel.name}"
+        path = folder / f"{stem}_{safe_file_stem(field.record.key)}_fig4.png"
+        values = [scales[(camera.name, layer.group.name)].value for layer in panels.layers]
+        write_fig4_sheet(path, camera.name, field, panels.passes, values, made_from)
+        files.append(PreviewFile(path.name, "fig4", field.objective, field.record.key))
+    manifest = write_manifest(folder, camera.name, files, made_from)
+    return (*(folder / f.file for f in files), manifest)
+
+
+def _material_cryptomatte(visibility: VisibilityPass, materials: dict[str, str]) -> CryptoLayer:
+    """CryptoMaterial: the object coverage regrouped by the BSDF each object uses."""
+    names = sorted({materials.get(obj, obj) for obj in visibility.objects})
+    group_of = np.array(
+        [names.index(materials.get(obj, obj)) for obj in visibility.objects], np.int32
+    )
+    coverage = visibility.coverage.regroup(group_of)
+    index, amount = ranked(coverage, (visibility.height, visibility.width), visibility.spp)
+    return CryptoLayer("CryptoMaterial", tuple(names), index, amount, ordered=True)
 
 
 def _attributes(

@@ -11,6 +11,8 @@ from an objective or a channel since renamed) are not shown, and the page says h
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -143,11 +145,28 @@ def _camera_section(
     headline: list[Picture] = []
     more: list[Picture] = []
     files: list[str] = []
-    for entry in manifest["files"]:
+    for entry in map(_Listed.read, manifest["files"]):
         picture = _preview(folder, entry, buf, job, remake)
-        files.append(entry["file"])
+        files.append(entry.file)
         (headline if _is_headline(job, entry) else more).append(picture)
     return CameraSection(camera.name, visible, tuple(headline), tuple(more), tuple(files), "")
+
+
+@dataclass(frozen=True)
+class _Listed:
+    """One file a previews manifest lists, as the report shows it."""
+
+    file: str
+    kind: str
+    objective: str
+    pass_name: str
+    part: str
+
+    @classmethod
+    def read(cls, entry: Mapping[str, object]) -> _Listed:
+        """An entry of the manifest's ``files``: what a field lacks reads as empty."""
+        fields = ("file", "kind", "objective", "pass_name", "part")
+        return cls(*(str(entry.get(name, "")) for name in fields))
 
 
 def _manifest(path: Path) -> dict[str, Any]:
@@ -165,9 +184,9 @@ def _manifest(path: Path) -> dict[str, Any]:
 
 
 def _preview(
-    folder: Path, entry: dict[str, Any], buf: SensitivityBuffer, job: JobSpec, remake: str
+    folder: Path, entry: _Listed, buf: SensitivityBuffer, job: JobSpec, remake: str
 ) -> Picture:
-    path = folder / str(entry.get("file", ""))
+    path = folder / entry.file
     if not path.resolve().is_relative_to(folder.resolve()) or not path.is_file():
         raise StaleInputError("a preview its manifest lists is missing", where=str(path),
                               hint=f"re-run '{remake}'")  # fmt: skip
@@ -178,28 +197,24 @@ def _preview(
                               hint=f"re-run '{remake}'") from error  # fmt: skip
     check_made_from(text, buf, str(path), remake=remake)
     check_made_by(text, job, str(path), remake=remake)
-    return Picture(_caption(entry), path.read_bytes(), kind=str(entry.get("kind", "")),
-                   objective=str(entry.get("objective", "")))  # fmt: skip
+    return Picture(_caption(entry), path.read_bytes(), kind=entry.kind, objective=entry.objective)
 
 
-def _is_headline(job: JobSpec, entry: dict[str, Any]) -> bool:
+def _is_headline(job: JobSpec, entry: _Listed) -> bool:
     """The objective's first object channel (and its untrusted part): a report's headline."""
     headline = next((c.name for c in job.channels if c.kind == "object"), None)
-    name = str(entry.get("pass_name", ""))
-    return entry.get("kind") == "layer" and headline is not None and (
-        name in (headline, f"{headline}_untrusted")
+    return entry.kind == "layer" and headline is not None and (
+        entry.pass_name in (headline, f"{headline}_untrusted")
     )  # fmt: skip
 
 
-def _caption(entry: dict[str, Any]) -> str:
-    kind = entry.get("kind")
-    if kind == "sheet":
-        return f"every pass of {entry.get('objective')} (contact sheet)"
-    if kind == "fig4":
-        return f"{entry.get('objective')}: texel panels of {entry.get('pass_name')}"
+def _caption(entry: _Listed) -> str:
+    if entry.kind == "sheet":
+        return f"every pass of {entry.objective} (contact sheet)"
+    if entry.kind == "fig4":
+        return f"{entry.objective}: texel panels of {entry.pass_name}"
     part = {"trusted": " (trusted gradients)", "untrusted": " (left out: untrusted)"}
-    shown = part.get(str(entry.get("part")), "")
-    return f"{entry.get('objective')}.{entry.get('pass_name')}{shown}"
+    return f"{entry.objective}.{entry.pass_name}{part.get(entry.part, '')}"
 
 
 def _ignored(folder: Path, listed: set[str], broken: dict[str, str]) -> tuple[str, ...]:

@@ -1,7 +1,12 @@
-"""Wire the stages of ``sensaov run``: spec -> scene -> objectives -> adjoint -> buffer -> files."""
+"""Wire the stages of ``sensaov run``: spec -> scene -> objectives -> adjoint -> buffer -> files.
+
+The forward passes of the job's forward channels and transport layers run last, at the
+backward passes' seeds, and are written beside the buffer in the forward sidecar.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import os
 import platform
@@ -11,8 +16,16 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from sensaov_cli import interrupts
-from sensaov_cli.buffer.forward_sidecar import forward_writer
+from sensaov_cli.buffer.forward_sidecar import (
+    ForwardData,
+    ForwardLayer,
+    ForwardPass,
+    forward_writer,
+    ties_of,
+)
 from sensaov_cli.buffer.model import (
     BUFFER_ID,
     RUN_VERSION,
@@ -22,12 +35,11 @@ from sensaov_cli.buffer.model import (
 )
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer
 from sensaov_cli.errors import SensaovError, SpecError
-from sensaov_cli.job.spec import JobSpec
+from sensaov_cli.job.spec import ChannelSpec, JobSpec
 from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
 from sensaov_cli.outputs.exr import exr_writer, image_channels, read_exr
 from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
-from sensaov_cli.pipeline.run_forward import forward_bound, plan_forward, run_forward
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import (
     AdjointResult,
@@ -37,12 +49,14 @@ from sensaov_cli.render.adjoint import (
     integrator_plan,
     run_adjoint,
 )
+from sensaov_cli.render.forward import adjoint_images, forward_image
 from sensaov_cli.render.loading import LoadedScene, load_scene, refuse_non_finite
 from sensaov_cli.render.memory import check_render
 from sensaov_cli.render.objectives import Objective, build_objectives
 from sensaov_cli.render.runtime import library_versions
 from sensaov_cli.render.verify.repair import repair
 from sensaov_cli.scene import PreparedScene, prepare_scene
+from sensaov_cli.views.transport import direction_values, group_keys, top_objects, transport_views
 
 BUFFER_NAME = "buffer.npz"
 PRIMAL_NAME = "primal.exr"
@@ -71,7 +85,8 @@ class Task:
         middle = "".join(f".{part}" for part in parts)
         return f"buffer{middle}.npz", f"primal{middle}.exr"
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> dict[str, dict[str, int] | list[str] | None]:
+        """The task as the buffer's provenance records it (``--resume`` compares it)."""
         shard = {"index": self.shard[0], "count": self.shard[1]} if self.shard else None
         return {"shard": shard, "objectives": list(self.objectives) or None}
 
@@ -172,7 +187,7 @@ def run_job(
     forward = None
     if forward_wanted:
         forward = run_forward(job, loaded, objectives, buffer, result.image, progress)
-        progress.skip(planned_forward - len(forward.passes) if forward else planned_forward)
+        progress.skip(planned_forward - len(forward.passes))
         # The buffer's times cover every pass of the run, forward passes included.
         timed = {**buffer.provenance, "timings_s": dict(progress.timings),
                  "wall_time_s": round(time.perf_counter() - started, 4)}  # fmt: skip
@@ -353,3 +368,171 @@ def _provenance(
         "timings_s": dict(timings),
         "wall_time_s": round(wall, 4),
     }
+
+
+# --- forward passes: the job's forward channels and transport layers (§4, §7) ----------------
+#
+# Groups are resolved before anything renders (plan_forward). After the backward passes,
+# run_forward pushes each group once per seed it needs: a forward channel at the first
+# objective's gradient seed, a transport layer at its own objective's gradient seed, the seed the
+# buffer's gradient was computed at, so that the layer's duality check can hold to float32
+# rounding. Identical (keys, direction, seed) passes render once.
+
+
+@dataclass(frozen=True)
+class _ForwardGroup:
+    name: str
+    keys: tuple[str, ...]
+    direction: str
+    transport: bool
+    source: str
+
+
+def plan_forward(job: JobSpec, loaded: LoadedScene) -> list[_ForwardGroup]:
+    """The job's forward entries as key groups; an entry that selects nothing fails here."""
+    groups = []
+    for index, spec in enumerate(job.forward):
+        where = f"forward[{index}]"
+        keys = group_keys(loaded.selected, spec, where)
+        groups.append(_ForwardGroup(spec.name, keys, spec.direction, spec.transport, where))
+    return groups
+
+
+def forward_bound(job: JobSpec, objectives: int) -> int:
+    """The most forward passes the job can need with ``objectives`` objectives: one per forward
+    entry, one per other objective for a transport entry, a transport channel's top objects for
+    every objective (fewer when objects score 0 or passes coincide: skipped after the run)."""
+    entries = sum(objectives if spec.transport else 1 for spec in job.forward)
+    tops = sum(c.top * objectives for c in job.channels if c.kind == "transport")
+    return entries + tops
+
+
+def run_forward(
+    job: JobSpec,
+    loaded: LoadedScene,
+    objectives: list[Objective],
+    buffer: SensitivityBuffer,
+    primal: np.ndarray,
+    progress: Progress,
+) -> ForwardData:
+    """Render every forward pass the job asks for."""
+    seeds = {o.name: o.grad_seed for o in buffer.objectives}
+    first = buffer.objectives[0].name
+    backward_s = progress.timings.get(f"backward_{first}_s", 0.0)
+    layers: list[ForwardLayer] = []
+    runner = _Passes(loaded, buffer, job, primal.shape, progress, backward_s)
+    for group in plan_forward(job, loaded):
+        index = runner.get(group, seeds[first])
+        layers.append(ForwardLayer("forward", group.name, None, index, group.source))
+        if group.transport:
+            for objective in seeds:
+                index = runner.get(group, seeds[objective])
+                name = f"transport_{group.name}"
+                layers.append(ForwardLayer("transport", name, objective, index, group.source))
+    for position, channel in enumerate(job.channels):
+        if channel.kind == "transport":
+            layers += _top_layers(runner, buffer, seeds, channel, position)
+    data = ForwardData(
+        ties=ties_of(buffer),
+        provenance=_forward_provenance(job, runner),
+        adjoints=adjoint_images(loaded, objectives, primal),
+        passes=tuple(runner.passes),
+        layers=_unique_layers(layers),
+    )
+    _warn_duality(data, buffer, progress)
+    return data
+
+
+def _unique_layers(layers: list[ForwardLayer]) -> tuple[ForwardLayer, ...]:
+    """One layer per EXR name: a repeat of the same pass is dropped, another pass numbered."""
+    kept: dict[tuple[str, str | None, str], ForwardLayer] = {}
+    for layer in layers:
+        name = layer.name
+        while (layer.kind, layer.objective, name) in kept:
+            if kept[(layer.kind, layer.objective, name)].pass_index == layer.pass_index:
+                break
+            name += "_2"
+        else:
+            kept[(layer.kind, layer.objective, name)] = dataclasses.replace(layer, name=name)
+    return tuple(kept.values())
+
+
+def _top_layers(
+    runner: _Passes,
+    buffer: SensitivityBuffer,
+    seeds: dict[str, int],
+    channel: ChannelSpec,
+    position: int,
+) -> list[ForwardLayer]:
+    """``<objective>.<channel>_<object>`` for the channel's top objects of every objective."""
+    direction = "value" if channel.weight == "value" else "ones"
+    layers = []
+    for objective in seeds:
+        for name in top_objects(buffer, objective, channel.top, channel.weight):
+            keys = tuple(p.key for p in buffer.params if name in p.owners)
+            source = f"channels[{position}] (top {channel.top} of {objective})"
+            group = _ForwardGroup(name, keys, direction, True, source)
+            index = runner.get(group, seeds[objective])
+            layer_name = f"{channel.name}_{name}"
+            layers.append(ForwardLayer("transport", layer_name, objective, index, source))
+    return layers
+
+
+@dataclass
+class _Passes:
+    """Forward passes rendered so far, one per (keys, direction, seed)."""
+
+    loaded: LoadedScene
+    buffer: SensitivityBuffer
+    job: JobSpec
+    shape: tuple[int, ...]
+    progress: Progress
+    backward_s: float
+    passes: list[ForwardPass] = dataclasses.field(default_factory=list)
+    index: dict[tuple[tuple[str, ...], str, int], int] = dataclasses.field(default_factory=dict)
+
+    def get(self, group: _ForwardGroup, seed: int) -> int:
+        key = (tuple(sorted(group.keys)), group.direction, seed)
+        if key in self.index:
+            return self.index[key]
+        v = direction_values(self.buffer, group.keys, group.direction)
+        n = len(self.passes)
+        label = f"forward pass {n + 1} '{group.name}' ({len(group.keys)} parameters, seed {seed})"
+        with self.progress.stage(f"forward_{n}_s", label):
+            result = forward_image(
+                self.loaded, v, spp=self.job.render.spp, seed=seed, shape=self.shape,
+                deterministic=self.job.render.deterministic,
+            )  # fmt: skip
+        ratio = result.seconds / self.backward_s if self.backward_s > 0 else float("nan")
+        self.progress.note(
+            f"forward '{group.name}' ({group.source}): {result.seconds:.2f} s, "
+            f"{ratio:.2f}x one backward pass"
+        )
+        if result.failure:
+            self.progress.note(f"warning: Mitsuba cannot push '{group.name}': {result.failure}")
+        self.passes.append(ForwardPass(
+            group.keys, group.direction, seed, result.seconds, result.integrators, result.failure,
+            result.image,
+        ))  # fmt: skip
+        self.index[key] = n
+        return n
+
+
+def _forward_provenance(job: JobSpec, runner: _Passes) -> dict[str, object]:
+    return {
+        **made_by(" ".join(sys.argv)),
+        "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "spp": job.render.spp,
+        "max_depth": runner.loaded.prepared.integration.max_depth,
+        "backward_s": runner.backward_s,
+        "forward_s": [round(p.seconds, 4) for p in runner.passes],
+    }
+
+
+def _warn_duality(data: ForwardData, buffer: SensitivityBuffer, progress: Progress) -> None:
+    for view in transport_views(buffer, data):
+        if not view.agrees:
+            progress.note(
+                f"warning: transport layer {view.objective}.{view.name}: duality "
+                f"residual {view.residual:.2e} exceeds {view.tolerance:.1e} (layer marked)"
+            )
