@@ -11,7 +11,6 @@ from sensaov_cli.cli.options import (
     EXIT_CODES_EPILOG,
     FilePath,
     aggregate_option,
-    echo_json,
     json_option,
     objective_option,
     reports_errors,
@@ -91,7 +90,5 @@ def rank(
             buffer, by=cast(Cut, by), objectives=objective, style=style, exrs=exrs, top=top,
             method=method, weight=weighting, untrusted=apart,
         )  # fmt: skip
-    if isinstance(result, dict):
-        echo_json(result)
-    else:  # the summary is a block of lines; a table or CSV ends with its own newline
-        click.echo(result, nl=by is None)
+    # JSON and the summary end without a newline; a table or CSV ends with its own
+    click.echo(result, nl=by is None or as_json)

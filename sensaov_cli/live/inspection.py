@@ -24,8 +24,7 @@ from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, clipped_share, robust_scale
 from sensaov_cli.views.encoding import Encoding, Scale, encode_image, signed_object_values
-from sensaov_cli.views.texel_fields import TexelField
-from sensaov_cli.views.texel_passes import texel_passes, texture_footprint
+from sensaov_cli.views.texels import TexelField, texel_passes, texture_footprint
 
 SCALE_MODES = ("shared", "view")
 LEGEND_STOPS = (-1.0, -0.5, 0.0, 0.5, 1.0)

@@ -47,8 +47,8 @@ from sensaov_cli.render.viewpoint import Pose, ViewTracer, scene_bounds, sensor_
 from sensaov_cli.scene import prepare_scene
 from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.summary import weakest_trust
 from sensaov_cli.views.sunburst_geometry import panels
+from sensaov_cli.views.trusted import weakest_trust
 
 META_FORMAT = "sensaov-view"
 META_VERSION = 1

@@ -23,8 +23,7 @@ from sensaov_cli.errors import RequestError, UnknownNameError
 from sensaov_cli.job.spec import ChannelSpec, JobSpec
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.views.channels import ChannelValues, channel_values
-from sensaov_cli.views.texel_fields import TexelField
-from sensaov_cli.views.texel_passes import PANELS, texture_token
+from sensaov_cli.views.texels import PANELS, TexelField, texture_token
 from sensaov_cli.views.transport import forward_views, transport_views
 
 SELECT_PREFIX = "select:"

@@ -23,8 +23,7 @@ from sensaov_cli.outputs.exr import exr_writer
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, write_png
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.views.pooling import white_noise_factor
-from sensaov_cli.views.texel_fields import TexelField
-from sensaov_cli.views.texel_passes import TexelPass
+from sensaov_cli.views.texels import TexelField, TexelPass
 
 FORMAT_NAME = "sensaov-texel-exr"
 FORMAT_VERSION = 1

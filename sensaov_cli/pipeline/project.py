@@ -38,7 +38,7 @@ from sensaov_cli.render.loading import LoadedScene, load_scene
 from sensaov_cli.render.memory import check_job, sensor_sizes
 from sensaov_cli.render.visibility import trace
 from sensaov_cli.scene import prepare_scene
-from sensaov_cli.views.channels import ChannelValues, channel_values
+from sensaov_cli.views.channels import ChannelValues, channel_values, paint_pass
 from sensaov_cli.views.coverage import VisibilityPass, ranked
 from sensaov_cli.views.display_scale import (
     FOLLOWER,
@@ -47,9 +47,7 @@ from sensaov_cli.views.display_scale import (
     group_scales,
     signed_pixels,
 )
-from sensaov_cli.views.painting import paint_pass
-from sensaov_cli.views.texel_fields import TexelField
-from sensaov_cli.views.texel_passes import TexelPass
+from sensaov_cli.views.texels import TexelField, TexelPass
 
 # The quick pass's spp: a reference for the compositor, and a full path trace. The objective
 # camera shows run's own primal instead when it can (project_beauty.py).

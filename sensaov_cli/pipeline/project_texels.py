@@ -24,9 +24,19 @@ from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.texture_modes import objects_without_uv, texture_probes
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale
-from sensaov_cli.views.texel_fields import TexelField, texel_fields, texture_keys
-from sensaov_cli.views.texel_passes import TexelPass, texel_passes, texture_footprint
-from sensaov_cli.views.texels import FILTERS, WRAPS, Footprint, TextureSampling, lookup
+from sensaov_cli.views.texels import (
+    FILTERS,
+    WRAPS,
+    Footprint,
+    TexelField,
+    TexelPass,
+    TextureSampling,
+    lookup,
+    texel_fields,
+    texel_passes,
+    texture_footprint,
+    texture_keys,
+)
 
 PROBE_TOLERANCE = 1e-4  # relative to the texture's largest value; float32 lookups agree to ~1e-6
 

@@ -30,10 +30,9 @@ import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.job.spec import ChannelSpec
-from sensaov_cli.views.channels import channel_values
+from sensaov_cli.views.channels import channel_values, paint_pass
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.painting import paint_pass
-from sensaov_cli.vocabulary import SCALE_SCOPES
+from sensaov_cli.vocabulary import SCALE_SCOPES, Untrusted
 
 DEFAULT_PERCENTILE = 95.0
 REC709_LUMA = (0.2126, 0.7152, 0.0722)
@@ -175,7 +174,7 @@ def shared_channel_scale(
     objective: str,
     visibilities: Mapping[str, VisibilityPass],
     *,
-    untrusted: str = "apart",
+    untrusted: Untrusted = "apart",
     percentile: float = DEFAULT_PERCENTILE,
 ) -> DisplayScale:
     """The job's shared display scale of one (objective, channel) of kind object, type or

@@ -8,7 +8,7 @@ with l2 (or rms) a parent's score is not the sum of its children's, so "proporti
 among siblings, which is what a reader compares. Angles are fractions of a turn, clockwise
 from the top, and numpy-free of drawing: :mod:`sensaov_cli.outputs.sunburst_drawing` draws them.
 
-As in the headline views (:mod:`.headline`), a ring-1 group (an object, or a type) holds only the
+As in the headline views (:mod:`.trusted`), a ring-1 group (an object, or a type) holds only the
 parameters the tool stands behind; the rest of it gets a sibling wedge of its own, named
 ``"<name> (untrusted)"`` and hatched (``untrusted: include`` mixes them in instead).
 
@@ -26,8 +26,14 @@ from dataclasses import dataclass, replace
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, combine, key_stats, rank
 from sensaov_cli.errors import QueryError
-from sensaov_cli.views.headline import ZeroValued, apart_name, split_groups, zero_valued
-from sensaov_cli.views.summary import ranked_groups, weakest_trust
+from sensaov_cli.views.trusted import (
+    ZeroValued,
+    apart_name,
+    ranked_groups,
+    split_groups,
+    weakest_trust,
+    zero_valued,
+)
 from sensaov_cli.views.uncertainty import Uncertainty
 from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Trust, Untrusted, Weight
 
@@ -118,7 +124,7 @@ def _by_key(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str,
 _LEVELS: dict[str, Level] = {"object": _by_object, "type": _by_type}
 
 
-def _apart(level: Level, mode: str) -> Level:
+def _apart(level: Level, mode: Untrusted) -> Level:
     """``level`` whose groups keep their trusted keys, the rest a sibling ``(untrusted)``."""
 
     def split(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
