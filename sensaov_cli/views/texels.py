@@ -110,7 +110,7 @@ def _cells(
         uv = uv.astype(np.float64)
     (a, b, c), (d, e, f) = (map(float, row) for row in sampling.to_uv[:2])
     u, v = uv[:, 0], uv[:, 1]
-    # Written out: numpy's matmul with an inner size of 2 is ~100x slower on millions of rows.
+    # Written out: numpy's matmul with an inner size of 2 is far slower on millions of rows.
     x, y = (a * u + b * v + c) * width, (d * u + e * v + f) * height
     if sampling.filter == "nearest":
         return np.floor(x).astype(np.int64), np.floor(y).astype(np.int64), None, None
@@ -214,7 +214,7 @@ def footprint(
     # come in pixel order, so a run never spans two pixels; no sort is needed, and texels that
     # repeat after others stay a second entry (paint sums entries: the same result). Runs are
     # found on the cell before wrapping, which fixes every corner, so texel indices are
-    # computed per run, not per sample (issue 23); neighbouring runs whose cells wrap onto the
+    # computed per run, not per sample; neighbouring runs whose cells wrap onto the
     # same texels (a seam, UVs past a clamped edge) are then joined, so the entries and their
     # float32 sums are those of merging on the texels themselves.
     head = np.zeros(hits.size, dtype=bool)
@@ -243,7 +243,7 @@ def footprint(
 
 def _owned(objects: np.ndarray, owners: np.ndarray, position: np.ndarray) -> np.ndarray:
     """Which samples hit one of ``owners``: a comparison per owner for a few (a texture is
-    usually on one or two objects: 8x faster than the gather), else through ``position``."""
+    usually on one or two objects: faster than the gather), else through ``position``."""
     if 0 < len(owners) <= 4 and int(owners.min()) >= 0:
         mask = objects == owners[0]
         for owner in owners[1:]:
@@ -274,8 +274,8 @@ class TexelField:
     stderr: np.ndarray | None = None
     stderr_pooled: np.ndarray | None = None
 
-    # Cached: each camera's panels state these, and on a 2k texture each is a pass over 12 M
-    # values (an exact fsum alone took 0.6 s a camera).
+    # Cached: each camera's panels state these, and on a large texture each is a pass over
+    # millions of values.
     @functools.cached_property
     def pooled_sum(self) -> float:
         """The pooled field's exact sum, in the buffer's units (it conserves ``signed_sum``)."""
@@ -476,8 +476,8 @@ def _common_metadata(tf: TexelField, seen: np.ndarray, notes: list[str]) -> dict
         "owners": ", ".join(tf.record.owners),
         "lookup": tf.sampling.describe(),
         "pool": tf.pool.describe(),
-        # Seed-to-seed noise σ is divided by this for independent texel noise; measured on
-        # the demo scene (correlated noise): 0.39 at 64 spp, 0.35 at 4 spp (docs/texels.md).
+        # Seed-to-seed noise σ is divided by this for independent texel noise; texel noise is
+        # correlated, so the measured reduction is smaller (docs/texels.md).
         "pool_white_noise_factor": repr(white_noise_factor(tf.pool)),
         "units": tf.channel.units,
         # Pooled / unpooled standard error (median over texels), from the buffer's batches;
