@@ -154,9 +154,6 @@ def _values(
     method, weight = cast(Aggregate, channel.aggregate), cast(Weight, channel.weight)
     magnitude = per_object(buf, objective, method=method, weight=weight, keys=keys)
     signed = per_object(buf, objective, method="sum", weight=weight, keys=keys)
-    # A parameter through which no gradient flows adds exactly 0 to the picture: it is listed
-    # apart in the rankings, and marking the pass "!" for it would flag numbers that are right.
-    unverified = tuple(k for k in keys if buf.param(k).trust not in ("verified", "no_gradient"))
     return ChannelValues(
         objective,
         pass_name,
@@ -165,7 +162,7 @@ def _values(
         keys,
         np.array([magnitude[name] for name in buf.objects], np.float64),
         np.array([signed[name] for name in buf.objects], np.float64),
-        unverified,
+        untrusted_keys(buf, keys),  # no_gradient adds exactly 0: no "!" for numbers that are right
         part,
         zero_valued={key: raw for key, raw in zeros.items() if key in keys},
         estimators={k: buf.param(k).estimator for k in keys},

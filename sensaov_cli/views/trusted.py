@@ -1,16 +1,18 @@
 """Which parameters the headline views add up: those the tool stands behind; the rest apart.
 
-The same views weight each gradient by its value (θ·∂M/∂θ), so a parameter whose value is
-exactly 0 scores 0 whatever its gradient: :func:`zero_valued` finds them, so every view can
-flag them with their raw gradient instead of ranking them as parameters that do not matter.
-
 An object's or a type's score in a headline view (the ``objects`` and ``types`` layers, the
 ranked objects and types, the sunburst's rings) is a sum over its parameters. A parameter whose
 gradient is not ``verified`` (``unverified``, ``biased``, ``suspect``) is a number the tool
 cannot stand behind, so by default (``untrusted: apart``) it is left out of its group and shown
 apart: its own layer, its own rows, its own hatched wedge, named per object. A parameter with
 ``no_gradient`` adds exactly 0 and stays in. ``untrusted: include`` mixes everything in, with a
-mark, as before. The rule is documented in docs/encoding.md ("Trusted numbers").
+mark, as before. The rule is documented in docs/encoding.md ("Trusted numbers"). A group shows
+the weakest label among its parameters; the rankings group only the parameters a gradient
+flows to.
+
+The same views weight each gradient by its value (θ·∂M/∂θ), so a parameter whose value is
+exactly 0 scores 0 whatever its gradient: :func:`zero_valued` finds them, so every view can
+flag them with their raw gradient instead of ranking them as parameters that do not matter.
 """
 
 from __future__ import annotations
