@@ -18,11 +18,10 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.outputs.tables import (
     CONTRIBUTION,
     NO_GRADIENT_MARK,
-    SUSPECT_MARK,
-    UNVERIFIED_MARK,
     ZERO_VALUE_MARK,
     format_table,
     trust_legend,
+    trust_mark,
     zero_value_legend,
 )
 from sensaov_cli.views.hierarchy import RANKING_FORMAT, RANKING_VERSION, Ranking, RankRow
@@ -33,7 +32,6 @@ COLUMNS = (
     "rank", "name", "score", "signed", "share", "sign", "value", "trust", "off_frame",
     "score_se", "signed_se", "significant", "part", "zero_value", "raw_signed", "estimator",
 )  # fmt: skip
-_MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
 
 
 def ranking_json(
@@ -145,7 +143,7 @@ def _table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
     rows = [
         [
             str(row.rank),
-            _MARKS.get(row.trust, "") + (ZERO_VALUE_MARK if row.zero_value else ""),
+            trust_mark(row.trust) + (ZERO_VALUE_MARK if row.zero_value else ""),
             f"{row.score:.2e}",
             *([_error(row.score_se)] * errors),
             f"{row.signed:+.2e}",

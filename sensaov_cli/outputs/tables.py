@@ -195,7 +195,8 @@ def _fmt(score: float, signed: bool) -> str:
     return f"{score:+.2e}" if signed else f"{score:.2e}"
 
 
-def _mark(trust: str) -> str:
+def trust_mark(trust: str) -> str:
+    """The mark a ranked row of this label carries ("" for verified)."""
     return _MARKS.get(trust, "")
 
 
@@ -214,7 +215,7 @@ def _objective_lines(summary: ObjectiveSummary, method: str, ranked: int) -> lis
     headers = ["#", "", "score", *([] if signed else ["signed"]), "type", "estimator", "key",
                "owners"]  # fmt: skip
     rows = [
-        [str(i), _mark(p.record.trust) + (ZERO_VALUE_MARK if p.zero_value else ""),
+        [str(i), trust_mark(p.record.trust) + (ZERO_VALUE_MARK if p.zero_value else ""),
          _fmt(p.score, signed), *([] if signed else [_fmt(p.signed, True)]), p.record.type,
          p.record.estimator, p.record.key, _owners(p.record.owners)]
         for i, p in enumerate(params, 1)
@@ -274,13 +275,13 @@ def _repaired_legend(parameters: Sequence[RankedParameter]) -> list[str]:
 def _group_table(title: str, entries: Sequence[RankedGroup], signed: bool) -> list[str]:
     if signed:
         rows = [
-            [str(i), _mark(e.trust) + (ZERO_VALUE_MARK if e.zero_value else ""),
+            [str(i), trust_mark(e.trust) + (ZERO_VALUE_MARK if e.zero_value else ""),
              _fmt(e.score, signed), e.name]
             for i, e in enumerate(entries, 1)
         ]  # fmt: skip
         return _indented(["#", "", "score", title], rows, numeric={0, 2})
     rows = [  # the signed sum and its rank beside the score (docs/encoding.md: which to read)
-        [str(i), _mark(e.trust) + (ZERO_VALUE_MARK if e.zero_value else ""),
+        [str(i), trust_mark(e.trust) + (ZERO_VALUE_MARK if e.zero_value else ""),
          _fmt(e.score, False), _fmt(e.signed, True), str(e.signed_rank), e.name]
         for i, e in enumerate(entries, 1)
     ]  # fmt: skip
@@ -322,7 +323,7 @@ def _legend(summary: ObjectiveSummary) -> list[str]:
     marked = [p for p in params if p.trust not in ("verified", "no_gradient")]
     lines = trust_legend([p.trust for p in params] + [g.trust for g in groups], groups=False)
     lines += [printable(f"      {p.key}: {p.trust}: {p.note}") for p in marked]
-    if any(_mark(g.trust) for g in groups):
+    if any(trust_mark(g.trust) for g in groups):
         lines.append("    objects and types so marked include such a parameter")
     lines += zero_value_legend(summary.zero_valued)
     lines += _no_gradient_lines(summary.no_gradient)
