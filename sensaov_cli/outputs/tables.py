@@ -85,10 +85,10 @@ def summary_text(
 ) -> str:
     """The summary as short aligned tables, one block per objective, for a terminal."""
     summary = ranked_summary(buf, top=top, method=method, weight=weight, untrusted=untrusted)
-    return render_text(summary)
+    return _text(summary)
 
 
-def render_text(summary: Summary) -> str:
+def _text(summary: Summary) -> str:
     """The text of a :class:`Summary`."""
     buf = summary.buffer
     counts = {"parameter": len(buf.params), "object": len(buf.objects),
