@@ -368,10 +368,10 @@ def _field(
     if channel.weight == "value":
         raw = raw * buf.value(key)
     size = (raw.shape[0], raw.shape[1])
-    if channel.pool is None:
-        pool = default_pool(1, samples, size)
-    else:
-        pool = Pool(channel.pool.kind, _job_radius(channel, samples, size), "job")
+    pool = default_pool(1, samples, size)
+    if channel.pool is not None:  # the job's kind, and its radius or the default one
+        radius = pool.radius if channel.pool.radius is None else channel.pool.radius
+        pool = Pool(channel.pool.kind, radius, "job")
     factor = raw.shape[0] * raw.shape[1] if channel.units == "uv_area" else 1
     pooled = pool_field(raw, pool, sampling.wrap) * factor
     owners = {name: float(object_values[name]) for name in record.owners}
@@ -395,13 +395,6 @@ def _field(
         stderr,
         stderr_pooled,
     )
-
-
-def _job_radius(channel: ChannelSpec, samples: int, size: tuple[int, int]) -> float:
-    assert channel.pool is not None
-    if channel.pool.radius is not None:
-        return channel.pool.radius
-    return default_pool(1, samples, size).radius
 
 
 def _notes(record: ParamRecord, sampling: TextureSampling) -> tuple[str, ...]:
@@ -444,8 +437,7 @@ def owners_in(tf: TexelField, visibility: VisibilityPass) -> list[str]:
 
 def texture_footprint(tf: TexelField, visibility: VisibilityPass) -> Footprint:
     """How ``visibility``'s camera sees ``tf``'s texture (shared by objectives and panels)."""
-    if visibility.sample_uv is None or visibility.sample_object is None:
-        raise ValueError("texel passes need a visibility pass traced with UVs")
+    assert visibility.sample_uv is not None and visibility.sample_object is not None  # traced so
     owners = np.array([visibility.objects.index(o) for o in owners_in(tf, visibility)], np.int64)
     return footprint(
         tf.raw.shape[:2], tf.sampling, visibility.sample_uv, visibility.sample_object, owners
