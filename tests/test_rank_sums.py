@@ -22,7 +22,7 @@ from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBu
 from sensaov_cli.buffer.npz import Archive, read_buffer
 from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import BufferFormatError
-from sensaov_cli.outputs.rankings import ranking_csv, ranking_dict, ranking_text
+from sensaov_cli.outputs.rankings import ranking_csv, ranking_json, ranking_text
 from sensaov_cli.pipeline.rank import rank_by_cut, rank_summary, summary_of
 from sensaov_cli.views.hierarchy import rankings
 from tests.bad_buffers import write_buffer
@@ -98,7 +98,7 @@ def every_output(buf: SensitivityBuffer) -> Iterator[Any]:
         for by in ("key", "object", "type"):
             found = rankings(buf, by=by, top=None, **case)  # type: ignore[arg-type]
             method, weight = case["method"], case["weight"]
-            yield ranking_dict(buf, found, method=method, weight=weight, cameras=None)  # type: ignore[arg-type]
+            yield ranking_json(buf, found, method=method, weight=weight, cameras=None)  # type: ignore[arg-type]
             yield ranking_text(found, method=method, weight=weight)  # type: ignore[arg-type]
             yield ranking_csv(found)
 

@@ -303,10 +303,10 @@ def test_zero_valued_parameters_are_flagged_with_their_raw_gradient() -> None:
     """θ = 0 gives a value-weighted score of 0 (issue 18, point 5): never 'does not matter'
     without a word, in rankings, the summary, channels and the sunburst."""
     from sensaov_cli.job.spec import ChannelSpec
-    from sensaov_cli.outputs.rankings import ranking_dict, ranking_text
+    from sensaov_cli.outputs.rankings import ranking_json, ranking_text
+    from sensaov_cli.outputs.tables import summary_json
     from sensaov_cli.views.channels import channel_values
-    from sensaov_cli.views.hierarchy import rankings
-    from sensaov_cli.views.summary import summary_dict
+    from sensaov_cli.views.hierarchy import ranked_summary, rankings
     from sensaov_cli.views.sunburst_geometry import panels
 
     buf, key = zero_valued_buffer(), "lamp.emitter.radiance.value"
@@ -314,14 +314,14 @@ def test_zero_valued_parameters_are_flagged_with_their_raw_gradient() -> None:
     found = rankings(buf, by="key", objectives=["brightness"])
     (row,) = [r for r in found[0].rows if r.name == key]
     assert (row.score, row.zero_value, row.raw_signed) == (0.0, True, pytest.approx(raw))
-    doc = ranking_dict(buf, found, method="l2", weight="value", cameras=None)
+    doc = json.loads(ranking_json(buf, found, method="l2", weight="value", cameras=None))
     (entry,) = doc["objectives"][0]["zero_valued"]
     assert (entry["key"], entry["hidden"], entry["size"]) == (key, 3, 3)
     text = ranking_text(found, method="l2", weight="value")
     assert "θ0" in text and f"{key} (lamp): {raw:+.3e}" in text
     (lamp,) = [r for r in rankings(buf, by="object")[0].rows if r.name == "lamp"]
     assert lamp.zero_value  # its object says so too
-    summary = summary_dict(buf)["objectives"][0]
+    summary = json.loads(summary_json(ranked_summary(buf)))["objectives"][0]
     assert [z["key"] for z in summary["zero_valued"]] == [key]
     assert "θ0 = value exactly 0" in summary_text(buf)
     (objects, *_) = channel_values(buf, (ChannelSpec("objects", "object"),))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+from typing import Any
 
 import numpy as np
 import pytest
@@ -15,9 +16,10 @@ from sensaov_cli.outputs.tables import (
     NO_GRADIENT_MARK,
     SUSPECT_MARK,
     UNVERIFIED_MARK,
+    summary_json,
     summary_text,
 )
-from sensaov_cli.views.summary import summary_dict
+from sensaov_cli.views.hierarchy import ranked_summary
 
 BIASED = "known biased: roughplastic alpha gradient ~5x too small"
 ALPHA, WALL = "floor.bsdf.alpha.value", "wall.bsdf.reflectance.value"
@@ -53,6 +55,12 @@ def make_buffer(
         values=values,
         grads={"brightness": grads},
     )
+
+
+def summary_dict(buf: SensitivityBuffer, **options: Any) -> dict[str, Any]:
+    """The JSON document ``rank --json`` prints for ``buf``."""
+    document: dict[str, Any] = json.loads(summary_json(ranked_summary(buf, **options)))
+    return document
 
 
 def with_gold_ball() -> SensitivityBuffer:
@@ -179,7 +187,7 @@ def test_zero_gradient_is_listed_apart_not_ranked() -> None:
 
 
 def test_zero_gradient_in_json_and_out_of_every_score() -> None:
-    summary = json.loads(json.dumps(summary_dict(with_gold_ball(), top=10)))
+    summary = summary_dict(with_gold_ball(), top=10)
     assert (summary["format"], summary["format_version"]) == ("sensaov-summary", 3)
     assert summary["counts"]["parameters"] == 4 and summary["counts"]["ranked_parameters"] == 3
     (objective,) = summary["objectives"]
@@ -203,7 +211,7 @@ def test_an_object_keeps_its_flowing_parameters() -> None:
 
 
 def test_dict_is_json_and_ranked(buf: SensitivityBuffer) -> None:
-    summary = json.loads(json.dumps(summary_dict(buf, top=2, untrusted="include")))
+    summary = summary_dict(buf, top=2, untrusted="include")
     (objective,) = summary["objectives"]
     assert (objective["name"], objective["value"]) == ("brightness", 0.125)
     assert objective["definition"] == {"kind": "mean_luminance"}

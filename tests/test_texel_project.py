@@ -19,8 +19,7 @@ from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import key_stats
 from sensaov_cli.job.spec import ChannelSpec, PoolSpec
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.views.texel_fields import texel_fields
-from sensaov_cli.views.texels import TextureSampling
+from sensaov_cli.views.texels import TextureSampling, texel_fields
 
 from .conftest import use_scene, write_job
 

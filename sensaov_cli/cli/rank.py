@@ -77,7 +77,5 @@ def rank(
             buffer, by=by, objectives=objective, style=style, exrs=exrs, top=top,
             method=aggregate, weight=weight, untrusted=untrusted,
         )  # fmt: skip
-    if isinstance(result, dict):
-        options.echo_json(result)
-    else:  # the summary is a block of lines; a table or CSV ends with its own newline
-        click.echo(result, nl=by is None)
+    # JSON and the summary end without a newline; a table or CSV ends with its own
+    click.echo(result, nl=by is None or as_json)

@@ -81,10 +81,10 @@ def run(
             task=Task(shard, tuple(dict.fromkeys(objective))),
             resume=resume,
         )
-    summary = summary_of(outputs.buffer, as_json=as_json, top=top, untrusted=spec.views.untrusted)
-    if isinstance(summary, dict):
-        summary["files"] = {"buffer": str(outputs.buffer_path), "primal": str(outputs.primal_path)}
-        options.echo_json(summary)
-    else:
-        click.echo(summary)
+    files = {"buffer": str(outputs.buffer_path), "primal": str(outputs.primal_path)}
+    summary = summary_of(
+        outputs.buffer, as_json=as_json, top=top, untrusted=spec.views.untrusted, files=files
+    )
+    click.echo(summary)
+    if not as_json:
         click.echo(f"wrote {outputs.buffer_path} and {outputs.primal_path}")

@@ -36,9 +36,8 @@ from sensaov_cli.views.encoding import (
     encode_image,
     signed_object_values,
 )
-from sensaov_cli.views.summary import weakest_trust
-from sensaov_cli.views.texel_fields import TexelField
-from sensaov_cli.views.texel_passes import texel_passes, texture_footprint
+from sensaov_cli.views.texels import TexelField, texel_passes, texture_footprint
+from sensaov_cli.views.trusted import weakest_trust
 from sensaov_cli.views.uncertainty import Uncertainty
 from sensaov_cli.vocabulary import Weight
 

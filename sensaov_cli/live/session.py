@@ -62,8 +62,7 @@ from sensaov_cli.views.channels import ChannelValues, channel_values
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, shared_channel_scale
 from sensaov_cli.views.sunburst_geometry import Panel, panels
-from sensaov_cli.views.texel_fields import TexelField
-from sensaov_cli.views.texel_passes import PANELS, texture_token
+from sensaov_cli.views.texels import PANELS, TexelField, texture_token
 from sensaov_cli.views.transport import forward_views, transport_views
 from sensaov_cli.vocabulary import Sign
 

@@ -8,21 +8,20 @@ default summary and their legend.
 
 from __future__ import annotations
 
-import copy
 import csv
 import io
+import json
 from collections.abc import Sequence
 from dataclasses import asdict
-from typing import Any
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.outputs.tables import (
+    CONTRIBUTION,
     NO_GRADIENT_MARK,
-    SUSPECT_MARK,
-    UNVERIFIED_MARK,
     ZERO_VALUE_MARK,
     format_table,
     trust_legend,
+    trust_mark,
     zero_value_legend,
 )
 from sensaov_cli.views.hierarchy import RANKING_FORMAT, RANKING_VERSION, Ranking, RankRow
@@ -33,38 +32,29 @@ COLUMNS = (
     "rank", "name", "score", "signed", "share", "sign", "value", "trust", "off_frame",
     "score_se", "signed_se", "significant", "part", "zero_value", "raw_signed", "estimator",
 )  # fmt: skip
-_MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
-_CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}
 
 
-def row_dict(row: RankRow) -> dict[str, Any]:
-    """One row as JSON: the :data:`COLUMNS`, ``off_frame`` a list or null."""
-    entry = {column: getattr(row, column) for column in COLUMNS}
-    entry["off_frame"] = None if row.off_frame is None else list(row.off_frame)
-    return entry
-
-
-def ranking_dict(
+def ranking_json(
     buf: SensitivityBuffer,
     found: Sequence[Ranking],
     *,
     method: Aggregate,
     weight: Weight,
     cameras: Sequence[str] | None,
-) -> dict[str, Any]:
-    """What ``sensaov rank --by ... --json`` prints (docs/rankings.md)."""
-    return {
+) -> str:
+    """What ``sensaov rank --by ... --json`` prints (docs/rankings.md); tuples become lists."""
+    document = {
         "format": RANKING_FORMAT,
         "format_version": RANKING_VERSION,
         "by": found[0].by if found else None,
         "aggregation": {
             "method": method,
             "weight": weight,
-            "contribution": _CONTRIBUTION[weight],
+            "contribution": CONTRIBUTION[weight],
         },
-        "columns": list(COLUMNS),
-        "cameras": None if cameras is None else list(cameras),
-        "provenance": copy.deepcopy(buf.provenance),
+        "columns": COLUMNS,
+        "cameras": cameras,
+        "provenance": buf.provenance,
         "objectives": [
             {
                 "name": r.objective,
@@ -76,17 +66,18 @@ def ranking_dict(
                 "stability_top": r.stability_top,
                 "untrusted": r.untrusted,
                 "significance": None if r.significance is None else asdict(r.significance),
-                "rows": [row_dict(row) for row in r.rows],
-                "left_out": [row_dict(row) for row in r.left_out],
-                "zero_valued": [{**asdict(z), "owners": list(z.owners)} for z in r.zero_valued],
+                "rows": [{c: getattr(row, c) for c in COLUMNS} for row in r.rows],
+                "left_out": [{c: getattr(row, c) for c in COLUMNS} for row in r.left_out],
+                "zero_valued": [asdict(z) for z in r.zero_valued],
                 "no_gradient": [
-                    {"key": p.key, "type": p.type, "owners": list(p.owners), "note": p.note}
+                    {"key": p.key, "type": p.type, "owners": p.owners, "note": p.note}
                     for p in r.no_gradient
                 ],
             }
             for r in found
         ],
     }
+    return json.dumps(document, indent=2)
 
 
 def ranking_csv(found: Sequence[Ranking]) -> str:
@@ -96,19 +87,23 @@ def ranking_csv(found: Sequence[Ranking]) -> str:
     writer.writerow(("objective", *COLUMNS))
     for r in found:
         for row in (*r.rows, *r.left_out):
-            cells = row_dict(row)
-            cells["value"] = "" if row.value is None else repr(row.value)
-            cells["off_frame"] = "" if row.off_frame is None else ";".join(row.off_frame)
-            for column in ("score_se", "signed_se", "significant", "raw_signed"):
-                cells[column] = "" if cells[column] is None else repr(cells[column])
-            writer.writerow((r.objective, *(cells[c] for c in COLUMNS)))
+            writer.writerow((r.objective, *(_csv_cell(row, c) for c in COLUMNS)))
     return out.getvalue()
+
+
+def _csv_cell(row: RankRow, column: str) -> object:
+    value = getattr(row, column)
+    if column == "off_frame":
+        return "" if value is None else ";".join(value)
+    if column in ("value", "score_se", "signed_se", "significant", "raw_signed"):
+        return "" if value is None else repr(value)
+    return value
 
 
 def ranking_text(found: Sequence[Ranking], *, method: Aggregate, weight: Weight) -> str:
     """The rankings as aligned tables, one per objective, with the marks' legend."""
     lines = [
-        f"score: {method} of {_CONTRIBUTION[weight]} over each row's components",
+        f"score: {method} of {CONTRIBUTION[weight]} over each row's components",
         "signed: their sum (> 0: increasing it raises M); share: of the total sum of squares",
     ]
     for r in found:
@@ -148,7 +143,7 @@ def _table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
     rows = [
         [
             str(row.rank),
-            _MARKS.get(row.trust, "") + (ZERO_VALUE_MARK if row.zero_value else ""),
+            trust_mark(row.trust) + (ZERO_VALUE_MARK if row.zero_value else ""),
             f"{row.score:.2e}",
             *([_error(row.score_se)] * errors),
             f"{row.signed:+.2e}",

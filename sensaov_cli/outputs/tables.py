@@ -1,20 +1,29 @@
-"""The text tables a terminal shows: ``rank``/``run``'s summary, and the aligned table.
+"""What a terminal shows and ``rank``/``run`` print: the summary's text and JSON, aligned tables.
 
 One aligned-table function serves them, ``params`` (params_table.py) and ``check``'s tables
-(check_tables.py); JSON output comes from the same data (the dicts of
-:mod:`sensaov_cli.views.summary`), so text and JSON always agree.
+(check_tables.py); the summary's text and its JSON document are both written from one
+:class:`~sensaov_cli.views.hierarchy.Summary`, so text and JSON always agree.
 Plain text only: no colour, no box drawing, so logs and farm consoles read it as it is.
 """
 
 from __future__ import annotations
 
+import json
 import unicodedata
-from collections.abc import Collection, Sequence
-from typing import Any
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import asdict
 
-from sensaov_cli.buffer.model import SensitivityBuffer
-from sensaov_cli.views.headline import ZeroValued
-from sensaov_cli.views.summary import summary_dict
+from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.views.hierarchy import (
+    SUMMARY_FORMAT,
+    SUMMARY_VERSION,
+    ObjectiveSummary,
+    RankedGroup,
+    RankedParameter,
+    Summary,
+    ranked_summary,
+)
+from sensaov_cli.views.trusted import ZeroValued
 from sensaov_cli.vocabulary import Aggregate, Untrusted, Weight
 
 # Marks in the mark column of a ranking, one per label that is not "verified"; a parameter
@@ -32,6 +41,7 @@ LABEL_MEANINGS = {
 _MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
 _PROVENANCE_SHOWN = {"scene_path": "scene", "variant": "variant", "spp": "spp"}  # key: label
 _OWNERS_SHOWN = 3
+CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}  # what a score adds up
 
 
 def format_table(
@@ -74,36 +84,107 @@ def summary_text(
     untrusted: Untrusted = "apart",
 ) -> str:
     """The summary as short aligned tables, one block per objective, for a terminal."""
-    summary = summary_dict(buf, top=top, method=method, weight=weight, untrusted=untrusted)
-    return render_text(summary)
+    summary = ranked_summary(buf, top=top, method=method, weight=weight, untrusted=untrusted)
+    return _text(summary)
 
 
-def render_text(summary: dict[str, Any]) -> str:
-    """Text for a dict made by :func:`summary_dict`."""
-    counts, agg = summary["counts"], summary["aggregation"]
-    head = "sensitivity buffer: " + ", ".join(
-        _count(counts[name], name[:-1]) for name in ("parameters", "objects", "objectives")
-    )
-    prov = summary["provenance"]
+def _text(summary: Summary) -> str:
+    """The text of a :class:`Summary`."""
+    buf = summary.buffer
+    counts = {"parameter": len(buf.params), "object": len(buf.objects),
+              "objective": len(buf.objectives)}  # fmt: skip
+    head = "sensitivity buffer: " + ", ".join(_count(n, noun) for noun, n in counts.items())
+    prov = buf.provenance
     shown = [
         f"{label} {printable(str(prov[key]))}"
         for key, label in _PROVENANCE_SHOWN.items()
         if isinstance(prov.get(key), str | int | float)
     ]
     lines = [" · ".join([head, *shown])]
-    lines.append(f"scores: {agg['method']} of {agg['contribution']} over each group's components")
-    if agg["method"] != "sum":
+    method = summary.method
+    lines.append(f"scores: {method} of {CONTRIBUTION[summary.weight]} over each group's components")
+    if method != "sum":
         lines.append("signed: their plain sum; > 0 means increasing the parameter raises M")
     lines += _repairs_lines(prov.get("repairs"))
-    if counts.get("batches"):
+    if buf.statistics is not None and buf.statistics.batches:
         lines.append(
-            f"standard errors from {counts['batches']} batches: 'sensaov rank BUFFER --by "
+            f"standard errors from {buf.statistics.batches} batches: 'sensaov rank BUFFER --by "
             "object' (or key, type) shows them beside every score"
         )
-    for objective in summary["objectives"]:
+    for objective in summary.objectives:
         lines.append("")
-        lines.extend(_objective_lines(objective, agg["method"], counts))
+        lines.extend(_objective_lines(objective, method, summary.ranked_parameters))
     return "\n".join(lines) + "\n"
+
+
+def summary_json(summary: Summary, files: Mapping[str, str] | None = None) -> str:
+    """The ``sensaov-summary`` document (``rank --json``, ``run --json`` with its ``files``)."""
+    buf = summary.buffer
+    document = {
+        "format": SUMMARY_FORMAT,
+        "format_version": SUMMARY_VERSION,
+        "aggregation": {
+            "method": summary.method,
+            "weight": summary.weight,
+            "contribution": CONTRIBUTION[summary.weight],
+        },
+        "counts": {
+            "parameters": len(buf.params),
+            "objects": len(buf.objects),
+            "objectives": len(buf.objectives),
+            "ranked_parameters": summary.ranked_parameters,
+            "ranked_objects": summary.ranked_objects,
+            # batches behind the buffer's standard errors (None: no statistics); the summary
+            # points at `rank --by`, which shows them
+            "batches": None if buf.statistics is None else buf.statistics.batches,
+        },
+        "provenance": buf.provenance,
+        "objectives": [_objective_json(o) for o in summary.objectives],
+    }
+    if files is not None:
+        document["files"] = dict(files)
+    return json.dumps(document, indent=2)  # tuples become lists
+
+
+def _objective_json(summary: ObjectiveSummary) -> object:
+    objective = summary.objective
+    return {
+        "name": objective.name,
+        "value": objective.value,
+        "definition": objective.definition,
+        "grad_seed": objective.grad_seed,
+        "untrusted": summary.untrusted,
+        "ranked_objects": summary.ranked_objects,
+        "parameters": [_parameter_json(p) for p in summary.parameters],
+        "objects": [_group_json("name", g) for g in summary.objects],
+        "types": [_group_json("type", g) for g in summary.types],
+        "left_out": {
+            "objects": [asdict(e) for e in summary.left_out_objects],
+            "types": [asdict(e) for e in summary.left_out_types],
+        },
+        "zero_valued": [asdict(z) for z in summary.zero_valued],
+        "no_gradient": [
+            {"key": p.key, "type": p.type, "owners": p.owners, "plugin": p.plugin, "note": p.note}
+            for p in summary.no_gradient
+        ],
+    }
+
+
+def _parameter_json(entry: RankedParameter) -> object:
+    p = entry.record
+    return {
+        "key": p.key, "type": p.type, "owners": p.owners, "plugin": p.plugin,
+        "shape": p.shape, "score": entry.score, "signed": entry.signed,
+        "verified": p.verified, "trust": p.trust, "note": p.note, "estimator": p.estimator,
+        **({} if entry.repaired is None else asdict(entry.repaired)),
+        "zero_value": entry.zero_value, "raw_signed": entry.raw_signed,
+    }  # fmt: skip
+
+
+def _group_json(field: str, group: RankedGroup) -> object:
+    return {field: group.name, "score": group.score, "signed": group.signed,
+            "signed_rank": group.signed_rank, "verified": group.trust == "verified",
+            "trust": group.trust, "zero_value": group.zero_value}  # fmt: skip
 
 
 def _count(n: int, noun: str) -> str:
@@ -114,7 +195,8 @@ def _fmt(score: float, signed: bool) -> str:
     return f"{score:+.2e}" if signed else f"{score:.2e}"
 
 
-def _mark(trust: str) -> str:
+def trust_mark(trust: str) -> str:
+    """The mark a ranked row of this label carries ("" for verified)."""
     return _MARKS.get(trust, "")
 
 
@@ -124,42 +206,39 @@ def _owners(owners: Sequence[str]) -> str:
     return ", ".join(owners[:_OWNERS_SHOWN]) + f" +{len(owners) - _OWNERS_SHOWN} more"
 
 
-def _objective_lines(objective: dict[str, Any], method: str, counts: dict[str, int]) -> list[str]:
+def _objective_lines(summary: ObjectiveSummary, method: str, ranked: int) -> list[str]:
     signed = method == "sum"
-    params, objects, types = objective["parameters"], objective["objects"], objective["types"]
-    lines = [f"objective {objective['name']!r}   M = {objective['value']:.4g}"]
+    params, objects, types = summary.parameters, summary.objects, summary.types
+    lines = [f"objective {summary.objective.name!r}   M = {summary.objective.value:.4g}"]
 
-    lines.append(f"  parameters (top {len(params)} of {counts['ranked_parameters']})")
+    lines.append(f"  parameters (top {len(params)} of {ranked})")
     headers = ["#", "", "score", *([] if signed else ["signed"]), "type", "estimator", "key",
                "owners"]  # fmt: skip
     rows = [
-        [str(i), _mark(p["trust"]) + (ZERO_VALUE_MARK if p.get("zero_value") else ""),
-         _fmt(p["score"], signed), *([] if signed else [_fmt(p["signed"], True)]), p["type"],
-         p["estimator"], p["key"], _owners(p["owners"])]
+        [str(i), trust_mark(p.record.trust) + (ZERO_VALUE_MARK if p.zero_value else ""),
+         _fmt(p.score, signed), *([] if signed else [_fmt(p.signed, True)]), p.record.type,
+         p.record.estimator, p.record.key, _owners(p.record.owners)]
         for i, p in enumerate(params, 1)
     ]  # fmt: skip
     lines.extend(_indented(headers, rows, numeric={0, 2} if signed else {0, 2, 3}))
-    apart = objective.get("untrusted") == "apart"
-    trusted = " (trusted parameters only)" if apart else ""
-    ranked = objective.get("ranked_objects", counts["ranked_objects"])
-    lines.append(f"  objects{trusted} (top {len(objects)} of {ranked})")
-    lines.extend(_group_table("object", "name", objects, signed))
+    trusted = " (trusted parameters only)" if summary.untrusted == "apart" else ""
+    lines.append(f"  objects{trusted} (top {len(objects)} of {summary.ranked_objects})")
+    lines.extend(_group_table("object", objects, signed))
     lines.append(f"  types{trusted}")
-    lines.extend(_group_table("type", "type", types, signed))
-    left = objective.get("left_out") or {}
-    if left.get("objects") or left.get("types"):
+    lines.extend(_group_table("type", types, signed))
+    if summary.left_out_objects or summary.left_out_types:
         lines.append("  left out of the objects and types above (not trusted), by object:")
         lines += [
-            printable(f"      {e['name']}  {_fmt(e['score'], signed)}  {_fmt(e['signed'], True)}  "
-                      + ", ".join(f"{k} ({t})" for k, t in e["keys"]))
-            for e in left["objects"]
+            printable(f"      {e.name}  {_fmt(e.score, signed)}  {_fmt(e.signed, True)}  "
+                      + ", ".join(f"{k} ({t})" for k, t in e.keys))
+            for e in summary.left_out_objects
         ]  # fmt: skip
-    lines.extend(_legend(objective))
-    lines.extend(_repaired_legend(objective))
+    lines.extend(_legend(summary))
+    lines.extend(_repaired_legend(summary.parameters))
     return lines
 
 
-def _repairs_lines(figures: Any) -> list[str]:
+def _repairs_lines(figures: object) -> list[str]:
     """What the run repaired by finite differences, and what it left labelled (and why)."""
     if not isinstance(figures, dict) or not (
         figures.get("repaired") or figures.get("not_repaired")
@@ -176,35 +255,34 @@ def _repairs_lines(figures: Any) -> list[str]:
     return lines
 
 
-def _repaired_legend(objective: dict[str, Any]) -> list[str]:
+def _repaired_legend(parameters: Sequence[RankedParameter]) -> list[str]:
     """Each repaired parameter shown: its signed sum with its own standard error."""
-    shown = [p for p in objective["parameters"] if "signed_se" in p]
+    shown = [(p, p.repaired) for p in parameters if p.repaired is not None]
     if not shown:
         return []
     lines = [
         "  finite-difference = repaired (reverse mode is known wrong there), ± its seeds' error:"
     ]
-    for p in shown:
-        sign = "" if p["significant"] else "; sign not significant"
+    for p, error in shown:
+        sign = "" if error.significant else "; sign not significant"
         lines.append(
-            printable(f"      {p['key']}: {p['signed']:+.2e} ± {p['signed_se']:.1e} "
-                      f"({p['seeds']} seeds{sign})")
+            printable(f"      {p.record.key}: {p.signed:+.2e} ± {error.signed_se:.1e} "
+                      f"({error.seeds} seeds{sign})")
         )  # fmt: skip
     return lines
 
 
-def _group_table(title: str, field: str, entries: list[dict[str, Any]], signed: bool) -> list[str]:
+def _group_table(title: str, entries: Sequence[RankedGroup], signed: bool) -> list[str]:
     if signed:
         rows = [
-            [str(i), _mark(e["trust"]) + (ZERO_VALUE_MARK if e.get("zero_value") else ""),
-             _fmt(e["score"], signed), e[field]]
+            [str(i), trust_mark(e.trust) + (ZERO_VALUE_MARK if e.zero_value else ""),
+             _fmt(e.score, signed), e.name]
             for i, e in enumerate(entries, 1)
         ]  # fmt: skip
         return _indented(["#", "", "score", title], rows, numeric={0, 2})
     rows = [  # the signed sum and its rank beside the score (docs/encoding.md: which to read)
-        [str(i), _mark(e["trust"]) + (ZERO_VALUE_MARK if e.get("zero_value") else ""),
-         _fmt(e["score"], False), _fmt(e["signed"], True),
-         str(e["signed_rank"]), e[field]]
+        [str(i), trust_mark(e.trust) + (ZERO_VALUE_MARK if e.zero_value else ""),
+         _fmt(e.score, False), _fmt(e.signed, True), str(e.signed_rank), e.name]
         for i, e in enumerate(entries, 1)
     ]  # fmt: skip
     return _indented(["#", "", "score", "signed", "#sum", title], rows, numeric={0, 2, 3, 4})
@@ -239,26 +317,27 @@ def zero_value_legend(found: Sequence[ZeroValued]) -> list[str]:
     return lines
 
 
-def _legend(objective: dict[str, Any]) -> list[str]:
-    params = objective["parameters"]
-    groups = objective["objects"] + objective["types"]
-    lines = []
-    marked = [p for p in params if p["trust"] not in ("verified", "no_gradient")]
-    labels = [p["trust"] for p in params] + [g["trust"] for g in groups]
-    lines += trust_legend(labels, groups=False)
-    lines += [printable(f"      {p['key']}: {p['trust']}: {p['note']}") for p in marked]
-    if any(_mark(g["trust"]) for g in groups):
+def _legend(summary: ObjectiveSummary) -> list[str]:
+    params = [p.record for p in summary.parameters]
+    groups = summary.objects + summary.types
+    marked = [p for p in params if p.trust not in ("verified", "no_gradient")]
+    lines = trust_legend([p.trust for p in params] + [g.trust for g in groups], groups=False)
+    lines += [printable(f"      {p.key}: {p.trust}: {p.note}") for p in marked]
+    if any(trust_mark(g.trust) for g in groups):
         lines.append("    objects and types so marked include such a parameter")
-    zero = [ZeroValued(z["key"], tuple(z["owners"]), z["hidden"], z["size"], z["raw_signed"])
-            for z in objective.get("zero_valued", ())]  # fmt: skip
-    lines += zero_value_legend(zero)
-    if objective["no_gradient"]:
-        lines.append(f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:")
-        lines += [
-            printable(f"      {p['key']} ({', '.join(p['owners']) or '-'}): {p['note']}")
-            for p in objective["no_gradient"]
-        ]
+    lines += zero_value_legend(summary.zero_valued)
+    lines += _no_gradient_lines(summary.no_gradient)
     return lines
+
+
+def _no_gradient_lines(found: Sequence[ParamRecord]) -> list[str]:
+    """The parameters no gradient flows to, each with its reason: they are never ranked."""
+    if not found:
+        return []
+    lines = [f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:"]
+    return lines + [
+        printable(f"      {p.key} ({', '.join(p.owners) or '-'}): {p.note}") for p in found
+    ]
 
 
 def _indented(headers: list[str], rows: list[list[str]], numeric: set[int]) -> list[str]:

@@ -23,10 +23,9 @@ from sensaov_cli.outputs.contact_sheets import enlarged
 from sensaov_cli.outputs.exr import exr_writer
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, write_png
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
-from sensaov_cli.views.headline import TRUSTED
 from sensaov_cli.views.pooling import white_noise_factor
-from sensaov_cli.views.texel_fields import TexelField
-from sensaov_cli.views.texel_passes import TexelPass
+from sensaov_cli.views.texels import TexelField, TexelPass
+from sensaov_cli.views.trusted import TRUSTED
 
 FORMAT_NAME = "sensaov-texel-exr"
 FORMAT_VERSION = 1

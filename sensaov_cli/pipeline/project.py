@@ -57,7 +57,7 @@ from sensaov_cli.render.visibility import (
     trace,
 )
 from sensaov_cli.scene import prepare_scene
-from sensaov_cli.views.channels import ChannelValues, channel_values
+from sensaov_cli.views.channels import ChannelValues, channel_values, paint_pass
 from sensaov_cli.views.coverage import VisibilityPass, ranked
 from sensaov_cli.views.display_scale import (
     FOLLOWER,
@@ -66,10 +66,19 @@ from sensaov_cli.views.display_scale import (
     group_scales,
     signed_pixels,
 )
-from sensaov_cli.views.painting import paint_pass
-from sensaov_cli.views.texel_fields import TexelField, texel_fields, texture_keys
-from sensaov_cli.views.texel_passes import TexelPass, texel_passes, texture_footprint
-from sensaov_cli.views.texels import FILTERS, WRAPS, Footprint, TextureSampling, lookup
+from sensaov_cli.views.texels import (
+    FILTERS,
+    WRAPS,
+    Footprint,
+    TexelField,
+    TexelPass,
+    TextureSampling,
+    lookup,
+    texel_fields,
+    texel_passes,
+    texture_footprint,
+    texture_keys,
+)
 from sensaov_cli.views.transport import forward_views, transport_views
 
 # The quick pass's spp: a reference for the compositor, and a full path trace. The objective

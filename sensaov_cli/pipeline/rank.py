@@ -9,10 +9,9 @@ from typing import Any
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import QueryError
-from sensaov_cli.outputs.rankings import ranking_csv, ranking_dict, ranking_text
-from sensaov_cli.outputs.tables import summary_text
-from sensaov_cli.views.hierarchy import check_cut, rankings
-from sensaov_cli.views.summary import summary_dict
+from sensaov_cli.outputs.rankings import ranking_csv, ranking_json, ranking_text
+from sensaov_cli.outputs.tables import summary_json, summary_text
+from sensaov_cli.views.hierarchy import check_cut, ranked_summary, rankings
 from sensaov_cli.vocabulary import Aggregate, Cut, Untrusted, Weight
 
 
@@ -24,8 +23,8 @@ def rank_summary(
     method: Aggregate,
     weight: Weight,
     untrusted: Untrusted = "apart",
-) -> str | dict[str, Any]:
-    """The summary ``sensaov run`` prints (top keys, objects, types), as text or JSON data."""
+) -> str:
+    """The summary ``sensaov run`` prints (top keys, objects, types), as text or JSON."""
     loaded = read_buffer(buffer, lazy=True)  # a ranking reads each parameter's sums
     return summary_of(
         loaded, as_json=as_json, top=top, method=method, weight=weight, untrusted=untrusted
@@ -40,10 +39,13 @@ def summary_of(
     method: Aggregate = "l2",
     weight: Weight = "value",
     untrusted: Untrusted = "apart",
-) -> str | dict[str, Any]:
-    """A buffer's ranked summary, as text or JSON data (``run`` prints it for its buffer)."""
+    files: Mapping[str, str] | None = None,
+) -> str:
+    """A buffer's ranked summary, as text or JSON (``run`` prints it for its buffer, with the
+    ``files`` it wrote in the JSON)."""
     if as_json:
-        return summary_dict(buffer, top=top, method=method, weight=weight, untrusted=untrusted)
+        summary = ranked_summary(buffer, top=top, method=method, weight=weight, untrusted=untrusted)
+        return summary_json(summary, files)
     return summary_text(buffer, top=top, method=method, weight=weight, untrusted=untrusted)
 
 
@@ -58,8 +60,8 @@ def rank_by_cut(
     method: Aggregate,
     weight: Weight,
     untrusted: Untrusted = "apart",
-) -> str | dict[str, Any]:
-    """One table per objective at one cut: ``style`` "json" (data), "csv" or "text"."""
+) -> str:
+    """One table per objective at one cut: ``style`` "json", "csv" or "text"."""
     loaded = read_buffer(buffer, lazy=True)  # a ranking reads each parameter's sums
     check_cut(by, cameras=bool(exrs))
     for name in objectives:
@@ -77,7 +79,7 @@ def rank_by_cut(
     )
     if style == "json":
         cameras = None if visible is None else list(visible)
-        return ranking_dict(loaded, found, method=method, weight=weight, cameras=cameras)
+        return ranking_json(loaded, found, method=method, weight=weight, cameras=cameras)
     if style == "csv":
         return ranking_csv(found)
     return ranking_text(found, method=method, weight=weight)

@@ -1,5 +1,5 @@
-"""Views of a buffer (numpy only): coverage, channels, encoding and the ranked summary.
+"""Views of a buffer (numpy only): everything painted or ranked from it without differentiating.
 
-Everything painted or ranked from a stored buffer without differentiating again; new views
-(texel, forward, transport, hierarchy) belong here. See docs/architecture.md.
+Coverage, channels with their encoding and display scales, texels, forward and transport views,
+the hierarchy's rankings and the sunburst's geometry. See docs/architecture.md.
 """

@@ -1,10 +1,14 @@
 """Channels of a view: queries over the buffer, one value per object, painted per pixel (§3).
 
-Everything here is camera-independent except :func:`paint`: per-object values are computed once
-from the buffer and painted into any number of inspection cameras' visibility passes, which is
-the whole point of storing the buffer (no new differentiation per view).
+Everything here is camera-independent except :func:`paint_pass`: per-object values are computed
+once from the buffer and painted into any number of inspection cameras' visibility passes, which
+is the whole point of storing the buffer (no new differentiation per view). The encoded image is
+what the EXR stores; its encoding scale is camera-independent, so farm tasks that each render one
+camera agree. How a picture of it saturates is :mod:`.display_scale`'s business; painting only
+lists the objects with a value that this camera does not see (an environment map, a point light,
+anything off-frame), so a legend can name them.
 
-Under ``untrusted: apart`` (the default, :mod:`.headline`) each selection becomes two passes:
+Under ``untrusted: apart`` (the default, :mod:`.trusted`) each selection becomes two passes:
 ``<pass>`` adds up the parameters the tool stands behind and ``<pass>_untrusted`` the rest, so a
 biased gradient never paints a headline layer; the second exists only when the selection holds
 such a parameter. Both belong to one scale group, ``<objective>/<channel>``.
@@ -22,8 +26,16 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.queries import per_object, select
 from sensaov_cli.errors import SpecError
 from sensaov_cli.job.spec import ChannelSpec
-from sensaov_cli.views.headline import check_untrusted, untrusted_keys, zero_valued
-from sensaov_cli.vocabulary import Aggregate, Weight
+from sensaov_cli.views.coverage import VisibilityPass
+from sensaov_cli.views.encoding import (
+    Encoding,
+    Scale,
+    choose_scale,
+    encode_image,
+    signed_object_values,
+)
+from sensaov_cli.views.trusted import untrusted_keys, zero_valued
+from sensaov_cli.vocabulary import Aggregate, Untrusted, Weight
 
 UNTRUSTED_PASS = "_untrusted"  # the suffix of a selection's untrusted part
 
@@ -53,10 +65,9 @@ class ChannelValues:
 
 
 def channel_values(
-    buf: SensitivityBuffer, channels: tuple[ChannelSpec, ...], *, untrusted: str = "apart"
+    buf: SensitivityBuffer, channels: tuple[ChannelSpec, ...], *, untrusted: Untrusted = "apart"
 ) -> list[ChannelValues]:
     """Every (objective, channel[, type]) pass the job asks for, split by trust (``apart``)."""
-    check_untrusted(untrusted)
     passes = []
     for objective in buf.objectives:
         for index, channel in enumerate(channels):
@@ -76,7 +87,7 @@ def _parts(
     pass_name: str,
     selection: str,
     keys: tuple[str, ...],
-    untrusted: str,
+    untrusted: Untrusted,
 ) -> list[ChannelValues]:
     """One pass (``include``), or the trusted pass and, if any, the untrusted one (``apart``)."""
     hidden = zero_valued(buf, objective, keys) if channel.weight == "value" else {}
@@ -143,9 +154,6 @@ def _values(
     method, weight = cast(Aggregate, channel.aggregate), cast(Weight, channel.weight)
     magnitude = per_object(buf, objective, method=method, weight=weight, keys=keys)
     signed = per_object(buf, objective, method="sum", weight=weight, keys=keys)
-    # A parameter through which no gradient flows adds exactly 0 to the picture: it is listed
-    # apart in the rankings, and marking the pass "!" for it would flag numbers that are right.
-    unverified = tuple(k for k in keys if buf.param(k).trust not in ("verified", "no_gradient"))
     return ChannelValues(
         objective,
         pass_name,
@@ -154,8 +162,33 @@ def _values(
         keys,
         np.array([magnitude[name] for name in buf.objects], np.float64),
         np.array([signed[name] for name in buf.objects], np.float64),
-        unverified,
+        untrusted_keys(buf, keys),  # no_gradient adds exactly 0: no "!" for numbers that are right
         part,
         zero_valued={key: raw for key, raw in zeros.items() if key in keys},
         estimators={k: buf.param(k).estimator for k in keys},
     )
+
+
+@dataclass(frozen=True)
+class PaintedPass:
+    encoding: Encoding
+    scale: Scale  # how ``data`` was encoded (recorded with the layer)
+    data: np.ndarray  # (H, W) float32, encoded
+    invisible: tuple[str, ...]  # objects with a non-zero value that this camera does not see
+
+
+def paint_pass(values: ChannelValues, visibility: VisibilityPass) -> PaintedPass:
+    """One pass painted into one camera: per-object values through the coverage, encoded."""
+    encoding = Encoding.from_channel(values.spec)
+    names = visibility.objects
+    per_object = signed_object_values(
+        dict(zip(names, values.magnitudes, strict=True)),
+        dict(zip(names, values.signed_sums, strict=True)),
+        encoding.sign,
+    )
+    painted = visibility.paint(np.array([per_object[name] for name in names]))
+    scale = choose_scale(encoding, per_object, painted if encoding.normalize == "channel" else None)
+    data = encode_image(painted, encoding, scale.threshold, scale.scale)
+    seen = set(visibility.visible_objects)
+    invisible = tuple(sorted(n for n, value in per_object.items() if value and n not in seen))
+    return PaintedPass(encoding, scale, data, invisible)

@@ -47,7 +47,7 @@ class Coverage:
 def pixel_order(pixel: np.ndarray, count: np.ndarray, index: np.ndarray) -> np.ndarray:
     """The order by pixel, then decreasing count, then index: ``np.lexsort((index, -count,
     pixel))``, by one stable sort of a combined key where it fits in 63 bits (pixels already
-    in order make that sort a pass over short runs: ~25x faster than the lexsort)."""
+    in order make that sort a pass over short runs, far faster than the lexsort)."""
     if not pixel.size:
         return np.zeros(0, np.intp)
     top = int(count.max())

@@ -30,10 +30,9 @@ import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.job.spec import ChannelSpec
-from sensaov_cli.views.channels import channel_values
+from sensaov_cli.views.channels import channel_values, paint_pass
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.painting import paint_pass
-from sensaov_cli.vocabulary import SCALE_SCOPES
+from sensaov_cli.vocabulary import Untrusted
 
 DEFAULT_PERCENTILE = 95.0
 REC709_LUMA = (0.2126, 0.7152, 0.0722)
@@ -89,32 +88,28 @@ def robust_scale(
     scope: str = "shared",
 ) -> DisplayScale:
     """The scale of a group from its signed pixels per camera (``camera -> images``)."""
-    if scope not in SCALE_SCOPES:
-        raise ValueError(f"scope must be one of {SCALE_SCOPES}, got {scope!r}")
-    if not 0.0 < percentile <= 100.0:
-        raise ValueError(f"percentile must lie in (0, 100], got {percentile}")
-    magnitudes = {camera: _painted(images) for camera, images in pixels.items()}
-    active = {camera: m for camera, m in magnitudes.items() if m.size}
-    value = _weighted_percentile(list(active.values()), percentile) if active else 0.0
-    clipped = [float(np.count_nonzero(m > value)) / m.size for m in active.values()]
-    return DisplayScale(
-        value=value,
-        scope=scope,
-        percentile=float(percentile),
-        cameras=tuple(pixels),
-        painted=int(sum(m.size for m in active.values())),
-        clipped=float(np.mean(clipped)) if clipped else 0.0,
-    )
+    active = [m for m in (_painted(images) for images in pixels.values()) if m.size]
+    value = _weighted_percentile(active, percentile) if active else 0.0
+    return _clipping(value, scope, float(percentile), pixels, active)
 
 
 def fixed_scale(value: float, pixels: Mapping[str, Sequence[np.ndarray]]) -> DisplayScale:
     """A scale set by what the layer means (e.g. 1 = an even spread), with what it clips."""
-    magnitudes = [m for m in (_painted(images) for images in pixels.values()) if m.size]
-    clipped = [float(np.count_nonzero(m > value)) / m.size for m in magnitudes]
-    return DisplayScale(
-        float(value), "fixed", 100.0, tuple(pixels), int(sum(m.size for m in magnitudes)),
-        float(np.mean(clipped)) if clipped else 0.0,
-    )  # fmt: skip
+    active = [m for m in (_painted(images) for images in pixels.values()) if m.size]
+    return _clipping(float(value), "fixed", 100.0, pixels, active)
+
+
+def _clipping(
+    value: float,
+    scope: str,
+    percentile: float,
+    pixels: Mapping[str, Sequence[np.ndarray]],
+    active: Sequence[np.ndarray],
+) -> DisplayScale:
+    """The scale ``value`` with the share of the ``active`` cameras' pixels it clips."""
+    clipped = [float(np.count_nonzero(m > value)) / m.size for m in active]
+    share = float(np.mean(clipped)) if clipped else 0.0
+    return DisplayScale(value, scope, percentile, tuple(pixels), sum(m.size for m in active), share)
 
 
 def clipped_share(images: Sequence[np.ndarray], value: float) -> float:
@@ -175,14 +170,12 @@ def shared_channel_scale(
     objective: str,
     visibilities: Mapping[str, VisibilityPass],
     *,
-    untrusted: str = "apart",
+    untrusted: Untrusted = "apart",
     percentile: float = DEFAULT_PERCENTILE,
 ) -> DisplayScale:
     """The job's shared display scale of one (objective, channel) of kind object, type or
     select, from the buffer and every camera's visibility pass (``camera -> pass``): the number
     ``sensaov project`` records as ``display_scale`` on each of that channel's layers."""
-    if channel.kind not in ("object", "type", "select"):
-        raise ValueError(f"channel {channel.name!r} is a {channel.kind} channel: not painted")
     passes = [v for v in channel_values(buf, (channel,), untrusted=untrusted)
               if v.objective == objective]  # fmt: skip
     layers = {
@@ -221,31 +214,26 @@ def _magnitude(image: np.ndarray) -> np.ndarray:
 def _weighted_percentile(magnitudes: Sequence[np.ndarray], percentile: float) -> float:
     """The percentile of the union of ``magnitudes``, each array weighted 1/len (equal cameras):
     the smallest value whose cumulative weight reaches ``percentile`` % of the total."""
-    if len({m.size for m in magnitudes}) == 1:
-        # Every weight is the same (one camera, or cameras of one size): the cumulative weight
-        # does not depend on the order, and the value at one rank needs a selection, not a sort.
-        values = np.concatenate(magnitudes)
-        cumulative = np.cumsum(np.full(values.size, 1.0 / magnitudes[0].size)) / len(magnitudes)
-        index = min(int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12)), values.size - 1)
-        return float(np.partition(values, index)[index])
+    # 1e-10 below: a cumulative weight that reaches the percentile exactly must not miss it by
+    # the rounding of its sum (numpy's own choice at such a tie depends on the summation order).
+    reached = max(percentile - 1e-10, 0.0)
+    if len({m.size for m in magnitudes}) == 1:  # equal weights: a selection, not a sort
+        return float(np.percentile(np.concatenate(magnitudes), reached, method="inverted_cdf"))
     # The cumulative weight is the mean of the cameras' own distribution functions, so its
     # percentile lies between the smallest and the largest of the cameras' own percentiles
     # (widened by two ranks each way against rounding): only the values in between are
-    # sorted, a selection per camera finds the bounds, the rest is counted (issue 23).
+    # sorted, those below and above enter as one weight each, at -inf and +inf.
     bounds = [_rank_bounds(m, percentile) for m in magnitudes]
     low, high = min(b[0] for b in bounds), max(b[1] for b in bounds)
-    below = sum(np.count_nonzero(m < low) / m.size for m in magnitudes)
     inside = [m[(m >= low) & (m <= high)] for m in magnitudes]
-    # Each camera's values sorted first (their weights are equal, so the order of their ties is
-    # immaterial): the stable sort of the whole is then a merge of sorted runs, not a sort.
-    values = np.concatenate([np.sort(m) for m in inside])
+    below = sum(np.count_nonzero(m < low) / m.size for m in magnitudes)
+    above = sum(np.count_nonzero(m > high) / m.size for m in magnitudes)
+    values = np.concatenate([[-np.inf], *inside, [np.inf]])
     weights = np.concatenate(
-        [np.full(m.size, 1.0 / whole.size) for m, whole in zip(inside, magnitudes, strict=True)]
-    )
-    order = np.argsort(values, kind="stable")
-    cumulative = (below + np.cumsum(weights[order])) / len(magnitudes)
-    index = int(np.searchsorted(cumulative, percentile / 100.0 - 1e-12))
-    return float(values[order][min(index, values.size - 1)])
+        [[below], *(np.full(i.size, 1.0 / m.size) for i, m in zip(inside, magnitudes, strict=True)),
+         [above]]
+    )  # fmt: skip
+    return float(np.percentile(values, reached, weights=weights, method="inverted_cdf"))
 
 
 def _rank_bounds(magnitude: np.ndarray, percentile: float) -> tuple[float, float]:

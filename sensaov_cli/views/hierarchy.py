@@ -1,14 +1,22 @@
-"""Rankings at one cut of the hierarchy (``sensaov rank --by``): key, object or type; numpy only.
+"""Rankings of the hierarchy (numpy only): ``rank``'s summary, and one cut (``rank --by``).
 
-One table per objective whose every row carries what a reader needs to judge it: the score
-(the chosen aggregate), the signed sum Σc beside it, its sign, the row's share of the total
-response, the parameter's value (key rows), the trust label and, when cameras are given, the
-cameras that do not see it (off-frame). The columns are documented in docs/rankings.md.
+The summary (``sensaov rank``, ``run``) gives per objective the top parameters and objects
+and every type's score. Every parameter carries its trust label (docs/verification.md);
+objects and types carry the weakest label among their parameters. Objects and types add up
+only the parameters the tool stands behind (``untrusted: apart``, :mod:`.trusted`); each
+objective lists the rest apart, by object and by type, with every key's label. Parameters
+whose value is exactly 0 are listed with their raw gradient, and flagged where they are ranked.
+A parameter whose gradient is identically zero (label ``no_gradient``) is not a result: it is
+listed apart with its reason and left out of every score, and an object or type made only of
+such parameters is left out of its ranking. :mod:`sensaov_cli.outputs.tables` writes its text
+and its JSON document from the same :class:`Summary`, so both always say the same thing.
 
-Object and type rankings add up only the parameters the tool stands behind (``untrusted:
-apart``, the default, :mod:`.headline`): the rest is ranked apart, one ``left_out`` row per
-object or type that has any, under the same columns. A parameter whose value is exactly 0 is
-flagged (``zero_value``) with its raw gradient: value weighting scores it 0 whatever ∂M/∂θ is.
+A ranking at one cut (key, object or type) gives one table per objective whose every row
+carries what a reader needs to judge it: the score (the chosen aggregate), the signed sum Σc
+beside it, its sign, the row's share of the total response, the parameter's value (key rows),
+the trust label and, when cameras are given, the cameras that do not see it (off-frame). The
+columns are documented in docs/rankings.md. Object and type rankings rank the untrusted rest of
+each group apart, one ``left_out`` row per object or type that has any, under the same columns.
 
 The share is taken of Σc² over every ranked parameter, whatever ``--aggregate`` says: Σc² adds
 up over disjoint groups, so the shares of keys and of types each sum to 1, while an l2 or a
@@ -23,15 +31,25 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, key_stats, rank, scores
 from sensaov_cli.buffer.statistics import mean_value
 from sensaov_cli.errors import QueryError
-from sensaov_cli.views.headline import ZeroValued, split_groups, zero_valued
-from sensaov_cli.views.summary import ranked_groups, weakest_trust
+from sensaov_cli.views.trusted import (
+    ZeroValued,
+    ranked_groups,
+    split_groups,
+    weakest_trust,
+    zero_valued,
+)
 from sensaov_cli.views.uncertainty import GroupError, Significance, Uncertainty
 from sensaov_cli.vocabulary import ESTIMATORS, Aggregate, Cut, Grouping, Trust, Untrusted, Weight
 
+SUMMARY_FORMAT = "sensaov-summary"
+# 2: trust labels, the "no_gradient" list, ranked counts; 3: objects and types of trusted
+# parameters only ("untrusted", "left_out"), "zero_valued", and "zero_value" on parameters;
+# each parameter's estimator, and a repaired one's own standard error
+SUMMARY_VERSION = 3
 RANKING_FORMAT = "sensaov-ranking"
 # 2: standard errors, significance and stability; 3: Student-t significance, untrusted
 # parameters ranked apart (left_out), zero-valued parameters flagged, part and raw_signed,
@@ -79,7 +97,7 @@ class Ranking:
     stability: float | None = None  # how often the top ``stability_top`` rows keep their order
     stability_top: int | None = None
     left_out: tuple[RankRow, ...] = ()  # untrusted parts of objects or types, ranked apart
-    untrusted: str = "include"  # how untrusted parameters were treated: apart | include
+    untrusted: Untrusted = "include"  # how untrusted parameters were treated
     significance: Significance | None = None  # the rule behind ``significant``
     zero_valued: tuple[ZeroValued, ...] = ()  # every key value weighting hides
 
@@ -120,13 +138,11 @@ class _Cut:
     method: Aggregate
     weight: Weight
     visible: Mapping[str, frozenset[str]] | None
-    untrusted: str
+    untrusted: Untrusted
 
 
-def check_cut(by: str, *, cameras: bool) -> None:
-    """Refuse an unknown cut, and cameras with types: a type has no place in a frame."""
-    if by not in GROUPING_OF:
-        raise QueryError(f"unknown cut {by!r}", hint=f"use one of: {', '.join(GROUPING_OF)}")
+def check_cut(by: Cut, *, cameras: bool) -> None:
+    """Refuse cameras with types: a type has no place in a frame."""
     if cameras and by == "type":
         raise QueryError("off-frame labels need --by key or --by object: a type has no place")
 
@@ -180,22 +196,43 @@ def _ranking(
 def _with_repair_error(
     buf: SensitivityBuffer, objective: str, row: RankRow, method: Aggregate, weight: Weight
 ) -> RankRow:
-    repair = buf.repairs.get(row.name)
-    if repair is None or not repair.has_error:
+    repaired = repair_error(buf, objective, row.name, row.signed, weight)
+    if repaired is None:
         return row
-    theta = buf.value(row.name) if weight == "value" else np.ones(buf.param(row.name).shape)
-    signed_se = repair.signed_error(objective, theta)
+    repair, theta = buf.repairs[row.name], _theta(buf, row.name, weight)
     score_se = {
-        "sum": signed_se,
+        "sum": repaired.signed_se,
         "l2": repair.norm_error(objective, theta),
         "rms": repair.norm_error(objective, theta) / math.sqrt(max(theta.size, 1)),
     }[method]
     return replace(
-        row,
-        score_se=score_se,
-        signed_se=signed_se,
-        significant=repair.significant(row.signed, signed_se),
+        row, score_se=score_se, signed_se=repaired.signed_se, significant=repaired.significant
     )
+
+
+@dataclass(frozen=True)
+class RepairError:
+    """A repaired parameter's own standard error of its signed sum, over its seeds."""
+
+    signed_se: float
+    significant: bool  # the sign of its signed sum is beyond Student's t of that error
+    seeds: int
+
+
+def repair_error(
+    buf: SensitivityBuffer, objective: str, key: str, signed: float, weight: Weight
+) -> RepairError | None:
+    """A repaired parameter's error (buffer/repairs.py); None for any other parameter."""
+    repair = buf.repairs.get(key)
+    if repair is None or not repair.has_error:
+        return None
+    error = repair.signed_error(objective, _theta(buf, key, weight))
+    return RepairError(error, repair.significant(signed, error), len(repair.seeds))
+
+
+def _theta(buf: SensitivityBuffer, key: str, weight: Weight) -> np.ndarray:
+    """What a parameter's gradient is weighted by: its value, or ones."""
+    return buf.value(key) if weight == "value" else np.ones(buf.param(key).shape)
 
 
 def _with_errors(row: RankRow, error: GroupError) -> RankRow:
@@ -257,3 +294,163 @@ def _mean_value(buf: SensitivityBuffer, key: str) -> float | None:
 def off_frame(objects: Sequence[str], visible: Mapping[str, frozenset[str]]) -> tuple[str, ...]:
     """The cameras (in the given order) that see none of ``objects``."""
     return tuple(camera for camera, seen in visible.items() if seen.isdisjoint(objects))
+
+
+@dataclass(frozen=True)
+class RankedParameter:
+    """One of an objective's top parameters in the summary."""
+
+    record: ParamRecord
+    score: float
+    signed: float  # Σc
+    repaired: RepairError | None  # a repaired parameter's own error; None for the others
+    raw_signed: float | None  # Σ ∂M/∂θ where θ is 0 and ∂M/∂θ is not (weight "value")
+
+    @property
+    def zero_value(self) -> bool:
+        return self.raw_signed is not None
+
+
+@dataclass(frozen=True)
+class RankedGroup:
+    """An object or a type in the summary, with its signed sum and that sum's own rank."""
+
+    name: str
+    score: float
+    signed: float
+    signed_rank: int  # a texture's l2 is about 1/sqrt(texels) of its sum: the two can differ
+    trust: Trust
+    zero_value: bool  # one of its parameters is valued exactly 0
+
+
+@dataclass(frozen=True)
+class LeftOut:
+    """The untrusted part of an object or a type: its score, and each key with its label."""
+
+    name: str
+    score: float
+    signed: float
+    trust: Trust
+    keys: tuple[tuple[str, Trust], ...]
+
+
+@dataclass(frozen=True)
+class ObjectiveSummary:
+    """One objective's block of the summary."""
+
+    objective: ObjectiveRecord
+    untrusted: Untrusted
+    ranked_objects: int  # objects scored, before the top cut
+    parameters: tuple[RankedParameter, ...]
+    objects: tuple[RankedGroup, ...]
+    types: tuple[RankedGroup, ...]
+    left_out_objects: tuple[LeftOut, ...]
+    left_out_types: tuple[LeftOut, ...]
+    zero_valued: tuple[ZeroValued, ...]
+    no_gradient: tuple[ParamRecord, ...]  # listed apart, never ranked
+
+
+@dataclass(frozen=True, eq=False)
+class Summary:
+    """The ranked summary of a buffer: how it was scored, and one block per objective."""
+
+    buffer: SensitivityBuffer  # its counts and provenance head the summary
+    method: Aggregate
+    weight: Weight
+    ranked_parameters: int  # parameters a gradient flows to
+    ranked_objects: int
+    objectives: tuple[ObjectiveSummary, ...]
+
+
+def ranked_summary(
+    buf: SensitivityBuffer,
+    *,
+    top: int = 8,
+    method: Aggregate = "l2",
+    weight: Weight = "value",
+    untrusted: Untrusted = "apart",
+) -> Summary:
+    """Per objective: M, the top parameters and objects, and every type's score."""
+    ranked = ranked_groups(buf)
+    return Summary(
+        buf,
+        method,
+        weight,
+        len(ranked["param"]),
+        len(ranked["object"]),
+        tuple(
+            _objective_summary(buf, o, ranked, top, method, weight, untrusted)
+            for o in buf.objectives
+        ),
+    )
+
+
+def _objective_summary(
+    buf: SensitivityBuffer,
+    objective: ObjectiveRecord,
+    ranked: Mapping[Grouping, Mapping[str, Sequence[str]]],
+    top: int,
+    method: Aggregate,
+    weight: Weight,
+    untrusted: Untrusted,
+) -> ObjectiveSummary:
+    stats = key_stats(buf, objective.name, ranked["param"], weight=weight)  # one pass, 3 groupings
+    hidden = zero_valued(buf, objective.name, list(ranked["param"])) if weight == "value" else {}
+    objects = split_groups(buf, ranked["object"], untrusted)
+    types = split_groups(buf, ranked["type"], untrusted)
+    parameters = tuple(
+        RankedParameter(
+            buf.param(key),
+            score,
+            stats[key].total,
+            repair_error(buf, objective.name, key, stats[key].total, weight),
+            hidden[key].raw_signed if key in hidden else None,
+        )
+        for key, score in rank(scores(stats, ranked["param"], method), top)
+    )
+    return ObjectiveSummary(
+        objective,
+        untrusted,
+        len(objects.kept),
+        parameters,
+        _ranked_groups(buf, stats, objects.kept, method, top, hidden),
+        _ranked_groups(buf, stats, types.kept, method, None, hidden),
+        _left_out(buf, stats, objects.left_out, method),
+        _left_out(buf, stats, types.left_out, method),
+        tuple(hidden.values()),
+        tuple(p for p in buf.params if p.trust == "no_gradient"),
+    )
+
+
+def _ranked_groups(
+    buf: SensitivityBuffer,
+    stats: Mapping[str, KeyStats],
+    grouped: Mapping[str, Sequence[str]],
+    method: Aggregate,
+    top: int | None,
+    hidden: Mapping[str, ZeroValued],
+) -> tuple[RankedGroup, ...]:
+    # The signed sum beside every score, with its own rank: a texture's l2 is about
+    # 1/sqrt(texels) of its sum, so l2 and sum can rank one group far apart (docs/encoding.md).
+    sums = scores(stats, grouped, "sum")
+    sum_rank = {name: i for i, (name, _) in enumerate(rank(sums), 1)}
+    return tuple(
+        RankedGroup(name, score, sums[name], sum_rank[name], weakest_trust(buf, grouped[name]),
+                    any(k in hidden for k in grouped[name]))
+        for name, score in rank(scores(stats, grouped, method), top)
+    )  # fmt: skip
+
+
+def _left_out(
+    buf: SensitivityBuffer,
+    stats: Mapping[str, KeyStats],
+    grouped: Mapping[str, Sequence[str]],
+    method: Aggregate,
+) -> tuple[LeftOut, ...]:
+    """The untrusted part of each group, largest first, with each key and its label."""
+    sums = scores(stats, grouped, "sum")
+    return tuple(
+        LeftOut(name, score, sums[name], weakest_trust(buf, grouped[name]),
+                tuple((k, buf.param(k).trust) for k in grouped[name]))
+        for name, score in rank(scores(stats, grouped, method))
+    )  # fmt: skip

@@ -48,7 +48,7 @@ def white_noise_factor(pool: Pool) -> float:
     """How much pooling divides the standard deviation of independent per-texel noise away
     from edges: sqrt(Σ w²) of the 2-D kernel. Texel noise is correlated (a bilinear lookup
     spreads each gradient sample over four texels), so the measured reduction is smaller:
-    docs/texels.md and bench figure 10 give it."""
+    docs/texels.md gives it."""
     if pool.kind == "none" or pool.radius <= 0:
         return 1.0
     if pool.kind == "mip":
@@ -69,7 +69,7 @@ def pool_field(field: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
         return _mip(data, 2 ** int(round(pool.radius)))
     kernel = _kernel(pool)
     # C order for the painting's reshape (the column pass leaves a transposed layout).
-    return np.ascontiguousarray(_spread(_spread(data, kernel, 0, wrap), kernel, 1, wrap))
+    return np.ascontiguousarray(_scatter(_scatter(data, kernel, 0, wrap), kernel, 1, wrap))
 
 
 def _kernel(pool: Pool) -> np.ndarray:
@@ -94,7 +94,7 @@ def pool_variance(variance: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
         block = 2 ** int(round(pool.radius))
         return _mip(data, block) / _tile_sizes(data.shape[:2], block)
     kernel = _kernel(pool)
-    squared = _spread_squared(_spread_squared(data, kernel, 0, wrap), kernel, 1, wrap)
+    squared = _scatter(_scatter(data, kernel, 0, wrap, 2), kernel, 1, wrap, 2)
     return np.ascontiguousarray(squared)
 
 
@@ -106,27 +106,19 @@ def _tile_sizes(size: tuple[int, int], block: int) -> np.ndarray:
     return (rows[:, None] * cols[None, :])[..., None].astype(np.float64)
 
 
-def _spread(data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str) -> np.ndarray:
-    """Scatter every texel's value along ``axis`` with ``kernel``, conserving its mass."""
-    return _scatter(data, kernel, axis, wrap, power=1)
-
-
-def _spread_squared(data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str) -> np.ndarray:
-    """:func:`_spread` for variances: every weight, and the edge normalisation, squared."""
-    return _scatter(data, kernel, axis, wrap, power=2)
-
-
 # Kernels up to this many taps are summed tap by tap; longer ones (the default pool of a large
-# texture seen by few samples: sigma 42 texels, 253 taps, for a 2k texture at 8 spp) by FFT,
-# whose cost does not grow with the kernel. Tap by tap, that 2k texture took 14 s; by FFT
-# about 1 s (both axes, 3 channels). Measured crossover on 2 cores: about 20 taps.
+# texture seen by few samples has hundreds of taps) by FFT, whose cost does not grow with the
+# kernel; near this many taps the two cost about the same.
 DIRECT_TAPS = 25
 
 
-def _scatter(data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str, power: int) -> np.ndarray:
-    """Each texel's value divided by the share of the kernel that lands inside the texture
-    (all of it for ``repeat``, which wraps around), then scattered with the kernel's weights;
-    both to ``power`` (2 for variances)."""
+def _scatter(
+    data: np.ndarray, kernel: np.ndarray, axis: int, wrap: str, power: int = 1
+) -> np.ndarray:
+    """Every texel's value scattered along ``axis`` with ``kernel``, conserving its mass: divided
+    by the share of the kernel that lands inside the texture (all of it for ``repeat``, which
+    wraps around), then scattered with the kernel's weights; both to ``power`` (2 for the
+    variances of independent errors: every weight, and the edge normalisation, squared)."""
     n, half = data.shape[axis], len(kernel) // 2
     circular = wrap == "repeat"
     moved = np.moveaxis(data, axis, 0)

@@ -8,7 +8,7 @@ with l2 (or rms) a parent's score is not the sum of its children's, so "proporti
 among siblings, which is what a reader compares. Angles are fractions of a turn, clockwise
 from the top, and numpy-free of drawing: :mod:`sensaov_cli.outputs.sunburst_drawing` draws them.
 
-As in the headline views (:mod:`.headline`), a ring-1 group (an object, or a type) holds only the
+As in the headline views (:mod:`.trusted`), a ring-1 group (an object, or a type) holds only the
 parameters the tool stands behind; the rest of it gets a sibling wedge of its own, named
 ``"<name> (untrusted)"`` and hatched (``untrusted: include`` mixes them in instead).
 
@@ -21,15 +21,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, combine, key_stats, rank
-from sensaov_cli.errors import QueryError
-from sensaov_cli.views.headline import ZeroValued, apart_name, split_groups, zero_valued
-from sensaov_cli.views.summary import ranked_groups, weakest_trust
+from sensaov_cli.views.trusted import (
+    ZeroValued,
+    apart_name,
+    ranked_groups,
+    split_groups,
+    weakest_trust,
+    zero_valued,
+)
 from sensaov_cli.views.uncertainty import Uncertainty
-from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Trust, Untrusted, Weight
+from sensaov_cli.vocabulary import Aggregate, Order, Trust, Untrusted, Weight
 
 # The object ring's wedge for parameters no object owns (a sensor's, an integrator's): the
 # paper's "global exposure that never appears in the frame" must not vanish from the rings.
@@ -118,7 +123,7 @@ def _by_key(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str,
 _LEVELS: dict[str, Level] = {"object": _by_object, "type": _by_type}
 
 
-def _apart(level: Level, mode: str) -> Level:
+def _apart(level: Level, mode: Untrusted) -> Level:
     """``level`` whose groups keep their trusted keys, the rest a sibling ``(untrusted)``."""
 
     def split(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
@@ -141,53 +146,47 @@ def sunburst_wedges(
     untrusted: Untrusted = "apart",
 ) -> tuple[Wedge, ...]:
     """Every wedge of ``objective``'s sunburst, ring by ring, largest first within a parent."""
-    if order not in ORDERS:
-        raise QueryError(f"unknown order {order!r}", hint=f"use one of: {', '.join(ORDERS)}")
     keys = tuple(ranked_groups(buf)["param"])
-    stats = key_stats(buf, objective, keys, weight=weight)
+    rings = _Rings(buf, key_stats(buf, objective, keys, weight=weight), method,
+                   Uncertainty.of(buf, objective, method, weight))  # fmt: skip
     first, second = order.split(",")
     levels = [_apart(_LEVELS[first], untrusted), _LEVELS[second], _by_key]
-    centre = _wedge(buf, stats, keys, 0, (), 0.0, 1.0, method)
+    centre = rings.wedge(keys, 0, (), 0.0, 1.0)
     wedges = [centre]
-    _children(buf, stats, centre, keys, levels, method, wedges)
-    noise = Uncertainty.of(buf, objective, method, weight)
-    if noise is None:
-        return tuple(wedges)
-    members = {(): keys} | _members(buf, keys, levels)
-    return tuple(
-        replace(w, significant=noise.error(members[w.path], w.score).significant(w.signed))
-        for w in wedges
-    )
+    _children(rings, centre, keys, levels, wedges)
+    return tuple(wedges)
 
 
-def _members(
-    buf: SensitivityBuffer, keys: Sequence[str], levels: Sequence[Level], path: tuple[str, ...] = ()
-) -> dict[tuple[str, ...], tuple[str, ...]]:
-    """The keys under every wedge path (as _children splits them)."""
-    found: dict[tuple[str, ...], tuple[str, ...]] = {}
-    if not levels:
-        return found
-    for name, group in levels[0](buf, keys).items():
-        found[(*path, name)] = tuple(group)
-        found |= _members(buf, group, levels[1:], (*path, name))
-    return found
+@dataclass(frozen=True)
+class _Rings:
+    """What every wedge of one sunburst is scored with."""
+
+    buf: SensitivityBuffer
+    stats: Mapping[str, KeyStats]
+    method: Aggregate
+    noise: Uncertainty | None  # None: no statistics, no significance
+
+    def wedge(
+        self, keys: Sequence[str], ring: int, path: tuple[str, ...], start: float, stop: float
+    ) -> Wedge:
+        group = [self.stats[k] for k in keys]
+        score, signed = combine(group, self.method), math.fsum(s.total for s in group)
+        error = None if self.noise is None else self.noise.error(keys, score)
+        return Wedge(ring=ring, path=path, start=start, stop=stop, score=score, signed=signed,
+                     trust=weakest_trust(self.buf, keys),
+                     significant=None if error is None else error.significant(signed))  # fmt: skip
 
 
 def _children(
-    buf: SensitivityBuffer,
-    stats: Mapping[str, KeyStats],
-    parent: Wedge,
-    keys: Sequence[str],
-    levels: Sequence[Level],
-    method: Aggregate,
-    out: list[Wedge],
+    rings: _Rings, parent: Wedge, keys: Sequence[str], levels: Sequence[Level], out: list[Wedge]
 ) -> None:
     """Split ``parent``'s span among its groups at the next level, then recurse."""
     if not levels:
         return
-    grouped = levels[0](buf, keys)
+    grouped = levels[0](rings.buf, keys)
     magnitudes = {
-        name: abs(combine((stats[k] for k in members), method)) for name, members in grouped.items()
+        name: abs(combine((rings.stats[k] for k in members), rings.method))
+        for name, members in grouped.items()
     }
     total = math.fsum(magnitudes.values())
     start = parent.start
@@ -195,31 +194,7 @@ def _children(
         if magnitude == 0.0:
             continue
         stop = start + parent.span * magnitude / total
-        wedge = _wedge(
-            buf, stats, grouped[name], parent.ring + 1, (*parent.path, name), start, stop, method
-        )
+        wedge = rings.wedge(grouped[name], parent.ring + 1, (*parent.path, name), start, stop)
         out.append(wedge)
-        _children(buf, stats, wedge, grouped[name], levels[1:], method, out)
+        _children(rings, wedge, grouped[name], levels[1:], out)
         start = stop
-
-
-def _wedge(
-    buf: SensitivityBuffer,
-    stats: Mapping[str, KeyStats],
-    keys: Sequence[str],
-    ring: int,
-    path: tuple[str, ...],
-    start: float,
-    stop: float,
-    method: Aggregate,
-) -> Wedge:
-    group = [stats[k] for k in keys]
-    return Wedge(
-        ring=ring,
-        path=path,
-        start=start,
-        stop=stop,
-        score=combine(group, method),
-        signed=math.fsum(s.total for s in group),
-        trust=weakest_trust(buf, keys),
-    )

@@ -1,21 +1,58 @@
-"""Texel fields looked up at hit UVs the way Mitsuba's ``bitmap`` texture looks up its texels.
+"""Texels: a texture's field of contributions, pooled and painted where each camera shows it.
 
+The lookup follows Mitsuba 3.9's ``bitmap`` (checked against Mitsuba in tests/test_texels.py).
 A bitmap's value at a hit is Σ w_t(uv) θ_t over the texels t its filter touches, so the
 gradient of that texel flows back with the same weights: painting a texel field through the
 same weights puts each texel's sensitivity exactly where the texture shows it (§3 "Binding").
-
-The lookup follows Mitsuba 3.9's ``bitmap`` (checked against Mitsuba in tests/test_texels.py):
 ``uv`` is first mapped by the affine ``to_uv``; row = v·H, column = u·W; ``bilinear`` blends
 the four texels whose centres surround ``uv·size - 0.5``, ``nearest`` takes the texel
 containing ``uv·size``; integer texel indices outside the texture are wrapped by ``repeat``
 (modulo), ``mirror`` (reflected with period 2·size) or ``clamp`` (to the edge texel).
+
+A texel field (per texture and objective, §3, §6) is camera-independent, like every channel's
+per-object values: computed once from the buffer, then painted into any camera through its hit
+UVs. A texel's contribution is ``c = θ·∂M/∂θ`` (``weight: value``) or ``∂M/∂θ`` (``raw``), per
+colour component, so the unpooled field sums exactly to the parameter's signed sum in the
+buffer; pooling (:mod:`.pooling`) keeps that sum. ``units: uv_area`` divides by a texel's UV
+area (1/(H·W)): a density that reads the same whatever the texture's resolution.
+
+Painted into one camera, a field gives Fig. 4's three panels:
+
+- ``object``: every owner of the texture painted with its object value Σ c over all its
+  parameters (the vertical cut of §3): the scale a whole material lives on.
+- ``texel``: the pooled texel field read at each sample's hit UV with the texture's own
+  filter, wrap and ``to_uv``, averaged with the coverage like every other channel; encoded with
+  the channel's sign, tone map and normalisation on its own scale (the texel peak).
+- ``joint``: the same field as each texel's share of its object's value, per unit UV area
+  (``c·H·W / V_object``): 1 everywhere means the object's whole value spread evenly over the
+  texture, so the panel sits on the object panel's scale (the paper's ``normalize: joint``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import fnmatch
+import functools
+import json
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+
+from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.queries import per_object
+from sensaov_cli.errors import SpecError
+from sensaov_cli.job.spec import ChannelSpec
+from sensaov_cli.views.coverage import VisibilityPass
+from sensaov_cli.views.encoding import Encoding, Scale, choose_scale, encode_image
+from sensaov_cli.views.pooling import (
+    Pool,
+    default_pool,
+    pool_field,
+    pool_variance,
+    white_noise_factor,
+)
 
 FILTERS = ("bilinear", "nearest")
 WRAPS = ("repeat", "mirror", "clamp")
@@ -73,7 +110,7 @@ def _cells(
         uv = uv.astype(np.float64)
     (a, b, c), (d, e, f) = (map(float, row) for row in sampling.to_uv[:2])
     u, v = uv[:, 0], uv[:, 1]
-    # Written out: numpy's matmul with an inner size of 2 is ~100x slower on millions of rows.
+    # Written out: numpy's matmul with an inner size of 2 is far slower on millions of rows.
     x, y = (a * u + b * v + c) * width, (d * u + e * v + f) * height
     if sampling.filter == "nearest":
         return np.floor(x).astype(np.int64), np.floor(y).astype(np.int64), None, None
@@ -177,7 +214,7 @@ def footprint(
     # come in pixel order, so a run never spans two pixels; no sort is needed, and texels that
     # repeat after others stay a second entry (paint sums entries: the same result). Runs are
     # found on the cell before wrapping, which fixes every corner, so texel indices are
-    # computed per run, not per sample (issue 23); neighbouring runs whose cells wrap onto the
+    # computed per run, not per sample; neighbouring runs whose cells wrap onto the
     # same texels (a seam, UVs past a clamped edge) are then joined, so the entries and their
     # float32 sums are those of merging on the texels themselves.
     head = np.zeros(hits.size, dtype=bool)
@@ -206,10 +243,317 @@ def footprint(
 
 def _owned(objects: np.ndarray, owners: np.ndarray, position: np.ndarray) -> np.ndarray:
     """Which samples hit one of ``owners``: a comparison per owner for a few (a texture is
-    usually on one or two objects: 8x faster than the gather), else through ``position``."""
+    usually on one or two objects: faster than the gather), else through ``position``."""
     if 0 < len(owners) <= 4 and int(owners.min()) >= 0:
         mask = objects == owners[0]
         for owner in owners[1:]:
             mask |= objects == owner
         return mask
     return position[objects] >= 0  # background (-1) reads the last entry: -1
+
+
+COLOUR_TYPES = ("reflectance", "radiance", "transmittance", "specular")
+
+
+@dataclass(frozen=True)
+class TexelField:
+    """One texture's field for one objective, before painting."""
+
+    objective: str
+    channel: ChannelSpec
+    record: ParamRecord
+    sampling: TextureSampling
+    raw: np.ndarray  # (H, W, C) float64 contributions per texel, unpooled
+    pooled: np.ndarray  # (H, W, C) float64, pooled, in the channel's units
+    pool: Pool
+    signed_sum: float  # the buffer's Σ c for this parameter (what both fields sum to)
+    object_values: Mapping[str, float]  # Σ c over all parameters of each owner (Fig. 4, left)
+    notes: tuple[str, ...]
+    # Standard errors (buffers with statistics): of each texel's c, and of the pooled field
+    # for independent texel errors (docs/texels.md, "Standard errors"); None without.
+    stderr: np.ndarray | None = None
+    stderr_pooled: np.ndarray | None = None
+
+    # Cached: each camera's panels state these, and on a large texture each is a pass over
+    # millions of values.
+    @functools.cached_property
+    def pooled_sum(self) -> float:
+        """The pooled field's exact sum, in the buffer's units (it conserves ``signed_sum``)."""
+        return math.fsum(self.pooled.ravel()) / self.unit_factor
+
+    @functools.cached_property
+    def raw_empty(self) -> np.ndarray:
+        """(H, W) bool: texels with no contribution in any channel, before pooling."""
+        empty: np.ndarray = np.abs(self.raw).max(axis=2) == 0
+        return empty
+
+    @functools.cached_property
+    def pooled_empty(self) -> np.ndarray:
+        """(H, W) bool: texels that pooling left with nothing in any channel."""
+        empty: np.ndarray = np.abs(self.pooled).max(axis=2) == 0
+        return empty
+
+    @functools.cached_property
+    def stderr_reduction(self) -> float | None:
+        """Median over texels with an error of pooled error / unpooled error (same units)."""
+        if self.stderr is None or self.stderr_pooled is None:
+            return None
+        unpooled = self.stderr * self.unit_factor
+        has = unpooled > 0
+        return float(np.median(self.stderr_pooled[has] / unpooled[has])) if has.any() else None
+
+    @property
+    def texel_area(self) -> float:
+        height, width = self.raw.shape[:2]
+        return 1.0 / (height * width)
+
+    @property
+    def unit_factor(self) -> float:
+        """What turns a per-texel contribution into the channel's units."""
+        return 1.0 / self.texel_area if self.channel.units == "uv_area" else 1.0
+
+
+def texture_keys(buf: SensitivityBuffer, channel: ChannelSpec, index: int) -> tuple[str, ...]:
+    """The texture keys a texel channel shows: its glob over textures, or every texture."""
+    textures = [p for p in buf.params if p.is_texture and len(p.shape) == 3]
+    keys = tuple(
+        p.key
+        for p in textures
+        if channel.select is None or fnmatch.fnmatchcase(p.key, channel.select)
+    )
+    if not keys:
+        what = f"matches no texture (textures: {', '.join(p.key for p in textures) or 'none'})"
+        raise SpecError(
+            f"texel channel {channel.name!r} {what}"
+            if channel.select
+            else f"texel channel {channel.name!r}: the buffer holds no bitmap texture",
+            where=f"channels[{index}].select",
+            hint="'sensaov params JOB' lists the texture keys",
+        )
+    return keys
+
+
+def texel_fields(
+    buf: SensitivityBuffer,
+    channel: ChannelSpec,
+    index: int,
+    samplings: Mapping[str, TextureSampling],
+) -> list[TexelField]:
+    """Every (objective, texture) field a texel channel asks for."""
+    keys = texture_keys(buf, channel, index)
+    spp = int(buf.provenance.get("spp", 1))
+    width, height = buf.provenance.get("resolution", [1, 1])
+    fields = []
+    for objective in buf.objectives:
+        values = per_object(buf, objective.name, method="sum", weight=channel.weight)
+        for key in keys:
+            sampling = samplings.get(key, TextureSampling(note="no lookup settings: defaults"))
+            fields.append(
+                _field(buf, objective.name, channel, key, sampling, values, spp * width * height)
+            )
+    return fields
+
+
+def _field(
+    buf: SensitivityBuffer,
+    objective: str,
+    channel: ChannelSpec,
+    key: str,
+    sampling: TextureSampling,
+    object_values: Mapping[str, float],
+    samples: int,
+) -> TexelField:
+    record = buf.param(key)
+    raw = buf.grad(objective, key).astype(np.float64)
+    if channel.weight == "value":
+        raw = raw * buf.value(key)
+    size = (raw.shape[0], raw.shape[1])
+    pool = default_pool(1, samples, size)
+    if channel.pool is not None:  # the job's kind, and its radius or the default one
+        radius = pool.radius if channel.pool.radius is None else channel.pool.radius
+        pool = Pool(channel.pool.kind, radius, "job")
+    factor = raw.shape[0] * raw.shape[1] if channel.units == "uv_area" else 1
+    pooled = pool_field(raw, pool, sampling.wrap) * factor
+    owners = {name: float(object_values[name]) for name in record.owners}
+    stderr = stderr_pooled = None
+    if buf.statistics is not None:
+        stderr = buf.statistics.stderr[objective][key].astype(np.float64)
+        if channel.weight == "value":
+            stderr = stderr * np.abs(buf.value(key))
+        stderr_pooled = np.sqrt(pool_variance(stderr**2, pool, sampling.wrap)) * factor
+    return TexelField(
+        objective,
+        channel,
+        record,
+        sampling,
+        raw,
+        pooled,
+        pool,
+        math.fsum(raw.ravel()),
+        owners,
+        _notes(record, sampling),
+        stderr,
+        stderr_pooled,
+    )
+
+
+def _notes(record: ParamRecord, sampling: TextureSampling) -> tuple[str, ...]:
+    notes = [sampling.note] if sampling.note else []
+    if record.trust == "no_gradient":
+        notes.append(f"no gradient reached this texture: {record.note}")
+    if record.type not in COLOUR_TYPES:
+        notes.append(
+            f"this bitmap drives '{record.type}', not a colour: its texels are "
+            f"{record.type} values and the layer has {record.shape[2]} channel(s)"
+        )
+    if record.trust not in ("verified", "no_gradient"):
+        notes.append(f"gradient {record.trust}: {record.note}")
+    return tuple(notes)
+
+
+PANELS = ("object", "texel", "joint")
+_UNSAFE = re.compile(r"[^A-Za-z0-9_]")
+
+
+@dataclass(frozen=True)
+class TexelPass:
+    pass_name: str  # "<channel>_<texture token>_<panel>"
+    panel: str
+    data: np.ndarray  # (H, W) or (H, W, 3) float32, encoded
+    scale: Scale
+    metadata: dict[str, str]
+
+
+def texture_token(key: str) -> str:
+    """A texture key as one name token: ``wall.reflectance.data`` -> ``wall_reflectance``."""
+    stem = key[: -len(".data")] if key.endswith(".data") else key
+    return _UNSAFE.sub("_", stem)
+
+
+def owners_in(tf: TexelField, visibility: VisibilityPass) -> list[str]:
+    """The texture's owners among this view's objects, in the order its footprint uses."""
+    return [o for o in tf.record.owners if o in visibility.objects]
+
+
+def texture_footprint(tf: TexelField, visibility: VisibilityPass) -> Footprint:
+    """How ``visibility``'s camera sees ``tf``'s texture (shared by objectives and panels)."""
+    assert visibility.sample_uv is not None and visibility.sample_object is not None  # traced so
+    owners = np.array([visibility.objects.index(o) for o in owners_in(tf, visibility)], np.int64)
+    return footprint(
+        tf.raw.shape[:2], tf.sampling, visibility.sample_uv, visibility.sample_object, owners
+    )
+
+
+def texel_passes(tf: TexelField, visibility: VisibilityPass, seen_by: Footprint) -> list[TexelPass]:
+    """The three panels of ``tf`` in this camera, with what each one means in its metadata."""
+    names = owners_in(tf, visibility)
+    is_owner = np.array([1.0 if o in names else 0.0 for o in visibility.objects])
+    seen = seen_by.seen(tf.raw.shape[:2])
+    notes = list(tf.notes)
+    if not seen.any():
+        notes.append("no sample of this camera sees this texture (painted 0)")
+    common = _common_metadata(tf, seen, notes)
+    return [
+        _object_panel(tf, visibility, is_owner, common),
+        _texel_panel(tf, seen_by, common),
+        _joint_panel(tf, seen_by, names, common),
+    ]
+
+
+def _common_metadata(tf: TexelField, seen: np.ndarray, notes: list[str]) -> dict[str, str]:
+    return {
+        "texture": tf.record.key,
+        "texture_type": tf.record.type,
+        "texture_size": f"{tf.raw.shape[1]}x{tf.raw.shape[0]}x{tf.raw.shape[2]}",
+        "owners": ", ".join(tf.record.owners),
+        "lookup": tf.sampling.describe(),
+        "pool": tf.pool.describe(),
+        # Seed-to-seed noise σ is divided by this for independent texel noise; texel noise is
+        # correlated, so the measured reduction is smaller (docs/texels.md).
+        "pool_white_noise_factor": repr(white_noise_factor(tf.pool)),
+        "units": tf.channel.units,
+        # Pooled / unpooled standard error (median over texels), from the buffer's batches;
+        # "none" for a buffer without statistics (render.batches: 1, no shards).
+        "stderr_reduction": "none" if tf.stderr_reduction is None else repr(tf.stderr_reduction),
+        "signed_sum": repr(tf.signed_sum),
+        "pooled_sum": repr(tf.pooled_sum),
+        "texels_seen": str(int(seen.sum())),
+        "seen_empty_before_pool": str(int(np.count_nonzero(tf.raw_empty & seen))),
+        "seen_empty_after_pool": str(int(np.count_nonzero(tf.pooled_empty & seen))),
+        "unverified": json.dumps(
+            [tf.record.key] if tf.record.trust not in ("verified", "no_gradient") else []
+        ),
+        "estimators": json.dumps({tf.record.key: tf.record.estimator}),
+        "notes": " | ".join(notes),
+    }
+
+
+def _as_layer_data(painted: np.ndarray) -> np.ndarray:
+    """(H, W, C) painted field as what a layer stores: Y for one channel, RGB for three."""
+    if painted.shape[2] == 3:
+        return painted
+    return painted.sum(axis=2) if painted.shape[2] != 1 else painted[..., 0]
+
+
+def _object_panel(
+    tf: TexelField, visibility: VisibilityPass, is_owner: np.ndarray, common: dict[str, str]
+) -> TexelPass:
+    values = np.array([tf.object_values.get(name, 0.0) for name in visibility.objects])
+    painted = visibility.paint(values * is_owner)
+    peak = max((abs(v) for v in tf.object_values.values()), default=0.0)
+    meta = {
+        **common,
+        "panel": "object",
+        "meaning": "Σ θ·∂M/∂θ over all parameters of each owner (weight as the channel)",
+        "encoding": "linear;signed",
+        "scale": Scale(0.0, 1.0).describe(),
+        "panel_scale": repr(peak),
+    }
+    return TexelPass(_name(tf, "object"), "object", painted, Scale(0.0, 1.0), meta)
+
+
+def _texel_panel(tf: TexelField, seen_by: Footprint, common: dict[str, str]) -> TexelPass:
+    encoding = replace(Encoding.from_channel(tf.channel), aggregate="sum")
+    field = np.abs(tf.pooled) if encoding.sign == "magnitude" else tf.pooled
+    painted = seen_by.paint(field, np.ones(max(len(tf.record.owners), 1)))
+    peak = float(np.abs(field).max()) if field.size else 0.0
+    scale = choose_scale(encoding, {"texel_peak": peak}, painted)
+    data = encode_image(_as_layer_data(painted), encoding, scale.threshold, scale.scale)
+    unit = "per unit UV area" if tf.channel.units == "uv_area" else "per texel"
+    meta = {
+        **common,
+        "panel": "texel",
+        "meaning": f"pooled θ·∂M/∂θ {unit} read at each hit UV (weight as the channel)",
+        "encoding": encoding.describe(),
+        "scale": scale.describe(),
+        "panel_scale": repr(peak),
+    }
+    return TexelPass(_name(tf, "texel"), "texel", data, scale, meta)
+
+
+def _joint_panel(
+    tf: TexelField, seen_by: Footprint, names: list[str], common: dict[str, str]
+) -> TexelPass:
+    # A texel's share sums its components (scaling the whole texel), so the panel is one Y.
+    share = tf.pooled.sum(axis=2, keepdims=True) / tf.unit_factor / tf.texel_area
+    inverse = [1.0 / tf.object_values[n] if tf.object_values[n] else 0.0 for n in names]
+    painted = seen_by.paint(share, np.array(inverse))
+    zero = [name for name, value in tf.object_values.items() if not value]
+    meta = {
+        **common,
+        "panel": "joint",
+        "meaning": "each texel's share of its object's value per unit UV area: Σ_rgb c·H·W / V",
+        "encoding": "linear;signed;normalize=joint",
+        "scale": Scale(0.0, 1.0).describe(),
+        "panel_scale": "1.0 (the object's whole value spread evenly over the texture)",
+    }
+    if zero:
+        meta["notes"] = " | ".join(
+            filter(None, [meta["notes"], f"object value 0 for {', '.join(zero)}: painted 0"])
+        )
+    data = _as_layer_data(painted)
+    return TexelPass(_name(tf, "joint"), "joint", data, Scale(0.0, 1.0), meta)
+
+
+def _name(tf: TexelField, panel: str) -> str:
+    return f"{tf.channel.name}_{texture_token(tf.record.key)}_{panel}"

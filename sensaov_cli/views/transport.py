@@ -92,7 +92,9 @@ def group_keys(records: Sequence[ParamRecord], spec: ForwardSpec, where: str) ->
     return keys
 
 
-def direction_values(buffer: SensitivityBuffer, keys: Sequence[str], direction: str) -> dict:
+def direction_values(
+    buffer: SensitivityBuffer, keys: Sequence[str], direction: str
+) -> dict[str, np.ndarray]:
     """v per key: θ itself (value: a proportional change) or ones."""
     if direction == "value":
         return {key: np.asarray(buffer.value(key), np.float32) for key in keys}

@@ -1,8 +1,4 @@
-"""The headline views' groups: parameters the tool stands behind in, the rest shown apart.
-
-The same views weight each gradient by its value (θ·∂M/∂θ), so a parameter whose value is
-exactly 0 scores 0 whatever its gradient: :func:`zero_valued` finds them, so every view can
-flag them with their raw gradient instead of ranking them as parameters that do not matter.
+"""Which parameters the headline views add up: those the tool stands behind; the rest apart.
 
 An object's or a type's score in a headline view (the ``objects`` and ``types`` layers, the
 ranked objects and types, the sunburst's rings) is a sum over its parameters. A parameter whose
@@ -10,7 +6,13 @@ gradient is not ``verified`` (``unverified``, ``biased``, ``suspect``) is a numb
 cannot stand behind, so by default (``untrusted: apart``) it is left out of its group and shown
 apart: its own layer, its own rows, its own hatched wedge, named per object. A parameter with
 ``no_gradient`` adds exactly 0 and stays in. ``untrusted: include`` mixes everything in, with a
-mark, as before. The rule is documented in docs/encoding.md ("Trusted numbers").
+mark, as before. The rule is documented in docs/encoding.md ("Trusted numbers"). A group shows
+the weakest label among its parameters; the rankings group only the parameters a gradient
+flows to.
+
+The same views weight each gradient by its value (θ·∂M/∂θ), so a parameter whose value is
+exactly 0 scores 0 whatever its gradient: :func:`zero_valued` finds them, so every view can
+flag them with their raw gradient instead of ranking them as parameters that do not matter.
 """
 
 from __future__ import annotations
@@ -20,12 +22,15 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.queries import groups
 from sensaov_cli.buffer.statistics import hidden_by_zero
-from sensaov_cli.errors import QueryError
-from sensaov_cli.vocabulary import UNTRUSTED_MODES, Trust
+from sensaov_cli.vocabulary import Grouping, Trust, Untrusted
 
 # Labels whose numbers a headline view adds up: verified, and no_gradient (exactly 0 anyway).
 TRUSTED: tuple[Trust, ...] = ("verified", "no_gradient")
+# A group shows the weakest label among its ranked parameters.
+_WEAKEST_FIRST: tuple[Trust, ...] = ("suspect", "biased", "unverified", "verified")
+_GROUPINGS: tuple[Grouping, ...] = ("param", "object", "type")
 # How the part left out of a group is named where one list holds both (sunburst wedges).
 APART_SUFFIX = " (untrusted)"
 
@@ -39,11 +44,25 @@ def untrusted_keys(buf: SensitivityBuffer, keys: Sequence[str]) -> tuple[str, ..
     return tuple(k for k in keys if not is_trusted(buf.param(k)))
 
 
-def check_untrusted(mode: str) -> None:
-    if mode not in UNTRUSTED_MODES:
-        raise QueryError(
-            f"unknown untrusted mode {mode!r}", hint=f"use one of: {', '.join(UNTRUSTED_MODES)}"
-        )
+def weakest_trust(buf: SensitivityBuffer, keys: Sequence[str]) -> Trust:
+    """The label a group of ``keys`` shows: the weakest among its parameters'."""
+    labels = {buf.param(k).trust for k in keys}
+    return next((label for label in _WEAKEST_FIRST if label in labels), "verified")
+
+
+def ranked_groups(buf: SensitivityBuffer) -> dict[Grouping, dict[str, tuple[str, ...]]]:
+    """Groups by parameter, object and type over the parameters a gradient flows to; a group
+    that had parameters and lost them all to ``no_gradient`` is dropped."""
+    flowing = [p.key for p in buf.params if p.trust != "no_gradient"]
+    ranked: dict[Grouping, dict[str, tuple[str, ...]]] = {}
+    for by in _GROUPINGS:
+        every = groups(buf, None, by)
+        if len(flowing) == len(buf.params):  # nothing lost: the groups are every group
+            ranked[by] = every
+            continue
+        kept = groups(buf, flowing, by)
+        ranked[by] = {name: keys for name, keys in kept.items() if keys or not every[name]}
+    return ranked
 
 
 @dataclass(frozen=True)
@@ -55,7 +74,7 @@ class SplitGroups:
 
 
 def split_groups(
-    buf: SensitivityBuffer, grouped: Mapping[str, Sequence[str]], mode: str
+    buf: SensitivityBuffer, grouped: Mapping[str, Sequence[str]], mode: Untrusted
 ) -> SplitGroups:
     """``grouped`` split by trust under ``mode`` (``apart`` or ``include``).
 
@@ -63,7 +82,6 @@ def split_groups(
     it is untrusted) is dropped from ``kept``, while a group that never had a key (an object
     with nothing selected) keeps its empty row. Under ``include`` nothing is left out.
     """
-    check_untrusted(mode)
     if mode == "include":
         return SplitGroups({name: tuple(keys) for name, keys in grouped.items()}, {})
     kept: dict[str, tuple[str, ...]] = {}
