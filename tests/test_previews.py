@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from sensaov_cli.errors import NonFiniteError
+from sensaov_cli.outputs.png import write_png
 from sensaov_cli.outputs.previews import (
     BACKGROUND,
     BAR_HEIGHT,
@@ -21,7 +22,6 @@ from sensaov_cli.outputs.previews import (
     contact_sheet,
     diverging_rgb,
     underlay,
-    write_png,
 )
 
 BLUE, WHITE, RED = RDBU[0], RDBU[5], RDBU[-1]

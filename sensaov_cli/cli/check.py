@@ -105,7 +105,7 @@ def check(
     from dataclasses import asdict
 
     from sensaov_cli.job.load import load_job
-    from sensaov_cli.outputs.check_tables import checks_text, duality_text
+    from sensaov_cli.outputs.parameter_tables import checks_text, duality_text
     from sensaov_cli.pipeline.check import FD_TOLERANCE, check_job, exit_code
     from sensaov_cli.progress import Progress
 

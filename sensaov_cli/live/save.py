@@ -16,8 +16,7 @@ from sensaov_cli.job.job_copy import camera_names, camera_yaml, check_camera_nam
 from sensaov_cli.job.load import load_job
 from sensaov_cli.job.spec import JobSpec
 from sensaov_cli.live.query import ViewRequest
-from sensaov_cli.outputs.atomic import atomic_write, check_writable
-from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
+from sensaov_cli.outputs.atomic import atomic_write, check_writable, refuse_unsafe_outputs
 
 SAVED_VIS_SPP = 16  # project's default for an inspection camera
 

@@ -21,9 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli.outputs.atomic import atomic_write
+from sensaov_cli.outputs.atomic import atomic_write, file_token
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
-from sensaov_cli.outputs.names import file_token
 from sensaov_cli.outputs.png import PngQueue
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay
 from sensaov_cli.views.coverage import VisibilityPass

@@ -22,10 +22,9 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import FingerprintMismatch, SpecError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
-from sensaov_cli.outputs.atomic import check_writable
+from sensaov_cli.outputs.atomic import check_writable, refuse_unsafe_outputs
 from sensaov_cli.outputs.display_layers import display_background, scale_of, with_display
 from sensaov_cli.outputs.layered_exr import CryptoLayer, SensitivityLayer, write_layered_exr
-from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.pipeline import project_texels
 from sensaov_cli.pipeline.consistency import check_buffer_of_job

@@ -21,13 +21,15 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import OutputError, SensaovError, StaleInputError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
-from sensaov_cli.outputs.atomic import check_writable
+from sensaov_cli.outputs.atomic import (
+    check_writable,
+    file_token,
+    recorded_inputs,
+    refuse_unsafe_outputs,
+)
+from sensaov_cli.outputs.cryptomatte import seen_names
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.outputs.frames import seen_names
-from sensaov_cli.outputs.names import file_token
-from sensaov_cli.outputs.overwrite import recorded_inputs, refuse_unsafe_outputs
-from sensaov_cli.outputs.png import read_png_text
-from sensaov_cli.outputs.preview_files import read_previews
+from sensaov_cli.outputs.png import encode_png, read_png_text
 from sensaov_cli.outputs.previews import srgb_uint8
 from sensaov_cli.outputs.provenance import header_provenance
 from sensaov_cli.outputs.report_html import (
@@ -35,7 +37,7 @@ from sensaov_cli.outputs.report_html import (
     ObjectiveSection,
     Picture,
     ReportContent,
-    png_bytes,
+    read_previews,
     write_report,
 )
 from sensaov_cli.outputs.sunburst_drawing import sunburst_bytes
@@ -292,4 +294,4 @@ def _primal(path: Path, buf: SensitivityBuffer) -> Picture | None:
     if len(linear) != 3:
         return None
     rgb = srgb_uint8(np.stack(linear, axis=-1))
-    return Picture(f"{path.name} (clipped to [0, 1], sRGB)", png_bytes(rgb), kind="primal")
+    return Picture(f"{path.name} (clipped to [0, 1], sRGB)", encode_png(rgb), kind="primal")
