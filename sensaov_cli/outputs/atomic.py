@@ -5,23 +5,12 @@ temporary beside it, the write is checked (an empty or failed write is an error,
 reports a full disk the page cache hid), and only then renamed over the old file. The stop
 signals (SIGINT, SIGTERM, SIGHUP) are held back while a temporary is created and while the
 renames run, so a stop can never leave a temporary nobody knows about, and a set of files is
-replaced together. The module keeps a ledger of what this process replaced, so whoever reports a
-failure or a stop can say exactly which outputs are new and which are as they were
-(:func:`replaced`).
+replaced together. A ledger of what this process replaced lets whoever reports a failure or a
+stop say exactly which outputs are new and which are as they were (:func:`replaced`).
 
-Before anything is written (and before anything renders), :func:`check_writable` and
-:func:`refuse_unsafe_outputs` refuse outputs that cannot be written or would replace a file the
-command reads. With ``output`` set to the scene's folder, an inspection camera named like a
-texture would replace the texture, and the scene would no longer load; ``report -o`` onto the
-buffer would replace the buffer. So the outputs are compared with every input of the job, the
-command and the scene: the job file, every file the scene reads as the prepared scene lists
-them, masks, targets, the buffer, shards, primals, camera EXRs, previews, and for a command that
-reads only a buffer the files its provenance says the run read (:func:`recorded_inputs`). The
-same path after resolving links, or the same file under another name (a hard link), is refused.
-
-Names from scenes and buffers are data, never paths. An objective's name, a parameter type or an
-object id read from a stranger's buffer may hold ``/``, ``..``, control characters, 300
-characters or any Unicode; a file name is built only from :func:`file_token`'s output.
+Before any work, outputs that cannot be written (:func:`check_writable`) or would replace a
+file the command reads (:func:`refuse_unsafe_outputs`) are refused; names from scenes and
+buffers are data, never paths: a file name is built only from :func:`file_token`'s output.
 """
 
 from __future__ import annotations
@@ -252,9 +241,15 @@ def refuse_unsafe_outputs(
 ) -> None:
     """Refuse, before any work, outputs that would replace an input or a folder that is a file.
 
-    ``inputs`` are every file the command reads, ``files`` the outputs' paths, ``folders`` the
-    folders whose contents it writes (``previews/``); ``where`` names the job (or the option)
-    in messages, ``hint`` says how to choose another output.
+    With ``output`` set to the scene's folder, an inspection camera named like a texture would
+    replace the texture, and the scene would no longer load; ``report -o`` onto the buffer
+    would replace the buffer. ``inputs`` are every file the command reads (the job, every file
+    the prepared scene lists, masks, targets, the buffer, shards, primals, camera EXRs,
+    previews; for a command that reads only a buffer, :func:`recorded_inputs`), ``files`` the
+    outputs' paths, ``folders`` the folders whose contents it writes (``previews/``). The same
+    path after resolving links, or the same file under another name (a hard link), is refused.
+    ``where`` names the job (or the option) in messages, ``hint`` says how to choose another
+    output.
     """
     folders = list(folders)
     for folder in folders:
@@ -264,9 +259,9 @@ def refuse_unsafe_outputs(
                 where=where,
                 hint="move it out of the way: outputs are written into it",
             )
-    read = {_real(path): path for path in inputs}
+    read = {os.path.realpath(path): path for path in inputs}
     for output in files:
-        clash = read.get(_real(output)) or _same_file(output, read.values())
+        clash = read.get(os.path.realpath(output)) or _same_file(output, read.values())
         if clash is not None:
             raise OutputError(
                 f"the output {output} would replace {clash}, which this command reads",
@@ -274,7 +269,11 @@ def refuse_unsafe_outputs(
                 hint=hint,
             )
     for folder in folders:
-        inside = [path for real, path in read.items() if real.startswith(_real(folder) + os.sep)]
+        inside = [
+            path
+            for real, path in read.items()
+            if real.startswith(os.path.realpath(folder) + os.sep)
+        ]
         if inside:
             raise OutputError(
                 f"outputs go into {folder}, which holds {inside[0]}, a file this command reads",
@@ -302,10 +301,6 @@ def _strings(value: Any) -> list[str]:
     return [item for item in value if isinstance(item, str)] if isinstance(value, list) else []
 
 
-def _real(path: Path) -> str:
-    return os.path.realpath(path)
-
-
 def _same_file(output: Path, inputs: Iterable[Path]) -> Path | None:
     if not output.exists():
         return None
@@ -321,10 +316,12 @@ def _same_file(output: Path, inputs: Iterable[Path]) -> Path | None:
 def file_token(name: str) -> str:
     """``name`` itself when it is a safe file-name token already, else a sanitised stand-in.
 
-    A token holds ASCII letters, digits, ``_``, ``-`` and inner ``.``, at most :data:`MAX_TOKEN`
-    characters, never empty, never ``.`` or ``..``, never hidden. A name that needed changing
-    gets a short hash of the original, so two names never share a file; the writer keeps the
-    original in the file's metadata.
+    An objective's name, a parameter type or an object id read from a stranger's buffer may
+    hold ``/``, ``..``, control characters, 300 characters or any Unicode. A token holds ASCII
+    letters, digits, ``_``, ``-`` and inner ``.``, at most :data:`MAX_TOKEN` characters, never
+    empty, never ``.`` or ``..``, never hidden. A name that needed changing gets a short hash
+    of the original, so two names never share a file; the writer keeps the original in the
+    file's metadata.
     """
     if _is_safe(name):
         return name

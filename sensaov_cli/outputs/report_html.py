@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sensaov_cli.buffer.model import ParamRecord
+from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.limits import read_regular, regular_file
 from sensaov_cli.outputs.atomic import atomic_write
 from sensaov_cli.outputs.png import png_problem
@@ -102,8 +102,7 @@ class ReportContent:
     objectives: tuple[ObjectiveSection, ...]
     cameras: tuple[CameraSection, ...]
     rankings: Mapping[str, tuple[Ranking, ...]]  # cut -> one full ranking per objective
-    params: tuple[ParamRecord, ...]
-    provenance: dict[str, Any]
+    buffer: SensitivityBuffer  # the appendix: its parameters' trust, its provenance
     absent: tuple[str, ...]  # the views this job does not ask for, said plainly
     ignored: tuple[str, ...] = ()  # previews no manifest lists: not shown
 
@@ -216,9 +215,9 @@ def _appendix(content: ReportContent) -> str:
             "<h3>Rankings in full</h3>",
             _rankings_html(content.rankings),
             "<h3>Trust of the buffer's parameters</h3>",
-            _trust_table(content.params),
+            _trust_table(content.buffer.params),
             "<h3>Provenance</h3>",
-            _provenance_table(content.provenance),
+            _provenance_table(content.buffer.provenance),
             "</section>",
         ]
     )

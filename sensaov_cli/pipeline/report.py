@@ -98,8 +98,7 @@ def make_report(job: JobSpec, path: Path | None = None) -> Path:
             )
             for by in ("object", "type", "key")
         },  # fmt: skip
-        params=buf.params,
-        provenance=buf.provenance,
+        buffer=buf,
         absent=_absent(job),
         ignored=_ignored(folder, listed, broken),
     )
