@@ -3,8 +3,9 @@
 OpenImageIO's PNG writer reports success on a full disk and leaves a cut-off file; here Pillow
 encodes in memory and Python writes the bytes, whose ``write`` raises ``OSError`` (``ENOSPC``,
 ``EIO``) for every failure, and then renames them into place (:mod:`.atomic`). Text chunks
-(``tEXt``, Latin-1) carry the attributes that trace a preview back to its data.
-:class:`PngQueue` compresses a series of previews on a worker thread while the caller draws.
+(``tEXt``, Latin-1) carry the attributes that trace a preview back to its data. Pillow's PNG
+encoder holds the GIL, so a worker thread could not compress beside the drawing: previews are
+written one after the other, each as soon as it is drawn.
 """
 
 from __future__ import annotations
@@ -12,9 +13,7 @@ from __future__ import annotations
 import io
 import struct
 import warnings
-from collections import deque
 from collections.abc import Mapping
-from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -49,17 +48,13 @@ def encode_png(
 def write_png(path: Path, rgb_uint8: np.ndarray, text: Mapping[str, str] | None = None) -> None:
     """Encode (as :func:`encode_png`), then write atomically: a failed write leaves the
     previous file as it was. ``text`` traces a preview back to its data (encoding, scale)."""
-    write_png_bytes(Path(path), encode_png(rgb_uint8, text))
-
-
-def write_png_bytes(path: Path, data: bytes) -> None:
-    """Write an encoded PNG atomically: a failed write leaves the previous file as it was."""
+    data = encode_png(rgb_uint8, text)
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as stream:
             stream.write(data)  # raises OSError on a short write; close flushes, and may raise
 
-    atomic_write(path, write)
+    atomic_write(Path(path), write)
 
 
 def check_rgb(rgb: np.ndarray) -> None:
@@ -69,43 +64,6 @@ def check_rgb(rgb: np.ndarray) -> None:
         raise ValueError(f"expected a uint8 image, got {rgb.dtype}")
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"expected an (H, W, 3) image, got shape {rgb.shape}")
-
-
-class PngQueue:
-    """PNGs written in the order given, each encoded on a worker thread while the caller draws
-    the next picture: zlib releases the GIL, so on two cores the compression runs beside the
-    drawing. A file is written, atomically and by the caller's thread, once two more are
-    queued, and the rest when the block ends; a block left by an exception writes nothing more
-    (its pending encodings are dropped).
-    """
-
-    _AHEAD = 2  # encodings in flight: one compressing while the caller draws the next
-
-    def __init__(self) -> None:
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sensaov-png")
-        self._queued: deque[tuple[Path, Future[bytes]]] = deque()
-
-    def __enter__(self) -> PngQueue:
-        return self
-
-    def put(self, path: Path, rgb_uint8: np.ndarray, text: Mapping[str, str]) -> None:
-        """Queue ``rgb_uint8`` (not modified afterwards) for ``path``, as :func:`write_png`."""
-        self._queued.append((Path(path), self._pool.submit(encode_png, rgb_uint8, text)))
-        while len(self._queued) > self._AHEAD:
-            self._write_oldest()
-
-    def _write_oldest(self) -> None:
-        path, encoded = self._queued.popleft()
-        write_png_bytes(path, encoded.result())
-
-    def __exit__(self, kind: object, error: object, trace: object) -> None:
-        try:
-            while kind is None and self._queued:
-                self._write_oldest()
-        finally:
-            for _, encoded in self._queued:
-                encoded.cancel()
-            self._pool.shutdown(wait=True)
 
 
 def png_problem(data: bytes) -> str | None:
