@@ -227,19 +227,12 @@ def _figure(picture: Picture) -> str:
     """A figure shown at 1:1 (width and height from the PNG), so its text keeps its size."""
     data = base64.b64encode(picture.png).decode("ascii")
     caption = html.escape(picture.caption)
-    size = _png_size(picture.png)
-    dims = f' width="{size[0]}" height="{size[1]}"' if size else ""
+    width, height = struct.unpack(">II", picture.png[16:24])  # IHDR, first in every PNG
     return (
         f'<figure class="{html.escape(picture.kind)}"><img src="data:image/png;base64,{data}"'
-        f'{dims} alt="{caption}"><figcaption>{caption}</figcaption></figure>'
+        f' width="{width}" height="{height}" alt="{caption}"><figcaption>{caption}</figcaption>'
+        "</figure>"
     )
-
-
-def _png_size(data: bytes) -> tuple[int, int] | None:
-    if len(data) < 24 or not data.startswith(b"\x89PNG"):
-        return None
-    width, height = struct.unpack(">II", data[16:24])
-    return int(width), int(height)
 
 
 def _stamp_line(stamp: Mapping[str, str]) -> str:
