@@ -187,7 +187,7 @@ def _checked_ranks(
 
 
 def visible_objects(
-    paths: Sequence[Path], check: Callable[[Path, Mapping[str, Any]], None] | None = None
+    paths: Sequence[Path], check: Callable[[Path, Mapping[str, Any]], None]
 ) -> dict[str, frozenset[str]]:
     """Camera name (the file's stem, as ``project`` names it) -> the objects it sees; ``check``
     is called with each file's header first (``rank --exr`` refuses an EXR of another buffer)."""
@@ -201,8 +201,7 @@ def visible_objects(
             channels, header = read_exr(path)
         except ExrError as error:  # a file the user named: bad input, not a failed job
             raise CameraFileError(error.message, where=error.where, hint=error.hint) from error
-        if check is not None:
-            check(path, header)
+        check(path, header)
         seen[path.stem] = seen_names(channels, header, where=str(path))
     return seen
 

@@ -70,9 +70,7 @@ def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
     exactly the previews' colours. Display layers of EXRs are drawn with it; decoded from the
     rounded codes, they keep those codes when stored as half (half's rounding moves a code by
     at most 0.05 of a step, the rounding of an unrounded colour could go either way)."""
-    x = np.asarray(values)
-    colours, lengths = _run_colours(x, scale)
-    return np.repeat(colours, lengths, axis=0).reshape(*x.shape, 3)
+    return np.moveaxis(diverging_linear_planes(values, scale), 0, -1)
 
 
 def diverging_linear_planes(

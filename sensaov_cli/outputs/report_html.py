@@ -59,6 +59,17 @@ pre{background:#f6f6f6;padding:1em;overflow:auto;font-size:12px}summary{cursor:p
 
 
 @dataclass(frozen=True)
+class Stamp:
+    """Which buffer and job version a page was made from: every section repeats it."""
+
+    buffer_id: str
+    job_version: str  # the run version the buffer records (shortened), or "unrecorded"
+    job_hash: str  # of the job file as it is now (shortened)
+    made: str  # when the buffer was made (UTC)
+    samples: str  # "64 spp, 4 batch(es)"
+
+
+@dataclass(frozen=True)
 class Picture:
     """One embedded image: the PNG's bytes and what it shows."""
 
@@ -97,7 +108,7 @@ class ReportContent:
 
     title: str
     question: str
-    stamp: Mapping[str, str]  # buffer id, job version, when, samples
+    stamp: Stamp
     primal: Picture | None
     objectives: tuple[ObjectiveSection, ...]
     cameras: tuple[CameraSection, ...]
@@ -120,8 +131,11 @@ def write_report(path: Path, content: ReportContent) -> None:
 def report_html(content: ReportContent) -> str:
     """The whole page as one string."""
     title = html.escape(content.title)
-    stamp = {k: content.stamp[k] for k in ("buffer id", "job hash") if k in content.stamp}
-    attrs = " ".join(f'data-{k.replace(" ", "-")}="{html.escape(v)}"' for k, v in stamp.items())
+    stamp = content.stamp
+    attrs = (
+        f'data-buffer-id="{html.escape(stamp.buffer_id)}" '
+        f'data-job-hash="{html.escape(stamp.job_hash)}"'
+    )
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
@@ -173,7 +187,7 @@ def _top(objective: ObjectiveSection) -> str:
     return head + _left_out_list(ranking, objective.left_out)
 
 
-def _camera(section: CameraSection, stamp: Mapping[str, str]) -> str:
+def _camera(section: CameraSection, stamp: Stamp) -> str:
     name = html.escape(section.name)
     sees = (
         "no EXR: run 'sensaov project JOB'"
@@ -181,7 +195,7 @@ def _camera(section: CameraSection, stamp: Mapping[str, str]) -> str:
         else "sees " + (", ".join(sorted(section.visible)) or "nothing")
     )
     parts = [
-        f'<section id="camera-{name}" data-buffer-id="{html.escape(stamp.get("buffer id", ""))}">',
+        f'<section id="camera-{name}" data-buffer-id="{html.escape(stamp.buffer_id)}">',
         f"<h2>Camera {name}</h2>",
         f'<p class="note">{html.escape(sees)}</p>',
         _stamp_line(stamp),
@@ -235,9 +249,12 @@ def _figure(picture: Picture) -> str:
     )
 
 
-def _stamp_line(stamp: Mapping[str, str]) -> str:
+def _stamp_line(stamp: Stamp) -> str:
     """Which buffer and job version a section was made from, in one small line."""
-    text = " · ".join(f"{key} {value}" for key, value in stamp.items())
+    text = (
+        f"buffer id {stamp.buffer_id} · job version (run) {stamp.job_version} · "
+        f"job hash {stamp.job_hash} · made {stamp.made} · samples {stamp.samples}"
+    )
     return f'<p class="stamp">made from {html.escape(text)}</p>'
 
 

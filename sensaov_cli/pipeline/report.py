@@ -37,6 +37,7 @@ from sensaov_cli.outputs.report_html import (
     ObjectiveSection,
     Picture,
     ReportContent,
+    Stamp,
     read_previews,
     write_report,
 )
@@ -256,16 +257,16 @@ def _question(job: JobSpec, buf: SensitivityBuffer) -> str:
     return f"Which parts of {job.scene.name} matter for {names}?"
 
 
-def _stamp(job: JobSpec, buf: SensitivityBuffer) -> dict[str, str]:
+def _stamp(job: JobSpec, buf: SensitivityBuffer) -> Stamp:
     made = buf.provenance
     batches = buf.statistics.batches if buf.statistics is not None else 1
-    return {
-        "buffer id": buffer_id(buf),
-        "job version (run)": (run_version(buf) or "unrecorded")[:12],
-        "job hash": job.job_hash()[:12],
-        "made": str(made.get("created_utc", "?")),
-        "samples": f"{made.get('spp', '?')} spp, {batches} batch(es)",
-    }
+    return Stamp(
+        buffer_id=buffer_id(buf),
+        job_version=(run_version(buf) or "unrecorded")[:12],
+        job_hash=job.job_hash()[:12],
+        made=str(made.get("created_utc", "?")),
+        samples=f"{made.get('spp', '?')} spp, {batches} batch(es)",
+    )
 
 
 def _absent(job: JobSpec) -> tuple[str, ...]:
