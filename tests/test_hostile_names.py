@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sensaov_cli.outputs.atomic import MAX_TOKEN, file_token
 from sensaov_cli.outputs.contact_sheets import write_manifest, write_previews
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
-from sensaov_cli.outputs.names import MAX_TOKEN, file_token
 from sensaov_cli.outputs.tables import format_table
 from sensaov_cli.views.display_scale import robust_scale
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from sensaov_cli.errors import NonFiniteError
+from sensaov_cli.outputs.png import write_png
 from sensaov_cli.outputs.previews import (
     BACKGROUND,
     BAR_HEIGHT,
@@ -20,7 +21,6 @@ from sensaov_cli.outputs.previews import (
     contact_sheet,
     diverging_rgb,
     underlay,
-    write_png,
 )
 
 BLUE, WHITE, RED = RDBU[0], RDBU[5], RDBU[-1]
@@ -261,38 +261,51 @@ def test_text_is_blended_where_glyphs_cover_and_nowhere_else() -> None:
     assert (drawn != canvas).any(axis=2).sum() > 50  # the glyphs are there
 
 
-def test_queued_pngs_are_the_files_write_png_writes(tmp_path: Path) -> None:
-    """PngQueue encodes on a worker thread: every file is the one write_png writes, byte for
-    byte, and each is written once the next two are queued (not all at the end)."""
-    from sensaov_cli.outputs.png import PngQueue
+def _preview_layers(values: list[float]) -> list[tuple[object, object]]:
+    """One layer per value of ``values`` (a 4x4 ramp times it), all on one scale."""
+    from sensaov_cli.outputs.layered_exr import SensitivityLayer
+    from sensaov_cli.views.display_scale import robust_scale
 
-    images = [diverging_rgb(np.full((5, 7), v), 1.0) for v in (-1.0, -0.5, 0.0, 0.5, 1.0)]
-    (tmp_path / "direct").mkdir()
-    (tmp_path / "queued").mkdir()
-    with PngQueue() as queue:
-        for index, image in enumerate(images):
-            write_png(tmp_path / "direct" / f"{index}.png", image, {"sensaov/i": str(index)})
-            queue.put(tmp_path / "queued" / f"{index}.png", image, {"sensaov/i": str(index)})
-            assert len(os.listdir(tmp_path / "queued")) == max(0, index - 1)
-    for index in range(len(images)):
-        name = f"{index}.png"
-        assert (tmp_path / "queued" / name).read_bytes() == (
-            tmp_path / "direct" / name
-        ).read_bytes()
+    data = np.linspace(-1, 1, 16, dtype=np.float32).reshape(4, 4)
+    scale = robust_scale({"cam": [data]})
+    meta = {"encoding": "linear", "unverified": "[]"}
+    return [
+        (SensitivityLayer("m", f"pass{index}", data * value, meta), scale)
+        for index, value in enumerate(values)
+    ]
 
 
-def test_a_png_queue_left_by_an_error_writes_nothing_more(tmp_path: Path) -> None:
-    from sensaov_cli.outputs.png import PngQueue
+class _Visibility:
+    coverage_hit = np.ones((4, 4), np.float32)
 
-    image = diverging_rgb(np.zeros((4, 4)), 1.0)
-    with pytest.raises(RuntimeError, match="stop"), PngQueue() as queue:
-        for index in range(4):
-            queue.put(tmp_path / f"{index}.png", image, {})
-        raise RuntimeError("stop")
-    assert sorted(os.listdir(tmp_path)) == ["0.png", "1.png"]  # written before the error
-    with pytest.raises(ValueError, match="uint8"), PngQueue() as queue:
-        queue.put(tmp_path / "bad.png", np.zeros((4, 4, 3)), {})
-    assert "bad.png" not in os.listdir(tmp_path)
+
+def test_previews_are_the_files_write_png_writes(tmp_path: Path) -> None:
+    """Every preview is the PNG write_png writes of its pixels and text, byte for byte, and
+    each is written as soon as it is drawn (a later picture that fails leaves it written)."""
+    from PIL import Image
+
+    from sensaov_cli.outputs.contact_sheets import write_previews
+    from sensaov_cli.outputs.png import encode_png, read_png_text
+
+    layers = _preview_layers([1.0, -0.5, 0.25])
+    entries = write_previews(tmp_path, "cam", layers, None, _Visibility(), {"sensaov/i": "x"})  # type: ignore[arg-type]
+    assert len(entries) == 4  # three layers and the objective's sheet
+    for entry in entries:
+        path = tmp_path / entry.file
+        with Image.open(path) as image:
+            pixels = np.asarray(image)
+        text = read_png_text(path)
+        assert text["sensaov/i"] == "x" and path.read_bytes() == encode_png(pixels, text)
+
+
+def test_a_picture_that_fails_writes_nothing_more(tmp_path: Path) -> None:
+    from sensaov_cli.outputs.contact_sheets import write_previews
+
+    layers = _preview_layers([1.0, 0.5, float("nan"), 0.25])
+    with pytest.raises(NonFiniteError):
+        write_previews(tmp_path, "cam", layers, None, _Visibility(), {})  # type: ignore[arg-type]
+    assert sorted(os.listdir(tmp_path / "cam")) == ["m.pass0.png", "m.pass1.png"]
+    assert not (tmp_path / "cam_m.png").exists()  # the sheet comes after every layer
 
 
 def test_a_missing_font_is_a_preview_error(monkeypatch: pytest.MonkeyPatch) -> None:

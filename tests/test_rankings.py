@@ -18,8 +18,7 @@ from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBu
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.cli import main
 from sensaov_cli.errors import EXIT_BAD_INPUT
-from sensaov_cli.outputs.cryptomatte import metadata, rank_channels
-from sensaov_cli.outputs.frames import seen_names
+from sensaov_cli.outputs.cryptomatte import metadata, rank_channels, seen_names
 from sensaov_cli.outputs.rankings import COLUMNS
 from sensaov_cli.outputs.tables import summary_text
 from tests.bad_buffers import write_buffer

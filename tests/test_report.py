@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
-from sensaov_cli.outputs.params_table import params_dict, params_text
+from sensaov_cli.outputs.parameter_tables import params_dict, params_text
 from sensaov_cli.outputs.tables import (
     LABEL_MEANINGS,
     NO_GRADIENT_MARK,

@@ -9,6 +9,7 @@ Chromium and skips, saying why, where Chromium or its driver is absent.
 from __future__ import annotations
 
 import http.client
+import io
 import json
 import math
 import os
@@ -20,7 +21,6 @@ import threading
 import time
 import urllib.error
 import urllib.request
-import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -105,20 +105,12 @@ def get(url: str, headers: dict[str, str] | None = None, method: str = "GET") ->
 
 
 def png_pixels(data: bytes) -> np.ndarray:
-    """Decode the 8-bit RGB, filter-0 PNGs the server writes (enough for these tests)."""
-    assert data[:8] == b"\x89PNG\r\n\x1a\n"
-    pos, idat, size = 8, b"", (0, 0)
-    while pos < len(data):
-        length = int.from_bytes(data[pos : pos + 4], "big")
-        kind, body = data[pos + 4 : pos + 8], data[pos + 8 : pos + 8 + length]
-        if kind == b"IHDR":
-            size = (int.from_bytes(body[:4], "big"), int.from_bytes(body[4:8], "big"))
-        elif kind == b"IDAT":
-            idat += body
-        pos += 12 + length
-    width, height = size
-    rows = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(height, 1 + 3 * width)
-    return rows[:, 1:].reshape(height, width, 3)
+    """Decode the 8-bit RGB PNGs the server writes."""
+    from PIL import Image
+
+    with Image.open(io.BytesIO(data), formats=["PNG"]) as image:
+        assert image.mode == "RGB"
+        return np.asarray(image)
 
 
 def project_point(camera: dict[str, Any], point: tuple[float, float, float]) -> tuple[int, int]:

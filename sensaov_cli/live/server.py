@@ -45,8 +45,7 @@ from sensaov_cli.live.query import (
     single_values,
 )
 from sensaov_cli.live.session import REST_SPP, Pick, Picture, ViewSession
-from sensaov_cli.outputs.atomic import atomic_write, check_writable
-from sensaov_cli.outputs.overwrite import refuse_unsafe_outputs
+from sensaov_cli.outputs.atomic import atomic_write, check_writable, refuse_unsafe_outputs
 from sensaov_cli.outputs.previews import RDBU
 from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.pipeline.run import FORWARD_NAME

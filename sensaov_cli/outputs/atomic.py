@@ -1,36 +1,45 @@
-"""Write files so that a reader (or a farm that kills the job) never sees half of one.
+"""Output files, written safely: atomically, never over an input, under names that are safe.
 
 One discipline for every output (buffers, EXRs, PNGs, HTML, SVG): each file is written to a
 temporary beside it, the write is checked (an empty or failed write is an error, ``fsync``
 reports a full disk the page cache hid), and only then renamed over the old file. The stop
 signals (SIGINT, SIGTERM, SIGHUP) are held back while a temporary is created and while the
 renames run, so a stop can never leave a temporary nobody knows about, and a set of files is
-replaced together.
+replaced together. A ledger of what this process replaced lets whoever reports a failure or a
+stop say exactly which outputs are new and which are as they were (:func:`replaced`).
 
-The module keeps a ledger of what this process replaced, so whoever reports a failure or a stop
-can say exactly which outputs are new and which are as they were (:func:`replaced`).
+Before any work, outputs that cannot be written (:func:`check_writable`) or would replace a
+file the command reads (:func:`refuse_unsafe_outputs`) are refused; names from scenes and
+buffers are data, never paths: a file name is built only from :func:`file_token`'s output.
 """
 
 from __future__ import annotations
 
 import atexit
 import errno
+import hashlib
 import os
+import re
 import shutil
 import signal
 import stat
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from sensaov_cli import interrupts
+from sensaov_cli.errors import OutputError
 
 TEMPORARY_SUFFIX = ".partial"
 _HELD = set(interrupts.STOP_SIGNALS)
 _live: set[Path] = set()  # temporaries that exist right now (removed on any failure or stop)
 _replaced: list[Path] = []  # every output this process renamed into place, in order
 _scratch: list[Path] = []  # private temporary folders (scratch_folder), removed at exit
+MAX_TOKEN = 64  # with a camera and a pass name, a preview's path stays far below NAME_MAX
+_UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
+_HASH_CHARS = 8
 
 
 def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
@@ -185,8 +194,6 @@ def check_writable(folder: Path, names: list[str]) -> None:
     and so is a symbolic link that leads nowhere (dangling, or a loop) in place of the folder,
     a sub-folder or an output: creating it would fail only once the work is done.
     """
-    from sensaov_cli.errors import OutputError
-
     for name in names:
         target = folder / name
         _refuse_broken_link(target)
@@ -211,8 +218,6 @@ def check_writable(folder: Path, names: list[str]) -> None:
 
 def _refuse_broken_link(path: Path) -> None:
     """A link whose target does not exist (or that loops) cannot be written through."""
-    from sensaov_cli.errors import OutputError
-
     if not path.is_symlink():
         return
     try:
@@ -224,3 +229,111 @@ def _refuse_broken_link(path: Path) -> None:
             + ("loops" if looped else f"leads to {os.readlink(path)}, which does not exist"),
             hint="remove the link, or point it at a folder that exists",
         ) from None
+
+
+def refuse_unsafe_outputs(
+    inputs: Iterable[Path],
+    files: Iterable[Path],
+    folders: Iterable[Path] = (),
+    *,
+    where: str,
+    hint: str = "set output to a folder of its own, or rename the camera",
+) -> None:
+    """Refuse, before any work, outputs that would replace an input or a folder that is a file.
+
+    With ``output`` set to the scene's folder, an inspection camera named like a texture would
+    replace the texture, and the scene would no longer load; ``report -o`` onto the buffer
+    would replace the buffer. ``inputs`` are every file the command reads (the job, every file
+    the prepared scene lists, masks, targets, the buffer, shards, primals, camera EXRs,
+    previews; for a command that reads only a buffer, :func:`recorded_inputs`), ``files`` the
+    outputs' paths, ``folders`` the folders whose contents it writes (``previews/``). The same
+    path after resolving links, or the same file under another name (a hard link), is refused.
+    ``where`` names the job (or the option) in messages, ``hint`` says how to choose another
+    output.
+    """
+    folders = list(folders)
+    for folder in folders:
+        if folder.exists() and not folder.is_dir():
+            raise OutputError(
+                f"{folder} exists and is not a directory",
+                where=where,
+                hint="move it out of the way: outputs are written into it",
+            )
+    read = {os.path.realpath(path): path for path in inputs}
+    for output in files:
+        clash = read.get(os.path.realpath(output)) or _same_file(output, read.values())
+        if clash is not None:
+            raise OutputError(
+                f"the output {output} would replace {clash}, which this command reads",
+                where=where,
+                hint=hint,
+            )
+    for folder in folders:
+        inside = [
+            path
+            for real, path in read.items()
+            if real.startswith(os.path.realpath(folder) + os.sep)
+        ]
+        if inside:
+            raise OutputError(
+                f"outputs go into {folder}, which holds {inside[0]}, a file this command reads",
+                where=where,
+                hint="set output to a folder of its own",
+            )
+
+
+def recorded_inputs(provenance: Mapping[str, Any]) -> tuple[Path, ...]:
+    """The files a buffer's provenance says its run read: the job, the scene and every file the
+    scene reads (``scene_files``; a buffer written before it was recorded: the scene and its
+    textures). Provenance is a stranger's data: what is not a string is ignored (a hostile
+    entry can only make a command refuse more)."""
+    named = [provenance.get("job_path"), provenance.get("scene_path")]
+    named += _strings(provenance.get("scene_files"))
+    textures = provenance.get("textures")
+    if isinstance(textures, list):
+        named += [entry.get("file") for entry in textures if isinstance(entry, dict)]
+    return tuple(
+        Path(name) for name in named if isinstance(name, str) and name and "\0" not in name
+    )
+
+
+def _strings(value: Any) -> list[str]:
+    return [item for item in value if isinstance(item, str)] if isinstance(value, list) else []
+
+
+def _same_file(output: Path, inputs: Iterable[Path]) -> Path | None:
+    if not output.exists():
+        return None
+    for path in inputs:
+        try:
+            if path.exists() and os.path.samefile(output, path):
+                return path
+        except OSError:
+            continue
+    return None
+
+
+def file_token(name: str) -> str:
+    """``name`` itself when it is a safe file-name token already, else a sanitised stand-in.
+
+    An objective's name, a parameter type or an object id read from a stranger's buffer may
+    hold ``/``, ``..``, control characters, 300 characters or any Unicode. A token holds ASCII
+    letters, digits, ``_``, ``-`` and inner ``.``, at most :data:`MAX_TOKEN` characters, never
+    empty, never ``.`` or ``..``, never hidden. A name that needed changing gets a short hash
+    of the original, so two names never share a file; the writer keeps the original in the
+    file's metadata.
+    """
+    if _is_safe(name):
+        return name
+    digest = hashlib.sha256(name.encode("utf-8", "surrogatepass")).hexdigest()[:_HASH_CHARS]
+    stem = _UNSAFE.sub("_", name).strip("._-")[: MAX_TOKEN - _HASH_CHARS - 1]
+    return f"{stem}_{digest}" if stem else f"name_{digest}"
+
+
+def _is_safe(name: str) -> bool:
+    return (
+        0 < len(name) <= MAX_TOKEN
+        and _UNSAFE.search(name) is None
+        and not name.startswith((".", "-"))
+        and ".." not in name
+    )

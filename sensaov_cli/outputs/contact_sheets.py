@@ -21,10 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli.outputs.atomic import atomic_write
+from sensaov_cli.outputs.atomic import atomic_write, file_token
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
-from sensaov_cli.outputs.names import file_token
-from sensaov_cli.outputs.png import PngQueue
+from sensaov_cli.outputs.png import write_png
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, clipped_share, signed_pixels
@@ -64,34 +63,33 @@ def write_previews(
     stamp: Mapping[str, str],
 ) -> list[PreviewFile]:
     """``folder/<camera>/<objective>.<pass>.png`` per layer and ``folder/<camera>_<objective>.png``
-    per objective. Names in paths are :func:`~.names.file_token`; the names as they were are
+    per objective. Names in paths are :func:`~.atomic.file_token`; the names as they were are
     kept in each PNG's text chunks, with the ``stamp`` (buffer id, job version)."""
     written = []
     sheets: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
-    with PngQueue() as queue:  # each PNG compresses while the next picture is drawn
-        for layer, scale in layers:
-            values = signed_pixels(layer.data, layer.kind)
-            rgb = _picture(values, scale.value, layer, beauty, visibility)
-            entry = _layer_entry(camera, layer, scale, values)
-            names = {"sensaov/camera": camera, "sensaov/objective": layer.objective}
-            text = {**stamp, **names, "sensaov/pass": layer.pass_name,
-                    "sensaov/scale": repr(scale.value), "sensaov/scale_rule": scale.rule(),
-                    "sensaov/encoding": layer.metadata.get("encoding", "")}  # fmt: skip
-            title = f"{layer.objective}.{layer.pass_name} ({camera})"
-            tile = enlarged(rgb, SINGLE_TILE_WIDTH)
-            sheet = contact_sheet([(_label(layer, scale), tile)], 1, scale=scale.value,
-                                  title=title, notes=entry.notes)  # fmt: skip
-            queue.put(folder / entry.file, sheet, text)
-            written.append(entry)
-            sheets[layer.objective].append((_label(layer, scale), enlarged(rgb, MIN_TILE_WIDTH)))
-        for objective, tiles in sheets.items():
-            file = f"{file_token(camera)}_{file_token(objective)}.png"
-            notes = _sheet_notes(layers, objective)
-            sheet = contact_sheet(tiles, SHEET_COLUMNS, scale=1.0,
-                                  title=f"{camera} / {objective}", notes=notes)  # fmt: skip
-            queue.put(folder / file, sheet, {**stamp, "sensaov/camera": camera,
-                                             "sensaov/objective": objective})  # fmt: skip
-            written.append(PreviewFile(file, "sheet", objective, notes=tuple(notes)))
+    for layer, scale in layers:
+        values = signed_pixels(layer.data, layer.kind)
+        rgb = _picture(values, scale.value, layer, beauty, visibility)
+        entry = _layer_entry(camera, layer, scale, values)
+        names = {"sensaov/camera": camera, "sensaov/objective": layer.objective}
+        text = {**stamp, **names, "sensaov/pass": layer.pass_name,
+                "sensaov/scale": repr(scale.value), "sensaov/scale_rule": scale.rule(),
+                "sensaov/encoding": layer.metadata.get("encoding", "")}  # fmt: skip
+        title = f"{layer.objective}.{layer.pass_name} ({camera})"
+        tile = enlarged(rgb, SINGLE_TILE_WIDTH)
+        sheet = contact_sheet([(_label(layer, scale), tile)], 1, scale=scale.value,
+                              title=title, notes=entry.notes)  # fmt: skip
+        write_png(folder / entry.file, sheet, text)
+        written.append(entry)
+        sheets[layer.objective].append((_label(layer, scale), enlarged(rgb, MIN_TILE_WIDTH)))
+    for objective, tiles in sheets.items():
+        file = f"{file_token(camera)}_{file_token(objective)}.png"
+        notes = _sheet_notes(layers, objective)
+        sheet = contact_sheet(tiles, SHEET_COLUMNS, scale=1.0,
+                              title=f"{camera} / {objective}", notes=notes)  # fmt: skip
+        write_png(folder / file, sheet, {**stamp, "sensaov/camera": camera,
+                                         "sensaov/objective": objective})  # fmt: skip
+        written.append(PreviewFile(file, "sheet", objective, notes=tuple(notes)))
     return written
 
 

@@ -1,4 +1,5 @@
-"""Cryptomatte 1.2 ID layers: object names hashed into float IDs, ranked coverage, manifest.
+"""Cryptomatte 1.2 ID layers: object names hashed into float IDs, ranked coverage, manifest;
+and, read back from a camera's EXR, which objects that camera sees.
 
 Any Cryptomatte keyer (Nuke's gizmo, Natron's, Blender's compositor node) picks an object by
 hashing the name the artist chose, so the IDs written here must be exactly the specification's:
@@ -6,19 +7,27 @@ MurmurHash3_x86_32 (seed 0) of the UTF-8 name, its exponent forced into [1, 254]
 never form a denormal, an infinity or a NaN, stored as the bits of a little-endian float32.
 Layers are ``{T}00``, ``{T}01``, … each holding two ranks as (ID, coverage, ID, coverage); the
 deprecated un-numbered preview layer ``{T}.R/G/B`` is never written (Blender 3.4 mistakes it for
-another rank). See ``docs/exr-layout.md``. Needs numpy and mmh3 only.
+another rank). See ``docs/exr-layout.md``.
+
+The buffer knows nothing of cameras, so "off-frame" is a property of a camera: an object is in
+its frame when its Cryptomatte ID covers some pixel of the camera's ``CryptoObject`` layers
+(:func:`visible_objects`). The manifest is not enough: it names every object of the scene, seen
+or not.
 """
 
 from __future__ import annotations
 
 import json
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
 
 import mmh3
 import numpy as np
 
-from sensaov_cli.errors import CryptomatteError
+from sensaov_cli.errors import CameraFileError, CryptomatteError, ExrError
+from sensaov_cli.outputs.exr import read_exr
 
 HASH_NAME = "MurmurHash3_32"
 CONVERSION = "uint32_to_float32"
@@ -26,6 +35,9 @@ DEFAULT_RANKS = 6
 TYPE_NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,60}")
 _EXPONENT_SHIFT = 23
 _EXPONENT_MASK = 0xFF
+OBJECT_TYPE = "CryptoObject"
+# An ID channel and the coverage channel beside it: R with G, B with A.
+_PAIRS = (("R", "G"), ("B", "A"))
 
 
 def name_hash(name: str) -> int:
@@ -98,11 +110,9 @@ def rank_channels(
     a fixed count of ``ceil(ranks / 2)`` layers, so a sequence keeps the same channels on every
     frame. Coverage beyond ``ranks`` is dropped, as in every Cryptomatte writer. ``ordered``
     promises the ranks are in that order already, empty ones last at coverage 0, as a
-    visibility pass builds them: nothing is then zeroed, checked or sorted (issue 23).
+    visibility pass builds them: nothing is then zeroed, checked or sorted.
     """
     _check_type_name(type_name)
-    if ranks < 1:
-        raise CryptomatteError(f"ranks must be at least 1, got {ranks}")
     index, coverage = _checked_ranks(names, rank_index, rank_coverage)
     ids = np.array([id_float(name) for name in names] + [np.float32(0.0)], dtype=np.float32)
     if not ordered:
@@ -167,15 +177,85 @@ def _checked_ranks(
             "(H, W, R) shape",
             hint="pass the visibility pass's ranked ids and coverage unchanged",
         )
-    if not np.issubdtype(index.dtype, np.integer):
-        raise CryptomatteError(f"rank_index must hold integers, not {index.dtype}")
     if index.size and (index.min() < -1 or index.max() >= len(names)):
         raise CryptomatteError(
             f"rank_index holds {int(index.min())}..{int(index.max())} but there are "
             f"{len(names)} names",
             hint="indices run from 0 to len(names) - 1, with -1 for an empty rank",
         )
-    coverage = coverage.astype(np.float32, copy=False)
-    if not np.all(np.isfinite(coverage)):
-        raise CryptomatteError("rank_coverage holds NaN or infinity")
-    return index, coverage
+    return index, coverage.astype(np.float32, copy=False)
+
+
+def visible_objects(
+    paths: Sequence[Path], check: Callable[[Path, Mapping[str, Any]], None]
+) -> dict[str, frozenset[str]]:
+    """Camera name (the file's stem, as ``project`` names it) -> the objects it sees; ``check``
+    is called with each file's header first (``rank --exr`` refuses an EXR of another buffer)."""
+    seen = {}
+    for path in paths:
+        if path.stem in seen:
+            raise CameraFileError(
+                "two files for one camera", where=str(path), hint="pass each once"
+            )
+        try:
+            channels, header = read_exr(path)
+        except ExrError as error:  # a file the user named: bad input, not a failed job
+            raise CameraFileError(error.message, where=error.where, hint=error.hint) from error
+        check(path, header)
+        seen[path.stem] = seen_names(channels, header, where=str(path))
+    return seen
+
+
+def seen_names(
+    channels: Mapping[str, np.ndarray], header: Mapping[str, Any], *, where: str = "EXR"
+) -> frozenset[str]:
+    """The manifest names of ``CryptoObject`` whose ID has coverage > 0 in some pixel."""
+    names = _manifest(header, where)
+    pattern = re.compile(rf"^{OBJECT_TYPE}\d\d\.([RGBA])$")
+    layers = {name[:-2] for name in channels if pattern.match(name)}
+    ids: set[float] = set()
+    for layer in sorted(layers):
+        for id_channel, coverage_channel in _PAIRS:
+            pair = (f"{layer}.{id_channel}", f"{layer}.{coverage_channel}")
+            missing = [name for name in pair if name not in channels]
+            if missing:
+                raise CameraFileError(f"Cryptomatte channel {missing[0]} is missing", where=where)
+            ids.update(np.asarray(channels[pair[0]])[np.asarray(channels[pair[1]]) > 0].tolist())
+    return frozenset(name for name in names if float(id_float(name)) in ids)
+
+
+def _manifest(header: Mapping[str, Any], where: str) -> list[str]:
+    for key, value in header.items():
+        if key.startswith("cryptomatte/") and key.endswith("/name") and value == OBJECT_TYPE:
+            return _manifest_names(header.get(key[: -len("name")] + "manifest", "{}"), where)
+    raise CameraFileError(
+        f"no {OBJECT_TYPE} layer",
+        where=where,
+        hint="pass an inspection camera's EXR written by 'sensaov project'",
+    )
+
+
+def _manifest_names(manifest: Any, where: str) -> list[str]:
+    """The object names of a Cryptomatte manifest: a JSON object of name -> 8 hex digits."""
+    try:
+        names = json.loads(manifest) if isinstance(manifest, str | bytes) else None
+    except (ValueError, RecursionError):
+        names = None
+    if not isinstance(names, dict) or not all(isinstance(v, str) for v in names.values()):
+        raise CameraFileError(
+            f"the {OBJECT_TYPE} manifest is not a JSON object of names and IDs",
+            where=where,
+            hint="pass an inspection camera's EXR written by 'sensaov project'",
+        )
+    # Names are matched by their hash (MurmurHash3, as every Cryptomatte writer computes it):
+    # an ID that is not that hash means the file was damaged or names other objects, and the
+    # objects it lists as seen would be the wrong ones.
+    wrong = next((name for name, value in names.items() if value.lower() != id_hex(name)), None)
+    if wrong is not None:
+        raise CameraFileError(
+            f"the {OBJECT_TYPE} manifest gives {wrong[:60]!r} the ID {names[wrong][:20]!r}, "
+            f"not its Cryptomatte hash {id_hex(wrong)}",
+            where=where,
+            hint="the file is damaged: run 'sensaov project' again for this camera",
+        )
+    return list(names)

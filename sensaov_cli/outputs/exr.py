@@ -1,7 +1,7 @@
 """OpenEXR files: float32 channels plus string metadata, written atomically, and read back.
 
 The multilayer layout for compositors (beauty, Cryptomatte, sensitivity passes) is assembled in
-``exr_layout.py``; this module only moves named channels and header strings to and from disk.
+``layered_exr.py``; this module only moves named channels and header strings to and from disk.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import errno
 import os
 import sys
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sized
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -35,13 +35,11 @@ def exr_writer(
     channels: dict[str, np.ndarray], attributes: dict[str, str]
 ) -> Callable[[Path], None]:
     """A function writing the EXR to a given (temporary) path, for paired atomic writes."""
-    import OpenEXR
-
-    header, pixels = _file_parts(OpenEXR, channels, attributes)
+    exr = _exr_file(channels, attributes)
 
     def write(tmp: Path) -> None:
         try:
-            with OpenEXR.File(header, pixels) as exr:
+            with exr:
                 exr.write(str(tmp))
         except RuntimeError as error:  # the binding's only exception type, even for ENOSPC
             # Its message names the temporary, which is gone by the time anyone reads it.
@@ -50,14 +48,14 @@ def exr_writer(
     return write
 
 
-def _file_parts(
-    openexr: Any, channels: dict[str, np.ndarray], attributes: dict[str, str]
-) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """The header and pixels of a ZIP scanline file, compressed on every core."""
-    header: dict[str, Any] = {"compression": openexr.ZIP_COMPRESSION, "type": openexr.scanlineimage}
-    header.update(attributes)
-    _use_every_core(openexr)
-    return header, {name: _pixels(data) for name, data in channels.items()}
+def _exr_file(channels: dict[str, np.ndarray], attributes: dict[str, str]) -> Any:
+    """The ``OpenEXR.File`` of a ZIP scanline file, to be compressed on every core."""
+    import OpenEXR
+
+    _use_every_core(OpenEXR)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    pixels = {name: _pixels(data) for name, data in channels.items()}
+    return OpenEXR.File(header | attributes, pixels)
 
 
 def _pixels(data: np.ndarray) -> np.ndarray:
@@ -70,11 +68,8 @@ def encode_exr(channels: dict[str, np.ndarray], attributes: dict[str, str]) -> b
     """The EXR ``write_exr`` would write, as bytes in memory (an HTTP answer, no file)."""
     import io
 
-    import OpenEXR
-
-    header, pixels = _file_parts(OpenEXR, channels, attributes)
     stream = io.BytesIO()
-    with OpenEXR.File(header, pixels) as exr:
+    with _exr_file(channels, attributes) as exr:
         exr.write(stream)
     return stream.getvalue()
 
@@ -124,7 +119,10 @@ def read_exr(
         # header and pixels are invalid once it is closed.
         with _library_quiet() as said:
             with OpenEXR.File(str(path), header_only=True) as exr:
-                _check_declared_size(dict(exr.header()), path, what)
+                declared = exr.header()
+                _check_declared_size(
+                    declared.get("dataWindow"), declared.get("channels", ()), path, what
+                )
             with OpenEXR.File(str(path), separate_channels=True) as exr:
                 header = dict(exr.header())
                 channels = {n: np.array(c.pixels, copy=True) for n, c in exr.channels().items()}
@@ -168,13 +166,13 @@ def _library_quiet() -> Iterator[list[str]]:
             )
 
 
-def _check_declared_size(header: dict[str, Any], path: Path, what: str) -> None:
-    """The pixels the header's data window and channels declare, against the memory budget."""
-    window = np.asarray(header.get("dataWindow"), dtype=np.int64).reshape(-1)
-    if window.size != 4:
+def _check_declared_size(window: object, listed: Sized, path: Path, what: str) -> None:
+    """The pixels a header's data window and channels declare, against the memory budget."""
+    corners = np.asarray(window, dtype=np.int64).reshape(-1)
+    if corners.size != 4:
         raise ExrReadError(f"the {what} has no data window", where=str(path))
-    width, height = window[2] - window[0] + 1, window[3] - window[1] + 1
-    channels = max(len(header.get("channels", ())), 1)
+    width, height = corners[2] - corners[0] + 1, corners[3] - corners[1] + 1
+    channels = max(len(listed), 1)
     check_memory(
         int(width) * int(height) * channels * 4 * 2,  # float32 channels, and the binding's copy
         f"the {what}'s declared {width}x{height} pixels x {channels} channels",

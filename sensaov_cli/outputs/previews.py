@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from sensaov_cli.errors import NonFiniteError, PreviewError
-from sensaov_cli.outputs.png import check_rgb, write_png_file
+from sensaov_cli.outputs.png import check_rgb
 from sensaov_cli.views.coverage import run_starts
 
 # ColorBrewer RdBu, 11 classes (Brewer 2002), ordered from -scale (blue) to +scale (red).
@@ -71,9 +70,7 @@ def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
     exactly the previews' colours. Display layers of EXRs are drawn with it; decoded from the
     rounded codes, they keep those codes when stored as half (half's rounding moves a code by
     at most 0.05 of a step, the rounding of an unrounded colour could go either way)."""
-    x = np.asarray(values)
-    colours, lengths = _run_colours(x, scale)
-    return np.repeat(colours, lengths, axis=0).reshape(*x.shape, 3)
+    return np.moveaxis(diverging_linear_planes(values, scale), 0, -1)
 
 
 def diverging_linear_planes(
@@ -120,7 +117,6 @@ def _diverging_srgb(values: np.ndarray, scale: float) -> np.ndarray:
 def hatch(rgb_uint8: np.ndarray, mask: np.ndarray, period: int = 8, width: int = 2) -> np.ndarray:
     """``rgb_uint8`` with dark diagonal stripes over ``mask``: the mark of a picture of
     gradients left out of the headline views (untrusted), as the sunburst hatches them."""
-    check_rgb(rgb_uint8)
     rows, columns = np.indices(rgb_uint8.shape[:2])
     stripe = ((rows + columns) % period < width) & np.asarray(mask, bool)
     out = rgb_uint8.copy()
@@ -141,32 +137,14 @@ def underlay(
     beauty's luminance: shading, never hue, since hue carries the sign. Partial coverage mixes
     the two. Non-finite beauty pixels show black: the underlay is context, not data.
     """
-    if not 0.0 <= strength <= 1.0:
-        raise ValueError(f"strength must lie in [0, 1], got {strength}")
-    check_rgb(rgb_uint8)
-    height, width = rgb_uint8.shape[:2]
     beauty = np.asarray(beauty_linear, dtype=np.float64)
     coverage = np.asarray(coverage_or_alpha, dtype=np.float64)
-    if beauty.shape[:2] != (height, width) or beauty.ndim != 3 or beauty.shape[2] < 3:
-        raise ValueError(f"beauty must be ({height}, {width}, 3), got {beauty.shape}")
-    if coverage.shape != (height, width):
-        raise ValueError(f"coverage must be ({height}, {width}), got {coverage.shape}")
     linear = np.clip(np.nan_to_num(beauty[..., :3], nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
     luminance = _srgb(linear @ np.array([0.2126, 0.7152, 0.0722]))[..., None]
     hit = rgb_uint8 / 255.0 * (1.0 - strength + strength * luminance)
     miss = strength * _srgb(linear)
     c = np.clip(np.nan_to_num(coverage), 0.0, 1.0)[..., None]
     return np.rint((c * hit + (1.0 - c) * miss) * 255.0).astype(np.uint8)
-
-
-def write_png(
-    path: Path, rgb_uint8: np.ndarray, attributes: Mapping[str, str] | None = None
-) -> None:
-    """Write an (H, W, 3) uint8 image as a PNG, atomically; ``attributes`` become text chunks
-    (the channel's encoding and scale, so a preview can be traced back to its data).
-    """
-    check_rgb(rgb_uint8)
-    write_png_file(Path(path), rgb_uint8, attributes)
 
 
 @dataclass(frozen=True)
@@ -298,7 +276,7 @@ def _fit(text: str, width: int) -> str:
 @functools.lru_cache(maxsize=4096)
 def _text_width(text: str) -> int:
     """``text``'s width in pixels at FONT_SIZE. Cached: a project's sheets measure the same
-    labels and notes over and over, word by word (0.2 s of the demo's previews)."""
+    labels and notes over and over, word by word."""
     from OpenImageIO import ImageBufAlgo
 
     return int(ImageBufAlgo.text_size(text, FONT_SIZE, FONT).width)
@@ -321,7 +299,7 @@ def _draw_text(canvas: np.ndarray, texts: Sequence[tuple[int, int, str, str]]) -
         under = alpha[band, span]
         under[...] = cover + (1.0 - cover) * under  # "over", as render_text composites
     # Blended only where a glyph covers the pixel (a few per cent of a sheet): elsewhere the
-    # blend gives the canvas back, so a whole-sheet float64 blend (0.08 s a sheet) was waste.
+    # blend gives the canvas back, so a whole-sheet float64 blend would be waste.
     np.clip(alpha, 0.0, 1.0, out=alpha)
     rows, columns = np.nonzero(alpha)
     covered = alpha[rows, columns][:, None]
@@ -335,8 +313,8 @@ def _glyphs(text: str, align: str) -> tuple[np.ndarray, int, int]:
     offset (down, right) of its top-left pixel from the (top, x) the line is drawn at.
 
     OpenImageIO renders a line the same at every whole-pixel anchor, so a label is drawn once
-    per process and copied after that: a project's previews draw ~600 lines, ~150 distinct
-    (0.3 s of ``render_text`` in the demo). The bytes are those of drawing in place (tested).
+    per process and copied after that: a project's previews draw the same lines many times
+    over. The bytes are those of drawing in place (tested).
     """
     from OpenImageIO import ImageBuf, ImageBufAlgo, ImageSpec
 

@@ -15,7 +15,7 @@ from sensaov_cli import __version__
 PROVENANCE_ATTRIBUTE = "sensaov/provenance"
 
 
-def made_by(command: str) -> dict[str, Any]:
+def made_by(command: str) -> dict[str, str]:
     """The fields every provenance record starts with: the tool, its version, the command."""
     return {"tool": "sensaov", "tool_version": __version__, "command": command}
 

@@ -8,35 +8,41 @@ its headline previews (each with its legend and scale) and the other passes fold
 appendix (rankings in full, the trust of every parameter, provenance). Every section records the
 buffer id and job version it was made from. Assembled from plain data (:class:`ReportContent`);
 :mod:`sensaov_cli.pipeline.report` gathers and checks that data.
+
+The previews it embeds are read back here (:func:`read_previews`): ``project --png`` wrote them,
+and anything may have happened to them since. A FIFO among them would block the report forever
+and a device never end: those are refused (exit 2, like any special input). A file that is not a
+whole PNG (empty, cut short, another format, too large to embed) is left out of the page, and
+the page says which and why.
 """
 
 from __future__ import annotations
 
 import base64
 import html
+import json
+import os
 import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from sensaov_cli.buffer.model import ParamRecord
+from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.limits import read_regular, regular_file
 from sensaov_cli.outputs.atomic import atomic_write
-from sensaov_cli.outputs.png import encode_png
-from sensaov_cli.outputs.report_tables import (
-    left_out_list,
-    provenance_table,
-    ranking_table,
-    rankings_html,
-    stamp_line,
-    trust_table,
-)
-from sensaov_cli.views.hierarchy import Ranking
+from sensaov_cli.outputs.png import png_problem
+from sensaov_cli.outputs.tables import LABEL_MEANINGS, SUSPECT_MARK, UNVERIFIED_MARK
+from sensaov_cli.views.hierarchy import Ranking, RankRow
 
 REPORT_FORMAT = "sensaov-report"
 REPORT_VERSION = 2  # 2: summary first, per-camera sections, appendix; buffer id per section
+# The provenance fields shown as a table; the whole record follows as JSON.
+SHOWN_PROVENANCE = ("tool_version", "mitsuba_version", "drjit_version", "variant", "spp",
+                    "max_depth", "primal_seed", "gradient_seeds", "resolution", "created_utc",
+                    "wall_time_s", "timings_s", "buffer_id", "run_version")  # fmt: skip
+_MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
+MAX_PREVIEW_BYTES = 64 << 20  # a preview is a few hundred kB; a page embeds every one
 _STYLE = """
 body{font:15px/1.45 system-ui,sans-serif;max-width:1280px;margin:1.5em auto;padding:0 1em;
 color:#222}h1{font-size:1.6em;margin:.2em 0}h2{margin-top:1.6em;border-bottom:1px solid #ccc}
@@ -50,6 +56,17 @@ td.n{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
 .cuts{display:flex;flex-wrap:wrap;gap:2em}.stamp{font-size:13px;color:#555}.note{color:#555}
 pre{background:#f6f6f6;padding:1em;overflow:auto;font-size:12px}summary{cursor:pointer}
 """
+
+
+@dataclass(frozen=True)
+class Stamp:
+    """Which buffer and job version a page was made from: every section repeats it."""
+
+    buffer_id: str
+    job_version: str  # the run version the buffer records (shortened), or "unrecorded"
+    job_hash: str  # of the job file as it is now (shortened)
+    made: str  # when the buffer was made (UTC)
+    samples: str  # "64 spp, 4 batch(es)"
 
 
 @dataclass(frozen=True)
@@ -91,20 +108,14 @@ class ReportContent:
 
     title: str
     question: str
-    stamp: Mapping[str, str]  # buffer id, job version, when, samples
+    stamp: Stamp
     primal: Picture | None
     objectives: tuple[ObjectiveSection, ...]
     cameras: tuple[CameraSection, ...]
     rankings: Mapping[str, tuple[Ranking, ...]]  # cut -> one full ranking per objective
-    params: tuple[ParamRecord, ...]
-    provenance: dict[str, Any]
+    buffer: SensitivityBuffer  # the appendix: its parameters' trust, its provenance
     absent: tuple[str, ...]  # the views this job does not ask for, said plainly
     ignored: tuple[str, ...] = ()  # previews no manifest lists: not shown
-
-
-def png_bytes(rgb_uint8: np.ndarray) -> bytes:
-    """An (H, W, 3) uint8 image as the bytes of a PNG file."""
-    return encode_png(rgb_uint8)
 
 
 def write_report(path: Path, content: ReportContent) -> None:
@@ -120,8 +131,11 @@ def write_report(path: Path, content: ReportContent) -> None:
 def report_html(content: ReportContent) -> str:
     """The whole page as one string."""
     title = html.escape(content.title)
-    stamp = {k: content.stamp[k] for k in ("buffer id", "job hash") if k in content.stamp}
-    attrs = " ".join(f'data-{k.replace(" ", "-")}="{html.escape(v)}"' for k, v in stamp.items())
+    stamp = content.stamp
+    attrs = (
+        f'data-buffer-id="{html.escape(stamp.buffer_id)}" '
+        f'data-job-hash="{html.escape(stamp.job_hash)}"'
+    )
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
@@ -141,7 +155,7 @@ def _summary(content: ReportContent) -> str:
     parts = [
         '<section id="summary">',
         f"<p><b>{html.escape(content.question)}</b></p>",
-        stamp_line(content.stamp),
+        _stamp_line(content.stamp),
         f'<div class="row">{primal}<div>{_objective_list(content.objectives)}</div></div>',
     ]
     for objective in content.objectives:
@@ -168,12 +182,12 @@ def _top(objective: ObjectiveSection) -> str:
     apart = ranking.untrusted == "apart"
     head = (
         f"<h3>Top objects{' (gradients sensaov stands behind)' if apart else ''}</h3>"
-        f"{ranking_table(ranking, ranking.rows)}"
+        f"{_ranking_table(ranking, ranking.rows)}"
     )
-    return head + left_out_list(ranking, objective.left_out)
+    return head + _left_out_list(ranking, objective.left_out)
 
 
-def _camera(section: CameraSection, stamp: Mapping[str, str]) -> str:
+def _camera(section: CameraSection, stamp: Stamp) -> str:
     name = html.escape(section.name)
     sees = (
         "no EXR: run 'sensaov project JOB'"
@@ -181,10 +195,10 @@ def _camera(section: CameraSection, stamp: Mapping[str, str]) -> str:
         else "sees " + (", ".join(sorted(section.visible)) or "nothing")
     )
     parts = [
-        f'<section id="camera-{name}" data-buffer-id="{html.escape(stamp.get("buffer id", ""))}">',
+        f'<section id="camera-{name}" data-buffer-id="{html.escape(stamp.buffer_id)}">',
         f"<h2>Camera {name}</h2>",
         f'<p class="note">{html.escape(sees)}</p>',
-        stamp_line(stamp),
+        _stamp_line(stamp),
     ]
     if section.note:
         parts.append(f'<p class="note">{html.escape(section.note)}</p>')
@@ -210,14 +224,14 @@ def _appendix(content: ReportContent) -> str:
         [
             '<section id="appendix">',
             "<h2>Appendix</h2>",
-            stamp_line(content.stamp),
+            _stamp_line(content.stamp),
             *notes,
             "<h3>Rankings in full</h3>",
-            rankings_html(content.rankings),
+            _rankings_html(content.rankings),
             "<h3>Trust of the buffer's parameters</h3>",
-            trust_table(content.params),
+            _trust_table(content.buffer.params),
             "<h3>Provenance</h3>",
-            provenance_table(content.provenance),
+            _provenance_table(content.buffer.provenance),
             "</section>",
         ]
     )
@@ -227,16 +241,201 @@ def _figure(picture: Picture) -> str:
     """A figure shown at 1:1 (width and height from the PNG), so its text keeps its size."""
     data = base64.b64encode(picture.png).decode("ascii")
     caption = html.escape(picture.caption)
-    size = _png_size(picture.png)
-    dims = f' width="{size[0]}" height="{size[1]}"' if size else ""
+    width, height = struct.unpack(">II", picture.png[16:24])  # IHDR, first in every PNG
     return (
         f'<figure class="{html.escape(picture.kind)}"><img src="data:image/png;base64,{data}"'
-        f'{dims} alt="{caption}"><figcaption>{caption}</figcaption></figure>'
+        f' width="{width}" height="{height}" alt="{caption}"><figcaption>{caption}</figcaption>'
+        "</figure>"
     )
 
 
-def _png_size(data: bytes) -> tuple[int, int] | None:
-    if len(data) < 24 or not data.startswith(b"\x89PNG"):
-        return None
-    width, height = struct.unpack(">II", data[16:24])
-    return int(width), int(height)
+def _stamp_line(stamp: Stamp) -> str:
+    """Which buffer and job version a section was made from, in one small line."""
+    text = (
+        f"buffer id {stamp.buffer_id} · job version (run) {stamp.job_version} · "
+        f"job hash {stamp.job_hash} · made {stamp.made} · samples {stamp.samples}"
+    )
+    return f'<p class="stamp">made from {html.escape(text)}</p>'
+
+
+def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], numeric: set[int]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
+    body = "".join(
+        "<tr>"
+        + "".join(
+            f'<td class="n">{html.escape(c)}</td>' if i in numeric else f"<td>{html.escape(c)}</td>"
+            for i, c in enumerate(row)
+        )
+        + "</tr>"
+        for row in rows
+    )
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -> str:
+    """Rows of one ranking: score, signed sum with its standard error, significance, share,
+    trust and off-frame cameras (columns as docs/rankings.md)."""
+    if not rows:
+        return '<p class="note">(none)</p>'
+    cameras = any(row.off_frame is not None for row in rows)
+    errors = r.batches is not None
+    trust = any(row.trust != "verified" for row in rows)  # every row verified: said once, below
+    headers = ["#", "", r.by, "score", "signed", *(["±", "sign"] * errors), "share",
+               *(["trust"] * trust), *(["off-frame"] * cameras)]  # fmt: skip
+    body = [
+        [str(row.rank), _MARKS.get(row.trust, "") + ("θ0" if row.zero_value else ""), row.name,
+         f"{row.score:.2e}", f"{row.signed:+.2e}",
+         *([_se(row.signed_se), _sign(row)] * errors), f"{100 * row.share:.1f}%",
+         *([row.trust] * trust), *([", ".join(row.off_frame or ()) or "-"] * cameras)]
+        for row in rows
+    ]  # fmt: skip
+    numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "signed", "±", "share")}
+    if not notes:
+        return _table(headers, body, numeric)
+    verified = "" if trust else '<p class="note">every row: verified gradients only.</p>'
+    return _table(headers, body, numeric) + verified + _significance(r)
+
+
+def _left_out_list(r: Ranking, keys: Mapping[str, tuple[ParamRecord, ...]]) -> str:
+    """What the headline ranking left out and why: per object, its untrusted parameters with
+    their labels and notes, and the parameters value weighting hides (θ = 0)."""
+    parts = []
+    if r.left_out:
+        items = "".join(
+            f"<li><b>{html.escape(row.name)}</b> (score {row.score:.2e}, signed "
+            f"{row.signed:+.2e}): "
+            + ", ".join(f"{html.escape(p.key)} ({p.trust})" for p in keys.get(row.name, ()))
+            + "</li>"
+            for row in r.left_out
+        )
+        notes = sorted({(p.trust, p.note) for found in keys.values() for p in found})
+        why = "".join(
+            f"<li>{html.escape(LABEL_MEANINGS.get(label, label))}"
+            f"{': ' + html.escape(note) if note else ''}</li>"
+            for label, note in notes
+        )
+        parts.append(
+            "<h3>Left out of the objects above</h3><p class=note>Gradients sensaov does not "
+            "stand behind are not added to any object or type; they are shown apart (their "
+            f"own layer <code>…_untrusted</code>, hatched):</p><ul>{items}</ul>"
+            f"<p class=note>Why:</p><ul class=note>{why}</ul>"
+        )
+    if r.zero_valued:
+        items = "".join(
+            f"<li>{html.escape(z.key)} ({html.escape(', '.join(z.owners) or '-')}): raw "
+            f"∂M/∂θ {z.raw_signed:+.3e}</li>"
+            for z in r.zero_valued
+        )
+        parts.append(
+            "<h3>Value 0: scored 0 whatever the gradient</h3><p class=note>θ·∂M/∂θ is 0 "
+            f"where θ = 0; their raw gradient says whether they matter:</p><ul>{items}</ul>"
+        )
+    if r.no_gradient:
+        parts.append(
+            f'<p class="note">{len(r.no_gradient)} parameter(s) with no gradient flowing are '
+            "never ranked (appendix: trust).</p>"
+        )
+    return "".join(parts)
+
+
+def _rankings_html(by_cut: Mapping[str, tuple[Ranking, ...]]) -> str:
+    """Every cut of every objective, all rows, the left-out rows beneath."""
+    objectives = [r.objective for r in next(iter(by_cut.values()), ())]
+    parts = []
+    for index, name in enumerate(objectives):
+        parts.append(f"<h4>objective {html.escape(name)}</h4><div class=cuts>")
+        for cut, found in by_cut.items():
+            r = found[index]
+            left = (
+                "<p class=note>left out (untrusted)</p>"
+                + _ranking_table(r, r.left_out, notes=False)
+                if r.left_out
+                else ""
+            )
+            rows = _ranking_table(r, r.rows, notes=False)
+            parts.append(f"<div><b>by {html.escape(cut)}</b>{rows}{left}</div>")  # fmt: skip
+        parts.append("</div>")
+    parts.append(
+        f'<p class="note">{UNVERIFIED_MARK} biased or unverified gradient, {SUSPECT_MARK} '
+        "suspect, θ0 value exactly 0; share: of the total sum of squares; columns: "
+        "docs/rankings.md</p>"
+    )
+    first = next((r for found in by_cut.values() for r in found), None)
+    if first is not None:
+        parts.append(_significance(first))
+    return "\n".join(parts)
+
+
+def _trust_table(params: Sequence[ParamRecord]) -> str:
+    rows = [[p.key, p.type, p.plugin, ", ".join(p.owners) or "-", p.trust, p.note] for p in params]
+    return _table(["key", "type", "plugin", "owners", "trust", "note"], rows, set())
+
+
+def _provenance_table(provenance: Mapping[str, Any]) -> str:
+    rows = [
+        [key, provenance[key] if isinstance(provenance[key], str) else json.dumps(provenance[key])]
+        for key in SHOWN_PROVENANCE
+        if key in provenance
+    ]
+    full = html.escape(json.dumps(provenance, indent=2, sort_keys=True))
+    return (
+        _table(["field", "value"], rows, set())
+        + f"<details><summary>all</summary><pre>{full}</pre></details>"
+    )
+
+
+def _se(se: float | None) -> str:
+    return "-" if se is None else f"{se:.1e}"
+
+
+def _sign(row: RankRow) -> str:
+    if row.significant is None:
+        return "-"
+    return "significant" if row.significant else "noise"
+
+
+def _significance(r: Ranking) -> str:
+    if r.significance is None:
+        return (
+            '<p class="note">no ±: this buffer has one batch; render.batches ≥ 2 (or a merge '
+            "of farm shards) gives standard errors and significance (docs/farm.md).</p>"
+        )
+    s = r.significance
+    return (
+        f'<p class="note">± standard error from {s.batches} batches; sign significant when 0 '
+        f"lies outside ±{s.factor:.2f} SE (Student's t, {s.dof} dof, "
+        f"{100 * s.level:.0f} %).</p>"
+    )
+
+
+def read_previews(output: Path, folder: Path) -> tuple[dict[str, bytes], dict[str, str]]:
+    """The ``*.png`` files under ``folder`` (links to folders not followed), by their path
+    relative to ``output``: the whole PNGs' bytes, and why each other one is left out."""
+    whole: dict[str, bytes] = {}
+    left_out: dict[str, str] = {}
+    for path in _png_files(folder):
+        name = str(path.relative_to(output))
+        if not path.exists():
+            left_out[name] = "a link to a file that does not exist"
+            continue
+        size = regular_file(path, "preview")
+        if size > MAX_PREVIEW_BYTES:
+            left_out[name] = f"{size >> 20} MiB, too large to embed"
+            continue
+        data = read_regular(path, "preview", cap=MAX_PREVIEW_BYTES)
+        problem = png_problem(data)
+        if problem is None:
+            whole[name] = data
+        else:
+            left_out[name] = problem
+    return whole, left_out
+
+
+def _png_files(folder: Path) -> list[Path]:
+    if not folder.is_dir():
+        return []
+    found = []
+    for root, folders, files in os.walk(folder):  # links to folders are listed, not entered
+        folders.sort()
+        found += [Path(root) / name for name in sorted(files) if name.endswith(".png")]
+    return found

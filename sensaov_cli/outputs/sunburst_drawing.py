@@ -223,20 +223,12 @@ def _legend(fig: Figure, order: str, encoding: str) -> None:
     bar.set_ticks([-1, 0, 1], labels=["lowers M", "0", "raises M"])
     bar.ax.tick_params(labelsize=FONT_PT)
     bar.ax.set_title("colour: Σc / largest |Σc| in its ring", fontsize=FONT_PT)
-    hatched = Patch(
-        facecolor="white",
-        edgecolor="#444444",
-        hatch=_HATCH,
-        label="not trusted: apart from its group",
-    )
-    noisy = Patch(
-        facecolor="white",
-        edgecolor="#444444",
-        hatch=_NOISE_HATCH,
-        label="sign within noise (95 %, Student t)",
-    )
+    marks = {_HATCH: "not trusted: apart from its group",
+             _NOISE_HATCH: "sign within noise (95 %, Student t)"}  # fmt: skip
     fig.legend(
-        handles=[hatched, noisy],
+        handles=[
+            Patch(facecolor="white", edgecolor="#444444", hatch=h, label=marks[h]) for h in marks
+        ],
         loc="lower left",
         bbox_to_anchor=(0.5, 0.045),
         fontsize=FONT_PT,

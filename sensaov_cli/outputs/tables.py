@@ -1,7 +1,7 @@
 """What a terminal shows and ``rank``/``run`` print: the summary's text and JSON, aligned tables.
 
-One aligned-table function serves them, ``params`` (params_table.py) and ``check``'s tables
-(check_tables.py); the summary's text and its JSON document are both written from one
+One aligned-table function serves them, ``params`` (parameter_tables.py) and ``check``'s tables
+(parameter_tables.py); the summary's text and its JSON document are both written from one
 :class:`~sensaov_cli.views.hierarchy.Summary`, so text and JSON always agree.
 Plain text only: no colour, no box drawing, so logs and farm consoles read it as it is.
 """

@@ -21,7 +21,8 @@ import numpy as np
 from sensaov_cli.outputs.atomic import atomic_write_all
 from sensaov_cli.outputs.contact_sheets import enlarged
 from sensaov_cli.outputs.exr import exr_writer
-from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, write_png
+from sensaov_cli.outputs.png import write_png
+from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.views.pooling import white_noise_factor
 from sensaov_cli.views.texels import TexelField, TexelPass

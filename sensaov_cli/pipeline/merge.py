@@ -18,9 +18,13 @@ from sensaov_cli.buffer.npz import buffer_writer, read_buffer
 from sensaov_cli.buffer.shards import Shard, merge_shards, shard_task
 from sensaov_cli.buffer.statistics import weighted_mean
 from sensaov_cli.errors import MergeError, SensaovError
-from sensaov_cli.outputs.atomic import atomic_write_all, check_writable
+from sensaov_cli.outputs.atomic import (
+    atomic_write_all,
+    check_writable,
+    recorded_inputs,
+    refuse_unsafe_outputs,
+)
 from sensaov_cli.outputs.exr import exr_writer, read_exr
-from sensaov_cli.outputs.overwrite import recorded_inputs, refuse_unsafe_outputs
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
 

@@ -100,7 +100,7 @@ def _visible(
 ) -> dict[str, frozenset[str]]:
     """What each camera's EXR sees, each EXR checked to come from this very buffer."""
     # Imported here: only --exr needs them, and the job spec they load costs every rank time.
-    from sensaov_cli.outputs.frames import visible_objects
+    from sensaov_cli.outputs.cryptomatte import visible_objects
     from sensaov_cli.pipeline.consistency import check_made_from
 
     def made_from_this_buffer(path: Path, header: Mapping[str, Any]) -> None:

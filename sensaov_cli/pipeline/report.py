@@ -22,13 +22,15 @@ from sensaov_cli.buffer.model import SensitivityBuffer, buffer_id, provenance_id
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import OutputError, SensaovError, StaleInputError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
-from sensaov_cli.outputs.atomic import check_writable
+from sensaov_cli.outputs.atomic import (
+    check_writable,
+    file_token,
+    recorded_inputs,
+    refuse_unsafe_outputs,
+)
+from sensaov_cli.outputs.cryptomatte import seen_names
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.outputs.frames import seen_names
-from sensaov_cli.outputs.names import file_token
-from sensaov_cli.outputs.overwrite import recorded_inputs, refuse_unsafe_outputs
-from sensaov_cli.outputs.png import read_png_text
-from sensaov_cli.outputs.preview_files import read_previews
+from sensaov_cli.outputs.png import encode_png, read_png_text
 from sensaov_cli.outputs.previews import srgb_uint8
 from sensaov_cli.outputs.provenance import header_provenance
 from sensaov_cli.outputs.report_html import (
@@ -36,7 +38,8 @@ from sensaov_cli.outputs.report_html import (
     ObjectiveSection,
     Picture,
     ReportContent,
-    png_bytes,
+    Stamp,
+    read_previews,
     write_report,
 )
 from sensaov_cli.outputs.sunburst_drawing import sunburst_bytes
@@ -97,8 +100,7 @@ def make_report(job: JobSpec, path: Path | None = None) -> Path:
             )
             for by in ("object", "type", "key")
         },  # fmt: skip
-        params=buf.params,
-        provenance=buf.provenance,
+        buffer=buf,
         absent=_absent(job),
         ignored=_ignored(folder, listed, broken),
     )
@@ -269,16 +271,16 @@ def _question(job: JobSpec, buf: SensitivityBuffer) -> str:
     return f"Which parts of {job.scene.name} matter for {names}?"
 
 
-def _stamp(job: JobSpec, buf: SensitivityBuffer) -> dict[str, str]:
+def _stamp(job: JobSpec, buf: SensitivityBuffer) -> Stamp:
     made = buf.provenance
     batches = buf.statistics.batches if buf.statistics is not None else 1
-    return {
-        "buffer id": buffer_id(buf),
-        "job version (run)": (run_version(buf) or "unrecorded")[:12],
-        "job hash": job.job_hash()[:12],
-        "made": str(made.get("created_utc", "?")),
-        "samples": f"{made.get('spp', '?')} spp, {batches} batch(es)",
-    }
+    return Stamp(
+        buffer_id=buffer_id(buf),
+        job_version=(run_version(buf) or "unrecorded")[:12],
+        job_hash=job.job_hash()[:12],
+        made=str(made.get("created_utc", "?")),
+        samples=f"{made.get('spp', '?')} spp, {batches} batch(es)",
+    )
 
 
 def _absent(job: JobSpec) -> tuple[str, ...]:
@@ -306,4 +308,4 @@ def _primal(path: Path, buf: SensitivityBuffer) -> Picture | None:
     if len(linear) != 3:
         return None
     rgb = srgb_uint8(np.stack(linear, axis=-1))
-    return Picture(f"{path.name} (clipped to [0, 1], sRGB)", png_bytes(rgb), kind="primal")
+    return Picture(f"{path.name} (clipped to [0, 1], sRGB)", encode_png(rgb), kind="primal")

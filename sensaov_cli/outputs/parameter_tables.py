@@ -1,14 +1,19 @@
-"""What ``sensaov params`` prints: the selected parameters, what was left out, and why.
+"""What ``sensaov params`` and ``sensaov check`` print: a scene's parameters, and their checks.
 
-The text and ``--json`` come from one :class:`ParameterInventory`, so they always agree; the
-aligned table is tables.py's. Plain text only, like every terminal table.
+``params``: the selected parameters, what was left out, and why; its text and ``--json`` come
+from one :class:`ParameterInventory`, so they always agree. ``check``: reverse mode against
+finite differences, and duality; the rows are the render stage's check results, read through the
+protocols below so that this stage never imports the renderer. The aligned table is tables.py's.
+Plain text only, like every terminal table.
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, Protocol
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
 from sensaov_cli.outputs.tables import format_table
@@ -17,6 +22,9 @@ _PARAMS_NOTES = {
     "unverified": "UNVERIFIED", "biased": "BIASED", "suspect": "SUSPECT",
     "no_gradient": "NO GRADIENT",
 }  # fmt: skip
+# The keys of a selected parameter in params --json, in the order they always had.
+_SELECTED_KEYS = ("key", "type", "owners", "plugin", "shape", "is_texture", "flags", "verified",
+                  "trust", "note", "texture_file", "converted", "estimator", "repair")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -37,37 +45,26 @@ class ParameterInventory:
 
 def params_dict(loaded: ParameterInventory) -> dict[str, Any]:
     """What ``sensaov params --json`` prints (docs/job-spec.md)."""
+    selected = []
+    for record in loaded.selected:
+        texture = loaded.textures.get(record.key)
+        entry = asdict(record) | {
+            "verified": record.verified,
+            "texture_file": texture.file if texture else None,
+            "converted": texture.converted if texture else False,
+            "repair": loaded.repairs.get(record.key),
+        }
+        selected.append({key: entry[key] for key in _SELECTED_KEYS})
     return {
         "variant": loaded.variant,
         "objects": list(loaded.objects),
-        "selected": [
-            {
-                **_selected_entry(info, loaded.textures.get(info.key)),
-                "estimator": info.estimator,
-                "repair": loaded.repairs.get(info.key),
-            }
-            for info in loaded.selected
-        ],
+        "selected": selected,
         "excluded": [asdict(item) for item in loaded.excluded],
         "split_bsdfs": {name: list(shapes) for name, shapes in loaded.split.items()},
         "scene_changes": [
             {"what": what, "why": why, "where": where, "alters_image": alters}
             for what, why, where, alters in loaded.changes
         ],
-    }
-
-
-def _selected_entry(record: ParamRecord, texture: TextureSource | None) -> dict[str, Any]:
-    entry = asdict(record)
-    plugin = entry.pop("plugin")  # the order these keys always had in params --json
-    return {
-        **{key: entry[key] for key in ("key", "type", "owners")},
-        "plugin": plugin,
-        **{key: entry[key] for key in ("shape", "is_texture", "flags")},
-        "verified": record.verified,
-        **{key: entry[key] for key in ("trust", "note")},
-        "texture_file": texture.file if texture else None,
-        "converted": texture.converted if texture else False,
     }
 
 
@@ -163,3 +160,114 @@ def _excluded(loaded: ParameterInventory, show_all: bool) -> list[str]:
         else:
             lines.append(f"  {reason}: {len(keys)} keys (e.g. {keys[0]}; --all lists them)")
     return lines
+
+
+class GradientRow(Protocol):
+    """One row of ``check``'s finite-difference table (the render stage's GradientCheck)."""
+
+    @property
+    def key(self) -> str: ...
+    @property
+    def plugin(self) -> str: ...
+    @property
+    def type(self) -> str: ...
+    @property
+    def adjoint(self) -> float: ...
+    @property
+    def finite_difference(self) -> float: ...
+    @property
+    def standard_error(self) -> float: ...
+    @property
+    def verdict(self) -> str: ...
+    @property
+    def method(self) -> str: ...
+    @property
+    def claimed_verified(self) -> bool: ...
+    @property
+    def claimed(self) -> str: ...
+
+
+class DualityRow(Protocol):
+    """One row of ``check``'s duality table (the render stage's DualityCheck)."""
+
+    @property
+    def objective(self) -> str: ...
+    @property
+    def key(self) -> str: ...
+    @property
+    def direction(self) -> str: ...
+    @property
+    def trust(self) -> str: ...
+    @property
+    def reverse(self) -> float: ...
+    @property
+    def forward(self) -> float: ...
+    @property
+    def central(self) -> float | None: ...
+    @property
+    def tolerance(self) -> float: ...
+    @property
+    def duality_error(self) -> float: ...
+    @property
+    def central_error(self) -> float | None: ...
+    @property
+    def central_asked(self) -> bool: ...
+    @property
+    def verdict(self) -> str: ...
+
+
+def checks_text(checks: Sequence[GradientRow]) -> str:
+    rows = [
+        ("key", "plugin", "type", "table", "method", "adjoint", "finite diff", "std err", "verdict")
+    ]
+    for c in checks:
+        rows.append(
+            (
+                c.key,
+                c.plugin,
+                c.type,
+                c.claimed,  # the table's own label: biased kinds say biased
+                c.method,
+                f"{c.adjoint:+.3e}",
+                f"{c.finite_difference:+.3e}",
+                "-" if c.method == "same seed" else f"{c.standard_error:.1e}",
+                c.verdict
+                + (
+                    "  <-- CONTRADICTS THE TABLE"
+                    if c.claimed_verified and c.verdict == "disagrees"
+                    else ""
+                ),
+            )
+        )
+    return "\n".join(format_table(rows))
+
+
+def duality_text(rows: Sequence[DualityRow], buffer: Path, fd_tolerance: float) -> str:
+    """The duality column of ``check``: the buffer against forward mode and central differences."""
+    head = (
+        f"duality at the buffer's gradient seeds ({buffer}): forward <dM/dI, Jv> vs stored "
+        f"<g, v> (tolerance {rows[0].tolerance:.1e} at this size); central differences of "
+        f"the image at the same seed (tolerance {fd_tolerance:.0%}; n/a: discontinuous parameter)"
+    )
+    table = [
+        ("objective", "key", "v", "trust", "<g,v>", "forward", "err", "central", "err", "verdict")
+    ]
+    for d in rows:
+        central = "n/a" if d.central is None else f"{d.central:+.4e}"
+        central = central if d.central_asked else "(--full)"
+        error = "" if d.central_error is None else f"{d.central_error:.1e}"
+        table.append(
+            (
+                d.objective,
+                d.key,
+                d.direction,
+                d.trust,
+                f"{d.reverse:+.4e}",
+                f"{d.forward:+.4e}",
+                f"{d.duality_error:.1e}",
+                central,
+                error,
+                d.verdict,
+            )  # fmt: skip
+        )
+    return "\n".join([head, *format_table(table)])
