@@ -72,7 +72,10 @@ def read_buffer(path: Path | str, *, lazy: bool = False) -> SensitivityBuffer:
             raise _Malformed("not a regular file", _FOREIGN)
         file = path.open("rb")
         try:
-            _require_zip(file.read(4))
+            magic = file.read(4)
+            if magic not in _ZIP_MAGICS:
+                problem = "not an .npz (zip) archive" if magic else "the file is empty"
+                raise _Malformed(f"not a sensaov buffer: {problem}", _FOREIGN)
             archive = Archive(file)
             buffer = _read_archive(archive, (lambda: _reading(path)) if lazy else None)
         except BaseException:
@@ -220,7 +223,6 @@ class _Malformed(ValueError):
 
 
 def _inconsistent(message: str) -> _Malformed:
-    """The archive, its storage and its members disagree; the message says how."""
     return _Malformed(f"inconsistent buffer: {message}")
 
 
@@ -251,14 +253,6 @@ def _npy_header(stream: IO[bytes]) -> tuple[tuple[int, ...], np.dtype, bool]:
     else:
         shape, fortran, dtype = np.lib.format.read_array_header_2_0(stream)
     return tuple(shape), dtype, fortran
-
-
-def _require_zip(data: bytes) -> None:
-    magic = data[:4]
-    if not magic:
-        raise _Malformed("not a sensaov buffer: the file is empty", _FOREIGN)
-    if magic not in _ZIP_MAGICS:
-        raise _Malformed("not a sensaov buffer: not an .npz (zip) archive", _FOREIGN)
 
 
 _READ_ERRORS = (
@@ -372,7 +366,7 @@ class Archive:
     def float32(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
         """A float32 member of ``shape``, finite, native and C-contiguous (read once)."""
         if name not in self._read:
-            arr = self._float(name, shape, "f4")
+            arr = self.floats(name, shape, "f4")
             if not np.isfinite(arr).all():
                 raise _inconsistent(f"array {name!r} holds NaN or infinity")
             if not arr.flags.c_contiguous or not arr.dtype.isnative:
@@ -381,10 +375,7 @@ class Archive:
             self._read[name] = arr
         return self._read[name]
 
-    def float64(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
-        return self._float(name, shape, "f8")
-
-    def _float(self, name: str, shape: tuple[int, ...], kind: str) -> np.ndarray:
+    def floats(self, name: str, shape: tuple[int, ...], kind: str = "f8") -> np.ndarray:
         def check(declared: tuple[int, ...], dtype: np.dtype) -> None:
             _check_shape(name, shape, declared)
             if dtype.kind + str(dtype.itemsize) != kind:
@@ -438,7 +429,7 @@ def _read_archive(archive: Archive, guard: Guard | None) -> SensitivityBuffer:
         values=values,
         grads=grads,
         statistics=statistics,
-        repairs=_repairs(header["repairs"]),
+        repairs={str(k): _repair(e, f"repairs[{k!r}]") for k, e in header["repairs"].items()},
         sums=sums,
         _copy_arrays=False,  # checked here as they are read, and read-only
     )
@@ -516,9 +507,9 @@ def _read_sums(
     if VALUE_MEANS_MEMBER not in members.members:
         return None
     count = len(params)
-    tables = {n: members.float64(_packed("sums", j), (count, len(SUMS_COLUMNS)))
+    tables = {n: members.floats(_packed("sums", j), (count, len(SUMS_COLUMNS)))
               for j, n in enumerate(names)}  # fmt: skip
-    means = members.float64(VALUE_MEANS_MEMBER, (count,))
+    means = members.floats(VALUE_MEANS_MEMBER, (count,))
     if not all(np.isfinite(a).all() for a in [*tables.values(), means]):
         raise _inconsistent("parameter sums hold NaN or infinity")
     return ParamSums(tuple(p.key for p in params), tables, means)
@@ -687,19 +678,12 @@ def _read_statistics(
         seeds=tuple(entry["seeds"]),
         objective_values={k: tuple(float(x) for x in v) for k, v in values.items()},
         stderr=stderr,
-        batch_sums={
-            n: members.float64(_packed("batchsums", j), shape) for j, n in enumerate(names)
-        },
+        batch_sums={n: members.floats(_packed("batchsums", j), shape) for j, n in enumerate(names)},
     )
 
 
 _REPAIR_FIELDS = ("reason", "step", "spp", "seeds", "one_sided", "estimates", "reverse",
                   "seconds")  # fmt: skip
-
-
-def _repairs(entry: Any) -> dict[str, Repair]:
-    """The header's ``repairs`` (key -> record); anything malformed names the record."""
-    return {str(key): _repair(e, f"repairs[{key!r}]") for key, e in entry.items()}
 
 
 def _repair(entry: Any, where: str) -> Repair:
