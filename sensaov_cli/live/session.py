@@ -1,15 +1,11 @@
 """``sensaov view``: the buffer and the scene loaded once, then any viewpoint on request.
 
 Deferred shading made interactive (§2, §3 "Binding", Fig. 6): each view is one
-primary-visibility pass from a free camera (:mod:`sensaov_cli.render.viewpoint`, one compiled
-kernel for every pose) plus painting from the stored buffer (:mod:`.inspection`); no derivative
-is ever computed. :class:`ViewSession` answers the typed requests of :mod:`.query` with typed
-answers, which the server (:mod:`.server`) writes. What it can paint (:class:`Sources`): the
-job's channels, a select query typed in the page (on first use), the texel panels, and the
-forward and transport layers beside the buffer, images of the objective camera that no other
-viewpoint can re-project (§4, §7). The "shared" scale is ``sensaov project``'s
-(:class:`JobScales`). Renders run one at a time (one lock): the renderer is not re-entrant,
-and one user's page sends one request at a time anyway.
+primary-visibility pass from a free camera (one compiled kernel for every pose) plus painting
+from the stored buffer; no derivative is ever computed. The forward and transport layers are
+images of the objective camera that no other viewpoint can re-project (§4, §7). Renders run one
+at a time (one lock): the renderer is not re-entrant, and one user's page sends one request at
+a time anyway.
 """
 
 from __future__ import annotations
@@ -313,10 +309,8 @@ def _cameras(job: JobSpec, loaded: LoadedScene, bounds: tuple[Vec3, Vec3]) -> li
             continue
         sensor = loaded.inspection_sensors[camera.name]
         size = sensor.film().crop_size()
-        if camera.look_at is not None:
-            pose = Pose(camera.look_at, camera.fov)
-        else:
-            pose = sensor_pose(mi, sensor, bounds)
+        look_at = camera.look_at
+        pose = Pose(look_at, camera.fov) if look_at is not None else sensor_pose(mi, sensor, bounds)
         found.append(NamedPose(camera.name, pose, (int(size[0]), int(size[1]))))
     return found
 
@@ -373,12 +367,9 @@ class Sources:
 
     def find(self, objective: str, channel: str) -> Source:
         self.buffer.objective(objective)  # UnknownNameError (HTTP 400) names the known ones
-        if (objective, channel) in self.painted:
-            return self.painted[(objective, channel)]
-        if (objective, channel) in self.texels:
-            return self.texels[(objective, channel)]
-        if (objective, channel) in self.images:
-            return self.images[(objective, channel)]
+        for table in (self.painted, self.texels, self.images):
+            if (objective, channel) in table:
+                return table[(objective, channel)]
         if channel.startswith(SELECT_PREFIX):
             return self._query(objective, channel)
         raise UnknownNameError("channel", channel, [*self.names(), f"{SELECT_PREFIX}<glob>"])
