@@ -13,15 +13,12 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.queries import combine, key_stats, rank
-from sensaov_cli.outputs.exr import encode_exr
-from sensaov_cli.outputs.png import encode_png
 from sensaov_cli.outputs.previews import BACKGROUND, diverging_rgb
 from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass
@@ -348,18 +345,3 @@ def view_rgb(display: np.ndarray, coverage: np.ndarray, unverified: np.ndarray) 
     alpha = np.clip(coverage, 0.0, 1.0)[..., None]
     blended = alpha * colour + (1.0 - alpha) * np.array(BACKGROUND, np.float64)
     return np.rint(blended).astype(np.uint8)
-
-
-def view_png(shown: InspectionView, text: Mapping[str, str]) -> bytes:
-    """The view as a PNG, fast to compress (a view lives for one look)."""
-    return encode_png(view_rgb(shown.display, shown.coverage, shown.unverified), text, level=1)
-
-
-def view_exr(layer: str, shown: InspectionView, attributes: Mapping[str, str]) -> bytes:
-    """The raw layer ``<layer>.Y`` (linear, in the channel's units) as a one-layer EXR."""
-    return encode_exr({f"{layer}.Y": shown.values}, dict(attributes))
-
-
-def id_map_bytes(rank_index: np.ndarray) -> bytes:
-    """Per pixel, the index of the object with the most coverage (-1: none), int32 LE."""
-    return np.ascontiguousarray(rank_index[..., 0], dtype="<i4").tobytes()

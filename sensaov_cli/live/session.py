@@ -31,15 +31,15 @@ from sensaov_cli.live.inspection import (
     InspectionView,
     Legend,
     ObjectSummary,
-    id_map_bytes,
     object_summary,
     paint_image,
     paint_texel,
     paint_view,
-    view_exr,
-    view_png,
+    view_rgb,
 )
 from sensaov_cli.live.query import PickRequest, ViewRequest, view_request
+from sensaov_cli.outputs.exr import encode_exr
+from sensaov_cli.outputs.png import encode_png
 from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.pipeline.consistency import check_buffer_of_job
 from sensaov_cli.pipeline.project import (
@@ -166,13 +166,16 @@ class ViewSession:
     def view(self, request: ViewRequest) -> Picture:
         start = time.perf_counter()
         visibility, shown = self._paint(request)
-        if request.format == "ids":
-            body, kind = id_map_bytes(visibility.rank_index), "application/octet-stream"
-        elif request.format == "exr":
-            layer = f"{request.objective}.{_token(request.channel)}"
-            body, kind = view_exr(layer, shown, self._describe(request, shown)), "image/x-exr"
-        else:
-            body, kind = view_png(shown, self._describe(request, shown)), "image/png"
+        if request.format == "ids":  # per pixel, the most covering object's index (-1: none)
+            body = np.ascontiguousarray(visibility.rank_index[..., 0], dtype="<i4").tobytes()
+            kind = "application/octet-stream"
+        elif request.format == "exr":  # the raw layer, linear, in the channel's units
+            token = "".join(c if c.isalnum() or c == "_" else "_" for c in request.channel)
+            layer = {f"{request.objective}.{token}.Y": shown.values}
+            body, kind = encode_exr(layer, self._describe(request, shown)), "image/x-exr"
+        else:  # fast to compress: a view lives for one look
+            rgb = view_rgb(shown.display, shown.coverage, shown.unverified)
+            body, kind = encode_png(rgb, self._describe(request, shown), level=1), "image/png"
         ms = 1000 * (time.perf_counter() - start)
         return Picture(body, kind, shown.legend, (visibility.width, visibility.height), ms)
 
@@ -320,10 +323,6 @@ def _direction(pose: Pose) -> tuple[float, ...]:
     d = [t - o for t, o in zip(look.target, look.origin, strict=True)]
     norm = sum(v * v for v in d) ** 0.5
     return tuple(v / norm for v in d)
-
-
-def _token(name: str) -> str:
-    return "".join(c if c.isalnum() or c == "_" else "_" for c in name)
 
 
 class Sources:
