@@ -167,8 +167,9 @@ class SensitivityBuffer:
         set_(
             self, "grads", MappingProxyType({n: MappingProxyType(g) for n, g in self.grads.items()})
         )
-        if self.statistics is not None:
-            self._check_statistics(self.statistics)
+        statistics = self.statistics  # a header names its batch values' objectives
+        if statistics is not None and sorted(statistics.objective_values) != sorted(self._by_name):
+            raise BufferContentError("batch values: objectives differ")
         self._check_repairs()
         set_(self, "repairs", MappingProxyType(dict(self.repairs)))
 
@@ -196,15 +197,6 @@ class SensitivityBuffer:
                     raise NonFiniteGradientError(name, p.key, bad, copied[p.key].size)
             grads[name] = copied
         return grads
-
-    def _check_statistics(self, statistics: Statistics) -> None:
-        """Statistics of these objectives (a file's header names them)."""
-        names = sorted(o.name for o in self.objectives)
-        by_objective = (("statistics", statistics.stderr), ("batch sums", statistics.batch_sums),
-                        ("batch values", statistics.objective_values))  # fmt: skip
-        for what, named in by_objective:
-            if sorted(named) != names:
-                raise BufferContentError(f"{what}: objectives differ")
 
     def _check_repairs(self) -> None:
         extra = sorted(set(self.repairs) - set(self._by_key))
