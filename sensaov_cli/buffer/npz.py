@@ -462,17 +462,15 @@ def _arrays(
                     if index is not None:
                         members.declared(_texture(kind, index), shape)
 
-    def value(key: str) -> np.ndarray:
-        shape, slot = at[key]
-        if slot.offset is not None:
-            return _slice(members.float32("values", (size,)), slot.offset, shape)
-        return members.float32(_texture("texture", slot.value), shape)
-
     def resolver(kind: str, texture: str, j: int) -> Callable[[str], np.ndarray]:
+        packed = _packed(kind, j) if kind != "values" else kind
+
         def resolve(key: str) -> np.ndarray:
             shape, slot = at[key]
             if slot.offset is not None:
-                arr = _slice(members.float32(_packed(kind, j), (size,)), slot.offset, shape)
+                arr = _slice(members.float32(packed, (size,)), slot.offset, shape)
+            elif kind == "values":
+                arr = members.float32(_texture(texture, slot.value), shape)
             else:
                 index = (slot.grads if kind == "grads" else slot.stderrs)[j]
                 arr = members.zeros(shape) if index is None else members.float32(
@@ -486,7 +484,7 @@ def _arrays(
     keys = tuple(at)
     made: dict[str, dict[str, Mapping[str, np.ndarray]]] = {kind: {} for kind, _ in kinds}
     lazy = guard or nullcontext
-    values: Mapping[str, np.ndarray] = _LazyArrays(keys, value, lazy)
+    values: Mapping[str, np.ndarray] = _LazyArrays(keys, resolver("values", "texture", 0), lazy)
     for kind, texture in kinds:
         for j, name in enumerate(names):
             made[kind][name] = _LazyArrays(keys, resolver(kind, texture, j), lazy)
