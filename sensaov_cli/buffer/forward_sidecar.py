@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -70,7 +70,7 @@ class ForwardData:
     provenance: dict[str, Any]
     adjoints: dict[str, np.ndarray]  # objective -> dM/dI at the primal, (H, W, C)
     passes: tuple[ForwardPass, ...] = ()
-    layers: tuple[ForwardLayer, ...] = field(default_factory=tuple)
+    layers: tuple[ForwardLayer, ...] = ()
 
 
 def ties_of(buffer: SensitivityBuffer) -> dict[str, str]:

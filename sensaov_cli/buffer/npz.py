@@ -60,12 +60,8 @@ Guard = Callable[[], AbstractContextManager[object]]  # turns a late read's erro
 
 
 def read_buffer(path: Path | str, *, lazy: bool = False) -> SensitivityBuffer:
-    """Read a buffer; any unreadable or inconsistent file raises BufferFormatError.
-
-    Every member is read and checked now, unless ``lazy``: then a texture's member is read, and
-    its CRC checked, when a view first asks for its array, and a rank that needs only each
-    parameter's sums never reads it.
-    """
+    """Read a buffer (``lazy``: texture members on first use, see the module docstring); any
+    unreadable or inconsistent file raises BufferFormatError."""
     path = Path(path)
     with _reading(path):
         if not stat.S_ISREG(os.stat(path).st_mode):  # a FIFO would block, a device never end
@@ -443,9 +439,8 @@ def _arrays(
     with_stderr: bool,
     guard: Guard | None,
 ) -> tuple[Mapping[str, np.ndarray], dict[str, Mapping[str, np.ndarray]], Any]:
-    """Values, gradients and standard errors (or None) by key: the packed members are read now
-    and every texture member's declared shape checked; a texture member is read on first use
-    (all of them now without a ``guard``)."""
+    """Values, gradients and standard errors (or None) by key; every texture member's declared
+    shape is checked now, its data read on first use (now, without a ``guard``)."""
     size = sum(math.prod(p.shape) for p, slot in zip(params, slots, strict=True)
                if slot.offset is not None)  # fmt: skip
     kinds = [("grads", "texgrad")] + [("stderrs", "texstderr")] * with_stderr

@@ -147,13 +147,13 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
 
 def _check_alike(shards: Sequence[Shard]) -> None:
     first = shards[0]
-    seen: dict[Path, Path] = {}
+    seen: set[Path] = set()
     for shard in shards:
         where = str(shard.path)
         resolved = shard.path.resolve()
         if resolved in seen:
             raise MergeError("the same file is given twice", where=where)
-        seen[resolved] = shard.path
+        seen.add(resolved)
         made, reference = shard.buffer.provenance, first.buffer.provenance
         for field, what in (("scene_fingerprint", "scene"), ("job_hash", "job")):
             if made.get(field) != reference.get(field):
