@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,11 +28,9 @@ FORMAT_NAME = "sensaov-forward"
 FORMAT_VERSION = 1
 HEADER = "header"
 TIES = ("job_hash", "scene_fingerprint", "created_utc")  # buffer provenance the sidecar repeats
-# Forward/reverse duality at one seed holds up to float32 rounding. The forward side sums
-# per-pixel tangents in float64 (numpy); the backward pass sums one gradient over every sample
-# in float32, whose rounding grows as sqrt(samples) · 2^-24: measured 1e-7 at 24²·16 spp, 1.0 to
-# 3.3e-4 at 128²·64 spp on one thread (docs/verification.md). The tolerance is the larger of
-# 1e-4 and 16 times that rounding.
+# Forward/reverse duality at one seed holds up to float32 rounding: the backward pass sums one
+# gradient over every sample in float32, whose rounding grows as sqrt(samples) · 2^-24
+# (docs/verification.md). The tolerance is the larger of 1e-4 and 16 times that rounding.
 DUALITY_FLOOR = 1e-4
 ROUNDING_MARGIN = 16.0
 
@@ -72,7 +70,7 @@ class ForwardData:
     provenance: dict[str, Any]
     adjoints: dict[str, np.ndarray]  # objective -> dM/dI at the primal, (H, W, C)
     passes: tuple[ForwardPass, ...] = ()
-    layers: tuple[ForwardLayer, ...] = field(default_factory=tuple)
+    layers: tuple[ForwardLayer, ...] = ()
 
 
 def ties_of(buffer: SensitivityBuffer) -> dict[str, str]:

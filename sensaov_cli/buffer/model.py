@@ -1,15 +1,13 @@
 """The sensitivity buffer: dM/dθ for every selected scene parameter, per objective (§2).
 
 One reverse-mode pass per objective fills it; every view afterwards is a re-projection of the
-stored buffer, never a second differentiation. Its file format is buffer/npz.py's
-(``docs/buffer-format.md``), which validates what it reads; the records here trust their
-types. This module needs numpy only: loading a buffer never imports Mitsuba.
+stored buffer, never a second differentiation. Its file format is buffer/npz.py's, which
+validates what it reads; the records here trust their types.
 
 Which buffer an output was made from: every buffer ``run`` or ``merge`` writes carries a fresh
-random ``buffer_id`` in its provenance, and ``run_version``: the hash of what ``run`` read of the
-job (``JobSpec.run_hash``). Every output made from a buffer (EXRs, previews, the report) records
-both, so a command that reads outputs together refuses to mix two states
-(docs/buffer-format.md, "Identity").
+random ``buffer_id`` in its provenance, and ``run_version`` (``JobSpec.run_hash``). Every output
+made from a buffer records both, so a command that reads outputs together refuses to mix two
+states (docs/buffer-format.md, "Identity").
 """
 
 from __future__ import annotations
@@ -126,10 +124,9 @@ class SensitivityBuffer:
     """Per objective, dM/dθ for every selected parameter, with values, owners and provenance.
 
     Construction copies every array to a read-only C-contiguous float32 array and refuses an
-    inconsistent buffer (:class:`BufferContentError`) or a NaN/inf gradient
-    (:class:`NonFiniteGradientError`), so a stored buffer is always complete and finite. With
-    ``_copy_arrays=False`` the arrays are taken as given: the reader's, checked as it read them
-    (and read on first use where it reads lazily), or those of a buffer already built.
+    inconsistent buffer or a NaN/inf gradient, so a stored buffer is always complete and finite.
+    With ``_copy_arrays=False`` the arrays are taken as given: the reader's, checked as it read
+    them, or those of a buffer already built.
     """
 
     provenance: dict[str, Any]
@@ -170,8 +167,9 @@ class SensitivityBuffer:
         set_(
             self, "grads", MappingProxyType({n: MappingProxyType(g) for n, g in self.grads.items()})
         )
-        if self.statistics is not None:
-            self._check_statistics(self.statistics)
+        statistics = self.statistics  # a header names its batch values' objectives
+        if statistics is not None and sorted(statistics.objective_values) != sorted(self._by_name):
+            raise BufferContentError("batch values: objectives differ")
         self._check_repairs()
         set_(self, "repairs", MappingProxyType(dict(self.repairs)))
 
@@ -199,16 +197,6 @@ class SensitivityBuffer:
                     raise NonFiniteGradientError(name, p.key, bad, copied[p.key].size)
             grads[name] = copied
         return grads
-
-    def _check_statistics(self, statistics: Statistics) -> None:
-        """Statistics of these objectives: a file's header names them (its arrays the reader
-        reads by this buffer's records; the tool computes its own)."""
-        names = sorted(o.name for o in self.objectives)
-        by_objective = (("statistics", statistics.stderr), ("batch sums", statistics.batch_sums),
-                        ("batch values", statistics.objective_values))  # fmt: skip
-        for what, named in by_objective:
-            if sorted(named) != names:
-                raise BufferContentError(f"{what}: objectives differ")
 
     def _check_repairs(self) -> None:
         extra = sorted(set(self.repairs) - set(self._by_key))
@@ -276,10 +264,9 @@ class SensitivityBuffer:
 
 BUFFER_ID = "buffer_id"
 RUN_VERSION = "run_version"
-LEGACY_PREFIX = "legacy-"  # a buffer written before ids existed: named by its provenance
-# What every output made from a buffer records (EXR header attributes, PNG text chunks, the
-# previews' manifests): the buffer's id, the run version it records and the job_hash of the
-# job that made the output (project's job may differ from run's in cameras and channels).
+LEGACY_PREFIX = "legacy-"  # a buffer without an id: named by its provenance
+# What every output made from a buffer records: the job_hash is that of the job that made the
+# output (project's job may differ from run's in cameras and channels).
 STAMP_BUFFER = "sensaov/buffer_id"
 STAMP_RUN = "sensaov/run_version"
 STAMP_JOB = "sensaov/job_hash"
@@ -291,12 +278,12 @@ def new_buffer_id() -> str:
 
 
 def buffer_id(buf: SensitivityBuffer) -> str:
-    """The buffer's id; a buffer without one is named by a hash of its provenance (which holds
-    its creation time and timings, so two runs still differ)."""
     return provenance_id(buf.provenance)
 
 
 def provenance_id(provenance: dict[str, Any]) -> str:
+    """The buffer's id; a buffer without one is named by a hash of its provenance (which holds
+    its creation time and timings, so two runs still differ)."""
     recorded = provenance.get(BUFFER_ID)
     if isinstance(recorded, str) and recorded:
         return recorded

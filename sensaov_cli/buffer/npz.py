@@ -60,19 +60,18 @@ Guard = Callable[[], AbstractContextManager[object]]  # turns a late read's erro
 
 
 def read_buffer(path: Path | str, *, lazy: bool = False) -> SensitivityBuffer:
-    """Read a buffer; any unreadable or inconsistent file raises BufferFormatError.
-
-    Every member is read and checked now, unless ``lazy``: then a texture's member is read, and
-    its CRC checked, when a view first asks for its array, and a rank that needs only each
-    parameter's sums never reads it.
-    """
+    """Read a buffer (``lazy``: texture members on first use, see the module docstring); any
+    unreadable or inconsistent file raises BufferFormatError."""
     path = Path(path)
     with _reading(path):
         if not stat.S_ISREG(os.stat(path).st_mode):  # a FIFO would block, a device never end
             raise _Malformed("not a regular file", _FOREIGN)
         file = path.open("rb")
         try:
-            _require_zip(file.read(4))
+            magic = file.read(4)
+            if magic not in _ZIP_MAGICS:
+                problem = "not an .npz (zip) archive" if magic else "the file is empty"
+                raise _Malformed(f"not a sensaov buffer: {problem}", _FOREIGN)
             archive = Archive(file)
             buffer = _read_archive(archive, (lambda: _reading(path)) if lazy else None)
         except BaseException:
@@ -220,7 +219,6 @@ class _Malformed(ValueError):
 
 
 def _inconsistent(message: str) -> _Malformed:
-    """The archive, its storage and its members disagree; the message says how."""
     return _Malformed(f"inconsistent buffer: {message}")
 
 
@@ -251,14 +249,6 @@ def _npy_header(stream: IO[bytes]) -> tuple[tuple[int, ...], np.dtype, bool]:
     else:
         shape, fortran, dtype = np.lib.format.read_array_header_2_0(stream)
     return tuple(shape), dtype, fortran
-
-
-def _require_zip(data: bytes) -> None:
-    magic = data[:4]
-    if not magic:
-        raise _Malformed("not a sensaov buffer: the file is empty", _FOREIGN)
-    if magic not in _ZIP_MAGICS:
-        raise _Malformed("not a sensaov buffer: not an .npz (zip) archive", _FOREIGN)
 
 
 _READ_ERRORS = (
@@ -372,7 +362,7 @@ class Archive:
     def float32(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
         """A float32 member of ``shape``, finite, native and C-contiguous (read once)."""
         if name not in self._read:
-            arr = self._float(name, shape, "f4")
+            arr = self.floats(name, shape, "f4")
             if not np.isfinite(arr).all():
                 raise _inconsistent(f"array {name!r} holds NaN or infinity")
             if not arr.flags.c_contiguous or not arr.dtype.isnative:
@@ -381,10 +371,7 @@ class Archive:
             self._read[name] = arr
         return self._read[name]
 
-    def float64(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
-        return self._float(name, shape, "f8")
-
-    def _float(self, name: str, shape: tuple[int, ...], kind: str) -> np.ndarray:
+    def floats(self, name: str, shape: tuple[int, ...], kind: str = "f8") -> np.ndarray:
         def check(declared: tuple[int, ...], dtype: np.dtype) -> None:
             _check_shape(name, shape, declared)
             if dtype.kind + str(dtype.itemsize) != kind:
@@ -438,7 +425,7 @@ def _read_archive(archive: Archive, guard: Guard | None) -> SensitivityBuffer:
         values=values,
         grads=grads,
         statistics=statistics,
-        repairs=_repairs(header["repairs"]),
+        repairs={str(k): _repair(e, f"repairs[{k!r}]") for k, e in header["repairs"].items()},
         sums=sums,
         _copy_arrays=False,  # checked here as they are read, and read-only
     )
@@ -452,9 +439,8 @@ def _arrays(
     with_stderr: bool,
     guard: Guard | None,
 ) -> tuple[Mapping[str, np.ndarray], dict[str, Mapping[str, np.ndarray]], Any]:
-    """Values, gradients and standard errors (or None) by key: the packed members are read now
-    and every texture member's declared shape checked; a texture member is read on first use
-    (all of them now without a ``guard``)."""
+    """Values, gradients and standard errors (or None) by key; every texture member's declared
+    shape is checked now, its data read on first use (now, without a ``guard``)."""
     size = sum(math.prod(p.shape) for p, slot in zip(params, slots, strict=True)
                if slot.offset is not None)  # fmt: skip
     kinds = [("grads", "texgrad")] + [("stderrs", "texstderr")] * with_stderr
@@ -471,17 +457,15 @@ def _arrays(
                     if index is not None:
                         members.declared(_texture(kind, index), shape)
 
-    def value(key: str) -> np.ndarray:
-        shape, slot = at[key]
-        if slot.offset is not None:
-            return _slice(members.float32("values", (size,)), slot.offset, shape)
-        return members.float32(_texture("texture", slot.value), shape)
-
     def resolver(kind: str, texture: str, j: int) -> Callable[[str], np.ndarray]:
+        packed = _packed(kind, j) if kind != "values" else kind
+
         def resolve(key: str) -> np.ndarray:
             shape, slot = at[key]
             if slot.offset is not None:
-                arr = _slice(members.float32(_packed(kind, j), (size,)), slot.offset, shape)
+                arr = _slice(members.float32(packed, (size,)), slot.offset, shape)
+            elif kind == "values":
+                arr = members.float32(_texture(texture, slot.value), shape)
             else:
                 index = (slot.grads if kind == "grads" else slot.stderrs)[j]
                 arr = members.zeros(shape) if index is None else members.float32(
@@ -495,7 +479,7 @@ def _arrays(
     keys = tuple(at)
     made: dict[str, dict[str, Mapping[str, np.ndarray]]] = {kind: {} for kind, _ in kinds}
     lazy = guard or nullcontext
-    values: Mapping[str, np.ndarray] = _LazyArrays(keys, value, lazy)
+    values: Mapping[str, np.ndarray] = _LazyArrays(keys, resolver("values", "texture", 0), lazy)
     for kind, texture in kinds:
         for j, name in enumerate(names):
             made[kind][name] = _LazyArrays(keys, resolver(kind, texture, j), lazy)
@@ -516,9 +500,9 @@ def _read_sums(
     if VALUE_MEANS_MEMBER not in members.members:
         return None
     count = len(params)
-    tables = {n: members.float64(_packed("sums", j), (count, len(SUMS_COLUMNS)))
+    tables = {n: members.floats(_packed("sums", j), (count, len(SUMS_COLUMNS)))
               for j, n in enumerate(names)}  # fmt: skip
-    means = members.float64(VALUE_MEANS_MEMBER, (count,))
+    means = members.floats(VALUE_MEANS_MEMBER, (count,))
     if not all(np.isfinite(a).all() for a in [*tables.values(), means]):
         raise _inconsistent("parameter sums hold NaN or infinity")
     return ParamSums(tuple(p.key for p in params), tables, means)
@@ -687,19 +671,12 @@ def _read_statistics(
         seeds=tuple(entry["seeds"]),
         objective_values={k: tuple(float(x) for x in v) for k, v in values.items()},
         stderr=stderr,
-        batch_sums={
-            n: members.float64(_packed("batchsums", j), shape) for j, n in enumerate(names)
-        },
+        batch_sums={n: members.floats(_packed("batchsums", j), shape) for j, n in enumerate(names)},
     )
 
 
 _REPAIR_FIELDS = ("reason", "step", "spp", "seeds", "one_sided", "estimates", "reverse",
                   "seconds")  # fmt: skip
-
-
-def _repairs(entry: Any) -> dict[str, Repair]:
-    """The header's ``repairs`` (key -> record); anything malformed names the record."""
-    return {str(key): _repair(e, f"repairs[{key!r}]") for key, e in entry.items()}
 
 
 def _repair(entry: Any, where: str) -> Repair:

@@ -6,12 +6,8 @@ included (each shard is a batch). Shards may also split objectives (``--objectiv
 (shard, objective) pair must be present exactly once. Anything else is refused with the reason.
 
 What merge relies on in a shard's provenance comes from a file and is checked where it is read
-(:func:`shard_task`): which shard it is (``task.shard.index`` of ``count``), how many samples it
-holds (``spp``, which over all shards adds up to the job's ``job_spp``), its seed
-(``primal_seed``), the job's objectives (``job.objectives``) and the image size
-(``resolution``). A missing key, a string, a float, an index outside 1..N or ``spp`` 0 would end
-in an internal error, or in a shard silently left out of (or over-weighted in) the mean: each
-is refused (exit 2), naming the shard file and the key.
+(:func:`shard_task`): a value of another type or out of range would end in an internal error,
+or in a shard silently left out of (or over-weighted in) the mean.
 """
 
 from __future__ import annotations
@@ -51,10 +47,6 @@ class Shard:
     path: Path
     buffer: SensitivityBuffer
     task: ShardTask
-
-    @property
-    def index(self) -> tuple[int, int]:
-        return self.task.index, self.task.count
 
 
 def shard_task(path: Path, provenance: Mapping[str, Any]) -> ShardTask:
@@ -116,7 +108,7 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
     job_objectives = list(first.task.objectives)
     by_index: dict[int, list[Shard]] = {}
     for shard in shards:
-        by_index.setdefault(shard.index[0], []).append(shard)
+        by_index.setdefault(shard.task.index, []).append(shard)
     missing = sorted(set(range(1, count + 1)) - set(by_index))
     if missing:
         raise MergeError(
@@ -155,22 +147,22 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
 
 def _check_alike(shards: Sequence[Shard]) -> None:
     first = shards[0]
-    seen: dict[Path, Path] = {}
+    seen: set[Path] = set()
     for shard in shards:
         where = str(shard.path)
         resolved = shard.path.resolve()
         if resolved in seen:
             raise MergeError("the same file is given twice", where=where)
-        seen[resolved] = shard.path
+        seen.add(resolved)
         made, reference = shard.buffer.provenance, first.buffer.provenance
         for field, what in (("scene_fingerprint", "scene"), ("job_hash", "job")):
             if made.get(field) != reference.get(field):
                 raise MergeError(
                     f"another {what} than {first.path.name} ({field} differs)", where=where
                 )
-        if shard.index[1] != first.index[1]:
+        if shard.task.count != first.task.count:
             raise MergeError(
-                f"shard of {shard.index[1]}, {first.path.name} is a shard of {first.index[1]}",
+                f"shard of {shard.task.count}, {first.path.name} is a shard of {first.task.count}",
                 where=where,
             )
         _check_parameters(shard, first)
@@ -290,7 +282,7 @@ def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:
         # what each shard (one batch of the merge) rendered; per-shard timings do not add up
         batches=[
             {"spp": s.task.spp, "seed": s.task.seed}
-            for s in {s.index[0]: s for s in shards}.values()
+            for s in {s.task.index: s for s in shards}.values()
         ],
         timings_s={},
         merged_from=[

@@ -15,16 +15,12 @@ as one batch. The buffer keeps the spp-weighted mean, and from the k batch means
   delta-method linearisation: ‖ḡ_G‖ ≈ Σ_{p∈G} ⟨ḡ_p, g_{p,b}⟩ / ‖ḡ_G‖, correlations included).
 
 Each parameter's sums (:class:`ParamSums`), stored beside its arrays, are what a ranking reads
-instead of texels: per objective the sufficient statistics of its contributions c for both
-weights (Σc², Σc; the count is the parameter's size) and what value weighting hides (the
-components with θ = 0 and ∂M/∂θ ≠ 0, and then Σ ∂M/∂θ); per parameter, the mean of its value.
-The writer computes them with the very functions the queries use on arrays, so a ranking read
-from the sums is the ranking computed from the arrays, to the last bit (tests/test_rank_sums.py).
+instead of texels. The writer computes them with the very functions the queries use on arrays,
+so a ranking read from the sums is the ranking computed from the arrays, to the last bit.
 
 A mean over k batches has a standard error estimated from those same k batches, so
-(mean − truth) / SE follows Student's t with k − 1 degrees of freedom, not a normal law: with
-4 batches a ±2 SE interval covers about 86 %, not 95 %; the 95 % interval is ±3.18 SE
-(:func:`interval_factor`, standard library only).
+(mean − truth) / SE follows Student's t with k − 1 degrees of freedom, not a normal law
+(:func:`interval_factor`).
 """
 
 from __future__ import annotations
@@ -130,20 +126,16 @@ def combine_batches(
         name: float(sum(v[name] * n for v, n in zip(batch_values, spp, strict=True)) / total)
         for name in objectives
     }
-    if len(batch_grads) < 2:
-        return grads, mean_values, None
     stderr: dict[str, dict[str, np.ndarray]] = {}
     sums: dict[str, np.ndarray] = {}
     for name in objectives:
         stderr[name] = {}
         table = np.zeros((len(keys), len(batch_grads), len(COLUMNS)), dtype=np.float64)
         for p, key in enumerate(keys):
-            stack = np.stack([b[name][key].astype(np.float64) for b in batch_grads])
-            stderr[name][key] = pooled_stderr(stack, spp).astype(np.float32)
-            theta = values[key].astype(np.float64)
-            mean = grads[name][key].astype(np.float64)
-            for b in range(len(batch_grads)):
-                table[p, b] = batch_row(stack[b], mean, theta)
+            stderr[name][key], table[p] = _key_batches(
+                [b[name][key] for b in batch_grads], grads[name][key],
+                values[key].astype(np.float64), spp,
+            )  # fmt: skip
         sums[name] = table
     statistics = Statistics(
         source=source,
@@ -156,17 +148,17 @@ def combine_batches(
     return grads, mean_values, statistics
 
 
-def batch_row(grad: np.ndarray, mean: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """The four batch scalars of one parameter (columns SUM_RAW ... PROJ_VALUE)."""
-    weighted, weighted_mean_ = theta * grad, theta * mean
-    return np.array(
-        [
-            grad.sum(),
-            weighted.sum(),
-            float((mean * grad).sum()),
-            float((weighted_mean_ * weighted).sum()),
-        ]
-    )
+def _key_batches(
+    grads: Sequence[np.ndarray], mean: np.ndarray, theta: np.ndarray, spp: Sequence[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """One parameter's standard error (float32) and (k, 4) batch rows, SUM_RAW ... PROJ_VALUE."""
+    stack = np.stack([g.astype(np.float64) for g in grads])
+    mean = mean.astype(np.float64)
+    weighted_mean_, rows = theta * mean, []
+    for g in stack:
+        weighted = theta * g
+        rows.append((g.sum(), weighted.sum(), (mean * g).sum(), (weighted_mean_ * weighted).sum()))
+    return pooled_stderr(stack, spp).astype(np.float32), np.array(rows)
 
 
 def with_batch_estimates(
@@ -183,12 +175,10 @@ def with_batch_estimates(
     sums = {name: table.copy() for name, table in statistics.batch_sums.items()}
     means = {}
     for name, grads in batch_grads.items():
-        stack = np.stack([g.astype(np.float64) for g in grads])
-        mean = weighted_mean(grads, statistics.spp)
-        stderr[name][key] = pooled_stderr(stack, statistics.spp).astype(np.float32)
-        for b in range(len(grads)):
-            sums[name][index, b] = batch_row(stack[b], mean.astype(np.float64), theta)
-        means[name] = mean
+        means[name] = weighted_mean(grads, statistics.spp)
+        stderr[name][key], sums[name][index] = _key_batches(
+            grads, means[name], theta, statistics.spp
+        )
     return replace(statistics, stderr=stderr, batch_sums=sums), means
 
 

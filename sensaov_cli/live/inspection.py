@@ -1,30 +1,24 @@
 """One live inspection view (``sensaov view``): a channel painted through a free camera (§3).
 
-The per-object values come from the buffer once (:mod:`.channels`); each camera move only
-brings a new :class:`~.coverage.VisibilityPass`, through which they are painted and encoded as
-the page asks: signed or magnitude, linear or compressive (a log tone map around a threshold at
-1e-3 of the peak), on the job's shared scale (``sensaov project``'s ``display_scale``, so the
-page and the files agree; docs/encoding.md) or the same rule over this view's pixels alone.
-What the view cannot stand behind travels with it: the coverage of objects whose value includes
-a gradient that is not verified (drawn hatched), the objects with a value that this view does
-not see, and the keys behind both. A click on an object lists its parameters, ranked. A view is
-answered as bytes in memory (PNG, EXR or an object-id map), never a file; each PNG and EXR
-carries the encoding, the scale and the camera in its header.
+The per-object values come from the buffer once; each camera move only brings a new
+:class:`~.coverage.VisibilityPass`, through which they are painted and encoded as the page asks,
+on the job's shared scale (``sensaov project``'s, so the page and the files agree;
+docs/encoding.md) or the same rule over this view's pixels alone. What the view cannot stand
+behind travels with it: objects whose value includes a gradient that is not verified (drawn
+hatched), the objects with a value that this view does not see, and the keys behind both. A
+view is answered as bytes in memory, never a file.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.queries import combine, key_stats, rank
-from sensaov_cli.outputs.exr import encode_exr
-from sensaov_cli.outputs.png import encode_png
 from sensaov_cli.outputs.previews import BACKGROUND, diverging_rgb
 from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.coverage import VisibilityPass
@@ -90,13 +84,9 @@ class InspectionView:
 
 @dataclass(frozen=True)
 class ParameterRow:
-    """One parameter of a clicked object, with what a reader needs to judge it.
-
-    The contribution is Σ θ·∂M/∂θ (or Σ ∂M/∂θ with ``weight: raw``), with its standard error
-    where the buffer has batch statistics (None where it has none: no error is claimed that
-    was not measured). Arrays of more than four components (a texture) are summarised: the
-    value's mean and the gradient's sum, with the component count.
-    """
+    """One parameter of a clicked object, with what a reader needs to judge it: a standard
+    error is None where the buffer has no batch statistics (none is claimed that was not
+    measured); an array of more than four components (a texture) is summarised."""
 
     rank: int
     key: str
@@ -203,13 +193,9 @@ def _nearest(source: int, target: int) -> np.ndarray:
 def paint_texel(
     field: TexelField, panel: str, visibility: VisibilityPass, look: Look
 ) -> InspectionView:
-    """One of Fig. 4's panels of a texel field (``object``, ``texel``, ``joint``) in this view.
-
-    The panel keeps its channel's own encoding (``sensaov project`` writes the same layer);
-    the page's scale choice sets where its colours saturate: the view's own peak, or the
-    panel's camera-independent one (the object values' peak, the whole field's, or 1 for the
-    joint panel, which is a share of its object's value).
-    """
+    """One of Fig. 4's panels of a texel field in this view, in its channel's own encoding
+    (``sensaov project`` writes the same layer); the page's scale choice sets where its colours
+    saturate: the view's own peak, or the panel's camera-independent one."""
     (shown,) = [p for p in texel_passes(field, visibility, texture_footprint(field, visibility))
                 if p.panel == panel]  # fmt: skip
     data = shown.data.sum(axis=2) if shown.data.ndim == 3 else shown.data
@@ -233,7 +219,8 @@ def paint_texel(
 
 
 def _panel_scale(field: TexelField, panel: str, encoded: Scale) -> Scale:
-    """The panel's scale whatever the camera sees, in the units its data are encoded in."""
+    """The panel's scale whatever the camera sees, in the units its data are encoded in: the
+    object values' peak, the whole field's, or 1 for the joint panel (a share of its object's)."""
     if panel == "joint":
         return Scale(0.0, 1.0)
     if panel == "object":
@@ -358,18 +345,3 @@ def view_rgb(display: np.ndarray, coverage: np.ndarray, unverified: np.ndarray) 
     alpha = np.clip(coverage, 0.0, 1.0)[..., None]
     blended = alpha * colour + (1.0 - alpha) * np.array(BACKGROUND, np.float64)
     return np.rint(blended).astype(np.uint8)
-
-
-def view_png(shown: InspectionView, text: Mapping[str, str]) -> bytes:
-    """The view as a PNG, fast to compress (a view lives for one look)."""
-    return encode_png(view_rgb(shown.display, shown.coverage, shown.unverified), text, level=1)
-
-
-def view_exr(layer: str, shown: InspectionView, attributes: Mapping[str, str]) -> bytes:
-    """The raw layer ``<layer>.Y`` (linear, in the channel's units) as a one-layer EXR."""
-    return encode_exr({f"{layer}.Y": shown.values}, dict(attributes))
-
-
-def id_map_bytes(rank_index: np.ndarray) -> bytes:
-    """Per pixel, the index of the object with the most coverage (-1: none), int32 LE."""
-    return np.ascontiguousarray(rank_index[..., 0], dtype="<i4").tobytes()

@@ -73,11 +73,9 @@ def view_request(
     """A view request; ``aspect`` (width / height) sets a height left out."""
     width = _integer(values, "width", DEFAULT_WIDTH, 1, MAX_SIDE)
     height = _integer(values, "height", max(1, round(width / aspect)), 1, MAX_SIDE)
-    look = Look(
-        sign=_choice(values, "sign", "signed", SIGNS),
-        compressive=_flag(values, "compressive"),
-        scale=_choice(values, "scale", "shared", SCALE_MODES),
-    )
+    sign = _choice(values, "sign", "signed", SIGNS)
+    compressive = _choice(values, "compressive", "0", ("0", "1", "false", "true")) in ("1", "true")
+    look = Look(sign, compressive, _choice(values, "scale", "shared", SCALE_MODES))
     return ViewRequest(
         objective=values.get("objective", objective),
         channel=values.get("channel", channel),
@@ -161,7 +159,3 @@ def _choice(values: Mapping[str, str], key: str, default: str, valid: Sequence[s
     if value not in valid:
         raise RequestError(f"{key} must be one of {', '.join(valid)}, got {value!r}")
     return value
-
-
-def _flag(values: Mapping[str, str], key: str) -> bool:
-    return _choice(values, key, "0", ("0", "1", "false", "true")) in ("1", "true")

@@ -1,17 +1,12 @@
 """The HTTP face of ``sensaov view``: the interface of docs/view.md, its page, its saved cameras.
 
 One user on the loopback address needs no web framework: the standard library's threading
-server routes each request to :class:`~sensaov_cli.live.session.ViewSession` and writes the
-typed answer as JSON or bytes; a bad value becomes HTTP 400 with a one-line reason. Refused: a
-page of another site reaching the server by DNS rebinding (the Host header must name it) and a
-cross-site form posting to it (a save must carry the ``X-Sensaov`` header, which no form can
-set). The page (``page.html``: one file, no external assets) draws its colour bar and sunburst
-with the previews' colour table, filled in here, so legend and picture cannot disagree.
-
-A viewpoint becomes a job's camera: its YAML, or, saved, appended to
-``<output>/<job stem>_view.yaml`` (the job, paths rewritten to hold from there), which is
-validated as a job before it replaces anything, written atomically, and never over a file the
-job reads; nothing is written anywhere else.
+server suffices; a bad value becomes HTTP 400 with a one-line reason. Refused: a page of another
+site reaching the server by DNS rebinding (the Host header must name it) and a cross-site form
+posting to it (a save must carry the ``X-Sensaov`` header, which no form can set). The page
+draws its colour bar and sunburst with the previews' colour table, filled in here, so legend
+and picture cannot disagree. A saved viewpoint is appended to ``<output>/<job stem>_view.yaml``
+(validated as a job before it replaces anything); nothing is written anywhere else.
 """
 
 from __future__ import annotations

@@ -1,15 +1,11 @@
 """``sensaov view``: the buffer and the scene loaded once, then any viewpoint on request.
 
 Deferred shading made interactive (§2, §3 "Binding", Fig. 6): each view is one
-primary-visibility pass from a free camera (:mod:`sensaov_cli.render.viewpoint`, one compiled
-kernel for every pose) plus painting from the stored buffer (:mod:`.inspection`); no derivative
-is ever computed. :class:`ViewSession` answers the typed requests of :mod:`.query` with typed
-answers, which the server (:mod:`.server`) writes. What it can paint (:class:`Sources`): the
-job's channels, a select query typed in the page (on first use), the texel panels, and the
-forward and transport layers beside the buffer, images of the objective camera that no other
-viewpoint can re-project (§4, §7). The "shared" scale is ``sensaov project``'s
-(:class:`JobScales`). Renders run one at a time (one lock): the renderer is not re-entrant,
-and one user's page sends one request at a time anyway.
+primary-visibility pass from a free camera (one compiled kernel for every pose) plus painting
+from the stored buffer; no derivative is ever computed. The forward and transport layers are
+images of the objective camera that no other viewpoint can re-project (§4, §7). Renders run one
+at a time (one lock): the renderer is not re-entrant, and one user's page sends one request at
+a time anyway.
 """
 
 from __future__ import annotations
@@ -35,15 +31,15 @@ from sensaov_cli.live.inspection import (
     InspectionView,
     Legend,
     ObjectSummary,
-    id_map_bytes,
     object_summary,
     paint_image,
     paint_texel,
     paint_view,
-    view_exr,
-    view_png,
+    view_rgb,
 )
 from sensaov_cli.live.query import PickRequest, ViewRequest, view_request
+from sensaov_cli.outputs.exr import encode_exr
+from sensaov_cli.outputs.png import encode_png
 from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.pipeline.consistency import check_buffer_of_job
 from sensaov_cli.pipeline.project import (
@@ -170,13 +166,16 @@ class ViewSession:
     def view(self, request: ViewRequest) -> Picture:
         start = time.perf_counter()
         visibility, shown = self._paint(request)
-        if request.format == "ids":
-            body, kind = id_map_bytes(visibility.rank_index), "application/octet-stream"
-        elif request.format == "exr":
-            layer = f"{request.objective}.{_token(request.channel)}"
-            body, kind = view_exr(layer, shown, self._describe(request, shown)), "image/x-exr"
-        else:
-            body, kind = view_png(shown, self._describe(request, shown)), "image/png"
+        if request.format == "ids":  # per pixel, the most covering object's index (-1: none)
+            body = np.ascontiguousarray(visibility.rank_index[..., 0], dtype="<i4").tobytes()
+            kind = "application/octet-stream"
+        elif request.format == "exr":  # the raw layer, linear, in the channel's units
+            token = "".join(c if c.isalnum() or c == "_" else "_" for c in request.channel)
+            layer = {f"{request.objective}.{token}.Y": shown.values}
+            body, kind = encode_exr(layer, self._describe(request, shown)), "image/x-exr"
+        else:  # fast to compress: a view lives for one look
+            rgb = view_rgb(shown.display, shown.coverage, shown.unverified)
+            body, kind = encode_png(rgb, self._describe(request, shown), level=1), "image/png"
         ms = 1000 * (time.perf_counter() - start)
         return Picture(body, kind, shown.legend, (visibility.width, visibility.height), ms)
 
@@ -313,10 +312,8 @@ def _cameras(job: JobSpec, loaded: LoadedScene, bounds: tuple[Vec3, Vec3]) -> li
             continue
         sensor = loaded.inspection_sensors[camera.name]
         size = sensor.film().crop_size()
-        if camera.look_at is not None:
-            pose = Pose(camera.look_at, camera.fov)
-        else:
-            pose = sensor_pose(mi, sensor, bounds)
+        look_at = camera.look_at
+        pose = Pose(look_at, camera.fov) if look_at is not None else sensor_pose(mi, sensor, bounds)
         found.append(NamedPose(camera.name, pose, (int(size[0]), int(size[1]))))
     return found
 
@@ -326,10 +323,6 @@ def _direction(pose: Pose) -> tuple[float, ...]:
     d = [t - o for t, o in zip(look.target, look.origin, strict=True)]
     norm = sum(v * v for v in d) ** 0.5
     return tuple(v / norm for v in d)
-
-
-def _token(name: str) -> str:
-    return "".join(c if c.isalnum() or c == "_" else "_" for c in name)
 
 
 class Sources:
@@ -373,12 +366,9 @@ class Sources:
 
     def find(self, objective: str, channel: str) -> Source:
         self.buffer.objective(objective)  # UnknownNameError (HTTP 400) names the known ones
-        if (objective, channel) in self.painted:
-            return self.painted[(objective, channel)]
-        if (objective, channel) in self.texels:
-            return self.texels[(objective, channel)]
-        if (objective, channel) in self.images:
-            return self.images[(objective, channel)]
+        for table in (self.painted, self.texels, self.images):
+            if (objective, channel) in table:
+                return table[(objective, channel)]
         if channel.startswith(SELECT_PREFIX):
             return self._query(objective, channel)
         raise UnknownNameError("channel", channel, [*self.names(), f"{SELECT_PREFIX}<glob>"])

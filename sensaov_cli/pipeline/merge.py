@@ -84,7 +84,7 @@ def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:
     """The spp-weighted mean of one primal per shard index (objective splits share it)."""
     first_of_index: dict[int, Shard] = {}
     for shard in shards:
-        first_of_index.setdefault(shard.index[0], shard)
+        first_of_index.setdefault(shard.task.index, shard)
     images, spp = [], []
     width, height = shards[0].buffer.provenance["resolution"]  # checked: two positive ints
     for _, shard in sorted(first_of_index.items()):
