@@ -30,10 +30,9 @@ from pydantic.json_schema import GenerateJsonSchema, JsonSchemaValue
 from pydantic_core import ErrorDetails
 
 from sensaov_cli.errors import SpecError
-from sensaov_cli.job.fields import NAME_PATTERN, PATTERN_MEANINGS
 from sensaov_cli.job.markers import UNION
 from sensaov_cli.job.problems import Problem, close_match, describe
-from sensaov_cli.job.spec import CameraSpec, JobSpec
+from sensaov_cli.job.spec import NAME_PATTERN, PATTERN_MEANINGS, CameraSpec, JobSpec
 from sensaov_cli.limits import read_regular
 
 SUPPORTED_VERSIONS = (1,)

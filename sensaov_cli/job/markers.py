@@ -92,7 +92,8 @@ class Setting:
         return {**handler(source), **self.settings}
 
 
-_TEXT = Annotated[str, Setting(strict=True), MinLen(1)]  # a tag or a sensor id: fields.Text
+STRICT = Setting(strict=True)
+Text = Annotated[str, STRICT, MinLen(1)]  # a tag, a sensor id, a path
 
 
 class Before:
@@ -177,7 +178,7 @@ class JobPath:
             self.check(path, job.parent)
             return path
 
-        text = handler.generate_schema(_TEXT)
+        text = handler.generate_schema(Text)
         if self.null_means is None:
             return core_schema.with_info_after_validator_function(read, text)
         nullable = core_schema.with_info_after_validator_function(
@@ -279,7 +280,7 @@ class SensorOrPlaced:
         placed = _Form(cls, _keys(cls, self.placed), "ObjectiveLookAt", fixed={"name": name})
         members = {
             "sensor id": core_schema.no_info_after_validator_function(
-                lambda sensor: cls(name=name, sensor=sensor), handler.generate_schema(_TEXT)
+                lambda sensor: cls(name=name, sensor=sensor), handler.generate_schema(Text)
             ),
             "look_at mapping": _mapping(placed, handler),
             "first sensor": core_schema.no_info_after_validator_function(
