@@ -1,14 +1,8 @@
 """The job file in YAML: read into a :class:`~.spec.JobSpec` (or where it is wrong), written back.
 
-:func:`load_job` reads the file (``yaml.safe_load`` semantics, see :func:`read_yaml`),
-validates it straight into the dataclasses of :mod:`.spec` (pydantic reads their fields, see
-:mod:`.markers`), and returns the :class:`JobSpec` with every path resolved against the job
-file's directory. Anything wrong raises one :class:`~sensaov_cli.errors.SpecError` located as
-``<job>:<line>: <key path>``: the first problem in the file, by line. :func:`job_schema` is the
-JSON Schema of the format. :func:`job_copy_text` writes the job file back, with cameras
-saved from ``sensaov view``.
-
-The format is documented in ``docs/job-spec.md``.
+Anything wrong in a job file raises one :class:`~sensaov_cli.errors.SpecError` located as
+``<job>:<line>: <key path>``: the first problem in the file, by line. The format is documented
+in ``docs/job-spec.md``.
 """
 
 from __future__ import annotations
@@ -30,8 +24,7 @@ from pydantic.json_schema import GenerateJsonSchema, JsonSchemaValue
 from pydantic_core import ErrorDetails
 
 from sensaov_cli.errors import SpecError
-from sensaov_cli.job.markers import UNION
-from sensaov_cli.job.problems import Problem, close_match, describe
+from sensaov_cli.job.markers import UNION, Problem, describe, did_you_mean
 from sensaov_cli.job.spec import NAME_PATTERN, PATTERN_MEANINGS, CameraSpec, JobSpec
 from sensaov_cli.limits import read_regular
 
@@ -114,7 +107,8 @@ def _as_written(value: Any) -> Any:
 
 
 def _check_top_level(document: YamlDocument, shown: str) -> None:
-    """The checks that must come before the rest: a mapping, of a version we know."""
+    """The checks that come before the rest: a mapping, of a version we know (the version
+    decides what the other keys mean)."""
     data = document.data
     if data is None:
         raise spec_error(shown, None, (), "the job file is empty", "start with 'version: 1'")
@@ -122,17 +116,12 @@ def _check_top_level(document: YamlDocument, shown: str) -> None:
         message = f"the job file must be a mapping of keys, not {describe(data)}"
         hint = "start with 'version: 1', then 'scene:', 'objectives:'"
         raise spec_error(shown, document.line_of(()), (), message, hint)
-    _check_version(document, shown)
-
-
-def _check_version(document: YamlDocument, shown: str) -> None:
-    # Checked before everything else: the version decides what the other keys mean.
     supported = ", ".join(map(str, SUPPORTED_VERSIONS))
     where = (shown, document.line_of(("version",)), ("version",))
-    if "version" not in document.data:
+    if "version" not in data:
         hint = f"add 'version: 1' as the first line; supported versions: {supported}"
         raise spec_error(*where, "missing required key", hint)
-    version = document.data["version"]
+    version = data["version"]
     if type(version) is not int:
         message = f"must be an integer, got {describe(version)}"
         raise spec_error(*where, message, "write 'version: 1'")
@@ -191,16 +180,16 @@ def _explain_union(path: KeyPath, error: ErrorDetails) -> tuple[KeyPath, str, st
     if field not in value:
         # A misspelt tag key ("typ:") is the likelier story than a forgotten one.
         for key in value:
-            if close_match(key, (field,)) is not None:
-                return path + (key,), f"unknown key {describe(key)}", f"did you mean '{field}'?"
+            hint = did_you_mean(key, (field,))
+            if hint is not None:
+                return path + (key,), f"unknown key {describe(key)}", hint
         return path + (field,), f"missing required key (one of: {', '.join(choices)})", None
     message = f"must be one of {', '.join(choices)}; got {describe(value[field])}"
     return path + (field,), message, _typo(value[field], choices)
 
 
-def _typo(value: Any, choices: list[str] | tuple[str, ...]) -> str | None:
-    close = close_match(value, choices) if isinstance(value, str) else None
-    return None if close is None else f"did you mean '{close}'?"
+def _typo(value: Any, choices: Sequence[str]) -> str | None:
+    return did_you_mean(value, choices) if isinstance(value, str) else None
 
 
 def _reword(error: ErrorDetails) -> str:
@@ -237,10 +226,9 @@ def _quoted_number_hint(kind: str, value: Any) -> str | None:
 
 # --- the YAML, read as yaml.safe_load reads it, with the line of every key path ---
 #
-# yaml.safe_load forgets where things were and silently keeps the last of two equal keys. The
-# node tree is composed with the same SafeLoader, walked once to note the line of each key path
-# and refuse duplicate keys, then constructed from the same tree, so the data is exactly what
-# safe_load returns.
+# yaml.safe_load forgets where things were and silently keeps the last of two equal keys, so
+# the node tree is composed with the same SafeLoader, walked to note lines and refuse duplicate
+# keys, then constructed: the data is exactly what safe_load returns.
 
 
 def format_key_path(path: KeyPath) -> str:
@@ -289,7 +277,6 @@ class YamlDocument:
 
 def read_yaml(path: Path, shown: str) -> YamlDocument:
     """Read and parse ``path``; every failure is a SpecError located in ``shown``."""
-    # A regular file of sane size: a FIFO would block forever, /dev/zero never end.
     raw = read_regular(path, "job file", cap=MAX_JOB_BYTES, error=SpecError)
     try:
         return _parse(raw, shown)
@@ -302,17 +289,16 @@ def read_yaml(path: Path, shown: str) -> YamlDocument:
 
 
 def _parse(raw: bytes, shown: str) -> YamlDocument:
-    loader = yaml.SafeLoader(raw)
+    loader = yaml.SafeLoader(raw)  # reads the encoding: may raise
     try:
         node = loader.get_single_node()
         if node is None:
             raise spec_error(shown, None, (), "the job file is empty", "start with 'version: 1'")
         lines: dict[KeyPath, int] = {(): node.start_mark.line + 1}
         _walk(loader, node, (), lines, set(), shown)
-        data = loader.construct_document(node)
+        return YamlDocument(loader.construct_document(node), lines)
     finally:
         loader.dispose()
-    return YamlDocument(data, lines)
 
 
 def _walk(
@@ -361,25 +347,19 @@ def _syntax_error(exc: yaml.MarkedYAMLError, shown: str) -> SpecError:
 
 # --- a viewpoint saved from sensaov view: a camera entry, or a copy of the job file ---------
 #
-# The camera entry is what ``inspection_cameras`` takes (a ``look_at`` camera), so the same view
-# can be projected on a farm. The copy is the job as written (read back as ``yaml.safe_load``
-# reads it, so its comments are not kept) with the cameras appended and every path rewritten
-# relative to where the copy lies, so that it names the same scene, files and output folder.
-
-RESERVED_NAMES = ("primal", "buffer", "objective")
+# The camera entry is what ``inspection_cameras`` takes, so the same view can be projected on a
+# farm. The copy is the job as safe_load reads it (its comments are lost) with the cameras
+# appended and every path rewritten relative to the copy, so it names the same files.
 
 
 def camera_entry(camera: CameraSpec) -> dict[str, Any]:
     """The mapping a job's ``inspection_cameras`` list takes for a ``look_at`` camera."""
     assert camera.look_at is not None and camera.resolution is not None
     look = camera.look_at
+    rounded = {key: [_round(v) for v in getattr(look, key)] for key in ("origin", "target", "up")}
     return {
         "name": camera.name,
-        "look_at": {
-            "origin": [_round(v) for v in look.origin],
-            "target": [_round(v) for v in look.target],
-            "up": [_round(v) for v in look.up],
-        },
+        "look_at": rounded,
         "fov": _round(camera.fov),
         "resolution": list(camera.resolution),
         "vis_spp": camera.vis_spp,
@@ -395,7 +375,7 @@ def check_camera_name(name: str, taken: Sequence[str]) -> str | None:
     """Why ``name`` cannot name a new inspection camera, or None when it can."""
     if not re.fullmatch(NAME_PATTERN, name):
         return f"camera name {name!r} must be a letter then up to 31 letters, digits or _"
-    if name in RESERVED_NAMES:
+    if name in ("primal", "buffer", "objective"):
         return f"camera name {name!r} is reserved"
     if name in taken:
         return f"the job already has an inspection camera named {name!r}"

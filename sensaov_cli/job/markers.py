@@ -1,31 +1,26 @@
-"""How a job file writes a field: ``Annotated`` markers, and the pydantic schemas they build.
+"""How a job file writes a field and words its mistakes: ``Annotated`` markers, their schemas.
 
-The dataclasses of :mod:`.spec` are the one definition of every field; these markers add
-what a job file needs besides the type: checks, descriptions, which shapes of a class take
-the field. pydantic ignores metadata it does not know, so a marker is inert until pydantic
-asks it (``__get_pydantic_core_schema__``, ``__get_pydantic_json_schema__``): pydantic is
-loaded by then, and imported here only inside those hooks, so :mod:`.spec` loads no pydantic.
-Each marker is a plain class, hashable by identity, because typing hashes an ``Annotated``
-that stands in ``X | None``. ``annotated_types`` constraints (``Ge``, ``MinLen``) sit beside
-these; pydantic reads those itself (but see :class:`MinItems`).
+The markers add to a field of :mod:`.spec` what a job file needs besides the type: checks,
+descriptions, which shapes of a class take the field. A marker is inert until pydantic asks it
+(``__get_pydantic_core_schema__``, ``__get_pydantic_json_schema__``), and pydantic is imported
+only inside those hooks, so :mod:`.spec` loads none. Each marker is a plain class, hashable by
+identity, because typing hashes an ``Annotated`` that stands in ``X | None``.
 
-How the schemas read a job file: a section (render, parameters, look_at, the job) is one
-mapping whose keys are its fields, bar those the loader gives. A class written in several
-shapes is a tagged union of such mappings, each taking the fields marked ``In`` that shape and
-the fields marked nowhere: objectives by ``type``, channels by ``kind``, inspection cameras by
-the key that picks their kind, and ``objective_camera`` as a sensor id, a mapping or null.
-Every mapping refuses an unknown key before it looks at any value, and its values become the
-dataclass through the class's own ``__init__``, so ``__post_init__`` checks hold for a job
-file too.
+A section (render, parameters, look_at, the job) is one mapping of its fields, bar those the
+loader gives. A class written in several shapes is a tagged union of such mappings, each
+taking the fields marked ``In`` that shape and the fields marked nowhere. Every mapping refuses
+an unknown key before it looks at any value, and builds the dataclass through its
+``__init__``, so ``__post_init__`` checks hold for a job file too.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import operator
 import os
 import types
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import MISSING, dataclass, field
 from functools import cache, reduce
 from pathlib import Path
@@ -42,25 +37,46 @@ from typing import (
 
 from annotated_types import MinLen
 
-from sensaov_cli.job.problems import Problem, describe, did_you_mean
-
 if TYPE_CHECKING:  # pydantic is imported where it is called: spec.py loads none of it
     from pydantic import GetCoreSchemaHandler
     from pydantic.json_schema import JsonSchemaValue
     from pydantic_core import CoreSchema, core_schema
 
+
+class Problem(ValueError):
+    """A mistake in a job file, in our own words; ``at`` (YAML keys, list indices) extends the
+    key path of the value. pydantic reports it as a ``value_error`` that carries it."""
+
+    def __init__(self, message: str, *, at: tuple[Any, ...] = (), hint: str | None = None):
+        super().__init__(message)
+        self.message, self.at, self.hint = message, at, hint
+
+
+def describe(value: Any) -> str:
+    """A short YAML-flavoured rendering of a user's value for an error message."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if value is None:
+        return "null"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return repr(value if len(value) <= 40 else value[:37] + "...")
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, dict):
+        return "a mapping"
+    return f"a {type(value).__name__}"
+
+
+def did_you_mean(word: object, choices: Sequence[str]) -> str | None:
+    """'did you mean X?' when ``word`` is likely a typo of one of ``choices``."""
+    close = difflib.get_close_matches(str(word), choices, n=1, cutoff=0.6)
+    return f"did you mean '{close[0]}'?" if close else None
+
+
 # The error type of a value that picks no member of a union; its context says why.
 UNION = "sensaov_union"
-
-
-class Doc:
-    """A field's description in the JSON Schema."""
-
-    def __init__(self, text: str) -> None:
-        self.text = text
-
-    def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> JsonSchemaValue:
-        return {**handler(schema), "description": self.text}
 
 
 class Given:
@@ -96,18 +112,6 @@ STRICT = Setting(strict=True)
 Text = Annotated[str, STRICT, MinLen(1)]  # a tag, a sensor id, a path
 
 
-class Before:
-    """Check (or convert) the value as written, before its type is checked."""
-
-    def __init__(self, check: Callable[[Any], Any]) -> None:
-        self.check = check
-
-    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
-        from pydantic_core import core_schema
-
-        return core_schema.no_info_before_validator_function(self.check, handler(source))
-
-
 class After:
     """Check (or convert) the value once its type has been checked."""
 
@@ -117,7 +121,14 @@ class After:
     def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
         from pydantic_core import core_schema
 
-        return core_schema.no_info_after_validator_function(self.check, handler(source))
+        wrap = core_schema.no_info_after_validator_function
+        if isinstance(self, Before):
+            wrap = core_schema.no_info_before_validator_function
+        return wrap(self.check, handler(source))
+
+
+class Before(After):
+    """Check (or convert) the value as written, before its type is checked."""
 
 
 class Json:
@@ -128,6 +139,13 @@ class Json:
 
     def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> JsonSchemaValue:
         return dict(self.schema) if self.replace else {**handler(schema), **self.schema}
+
+
+class Doc(Json):
+    """A field's description in the JSON Schema."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__({"description": text})
 
 
 class MinItems:
@@ -408,7 +426,7 @@ def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
                 raise form.unknown(key) or Problem(
                     f"unknown key {describe(key)}{form.owner}",
                     at=(key,),
-                    hint=did_you_mean(key, names, "keys"),
+                    hint=did_you_mean(key, names) or "valid keys: " + ", ".join(names),
                 )
         return data
 

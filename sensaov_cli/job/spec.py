@@ -35,14 +35,15 @@ from sensaov_cli.job.markers import (
     JobPath,
     Json,
     MinItems,
+    Problem,
     Section,
     SensorOrPlaced,
     Setting,
     Tagged,
     TaggedByKey,
     Text,
+    describe,
 )
-from sensaov_cli.job.problems import Problem, describe
 from sensaov_cli.vocabulary import (
     Aggregate,
     ChannelKind,
