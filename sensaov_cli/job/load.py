@@ -132,15 +132,10 @@ def _check_top_level(document: YamlDocument, shown: str) -> None:
 
 def _first_error(exc: ValidationError, document: YamlDocument, shown: str) -> SpecError:
     """The problem written earliest in the file, worded for a person who edits YAML."""
-    located = []
-    for error in exc.errors():
-        path, message, hint = _explain(error)
-        located.append((document.line_of(path), path, message, hint))
+    explained = [_explain(error) for error in exc.errors()]
     # min() keeps the first of equals, so pydantic's order settles ties on one line.
-    line, path, message, hint = min(
-        located, key=lambda item: math.inf if item[0] is None else item[0]
-    )
-    return spec_error(shown, line, path, message, hint)
+    path, message, hint = min(explained, key=lambda each: document.line_of(each[0]) or math.inf)
+    return spec_error(shown, document.line_of(path), path, message, hint)
 
 
 def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
@@ -158,12 +153,7 @@ def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
     if kind == "missing":
         return path, "missing required key", None
     if kind == "literal_error":
-        choices = re.findall(r"'([^']*)'", ctx["expected"])
-        return (
-            path,
-            f"must be one of {', '.join(choices)}; got {describe(value)}",
-            _typo(value, choices),
-        )
+        return (path, *_not_one_of(re.findall(r"'([^']*)'", ctx["expected"]), value))
     if kind == "dict_type":
         return path, f"must be a mapping, got {describe(value)}", None
     return path, _reword(error), _quoted_number_hint(kind, value)
@@ -184,12 +174,13 @@ def _explain_union(path: KeyPath, error: ErrorDetails) -> tuple[KeyPath, str, st
             if hint is not None:
                 return path + (key,), f"unknown key {describe(key)}", hint
         return path + (field,), f"missing required key (one of: {', '.join(choices)})", None
-    message = f"must be one of {', '.join(choices)}; got {describe(value[field])}"
-    return path + (field,), message, _typo(value[field], choices)
+    return (path + (field,), *_not_one_of(choices, value[field]))
 
 
-def _typo(value: Any, choices: Sequence[str]) -> str | None:
-    return did_you_mean(value, choices) if isinstance(value, str) else None
+def _not_one_of(choices: Sequence[str], value: Any) -> tuple[str, str | None]:
+    """The message and hint for a value that is none of ``choices``."""
+    hint = did_you_mean(value, choices) if isinstance(value, str) else None
+    return f"must be one of {', '.join(choices)}; got {describe(value)}", hint
 
 
 def _reword(error: ErrorDetails) -> str:
@@ -200,12 +191,6 @@ def _reword(error: ErrorDetails) -> str:
         return f"must be {meaning}; got {describe(value)}"
     if kind == "string_too_short" and ctx["min_length"] == 1:
         return "must not be empty"
-    if kind in ("too_short", "too_long"):
-        bound = "at least" if kind == "too_short" else "at most"
-        limit = ctx.get("min_length", ctx.get("max_length"))
-        unit = "character" if isinstance(value, str) else "item"
-        plural = "" if limit == 1 else "s"
-        return f"must have {bound} {limit} {unit}{plural}, got {ctx['actual_length']}"
     if kind == "tuple_type":
         # The dataclasses hold a job file's lists as tuples; YAML has only lists.
         return f"must be a list, got {describe(value)}"
@@ -289,53 +274,48 @@ def read_yaml(path: Path, shown: str) -> YamlDocument:
 
 
 def _parse(raw: bytes, shown: str) -> YamlDocument:
+    """The data and the line of every key and item; a duplicate key is refused."""
     loader = yaml.SafeLoader(raw)  # reads the encoding: may raise
+    lines: dict[KeyPath, int] = {}
+    seen: set[int] = set()
+
+    def walk(node: yaml.Node, path: KeyPath) -> None:
+        # An alias repeats a node; walking it once keeps "billion laughs" documents cheap.
+        if id(node) in seen:
+            return
+        seen.add(id(node))
+        if isinstance(node, yaml.SequenceNode):
+            for index, item in enumerate(node.value):
+                lines.setdefault(path + (index,), item.start_mark.line + 1)
+                walk(item, path + (index,))
+        elif isinstance(node, yaml.MappingNode):
+            first: dict[Any, int] = {}
+            for key_node, value_node in node.value:
+                if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == _MERGE_TAG:
+                    continue  # merge keys and complex keys are left to the constructor
+                key = loader.construct_object(key_node)
+                line = key_node.start_mark.line + 1
+                if key in first:
+                    raise spec_error(
+                        shown,
+                        line,
+                        path + (key,),
+                        f"duplicate key (first given on line {first[key]})",
+                        "YAML would silently keep only the last one; remove one",
+                    )
+                first[key] = line
+                lines.setdefault(path + (key,), line)
+                walk(value_node, path + (key,))
+
     try:
         node = loader.get_single_node()
         if node is None:
             raise spec_error(shown, None, (), "the job file is empty", "start with 'version: 1'")
-        lines: dict[KeyPath, int] = {(): node.start_mark.line + 1}
-        _walk(loader, node, (), lines, set(), shown)
+        lines[()] = node.start_mark.line + 1
+        walk(node, ())
         return YamlDocument(loader.construct_document(node), lines)
     finally:
         loader.dispose()
-
-
-def _walk(
-    loader: yaml.SafeLoader,
-    node: yaml.Node,
-    path: KeyPath,
-    lines: dict[KeyPath, int],
-    seen: set[int],
-    shown: str,
-) -> None:
-    """Note the line of every key and item below ``node``; refuse duplicate keys."""
-    # An alias repeats a node; walking it once keeps "billion laughs" documents cheap.
-    if id(node) in seen:
-        return
-    seen.add(id(node))
-    if isinstance(node, yaml.SequenceNode):
-        for index, item in enumerate(node.value):
-            lines.setdefault(path + (index,), item.start_mark.line + 1)
-            _walk(loader, item, path + (index,), lines, seen, shown)
-    elif isinstance(node, yaml.MappingNode):
-        first: dict[Any, int] = {}
-        for key_node, value_node in node.value:
-            if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == _MERGE_TAG:
-                continue  # merge keys and complex keys are left to the constructor
-            key = loader.construct_object(key_node)
-            line = key_node.start_mark.line + 1
-            if key in first:
-                raise spec_error(
-                    shown,
-                    line,
-                    path + (key,),
-                    f"duplicate key (first given on line {first[key]})",
-                    "YAML would silently keep only the last one; remove one",
-                )
-            first[key] = line
-            lines.setdefault(path + (key,), line)
-            _walk(loader, value_node, path + (key,), lines, seen, shown)
 
 
 def _syntax_error(exc: yaml.MarkedYAMLError, shown: str) -> SpecError:

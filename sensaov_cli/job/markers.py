@@ -121,10 +121,9 @@ class After:
     def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
         from pydantic_core import core_schema
 
-        wrap = core_schema.no_info_after_validator_function
         if isinstance(self, Before):
-            wrap = core_schema.no_info_before_validator_function
-        return wrap(self.check, handler(source))
+            return core_schema.no_info_before_validator_function(self.check, handler(source))
+        return core_schema.no_info_after_validator_function(self.check, handler(source))
 
 
 class Before(After):
@@ -148,26 +147,19 @@ class Doc(Json):
         super().__init__({"description": text})
 
 
-class MinItems:
-    """At least ``n`` items, counted once every item is valid.
-
-    ``annotated_types.MinLen`` on a tuple makes pydantic count the items that passed, so one
-    bad item would also read as a list too short.
-    """
+class MinItems(After):
+    """At least ``n`` items, counted once every item is valid (``annotated_types.MinLen`` on a
+    tuple counts the items that passed, so one bad item would also read as a list too short)."""
 
     def __init__(self, n: int) -> None:
-        self.n = n
-
-    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
-        from pydantic_core import PydanticKnownError, core_schema
-
         def check(items: tuple[Any, ...]) -> tuple[Any, ...]:
-            if len(items) < self.n:
-                context = {"field_type": "List", "min_length": self.n, "actual_length": len(items)}
-                raise PydanticKnownError("too_short", context)
+            if len(items) < n:
+                plural = "" if n == 1 else "s"
+                raise Problem(f"must have at least {n} item{plural}, got {len(items)}")
             return items
 
-        return core_schema.no_info_after_validator_function(check, handler(source))
+        super().__init__(check)
+        self.n = n
 
     def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> JsonSchemaValue:
         return {**handler(schema), "minItems": self.n}
@@ -240,9 +232,10 @@ class Tagged:
             chosen = value.get(tag) if isinstance(value, dict) else None
             return f"{tag}: {chosen}" if isinstance(chosen, str) and chosen in values else None
 
-        return _union(members, pick, self.expects, field=tag, choices=values)
+        return _union(members, pick, self.expects, field=tag, choices=",".join(values))
 
 
+@dataclass(frozen=True, eq=False)
 class TaggedByKey:
     """The class is written in the shape named by the first of ``keys`` present in it.
 
@@ -251,18 +244,12 @@ class TaggedByKey:
     ``expects`` says what an item must be; each shape is titled by its key and ``noun``.
     """
 
-    def __init__(
-        self,
-        keys: tuple[str, ...],
-        *,
-        owners: tuple[str, ...],
-        expects: str,
-        missing: str,
-        clash: str,
-        noun: str,
-    ) -> None:
-        self.keys, self.owners, self.noun = keys, owners, noun
-        self.expects, self.missing, self.clash = expects, missing, clash
+    keys: tuple[str, ...]
+    owners: tuple[str, ...]
+    expects: str
+    missing: str
+    clash: str
+    noun: str
 
     def __get_pydantic_core_schema__(self, cls: type, handler: GetCoreSchemaHandler) -> Any:
         shapes = _ordered({key: _keys(cls, key) for key in self.keys}, lambda key: key)
@@ -458,34 +445,21 @@ def _field(key: _Key, handler: GetCoreSchemaHandler) -> core_schema.TypedDictFie
 
 
 def _union(
-    members: dict[str, CoreSchema],
-    pick: Callable[[Any], str | None],
-    expects: str,
-    *,
-    field: str = "",
-    choices: tuple[str, ...] = (),
-    message: str = "",
+    members: dict[str, CoreSchema], pick: Callable[[Any], str | None], expects: str, **why: str
 ) -> CoreSchema:
-    """The member ``pick`` names; a value that picks none is a UNION error, told by context.
-
-    Not a mapping (``expects``), ``field`` missing or not one of ``choices``, or ``message``.
-    The members' names stand in error locations, so each has a space: no key is named so.
-    """
+    """The member ``pick`` names; a value that picks none is a UNION error whose context says
+    why: not a mapping (``expects``), the tag ``field`` missing or not one of ``choices`` (joined
+    by commas: pydantic takes only scalars in a context), or ``message``. The members' names
+    stand in error locations, so each has a space: no key is named so."""
     from pydantic_core import core_schema
 
-    # pydantic takes only scalars in the context, hence the joined choices.
-    context: dict[str, int | str | float] = {
-        "field": field,
-        "choices": ",".join(choices),
-        "expects": expects,
-        "message": message,
-    }
+    context: dict[str, int | str | float] = {"field": "", "choices": "", "message": "", **why}
     return core_schema.tagged_union_schema(
         members,
         pick,
         custom_error_type=UNION,
         custom_error_message=expects,
-        custom_error_context=context,
+        custom_error_context={**context, "expects": expects},
     )
 
 
