@@ -266,7 +266,10 @@ def read_yaml(path: Path, shown: str) -> YamlDocument:
     try:
         return _parse(raw, shown)
     except yaml.MarkedYAMLError as exc:
-        raise _syntax_error(exc, shown) from None
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark is not None else None
+        parts = [part for part in (exc.context, exc.problem) if part]
+        raise spec_error(shown, line, (), "invalid YAML: " + ", ".join(parts)) from None
     except yaml.YAMLError as exc:
         raise spec_error(shown, None, (), f"YAML error: {exc}") from None
     except RecursionError:
@@ -316,13 +319,6 @@ def _parse(raw: bytes, shown: str) -> YamlDocument:
         return YamlDocument(loader.construct_document(node), lines)
     finally:
         loader.dispose()
-
-
-def _syntax_error(exc: yaml.MarkedYAMLError, shown: str) -> SpecError:
-    mark = exc.problem_mark or exc.context_mark
-    line = mark.line + 1 if mark is not None else None
-    parts = [part for part in (exc.context, exc.problem) if part]
-    return spec_error(shown, line, (), "invalid YAML: " + ", ".join(parts))
 
 
 # --- a viewpoint saved from sensaov view: a camera entry, or a copy of the job file ---------

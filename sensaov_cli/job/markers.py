@@ -87,10 +87,8 @@ class Given:
 
 
 class In:
-    """The field is a key of these shapes of its class only (objective types, camera kinds).
-
-    There it may be ``required``, or have a ``default`` and a ``doc`` of its own.
-    """
+    """The field is a key of these shapes of its class only (objective types, camera kinds);
+    there it may be ``required``, or have a ``default`` and a ``doc`` of its own."""
 
     def __init__(
         self, *shapes: str, required: bool = False, default: Any = MISSING, doc: str | None = None
@@ -166,12 +164,9 @@ class MinItems(After):
 
 
 class JobPath:
-    """A path written relative to the job file, read as an absolute path that ``check`` accepts.
-
-    ``check(path, job_dir)`` raises :class:`~.problems.Problem`. With ``null_means``, leaving
-    the key out or writing null stands for that path ("{stem}": the job file's name without
-    its suffix), unchecked. The job file is ``context["job"]`` of the validation.
-    """
+    """A path written relative to the job file (``context["job"]`` of the validation), read as
+    an absolute path that ``check(path, job_dir)`` accepts. With ``null_means``, leaving the key
+    out or writing null stands for that path ("{stem}": the job file's stem), unchecked."""
 
     def __init__(self, check: Callable[[Path, Path], None], null_means: str | None = None):
         self.check, self.null_means = check, null_means
@@ -206,10 +201,8 @@ class Section:
 
 
 class Tagged:
-    """The class is written in one shape per value of its ``field`` ("type: python").
-
-    ``expects`` says what an item must be; each shape is titled by its value and ``noun``.
-    """
+    """The class is written in one shape per value of its ``field`` ("type: python");
+    ``expects`` says what an item must be; each shape is titled by its value and ``noun``."""
 
     def __init__(self, field: str, expects: str, noun: str) -> None:
         self.field, self.expects, self.noun = field, expects, noun
@@ -224,7 +217,7 @@ class Tagged:
 
         shapes = {value: [tagged(key, value) for key in _keys(cls, value)] for value in values}
         members = {}
-        for value, keys in _ordered(shapes, lambda value: tag).items():
+        for value, keys in _ordered(shapes, tag).items():
             form = _Form(cls, keys, _camel(value) + self.noun, owner=f" for {tag} {value}")
             members[f"{tag}: {value}"] = _mapping(form, handler)
 
@@ -252,7 +245,7 @@ class TaggedByKey:
     noun: str
 
     def __get_pydantic_core_schema__(self, cls: type, handler: GetCoreSchemaHandler) -> Any:
-        shapes = _ordered({key: _keys(cls, key) for key in self.keys}, lambda key: key)
+        shapes = _ordered({key: _keys(cls, key) for key in self.keys}, None)
 
         def clash(key: Any) -> Problem | None:
             return Problem(self.clash.format(key), at=(key,)) if key in self.keys else None
@@ -270,10 +263,8 @@ class TaggedByKey:
 
 
 class SensorOrPlaced:
-    """A camera written as a sensor id, as the mapping of its shape ``placed``, or as null.
-
-    The camera is named ``name``; null (or no key) is the scene's first sensor.
-    """
+    """A camera named ``name``, written as a sensor id, as the mapping of its shape ``placed``,
+    or as null (or no key): the scene's first sensor."""
 
     def __init__(self, placed: str, name: str) -> None:
         self.placed, self.name = placed, name
@@ -379,17 +370,13 @@ def _key(field: dataclasses.Field[Any], hint: Any, here: In | None) -> _Key:
     return _Key(field.name, hint if default is None else _not_null(hint), default)
 
 
-def _ordered(
-    shapes: dict[str, list[_Key]], picked_by: Callable[[str], str]
-) -> dict[str, list[_Key]]:
-    """Each shape's keys as a base class and its subclasses would list them.
-
-    First the keys alike in every shape, then the key that picks the shape, then its own.
-    """
+def _ordered(shapes: dict[str, list[_Key]], tag: str | None) -> dict[str, list[_Key]]:
+    """Each shape's keys as a base class and its subclasses would list them: first the keys
+    alike in every shape, then the key that picks the shape (``tag``, else the shape's name)."""
     first, *others = shapes.values()
     shared = {key.name for key in first if all(key in keys for keys in others)}
     return {
-        shape: sorted(keys, key=lambda key: (key.name not in shared, key.name != picked_by(shape)))
+        shape: sorted(keys, key=lambda key: (key.name not in shared, key.name != (tag or shape)))
         for shape, keys in shapes.items()
     }
 
@@ -400,7 +387,13 @@ def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
 
     fields = {key.name: _field(key, handler) for key in form.keys}
     names = tuple(fields)
-    given = _given(form.cls)
+    # The fields the loader gives, and their keys in its context.
+    given = {
+        each.field.name: item.key
+        for each in _declared(form.cls)
+        for item in each.metadata
+        if isinstance(item, Given)
+    }
 
     def build(values: dict[str, Any], info: core_schema.ValidationInfo) -> Any:
         context = info.context or {}
@@ -422,16 +415,6 @@ def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
     typed = core_schema.typed_dict_schema(fields, cls=cls, extra_behavior="forbid")
     read = core_schema.with_info_after_validator_function(build, typed)
     return core_schema.no_info_before_validator_function(known, read, ref=form.ref)
-
-
-def _given(cls: type) -> dict[str, str]:
-    """The fields of ``cls`` the loader gives, and their keys in its context."""
-    return {
-        each.field.name: item.key
-        for each in _declared(cls)
-        for item in each.metadata
-        if isinstance(item, Given)
-    }
 
 
 def _field(key: _Key, handler: GetCoreSchemaHandler) -> core_schema.TypedDictField:

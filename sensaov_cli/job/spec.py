@@ -6,9 +6,8 @@ Every field of the job format is defined here once: name, type and default, and 
 and ``true`` is not a number, but ``40`` is accepted where a float is expected. Importing this
 module loads neither pydantic nor PyYAML, so views and outputs name its classes freely.
 
-A class a job file writes in several shapes keeps one field that tells them apart
-(``ObjectiveSpec.type``, ``ChannelSpec.kind``; a camera's kind is the key that picks it), and
-a field marked ``In`` is a key of the named shapes only.
+A class written in several shapes keeps one field that tells them apart (``ObjectiveSpec.type``,
+``ChannelSpec.kind``; a camera's kind is the key that picks it).
 """
 
 from __future__ import annotations
@@ -594,11 +593,8 @@ class JobSpec(Section):
         return dict(_jsonable(dataclasses.asdict(self), None))
 
     def job_hash(self) -> str:
-        """sha256 of the spec without ``path``, its paths relative to the job's directory.
-
-        Relative paths make the hash survive moving or copying a project directory: the
-        same job next to the same files hashes the same wherever it lies.
-        """
+        """sha256 of the spec without ``path``, its paths relative to the job's directory: the
+        same job next to the same files hashes the same wherever the project lies."""
         fields = _jsonable(dataclasses.asdict(self), self.path.parent)
         del fields["path"]
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
