@@ -79,11 +79,8 @@ def did_you_mean(word: object, choices: Sequence[str]) -> str | None:
 UNION = "sensaov_union"
 
 
-class Given:
-    """Not a key of the job file: the loader gives the value, in its context as ``key``."""
-
-    def __init__(self, key: str) -> None:
-        self.key = key
+class JobFilePath:
+    """Not a key of the job file: the job file's own path, ``context["job"]`` of the validation."""
 
 
 class In:
@@ -349,7 +346,7 @@ def _keys(cls: type, shape: str | None) -> list[_Key]:
     for each in _declared(cls):
         places = [item for item in each.metadata if isinstance(item, In)]
         here = next((place for place in places if shape in place.shapes), None)
-        if any(isinstance(item, Given) for item in each.metadata) or (places and here is None):
+        if JobFilePath in each.metadata or (places and here is None):
             continue
         keys.append(_key(each.field, each.hint, here))
     return keys
@@ -387,17 +384,10 @@ def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
 
     fields = {key.name: _field(key, handler) for key in form.keys}
     names = tuple(fields)
-    # The fields the loader gives, and their keys in its context.
-    given = {
-        each.field.name: item.key
-        for each in _declared(form.cls)
-        for item in each.metadata
-        if isinstance(item, Given)
-    }
+    given = [each.field.name for each in _declared(form.cls) if JobFilePath in each.metadata]
 
     def build(values: dict[str, Any], info: core_schema.ValidationInfo) -> Any:
-        context = info.context or {}
-        loaded = {name: context[key] for name, key in given.items()}
+        loaded = {name: (info.context or {})["job"] for name in given}
         return form.cls(**values, **form.fixed, **loaded)
 
     def known(data: Any) -> Any:

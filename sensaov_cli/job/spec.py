@@ -29,8 +29,8 @@ from sensaov_cli.job.markers import (
     After,
     Before,
     Doc,
-    Given,
     In,
+    JobFilePath,
     JobPath,
     Json,
     MinItems,
@@ -531,7 +531,7 @@ Channel = Annotated[ChannelSpec, Tagged("kind", "a mapping with name and kind", 
 class JobSpec(Section):
     """A sensaov job: which scene, which objectives, which views of their sensitivities."""
 
-    path: Annotated[Path, Given("job")]  # the job file itself
+    path: Annotated[Path, JobFilePath]
     version: Annotated[Literal[1], Doc("Job format version.")]
     scene: Annotated[JobFile, Doc("Mitsuba scene XML, relative to the job.")]
     scene_args: SceneArgs = dataclasses.field(default_factory=dict)
