@@ -210,10 +210,6 @@ def _quoted_number_hint(kind: str, value: Any) -> str | None:
 
 
 # --- the YAML, read as yaml.safe_load reads it, with the line of every key path ---
-#
-# yaml.safe_load forgets where things were and silently keeps the last of two equal keys, so
-# the node tree is composed with the same SafeLoader, walked to note lines and refuse duplicate
-# keys, then constructed: the data is exactly what safe_load returns.
 
 
 def format_key_path(path: KeyPath) -> str:
@@ -277,7 +273,12 @@ def read_yaml(path: Path, shown: str) -> YamlDocument:
 
 
 def _parse(raw: bytes, shown: str) -> YamlDocument:
-    """The data and the line of every key and item; a duplicate key is refused."""
+    """The data and the line of every key and item; a duplicate key is refused.
+
+    yaml.safe_load forgets where things were and silently keeps the last of two equal keys, so
+    the node tree is composed with the same SafeLoader, walked, then constructed: the data is
+    exactly what safe_load returns.
+    """
     loader = yaml.SafeLoader(raw)  # reads the encoding: may raise
     lines: dict[KeyPath, int] = {}
     seen: set[int] = set()
@@ -322,14 +323,11 @@ def _parse(raw: bytes, shown: str) -> YamlDocument:
 
 
 # --- a viewpoint saved from sensaov view: a camera entry, or a copy of the job file ---------
-#
-# The camera entry is what ``inspection_cameras`` takes, so the same view can be projected on a
-# farm. The copy is the job as safe_load reads it (its comments are lost) with the cameras
-# appended and every path rewritten relative to the copy, so it names the same files.
 
 
 def camera_entry(camera: CameraSpec) -> dict[str, Any]:
-    """The mapping a job's ``inspection_cameras`` list takes for a ``look_at`` camera."""
+    """The mapping a job's ``inspection_cameras`` list takes for a ``look_at`` camera, so the
+    view can be projected on a farm."""
     assert camera.look_at is not None and camera.resolution is not None
     look = camera.look_at
     rounded = {key: [_round(v) for v in getattr(look, key)] for key in ("origin", "target", "up")}
@@ -361,8 +359,9 @@ def check_camera_name(name: str, taken: Sequence[str]) -> str | None:
 def job_copy_text(
     job: JobSpec, base: Path, cameras: Sequence[CameraSpec], copy: Path, buffer: Path
 ) -> str:
-    """The job file ``base`` (the job itself, or an earlier copy of it) with ``cameras``
-    appended, its paths rewritten for a file at ``copy``; ``buffer`` is named in its header."""
+    """The job file ``base`` (the job itself, or an earlier copy of it, as safe_load reads it:
+    without comments) with ``cameras`` appended, its paths rewritten for a file at ``copy`` so
+    it names the same files; ``buffer`` is named in its header."""
     data = yaml.safe_load(base.read_text())
     folder = copy.parent
     data["scene"] = _relative(job.scene, folder)
