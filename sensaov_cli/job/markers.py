@@ -198,11 +198,11 @@ class Section:
 
 
 class Tagged:
-    """The class is written in one shape per value of its ``field`` ("type: python");
-    ``expects`` says what an item must be; each shape is titled by its value and ``noun``."""
+    """The class is written in one shape per value of its ``field`` ("type: python"), each
+    titled by its value and ``noun``."""
 
-    def __init__(self, field: str, expects: str, noun: str) -> None:
-        self.field, self.expects, self.noun = field, expects, noun
+    def __init__(self, field: str, noun: str) -> None:
+        self.field, self.noun = field, noun
 
     def __get_pydantic_core_schema__(self, cls: type, handler: GetCoreSchemaHandler) -> Any:
         tag = self.field
@@ -222,7 +222,8 @@ class Tagged:
             chosen = value.get(tag) if isinstance(value, dict) else None
             return f"{tag}: {chosen}" if isinstance(chosen, str) and chosen in values else None
 
-        return _union(members, pick, self.expects, field=tag, choices=",".join(values))
+        expects = f"a mapping with name and {tag}"
+        return _union(members, pick, expects, field=tag, choices=",".join(values))
 
 
 @dataclass(frozen=True, eq=False)

@@ -521,10 +521,8 @@ class ForwardSpec:
             )
 
 
-Objective = Annotated[
-    ObjectiveSpec, Tagged("type", "a mapping with name and type", noun="Objective")
-]
-Channel = Annotated[ChannelSpec, Tagged("kind", "a mapping with name and kind", noun="Channel")]
+Objective = Annotated[ObjectiveSpec, Tagged("type", noun="Objective")]
+Channel = Annotated[ChannelSpec, Tagged("kind", noun="Channel")]
 
 
 @dataclass(frozen=True, kw_only=True)
