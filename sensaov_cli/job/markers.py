@@ -270,15 +270,14 @@ class SensorOrPlaced:
     def __get_pydantic_core_schema__(self, cls: type, handler: GetCoreSchemaHandler) -> Any:
         from pydantic_core import core_schema
 
-        name = self.name
-        placed = _Form(cls, _keys(cls, self.placed), "ObjectiveLookAt", fixed={"name": name})
+        placed = _Form(cls, _keys(cls, self.placed), "ObjectiveLookAt", fixed={"name": self.name})
         members = {
             "sensor id": core_schema.no_info_after_validator_function(
-                lambda sensor: cls(name=name, sensor=sensor), handler.generate_schema(Text)
+                lambda sensor: cls(name=self.name, sensor=sensor), handler.generate_schema(Text)
             ),
             "look_at mapping": _mapping(placed, handler),
             "first sensor": core_schema.no_info_after_validator_function(
-                lambda _: cls(name=name), core_schema.none_schema()
+                lambda _: cls(name=self.name), core_schema.none_schema()
             ),
         }
 

@@ -159,7 +159,6 @@ Region = Annotated[
     After(_ordered_region),
 ]
 JobFile = Annotated[Path, JobPath(_existing("file", Path.is_file))]
-# The directory put on sys.path for a python objective; null = the job file's own.
 JobDir = Annotated[Path | None, JobPath(_existing("directory", Path.is_dir), null_means=".")]
 OutputDir = Annotated[Path, JobPath(_output_dir, null_means="out/{stem}")]
 Globs = Annotated[
@@ -181,7 +180,6 @@ def _scene_arg_text(value: Any) -> Any:
     raise Problem(f"must be a string, a number or true/false, got {describe(value)}")
 
 
-# A scene's $name arguments, as mitsuba.load_file takes them: each value is passed as text.
 SceneArgs = Annotated[
     dict[
         Annotated[str, STRICT, Setting(pattern=SCENE_ARG_PATTERN)],
