@@ -46,34 +46,30 @@ class SensaovError(Exception):
         return f"{text} ({self.hint})" if self.hint else text
 
 
-class SpecError(SensaovError):
+class BadInputError(SensaovError):
+    """Base of the errors that are the input's fault, not the job's: exit 2."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
+class SpecError(BadInputError):
     """The job file is malformed: bad YAML, unknown key, wrong type, missing file."""
 
-    exit_code = EXIT_BAD_INPUT
 
-
-class SceneError(SensaovError):
+class SceneError(BadInputError):
     """The scene cannot be loaded or does not contain what the job names."""
 
-    exit_code = EXIT_BAD_INPUT
 
-
-class BufferFormatError(SensaovError):
+class BufferFormatError(BadInputError):
     """A sensitivity buffer file is corrupt, truncated, foreign or of an unknown version."""
 
-    exit_code = EXIT_BAD_INPUT
 
-
-class MergeError(SensaovError):
+class MergeError(BadInputError):
     """Shards that cannot be merged: other scenes, jobs, parameters or versions, gaps, twins."""
-
-    exit_code = EXIT_BAD_INPUT
 
 
 class ObjectiveError(SensaovError):
     """An objective cannot be evaluated (size mismatch, user function failure, NaN)."""
-
-    exit_code = EXIT_JOB_FAILED
 
 
 class EnvironmentProblem(SensaovError):
@@ -82,22 +78,16 @@ class EnvironmentProblem(SensaovError):
     exit_code = EXIT_ENVIRONMENT
 
 
-class InputFileError(SensaovError):
+class InputFileError(BadInputError):
     """A file a command reads is missing, not a regular file (a FIFO, a device) or too large."""
 
-    exit_code = EXIT_BAD_INPUT
 
-
-class MemoryBudgetError(SensaovError):
+class MemoryBudgetError(BadInputError):
     """A setting (resolution, spp, an image's declared size) needs more memory than the budget."""
 
-    exit_code = EXIT_BAD_INPUT
 
-
-class OutputError(SensaovError):
+class OutputError(BadInputError):
     """The output location cannot take the files (not writable, a name taken by a folder)."""
-
-    exit_code = EXIT_BAD_INPUT
 
 
 class BufferContentError(SensaovError):
@@ -118,10 +108,8 @@ class NonFiniteGradientError(BufferContentError):
         self.key = key
 
 
-class UnknownNameError(SensaovError):
+class UnknownNameError(BadInputError):
     """A name (objective, parameter key, object, type) the buffer does not hold."""
-
-    exit_code = EXIT_BAD_INPUT
 
     def __init__(self, kind: str, name: str, valid: Iterable[str]):
         valid = list(valid)
@@ -131,20 +119,14 @@ class UnknownNameError(SensaovError):
         super().__init__(
             f"no {kind} {name!r} in the buffer", hint=f"{hint}known: {shown or 'none'}"
         )
-        self.kind = kind
-        self.name = name
 
 
-class QueryError(SensaovError):
+class QueryError(BadInputError):
     """A query option out of range: an unknown aggregation method, weight or grouping."""
 
-    exit_code = EXIT_BAD_INPUT
 
-
-class EncodingError(SensaovError, ValueError):
+class EncodingError(BadInputError, ValueError):
     """An encoding option out of range, or an encoding description that cannot be read."""
-
-    exit_code = EXIT_BAD_INPUT
 
 
 class NonFiniteError(SensaovError, ValueError):
@@ -165,10 +147,8 @@ class ExrReadError(ExrError):
     exit_code = EXIT_BAD_INPUT
 
 
-class CameraFileError(SensaovError):
+class CameraFileError(BadInputError):
     """An inspection camera's EXR that cannot be read, or that holds no CryptoObject layer."""
-
-    exit_code = EXIT_BAD_INPUT
 
 
 class PreviewError(SensaovError):
@@ -181,20 +161,14 @@ class FingerprintMismatch(SpecError):
     """The buffer was computed on another version of the scene."""
 
 
-class StaleInputError(SensaovError):
+class StaleInputError(BadInputError):
     """An input made from another buffer, or by another version of the job, than the one at
     hand: a preview, an EXR or a buffer that would mix two states in one output."""
 
-    exit_code = EXIT_BAD_INPUT
 
-
-class RequestError(SensaovError):
+class RequestError(BadInputError):
     """A request to ``sensaov view``'s server with a bad value: answered HTTP 400, one line."""
 
-    exit_code = EXIT_BAD_INPUT
 
-
-class ServerError(SensaovError):
+class ServerError(BadInputError):
     """``sensaov view`` cannot listen where it was told to (the port is taken, no such host)."""
-
-    exit_code = EXIT_BAD_INPUT

@@ -1,11 +1,9 @@
 """Bounds on what a command reads and allocates: regular files of capped size, a memory budget.
 
 A FIFO blocks its reader until a writer comes (forever, on a farm), ``/dev/zero`` never ends
-and a 6 kB PNG may declare 40000x40000 pixels. So every file sensaov opens is checked here
-first (:func:`regular_file`, :func:`read_regular`: a regular file, at most so many bytes, opened
-without blocking), and every setting that sizes an allocation (a film, spp, an image's declared
-size) is compared with the memory budget (:func:`check_memory`) before anything is allocated.
-Each refusal is one line naming the file or the setting; the caller's stage picks the class.
+and a 6 kB PNG may declare 40000x40000 pixels: so every file sensaov opens is checked here
+first, and every setting that sizes an allocation is compared with the memory budget before
+anything is allocated. Each refusal is one line naming the file or the setting.
 """
 
 from __future__ import annotations
@@ -125,7 +123,14 @@ def memory_budget() -> tuple[int, str]:
     """
     text = os.environ.get(MEMORY_BUDGET_VARIABLE)
     if text is not None:
-        return parse_size(text), f"{MEMORY_BUDGET_VARIABLE}={text.strip()}"
+        match = _SIZE.match(text)  # 8G, 512M, 1.5G, 1000000: binary units
+        if match is None:
+            raise MemoryBudgetError(
+                f"{MEMORY_BUDGET_VARIABLE}={text!r} is not a size",
+                hint="write bytes or a number with K, M, G or T, e.g. 8G",
+            )
+        size = int(float(match.group(1)) * _UNITS[match.group(2).upper()])
+        return size, f"{MEMORY_BUDGET_VARIABLE}={text.strip()}"
     limits = {"the machine's memory": os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")}
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
     if soft != resource.RLIM_INFINITY:
@@ -135,17 +140,6 @@ def memory_budget() -> tuple[int, str]:
         limits["the cgroup's memory.max"] = cgroup
     source, least = min(limits.items(), key=lambda item: item[1])
     return int(least * BUDGET_SHARE), f"3/4 of {source}; {MEMORY_BUDGET_VARIABLE} sets it"
-
-
-def parse_size(text: str) -> int:
-    """``8G``, ``512M``, ``1.5G``, ``1000000`` -> bytes (binary units)."""
-    match = _SIZE.match(text)
-    if match is None:
-        raise MemoryBudgetError(
-            f"{MEMORY_BUDGET_VARIABLE}={text!r} is not a size",
-            hint="write bytes or a number with K, M, G or T, e.g. 8G",
-        )
-    return int(float(match.group(1)) * _UNITS[match.group(2).upper()])
 
 
 def _cgroup_limit() -> int | None:

@@ -23,7 +23,10 @@ class Progress:
         self.stream = stream if stream is not None else sys.stderr
         self.quiet = quiet or self.stream is None  # None: Python started with stderr closed
         if style == "auto":
-            style = "plain" if _is_terminal(self.stream) else "farm"
+            try:
+                style = "plain" if self.stream.isatty() else "farm"
+            except (AttributeError, ValueError):  # no isatty, or a closed stream
+                style = "farm"
         self.farm = style == "farm"
         self.timings: dict[str, float] = {}
         self._planned = 0
@@ -74,10 +77,3 @@ class Progress:
         if percent > self._shown:
             self._shown = percent
             self._print(f"Progress: {percent}%")
-
-
-def _is_terminal(stream) -> bool:  # noqa: ANN001 - any text stream
-    try:
-        return bool(stream.isatty())
-    except (AttributeError, ValueError):
-        return False

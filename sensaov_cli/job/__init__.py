@@ -1,8 +1,5 @@
 """The job format: a YAML job file, validated into frozen dataclasses (pydantic, PyYAML).
 
-``spec`` holds the dataclasses every stage shares, each field defined once, and imports
-neither pydantic nor PyYAML (``fields``, ``markers`` and ``problems`` say how a job file writes
-and words them); ``load`` reads a job file into them, gives the JSON Schema, and writes a copy
-of the job with cameras saved from ``sensaov view``.
-See docs/architecture.md and docs/job-spec.md.
+``spec`` holds the dataclasses, importable without pydantic or PyYAML; ``markers`` says how a
+job file writes their fields; ``load`` reads a job file, gives its JSON Schema, writes copies.
 """

@@ -1,14 +1,8 @@
 """The job file in YAML: read into a :class:`~.spec.JobSpec` (or where it is wrong), written back.
 
-:func:`load_job` reads the file (``yaml.safe_load`` semantics, see :func:`read_yaml`),
-validates it straight into the dataclasses of :mod:`.spec` (pydantic reads their fields, see
-:mod:`.markers`), and returns the :class:`JobSpec` with every path resolved against the job
-file's directory. Anything wrong raises one :class:`~sensaov_cli.errors.SpecError` located as
-``<job>:<line>: <key path>``: the first problem in the file, by line. :func:`job_schema` is the
-JSON Schema of the format. :func:`job_copy_text` writes the job file back, with cameras
-saved from ``sensaov view``.
-
-The format is documented in ``docs/job-spec.md``.
+Anything wrong in a job file raises one :class:`~sensaov_cli.errors.SpecError` located as
+``<job>:<line>: <key path>``: the first problem in the file, by line. The format is documented
+in ``docs/job-spec.md``.
 """
 
 from __future__ import annotations
@@ -30,10 +24,8 @@ from pydantic.json_schema import GenerateJsonSchema, JsonSchemaValue
 from pydantic_core import ErrorDetails
 
 from sensaov_cli.errors import SpecError
-from sensaov_cli.job.fields import NAME_PATTERN, PATTERN_MEANINGS
-from sensaov_cli.job.markers import UNION
-from sensaov_cli.job.problems import Problem, close_match, describe
-from sensaov_cli.job.spec import CameraSpec, JobSpec
+from sensaov_cli.job.markers import UNION, Problem, describe, did_you_mean
+from sensaov_cli.job.spec import NAME_PATTERN, PATTERN_MEANINGS, CameraSpec, JobSpec
 from sensaov_cli.limits import read_regular
 
 SUPPORTED_VERSIONS = (1,)
@@ -115,7 +107,8 @@ def _as_written(value: Any) -> Any:
 
 
 def _check_top_level(document: YamlDocument, shown: str) -> None:
-    """The checks that must come before the rest: a mapping, of a version we know."""
+    """The checks that come before the rest: a mapping, of a version we know (the version
+    decides what the other keys mean)."""
     data = document.data
     if data is None:
         raise spec_error(shown, None, (), "the job file is empty", "start with 'version: 1'")
@@ -123,17 +116,12 @@ def _check_top_level(document: YamlDocument, shown: str) -> None:
         message = f"the job file must be a mapping of keys, not {describe(data)}"
         hint = "start with 'version: 1', then 'scene:', 'objectives:'"
         raise spec_error(shown, document.line_of(()), (), message, hint)
-    _check_version(document, shown)
-
-
-def _check_version(document: YamlDocument, shown: str) -> None:
-    # Checked before everything else: the version decides what the other keys mean.
     supported = ", ".join(map(str, SUPPORTED_VERSIONS))
     where = (shown, document.line_of(("version",)), ("version",))
-    if "version" not in document.data:
+    if "version" not in data:
         hint = f"add 'version: 1' as the first line; supported versions: {supported}"
         raise spec_error(*where, "missing required key", hint)
-    version = document.data["version"]
+    version = data["version"]
     if type(version) is not int:
         message = f"must be an integer, got {describe(version)}"
         raise spec_error(*where, message, "write 'version: 1'")
@@ -144,15 +132,10 @@ def _check_version(document: YamlDocument, shown: str) -> None:
 
 def _first_error(exc: ValidationError, document: YamlDocument, shown: str) -> SpecError:
     """The problem written earliest in the file, worded for a person who edits YAML."""
-    located = []
-    for error in exc.errors():
-        path, message, hint = _explain(error)
-        located.append((document.line_of(path), path, message, hint))
+    explained = [_explain(error) for error in exc.errors()]
     # min() keeps the first of equals, so pydantic's order settles ties on one line.
-    line, path, message, hint = min(
-        located, key=lambda item: math.inf if item[0] is None else item[0]
-    )
-    return spec_error(shown, line, path, message, hint)
+    path, message, hint = min(explained, key=lambda each: document.line_of(each[0]) or math.inf)
+    return spec_error(shown, document.line_of(path), path, message, hint)
 
 
 def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
@@ -170,12 +153,7 @@ def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
     if kind == "missing":
         return path, "missing required key", None
     if kind == "literal_error":
-        choices = re.findall(r"'([^']*)'", ctx["expected"])
-        return (
-            path,
-            f"must be one of {', '.join(choices)}; got {describe(value)}",
-            _typo(value, choices),
-        )
+        return (path, *_not_one_of(re.findall(r"'([^']*)'", ctx["expected"]), value))
     if kind == "dict_type":
         return path, f"must be a mapping, got {describe(value)}", None
     return path, _reword(error), _quoted_number_hint(kind, value)
@@ -192,16 +170,17 @@ def _explain_union(path: KeyPath, error: ErrorDetails) -> tuple[KeyPath, str, st
     if field not in value:
         # A misspelt tag key ("typ:") is the likelier story than a forgotten one.
         for key in value:
-            if close_match(key, (field,)) is not None:
-                return path + (key,), f"unknown key {describe(key)}", f"did you mean '{field}'?"
+            hint = did_you_mean(key, (field,))
+            if hint is not None:
+                return path + (key,), f"unknown key {describe(key)}", hint
         return path + (field,), f"missing required key (one of: {', '.join(choices)})", None
-    message = f"must be one of {', '.join(choices)}; got {describe(value[field])}"
-    return path + (field,), message, _typo(value[field], choices)
+    return (path + (field,), *_not_one_of(choices, value[field]))
 
 
-def _typo(value: Any, choices: list[str] | tuple[str, ...]) -> str | None:
-    close = close_match(value, choices) if isinstance(value, str) else None
-    return None if close is None else f"did you mean '{close}'?"
+def _not_one_of(choices: Sequence[str], value: Any) -> tuple[str, str | None]:
+    """The message and hint for a value that is none of ``choices``."""
+    hint = did_you_mean(value, choices) if isinstance(value, str) else None
+    return f"must be one of {', '.join(choices)}; got {describe(value)}", hint
 
 
 def _reword(error: ErrorDetails) -> str:
@@ -212,12 +191,6 @@ def _reword(error: ErrorDetails) -> str:
         return f"must be {meaning}; got {describe(value)}"
     if kind == "string_too_short" and ctx["min_length"] == 1:
         return "must not be empty"
-    if kind in ("too_short", "too_long"):
-        bound = "at least" if kind == "too_short" else "at most"
-        limit = ctx.get("min_length", ctx.get("max_length"))
-        unit = "character" if isinstance(value, str) else "item"
-        plural = "" if limit == 1 else "s"
-        return f"must have {bound} {limit} {unit}{plural}, got {ctx['actual_length']}"
     if kind == "tuple_type":
         # The dataclasses hold a job file's lists as tuples; YAML has only lists.
         return f"must be a list, got {describe(value)}"
@@ -237,11 +210,6 @@ def _quoted_number_hint(kind: str, value: Any) -> str | None:
 
 
 # --- the YAML, read as yaml.safe_load reads it, with the line of every key path ---
-#
-# yaml.safe_load forgets where things were and silently keeps the last of two equal keys. The
-# node tree is composed with the same SafeLoader, walked once to note the line of each key path
-# and refuse duplicate keys, then constructed from the same tree, so the data is exactly what
-# safe_load returns.
 
 
 def format_key_path(path: KeyPath) -> str:
@@ -290,12 +258,14 @@ class YamlDocument:
 
 def read_yaml(path: Path, shown: str) -> YamlDocument:
     """Read and parse ``path``; every failure is a SpecError located in ``shown``."""
-    # A regular file of sane size: a FIFO would block forever, /dev/zero never end.
     raw = read_regular(path, "job file", cap=MAX_JOB_BYTES, error=SpecError)
     try:
         return _parse(raw, shown)
     except yaml.MarkedYAMLError as exc:
-        raise _syntax_error(exc, shown) from None
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark is not None else None
+        parts = [part for part in (exc.context, exc.problem) if part]
+        raise spec_error(shown, line, (), "invalid YAML: " + ", ".join(parts)) from None
     except yaml.YAMLError as exc:
         raise spec_error(shown, None, (), f"YAML error: {exc}") from None
     except RecursionError:
@@ -303,84 +273,67 @@ def read_yaml(path: Path, shown: str) -> YamlDocument:
 
 
 def _parse(raw: bytes, shown: str) -> YamlDocument:
-    loader = yaml.SafeLoader(raw)
+    """The data and the line of every key and item; a duplicate key is refused.
+
+    yaml.safe_load forgets where things were and silently keeps the last of two equal keys, so
+    the node tree is composed with the same SafeLoader, walked, then constructed: the data is
+    exactly what safe_load returns.
+    """
+    loader = yaml.SafeLoader(raw)  # reads the encoding: may raise
+    lines: dict[KeyPath, int] = {}
+    seen: set[int] = set()
+
+    def walk(node: yaml.Node, path: KeyPath) -> None:
+        # An alias repeats a node; walking it once keeps "billion laughs" documents cheap.
+        if id(node) in seen:
+            return
+        seen.add(id(node))
+        if isinstance(node, yaml.SequenceNode):
+            for index, item in enumerate(node.value):
+                lines.setdefault(path + (index,), item.start_mark.line + 1)
+                walk(item, path + (index,))
+        elif isinstance(node, yaml.MappingNode):
+            first: dict[Any, int] = {}
+            for key_node, value_node in node.value:
+                if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == _MERGE_TAG:
+                    continue  # merge keys and complex keys are left to the constructor
+                key = loader.construct_object(key_node)
+                line = key_node.start_mark.line + 1
+                if key in first:
+                    raise spec_error(
+                        shown,
+                        line,
+                        path + (key,),
+                        f"duplicate key (first given on line {first[key]})",
+                        "YAML would silently keep only the last one; remove one",
+                    )
+                first[key] = line
+                lines.setdefault(path + (key,), line)
+                walk(value_node, path + (key,))
+
     try:
         node = loader.get_single_node()
         if node is None:
             raise spec_error(shown, None, (), "the job file is empty", "start with 'version: 1'")
-        lines: dict[KeyPath, int] = {(): node.start_mark.line + 1}
-        _walk(loader, node, (), lines, set(), shown)
-        data = loader.construct_document(node)
+        lines[()] = node.start_mark.line + 1
+        walk(node, ())
+        return YamlDocument(loader.construct_document(node), lines)
     finally:
         loader.dispose()
-    return YamlDocument(data, lines)
-
-
-def _walk(
-    loader: yaml.SafeLoader,
-    node: yaml.Node,
-    path: KeyPath,
-    lines: dict[KeyPath, int],
-    seen: set[int],
-    shown: str,
-) -> None:
-    """Note the line of every key and item below ``node``; refuse duplicate keys."""
-    # An alias repeats a node; walking it once keeps "billion laughs" documents cheap.
-    if id(node) in seen:
-        return
-    seen.add(id(node))
-    if isinstance(node, yaml.SequenceNode):
-        for index, item in enumerate(node.value):
-            lines.setdefault(path + (index,), item.start_mark.line + 1)
-            _walk(loader, item, path + (index,), lines, seen, shown)
-    elif isinstance(node, yaml.MappingNode):
-        first: dict[Any, int] = {}
-        for key_node, value_node in node.value:
-            if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == _MERGE_TAG:
-                continue  # merge keys and complex keys are left to the constructor
-            key = loader.construct_object(key_node)
-            line = key_node.start_mark.line + 1
-            if key in first:
-                raise spec_error(
-                    shown,
-                    line,
-                    path + (key,),
-                    f"duplicate key (first given on line {first[key]})",
-                    "YAML would silently keep only the last one; remove one",
-                )
-            first[key] = line
-            lines.setdefault(path + (key,), line)
-            _walk(loader, value_node, path + (key,), lines, seen, shown)
-
-
-def _syntax_error(exc: yaml.MarkedYAMLError, shown: str) -> SpecError:
-    mark = exc.problem_mark or exc.context_mark
-    line = mark.line + 1 if mark is not None else None
-    parts = [part for part in (exc.context, exc.problem) if part]
-    return spec_error(shown, line, (), "invalid YAML: " + ", ".join(parts))
 
 
 # --- a viewpoint saved from sensaov view: a camera entry, or a copy of the job file ---------
-#
-# The camera entry is what ``inspection_cameras`` takes (a ``look_at`` camera), so the same view
-# can be projected on a farm. The copy is the job as written (read back as ``yaml.safe_load``
-# reads it, so its comments are not kept) with the cameras appended and every path rewritten
-# relative to where the copy lies, so that it names the same scene, files and output folder.
-
-RESERVED_NAMES = ("primal", "buffer", "objective")
 
 
 def camera_entry(camera: CameraSpec) -> dict[str, Any]:
-    """The mapping a job's ``inspection_cameras`` list takes for a ``look_at`` camera."""
+    """The mapping a job's ``inspection_cameras`` list takes for a ``look_at`` camera, so the
+    view can be projected on a farm."""
     assert camera.look_at is not None and camera.resolution is not None
     look = camera.look_at
+    rounded = {key: [_round(v) for v in getattr(look, key)] for key in ("origin", "target", "up")}
     return {
         "name": camera.name,
-        "look_at": {
-            "origin": [_round(v) for v in look.origin],
-            "target": [_round(v) for v in look.target],
-            "up": [_round(v) for v in look.up],
-        },
+        "look_at": rounded,
         "fov": _round(camera.fov),
         "resolution": list(camera.resolution),
         "vis_spp": camera.vis_spp,
@@ -396,7 +349,7 @@ def check_camera_name(name: str, taken: Sequence[str]) -> str | None:
     """Why ``name`` cannot name a new inspection camera, or None when it can."""
     if not re.fullmatch(NAME_PATTERN, name):
         return f"camera name {name!r} must be a letter then up to 31 letters, digits or _"
-    if name in RESERVED_NAMES:
+    if name in ("primal", "buffer", "objective"):
         return f"camera name {name!r} is reserved"
     if name in taken:
         return f"the job already has an inspection camera named {name!r}"
@@ -406,8 +359,9 @@ def check_camera_name(name: str, taken: Sequence[str]) -> str | None:
 def job_copy_text(
     job: JobSpec, base: Path, cameras: Sequence[CameraSpec], copy: Path, buffer: Path
 ) -> str:
-    """The job file ``base`` (the job itself, or an earlier copy of it) with ``cameras``
-    appended, its paths rewritten for a file at ``copy``; ``buffer`` is named in its header."""
+    """The job file ``base`` (the job itself, or an earlier copy of it, as safe_load reads it:
+    without comments) with ``cameras`` appended, its paths rewritten for a file at ``copy`` so
+    it names the same files; ``buffer`` is named in its header."""
     data = yaml.safe_load(base.read_text())
     folder = copy.parent
     data["scene"] = _relative(job.scene, folder)

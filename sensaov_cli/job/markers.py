@@ -1,31 +1,26 @@
-"""How a job file writes a field: ``Annotated`` markers, and the pydantic schemas they build.
+"""How a job file writes a field and words its mistakes: ``Annotated`` markers, their schemas.
 
-The dataclasses of :mod:`.spec` are the one definition of every field; these markers add
-what a job file needs besides the type: checks, descriptions, which shapes of a class take
-the field. pydantic ignores metadata it does not know, so a marker is inert until pydantic
-asks it (``__get_pydantic_core_schema__``, ``__get_pydantic_json_schema__``): pydantic is
-loaded by then, and imported here only inside those hooks, so :mod:`.spec` loads no pydantic.
-Each marker is a plain class, hashable by identity, because typing hashes an ``Annotated``
-that stands in ``X | None``. ``annotated_types`` constraints (``Ge``, ``MinLen``) sit beside
-these; pydantic reads those itself (but see :class:`MinItems`).
+The markers add to a field of :mod:`.spec` what a job file needs besides the type: checks,
+descriptions, which shapes of a class take the field. A marker is inert until pydantic asks it
+(``__get_pydantic_core_schema__``, ``__get_pydantic_json_schema__``), and pydantic is imported
+only inside those hooks, so :mod:`.spec` loads none. Each marker is a plain class, hashable by
+identity, because typing hashes an ``Annotated`` that stands in ``X | None``.
 
-How the schemas read a job file: a section (render, parameters, look_at, the job) is one
-mapping whose keys are its fields, bar those the loader gives. A class written in several
-shapes is a tagged union of such mappings, each taking the fields marked ``In`` that shape and
-the fields marked nowhere: objectives by ``type``, channels by ``kind``, inspection cameras by
-the key that picks their kind, and ``objective_camera`` as a sensor id, a mapping or null.
-Every mapping refuses an unknown key before it looks at any value, and its values become the
-dataclass through the class's own ``__init__``, so ``__post_init__`` checks hold for a job
-file too.
+A section (render, parameters, look_at, the job) is one mapping of its fields, bar those the
+loader gives. A class written in several shapes is a tagged union of such mappings, each
+taking the fields marked ``In`` that shape and the fields marked nowhere. Every mapping refuses
+an unknown key before it looks at any value, and builds the dataclass through its
+``__init__``, so ``__post_init__`` checks hold for a job file too.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import operator
 import os
 import types
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import MISSING, dataclass, field
 from functools import cache, reduce
 from pathlib import Path
@@ -42,39 +37,55 @@ from typing import (
 
 from annotated_types import MinLen
 
-from sensaov_cli.job.problems import Problem, describe, did_you_mean
-
 if TYPE_CHECKING:  # pydantic is imported where it is called: spec.py loads none of it
     from pydantic import GetCoreSchemaHandler
     from pydantic.json_schema import JsonSchemaValue
     from pydantic_core import CoreSchema, core_schema
 
+
+class Problem(ValueError):
+    """A mistake in a job file, in our own words; ``at`` (YAML keys, list indices) extends the
+    key path of the value. pydantic reports it as a ``value_error`` that carries it."""
+
+    def __init__(self, message: str, *, at: tuple[Any, ...] = (), hint: str | None = None):
+        super().__init__(message)
+        self.message, self.at, self.hint = message, at, hint
+
+
+def describe(value: Any) -> str:
+    """A short YAML-flavoured rendering of a user's value for an error message."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if value is None:
+        return "null"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return repr(value if len(value) <= 40 else value[:37] + "...")
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, dict):
+        return "a mapping"
+    return f"a {type(value).__name__}"
+
+
+def did_you_mean(word: object, choices: Sequence[str]) -> str | None:
+    """'did you mean X?' when ``word`` is likely a typo of one of ``choices``."""
+    close = difflib.get_close_matches(str(word), choices, n=1, cutoff=0.6)
+    return f"did you mean '{close[0]}'?" if close else None
+
+
 # The error type of a value that picks no member of a union; its context says why.
 UNION = "sensaov_union"
 
 
-class Doc:
-    """A field's description in the JSON Schema."""
-
-    def __init__(self, text: str) -> None:
-        self.text = text
-
-    def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> JsonSchemaValue:
-        return {**handler(schema), "description": self.text}
-
-
-class Given:
-    """Not a key of the job file: the loader gives the value, in its context as ``key``."""
-
-    def __init__(self, key: str) -> None:
-        self.key = key
+class JobFilePath:
+    """Not a key of the job file: the job file's own path, ``context["job"]`` of the validation."""
 
 
 class In:
-    """The field is a key of these shapes of its class only (objective types, camera kinds).
-
-    There it may be ``required``, or have a ``default`` and a ``doc`` of its own.
-    """
+    """The field is a key of these shapes of its class only (objective types, camera kinds);
+    there it may be ``required``, or have a ``default`` and a ``doc`` of its own."""
 
     def __init__(
         self, *shapes: str, required: bool = False, default: Any = MISSING, doc: str | None = None
@@ -92,19 +103,8 @@ class Setting:
         return {**handler(source), **self.settings}
 
 
-_TEXT = Annotated[str, Setting(strict=True), MinLen(1)]  # a tag or a sensor id: fields.Text
-
-
-class Before:
-    """Check (or convert) the value as written, before its type is checked."""
-
-    def __init__(self, check: Callable[[Any], Any]) -> None:
-        self.check = check
-
-    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
-        from pydantic_core import core_schema
-
-        return core_schema.no_info_before_validator_function(self.check, handler(source))
+STRICT = Setting(strict=True)
+Text = Annotated[str, STRICT, MinLen(1)]  # a tag, a sensor id, a path
 
 
 class After:
@@ -116,7 +116,13 @@ class After:
     def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
         from pydantic_core import core_schema
 
+        if isinstance(self, Before):
+            return core_schema.no_info_before_validator_function(self.check, handler(source))
         return core_schema.no_info_after_validator_function(self.check, handler(source))
+
+
+class Before(After):
+    """Check (or convert) the value as written, before its type is checked."""
 
 
 class Json:
@@ -129,38 +135,35 @@ class Json:
         return dict(self.schema) if self.replace else {**handler(schema), **self.schema}
 
 
-class MinItems:
-    """At least ``n`` items, counted once every item is valid.
+class Doc(Json):
+    """A field's description in the JSON Schema."""
 
-    ``annotated_types.MinLen`` on a tuple makes pydantic count the items that passed, so one
-    bad item would also read as a list too short.
-    """
+    def __init__(self, text: str) -> None:
+        super().__init__({"description": text})
+
+
+class MinItems(After):
+    """At least ``n`` items, counted once every item is valid (``annotated_types.MinLen`` on a
+    tuple counts the items that passed, so one bad item would also read as a list too short)."""
 
     def __init__(self, n: int) -> None:
-        self.n = n
-
-    def __get_pydantic_core_schema__(self, source: Any, handler: Any) -> Any:
-        from pydantic_core import PydanticKnownError, core_schema
-
         def check(items: tuple[Any, ...]) -> tuple[Any, ...]:
-            if len(items) < self.n:
-                context = {"field_type": "List", "min_length": self.n, "actual_length": len(items)}
-                raise PydanticKnownError("too_short", context)
+            if len(items) < n:
+                plural = "" if n == 1 else "s"
+                raise Problem(f"must have at least {n} item{plural}, got {len(items)}")
             return items
 
-        return core_schema.no_info_after_validator_function(check, handler(source))
+        super().__init__(check)
+        self.n = n
 
     def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> JsonSchemaValue:
         return {**handler(schema), "minItems": self.n}
 
 
 class JobPath:
-    """A path written relative to the job file, read as an absolute path that ``check`` accepts.
-
-    ``check(path, job_dir)`` raises :class:`~.problems.Problem`. With ``null_means``, leaving
-    the key out or writing null stands for that path ("{stem}": the job file's name without
-    its suffix), unchecked. The job file is ``context["job"]`` of the validation.
-    """
+    """A path written relative to the job file (``context["job"]`` of the validation), read as
+    an absolute path that ``check(path, job_dir)`` accepts. With ``null_means``, leaving the key
+    out or writing null stands for that path ("{stem}": the job file's stem), unchecked."""
 
     def __init__(self, check: Callable[[Path, Path], None], null_means: str | None = None):
         self.check, self.null_means = check, null_means
@@ -177,7 +180,7 @@ class JobPath:
             self.check(path, job.parent)
             return path
 
-        text = handler.generate_schema(_TEXT)
+        text = handler.generate_schema(Text)
         if self.null_means is None:
             return core_schema.with_info_after_validator_function(read, text)
         nullable = core_schema.with_info_after_validator_function(
@@ -195,13 +198,11 @@ class Section:
 
 
 class Tagged:
-    """The class is written in one shape per value of its ``field`` ("type: python").
+    """The class is written in one shape per value of its ``field`` ("type: python"), each
+    titled by its value and ``noun``."""
 
-    ``expects`` says what an item must be; each shape is titled by its value and ``noun``.
-    """
-
-    def __init__(self, field: str, expects: str, noun: str) -> None:
-        self.field, self.expects, self.noun = field, expects, noun
+    def __init__(self, field: str, noun: str) -> None:
+        self.field, self.noun = field, noun
 
     def __get_pydantic_core_schema__(self, cls: type, handler: GetCoreSchemaHandler) -> Any:
         tag = self.field
@@ -213,7 +214,7 @@ class Tagged:
 
         shapes = {value: [tagged(key, value) for key in _keys(cls, value)] for value in values}
         members = {}
-        for value, keys in _ordered(shapes, lambda value: tag).items():
+        for value, keys in _ordered(shapes, tag).items():
             form = _Form(cls, keys, _camel(value) + self.noun, owner=f" for {tag} {value}")
             members[f"{tag}: {value}"] = _mapping(form, handler)
 
@@ -221,9 +222,11 @@ class Tagged:
             chosen = value.get(tag) if isinstance(value, dict) else None
             return f"{tag}: {chosen}" if isinstance(chosen, str) and chosen in values else None
 
-        return _union(members, pick, self.expects, field=tag, choices=values)
+        expects = f"a mapping with name and {tag}"
+        return _union(members, pick, expects, field=tag, choices=",".join(values))
 
 
+@dataclass(frozen=True, eq=False)
 class TaggedByKey:
     """The class is written in the shape named by the first of ``keys`` present in it.
 
@@ -232,21 +235,15 @@ class TaggedByKey:
     ``expects`` says what an item must be; each shape is titled by its key and ``noun``.
     """
 
-    def __init__(
-        self,
-        keys: tuple[str, ...],
-        *,
-        owners: tuple[str, ...],
-        expects: str,
-        missing: str,
-        clash: str,
-        noun: str,
-    ) -> None:
-        self.keys, self.owners, self.noun = keys, owners, noun
-        self.expects, self.missing, self.clash = expects, missing, clash
+    keys: tuple[str, ...]
+    owners: tuple[str, ...]
+    expects: str
+    missing: str
+    clash: str
+    noun: str
 
     def __get_pydantic_core_schema__(self, cls: type, handler: GetCoreSchemaHandler) -> Any:
-        shapes = _ordered({key: _keys(cls, key) for key in self.keys}, lambda key: key)
+        shapes = _ordered({key: _keys(cls, key) for key in self.keys}, None)
 
         def clash(key: Any) -> Problem | None:
             return Problem(self.clash.format(key), at=(key,)) if key in self.keys else None
@@ -264,10 +261,8 @@ class TaggedByKey:
 
 
 class SensorOrPlaced:
-    """A camera written as a sensor id, as the mapping of its shape ``placed``, or as null.
-
-    The camera is named ``name``; null (or no key) is the scene's first sensor.
-    """
+    """A camera named ``name``, written as a sensor id, as the mapping of its shape ``placed``,
+    or as null (or no key): the scene's first sensor."""
 
     def __init__(self, placed: str, name: str) -> None:
         self.placed, self.name = placed, name
@@ -275,15 +270,14 @@ class SensorOrPlaced:
     def __get_pydantic_core_schema__(self, cls: type, handler: GetCoreSchemaHandler) -> Any:
         from pydantic_core import core_schema
 
-        name = self.name
-        placed = _Form(cls, _keys(cls, self.placed), "ObjectiveLookAt", fixed={"name": name})
+        placed = _Form(cls, _keys(cls, self.placed), "ObjectiveLookAt", fixed={"name": self.name})
         members = {
             "sensor id": core_schema.no_info_after_validator_function(
-                lambda sensor: cls(name=name, sensor=sensor), handler.generate_schema(_TEXT)
+                lambda sensor: cls(name=self.name, sensor=sensor), handler.generate_schema(Text)
             ),
             "look_at mapping": _mapping(placed, handler),
             "first sensor": core_schema.no_info_after_validator_function(
-                lambda _: cls(name=name), core_schema.none_schema()
+                lambda _: cls(name=self.name), core_schema.none_schema()
             ),
         }
 
@@ -352,7 +346,7 @@ def _keys(cls: type, shape: str | None) -> list[_Key]:
     for each in _declared(cls):
         places = [item for item in each.metadata if isinstance(item, In)]
         here = next((place for place in places if shape in place.shapes), None)
-        if any(isinstance(item, Given) for item in each.metadata) or (places and here is None):
+        if JobFilePath in each.metadata or (places and here is None):
             continue
         keys.append(_key(each.field, each.hint, here))
     return keys
@@ -373,17 +367,13 @@ def _key(field: dataclasses.Field[Any], hint: Any, here: In | None) -> _Key:
     return _Key(field.name, hint if default is None else _not_null(hint), default)
 
 
-def _ordered(
-    shapes: dict[str, list[_Key]], picked_by: Callable[[str], str]
-) -> dict[str, list[_Key]]:
-    """Each shape's keys as a base class and its subclasses would list them.
-
-    First the keys alike in every shape, then the key that picks the shape, then its own.
-    """
+def _ordered(shapes: dict[str, list[_Key]], tag: str | None) -> dict[str, list[_Key]]:
+    """Each shape's keys as a base class and its subclasses would list them: first the keys
+    alike in every shape, then the key that picks the shape (``tag``, else the shape's name)."""
     first, *others = shapes.values()
     shared = {key.name for key in first if all(key in keys for keys in others)}
     return {
-        shape: sorted(keys, key=lambda key: (key.name not in shared, key.name != picked_by(shape)))
+        shape: sorted(keys, key=lambda key: (key.name not in shared, key.name != (tag or shape)))
         for shape, keys in shapes.items()
     }
 
@@ -394,11 +384,10 @@ def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
 
     fields = {key.name: _field(key, handler) for key in form.keys}
     names = tuple(fields)
-    given = _given(form.cls)
+    given = [each.field.name for each in _declared(form.cls) if JobFilePath in each.metadata]
 
     def build(values: dict[str, Any], info: core_schema.ValidationInfo) -> Any:
-        context = info.context or {}
-        loaded = {name: context[key] for name, key in given.items()}
+        loaded = {name: (info.context or {})["job"] for name in given}
         return form.cls(**values, **form.fixed, **loaded)
 
     def known(data: Any) -> Any:
@@ -407,7 +396,7 @@ def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
                 raise form.unknown(key) or Problem(
                     f"unknown key {describe(key)}{form.owner}",
                     at=(key,),
-                    hint=did_you_mean(key, names, "keys"),
+                    hint=did_you_mean(key, names) or "valid keys: " + ", ".join(names),
                 )
         return data
 
@@ -416,16 +405,6 @@ def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
     typed = core_schema.typed_dict_schema(fields, cls=cls, extra_behavior="forbid")
     read = core_schema.with_info_after_validator_function(build, typed)
     return core_schema.no_info_before_validator_function(known, read, ref=form.ref)
-
-
-def _given(cls: type) -> dict[str, str]:
-    """The fields of ``cls`` the loader gives, and their keys in its context."""
-    return {
-        each.field.name: item.key
-        for each in _declared(cls)
-        for item in each.metadata
-        if isinstance(item, Given)
-    }
 
 
 def _field(key: _Key, handler: GetCoreSchemaHandler) -> core_schema.TypedDictField:
@@ -439,34 +418,21 @@ def _field(key: _Key, handler: GetCoreSchemaHandler) -> core_schema.TypedDictFie
 
 
 def _union(
-    members: dict[str, CoreSchema],
-    pick: Callable[[Any], str | None],
-    expects: str,
-    *,
-    field: str = "",
-    choices: tuple[str, ...] = (),
-    message: str = "",
+    members: dict[str, CoreSchema], pick: Callable[[Any], str | None], expects: str, **why: str
 ) -> CoreSchema:
-    """The member ``pick`` names; a value that picks none is a UNION error, told by context.
-
-    Not a mapping (``expects``), ``field`` missing or not one of ``choices``, or ``message``.
-    The members' names stand in error locations, so each has a space: no key is named so.
-    """
+    """The member ``pick`` names; a value that picks none is a UNION error whose context says
+    why: not a mapping (``expects``), the tag ``field`` missing or not one of ``choices`` (joined
+    by commas: pydantic takes only scalars in a context), or ``message``. The members' names
+    stand in error locations, so each has a space: no key is named so."""
     from pydantic_core import core_schema
 
-    # pydantic takes only scalars in the context, hence the joined choices.
-    context: dict[str, int | str | float] = {
-        "field": field,
-        "choices": ",".join(choices),
-        "expects": expects,
-        "message": message,
-    }
+    context: dict[str, int | str | float] = {"field": "", "choices": "", "message": "", **why}
     return core_schema.tagged_union_schema(
         members,
         pick,
         custom_error_type=UNION,
         custom_error_message=expects,
-        custom_error_context=context,
+        custom_error_context={**context, "expects": expects},
     )
 
 

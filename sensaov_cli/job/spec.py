@@ -2,14 +2,12 @@
 
 Every field of the job format is defined here once: name, type and default, and in its
 ``Annotated`` metadata the range, wording and description a job file must respect
-(:mod:`.fields`, :mod:`.markers`). :func:`sensaov_cli.job.load.load_job` validates a job file
-straight into these classes; importing them loads neither pydantic nor PyYAML, so views and
-outputs name them freely.
+(:mod:`.markers`). Types are strict where YAML makes mistakes easy: ``"64"`` is not an integer
+and ``true`` is not a number, but ``40`` is accepted where a float is expected. Importing this
+module loads neither pydantic nor PyYAML, so views and outputs name its classes freely.
 
-A class a job file writes in several shapes keeps one field that tells them apart
-(``ObjectiveSpec.type``, ``ChannelSpec.kind``; a camera's kind is the key that picks it), and
-a field marked ``In`` is a key of the named shapes only. In a job file, null is accepted only
-where it is the default: a key written null means the key left out.
+A class written in several shapes keeps one field that tells them apart (``ObjectiveSpec.type``,
+``ChannelSpec.kind``; a camera's kind is the key that picks it).
 """
 
 from __future__ import annotations
@@ -19,44 +17,32 @@ import hashlib
 import json
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from annotated_types import Ge, Gt, Le, Lt
 
-from sensaov_cli.job.fields import (
-    STRICT,
-    Fov,
-    Function,
-    Globs,
-    JobDir,
-    JobFile,
-    MaxDepth,
-    Name,
-    Number,
-    OutputDir,
-    Region,
-    Resolution,
-    SceneArgs,
-    Text,
-    TrueFlag,
-    Vector,
-    VisSpp,
-    unique_names,
-)
 from sensaov_cli.job.markers import (
+    STRICT,
     After,
+    Before,
     Doc,
-    Given,
     In,
+    JobFilePath,
+    JobPath,
+    Json,
     MinItems,
+    Problem,
     Section,
     SensorOrPlaced,
+    Setting,
     Tagged,
     TaggedByKey,
+    Text,
+    describe,
 )
-from sensaov_cli.job.problems import Problem
 from sensaov_cli.vocabulary import (
     Aggregate,
     ChannelKind,
@@ -72,6 +58,136 @@ from sensaov_cli.vocabulary import (
     Variant,
     Weight,
 )
+
+# --- the field types ---
+
+NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,31}$"
+FUNCTION_PATTERN = r"^[A-Za-z_][A-Za-z0-9_.]*:[A-Za-z_][A-Za-z0-9_]*$"
+SCENE_ARG_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
+PATTERN_MEANINGS = {
+    NAME_PATTERN: "a name of 1 to 32 letters, digits or _, starting with a letter",
+    FUNCTION_PATTERN: "'module:function', e.g. 'mymodule:objective'",
+    SCENE_ARG_PATTERN: "a scene argument name (letters, digits, _), as in $name",
+}
+
+
+def unique_names(what: str, key: str) -> After:
+    """Refuse a list of named items where a name comes twice."""
+
+    def check(items: tuple[Any, ...]) -> tuple[Any, ...]:
+        first: dict[str, int] = {}
+        for index, item in enumerate(items):
+            if item.name in first:
+                raise Problem(
+                    f"{what} name {item.name!r} is already used by {key}[{first[item.name]}]",
+                    at=(index, "name"),
+                    hint="names must be unique",
+                )
+            first[item.name] = index
+        return items
+
+    return After(check)
+
+
+def _existing(noun: str, test: Callable[[Path], bool]) -> Callable[[Path, Path], None]:
+    """A check that a path exists and is a ``noun`` (file, directory) that passes ``test``."""
+
+    def check(path: Path, job_dir: Path) -> None:
+        hint = f"relative paths start at the job file's directory, {job_dir}"
+        if not path.exists():
+            raise Problem(f"{noun} not found: {path}", hint=hint)
+        if not test(path):
+            raise Problem(f"not a {noun}: {path}", hint=hint)
+
+    return check
+
+
+def _output_dir(path: Path, job_dir: Path) -> None:
+    if path.exists() and not path.is_dir():
+        raise Problem(f"exists and is not a directory: {path}", hint="output names a directory")
+
+
+def _count(n: int, what: str) -> Before:
+    """Check a list's length first, so a short list is one clear error, not one per item."""
+
+    def check(value: Any) -> Any:
+        if not isinstance(value, list) or len(value) != n:
+            got = f"{len(value)} items" if isinstance(value, list) else describe(value)
+            raise Problem(f"must be a list of {n} {what}, got {got}")
+        return value
+
+    return Before(check)
+
+
+def _one_or_many(value: Any) -> Any:
+    return [value] if isinstance(value, str) else value
+
+
+def _only_true(value: Any) -> Any:
+    if value is not True:
+        raise Problem(f"must be true, got {describe(value)}", hint="leave the key out instead")
+    return value
+
+
+def _ordered_region(region: tuple[float, float, float, float]) -> tuple[float, ...]:
+    x0, y0, x1, y1 = region
+    if not x0 < x1:
+        raise Problem(f"x0 ({x0}) must be less than x1 ({x1})", hint="region is [x0, y0, x1, y1]")
+    if not y0 < y1:
+        raise Problem(f"y0 ({y0}) must be less than y1 ({y1})", hint="region is [x0, y0, x1, y1]")
+    return region
+
+
+def _not_zero(value: int) -> int:
+    if value == 0:
+        raise Problem("must be -1 (unbounded) or at least 1, got 0")
+    return value
+
+
+Name = Annotated[str, STRICT, Setting(pattern=NAME_PATTERN)]
+Function = Annotated[str, STRICT, Setting(pattern=FUNCTION_PATTERN)]
+Number = Annotated[float, STRICT, Setting(allow_inf_nan=False)]
+Unit = Annotated[float, STRICT, Ge(0.0), Le(1.0)]
+Pixels = Annotated[int, STRICT, Ge(1), Le(16384)]
+Fov = Annotated[float, STRICT, Gt(0.0), Lt(180.0), Doc("Field of view, degrees.")]
+VisSpp = Annotated[int, STRICT, Ge(1), Lt(2**32), Doc("Samples per pixel of the pass (32-bit).")]
+Resolution = Annotated[tuple[Pixels, Pixels], _count(2, "integers [width, height]")]
+Vector = Annotated[tuple[Number, Number, Number], _count(3, "numbers [x, y, z]")]
+Region = Annotated[
+    tuple[Unit, Unit, Unit, Unit],
+    _count(4, "numbers [x0, y0, x1, y1]"),
+    After(_ordered_region),
+]
+JobFile = Annotated[Path, JobPath(_existing("file", Path.is_file))]
+JobDir = Annotated[Path | None, JobPath(_existing("directory", Path.is_dir), null_means=".")]
+OutputDir = Annotated[Path, JobPath(_output_dir, null_means="out/{stem}")]
+Globs = Annotated[
+    tuple[Text, ...],
+    Before(_one_or_many),
+    Json(
+        {"anyOf": [{"type": "string"}, {"type": "array", "items": {"type": "string"}}]},
+        replace=True,
+    ),
+]
+MaxDepth = Annotated[int, STRICT, Ge(-1), After(_not_zero), Json({"not": {"const": 0}})]
+TrueFlag = Annotated[bool, Before(_only_true), Json({"const": True})]
+
+
+def _scene_arg_text(value: Any) -> Any:
+    """A scene argument as the text Mitsuba substitutes: ``str()`` of it, as load_file does."""
+    if isinstance(value, str | int | float) and not (isinstance(value, float) and value != value):
+        return str(value)
+    raise Problem(f"must be a string, a number or true/false, got {describe(value)}")
+
+
+SceneArgs = Annotated[
+    dict[
+        Annotated[str, STRICT, Setting(pattern=SCENE_ARG_PATTERN)],
+        Annotated[str, Before(_scene_arg_text), Json({"type": ["string", "number", "boolean"]})],
+    ],
+    Doc("Values for the scene's $name arguments, like mitsuba.load_file's keywords."),
+]
+
 
 # --- cameras: a job's objective camera and its inspection cameras (paper Fig. 6) ---
 
@@ -403,17 +519,15 @@ class ForwardSpec:
             )
 
 
-Objective = Annotated[
-    ObjectiveSpec, Tagged("type", "a mapping with name and type", noun="Objective")
-]
-Channel = Annotated[ChannelSpec, Tagged("kind", "a mapping with name and kind", noun="Channel")]
+Objective = Annotated[ObjectiveSpec, Tagged("type", noun="Objective")]
+Channel = Annotated[ChannelSpec, Tagged("kind", noun="Channel")]
 
 
 @dataclass(frozen=True, kw_only=True)
 class JobSpec(Section):
     """A sensaov job: which scene, which objectives, which views of their sensitivities."""
 
-    path: Annotated[Path, Given("job")]  # the job file itself
+    path: Annotated[Path, JobFilePath]
     version: Annotated[Literal[1], Doc("Job format version.")]
     scene: Annotated[JobFile, Doc("Mitsuba scene XML, relative to the job.")]
     scene_args: SceneArgs = dataclasses.field(default_factory=dict)
@@ -475,11 +589,8 @@ class JobSpec(Section):
         return dict(_jsonable(dataclasses.asdict(self), None))
 
     def job_hash(self) -> str:
-        """sha256 of the spec without ``path``, its paths relative to the job's directory.
-
-        Relative paths make the hash survive moving or copying a project directory: the
-        same job next to the same files hashes the same wherever it lies.
-        """
+        """sha256 of the spec without ``path``, its paths relative to the job's directory: the
+        same job next to the same files hashes the same wherever the project lies."""
         fields = _jsonable(dataclasses.asdict(self), self.path.parent)
         del fields["path"]
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()

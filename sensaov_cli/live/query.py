@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from sensaov_cli.errors import RequestError
-from sensaov_cli.job.problems import Problem
+from sensaov_cli.job.markers import Problem
 from sensaov_cli.job.spec import LookAt
 from sensaov_cli.live.inspection import SCALE_MODES, Look
 from sensaov_cli.render.viewpoint import Pose
