@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli.outputs.atomic import atomic_write, file_token
+from sensaov_cli.outputs.atomic import atomic_write_bytes, file_token
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.png import write_png
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay
@@ -110,11 +110,7 @@ def write_manifest(
         "files": [asdict(entry) for entry in files],
     }
     text = json.dumps(document, indent=1, sort_keys=True) + "\n"
-
-    def write(tmp: Path) -> None:
-        tmp.write_text(text, encoding="utf-8")
-
-    atomic_write(path, write)
+    atomic_write_bytes(path, text.encode("utf-8"))
     return path
 
 

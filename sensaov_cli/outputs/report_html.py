@@ -30,7 +30,7 @@ from typing import Any
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.limits import read_regular, regular_file
-from sensaov_cli.outputs.atomic import atomic_write
+from sensaov_cli.outputs.atomic import atomic_write_bytes
 from sensaov_cli.outputs.png import png_problem
 from sensaov_cli.outputs.tables import LABEL_MEANINGS, SUSPECT_MARK, UNVERIFIED_MARK
 from sensaov_cli.views.hierarchy import Ranking, RankRow
@@ -120,12 +120,7 @@ class ReportContent:
 
 def write_report(path: Path, content: ReportContent) -> None:
     """Write the page to ``path`` atomically (UTF-8)."""
-    page = report_html(content)
-
-    def write(tmp: Path) -> None:
-        tmp.write_text(page, encoding="utf-8")
-
-    atomic_write(path, write)
+    atomic_write_bytes(path, report_html(content).encode("utf-8"))
 
 
 def report_html(content: ReportContent) -> str:

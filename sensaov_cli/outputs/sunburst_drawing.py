@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from sensaov_cli.errors import OutputError
-from sensaov_cli.outputs.atomic import atomic_write, scratch_folder
+from sensaov_cli.outputs.atomic import atomic_write_bytes, scratch_folder
 from sensaov_cli.outputs.previews import RDBU, diverging_rgb
 from sensaov_cli.views.sunburst_geometry import Panel, Wedge
 
@@ -62,11 +62,7 @@ def write_sunburst(
             hint="name the file .svg or .png",
         )
     data = sunburst_bytes(panels, fmt=fmt, order=order, encoding=encoding, provenance=provenance)
-
-    def write(tmp: Path) -> None:
-        tmp.write_bytes(data)
-
-    atomic_write(path, write)
+    atomic_write_bytes(path, data)
 
 
 def sunburst_bytes(
