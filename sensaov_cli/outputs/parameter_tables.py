@@ -1,10 +1,9 @@
 """What ``sensaov params`` and ``sensaov check`` print: a scene's parameters, and their checks.
 
-``params``: the selected parameters, what was left out, and why; its text and ``--json`` come
-from one :class:`ParameterInventory`, so they always agree. ``check``: reverse mode against
-finite differences, and duality; the rows are the render stage's check results, read through the
-protocols below so that this stage never imports the renderer. The aligned table is tables.py's.
-Plain text only, like every terminal table.
+``params``: the selected parameters, what was left out, and why; text and ``--json`` come from
+one :class:`ParameterInventory`, so they agree. ``check``: reverse mode against finite
+differences, and duality; its rows are the render stage's results, read through the protocols
+below so that this stage never imports the renderer.
 """
 
 from __future__ import annotations
@@ -221,24 +220,12 @@ def checks_text(checks: Sequence[GradientRow]) -> str:
         ("key", "plugin", "type", "table", "method", "adjoint", "finite diff", "std err", "verdict")
     ]
     for c in checks:
-        rows.append(
-            (
-                c.key,
-                c.plugin,
-                c.type,
-                c.claimed,  # the table's own label: biased kinds say biased
-                c.method,
-                f"{c.adjoint:+.3e}",
-                f"{c.finite_difference:+.3e}",
-                "-" if c.method == "same seed" else f"{c.standard_error:.1e}",
-                c.verdict
-                + (
-                    "  <-- CONTRADICTS THE TABLE"
-                    if c.claimed_verified and c.verdict == "disagrees"
-                    else ""
-                ),
-            )
-        )
+        error = "-" if c.method == "same seed" else f"{c.standard_error:.1e}"
+        contradicts = c.claimed_verified and c.verdict == "disagrees"
+        verdict = c.verdict + ("  <-- CONTRADICTS THE TABLE" if contradicts else "")
+        # c.claimed: the table's own label (biased kinds say biased)
+        numbers = (f"{c.adjoint:+.3e}", f"{c.finite_difference:+.3e}", error, verdict)
+        rows.append((c.key, c.plugin, c.type, c.claimed, c.method, *numbers))
     return "\n".join(format_table(rows))
 
 
@@ -256,18 +243,8 @@ def duality_text(rows: Sequence[DualityRow], buffer: Path, fd_tolerance: float) 
         central = "n/a" if d.central is None else f"{d.central:+.4e}"
         central = central if d.central_asked else "(--full)"
         error = "" if d.central_error is None else f"{d.central_error:.1e}"
+        duality = (f"{d.reverse:+.4e}", f"{d.forward:+.4e}", f"{d.duality_error:.1e}")
         table.append(
-            (
-                d.objective,
-                d.key,
-                d.direction,
-                d.trust,
-                f"{d.reverse:+.4e}",
-                f"{d.forward:+.4e}",
-                f"{d.duality_error:.1e}",
-                central,
-                error,
-                d.verdict,
-            )  # fmt: skip
+            (d.objective, d.key, d.direction, d.trust, *duality, central, error, d.verdict)
         )
     return "\n".join([head, *format_table(table)])

@@ -32,7 +32,7 @@ from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.limits import read_regular, regular_file
 from sensaov_cli.outputs.atomic import atomic_write_bytes
 from sensaov_cli.outputs.png import png_problem
-from sensaov_cli.outputs.tables import LABEL_MEANINGS, SUSPECT_MARK, UNVERIFIED_MARK
+from sensaov_cli.outputs.tables import LABEL_MEANINGS, SUSPECT_MARK, UNVERIFIED_MARK, trust_mark
 from sensaov_cli.views.hierarchy import Ranking, RankRow
 
 REPORT_FORMAT = "sensaov-report"
@@ -41,7 +41,6 @@ REPORT_VERSION = 2  # 2: summary first, per-camera sections, appendix; buffer id
 SHOWN_PROVENANCE = ("tool_version", "mitsuba_version", "drjit_version", "variant", "spp",
                     "max_depth", "primal_seed", "gradient_seeds", "resolution", "created_utc",
                     "wall_time_s", "timings_s", "buffer_id", "run_version")  # fmt: skip
-_MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
 MAX_PREVIEW_BYTES = 64 << 20  # a preview is a few hundred kB; a page embeds every one
 _STYLE = """
 body{font:15px/1.45 system-ui,sans-serif;max-width:1280px;margin:1.5em auto;padding:0 1em;
@@ -278,7 +277,7 @@ def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -
     headers = ["#", "", r.by, "score", "signed", *(["±", "sign"] * errors), "share",
                *(["trust"] * trust), *(["off-frame"] * cameras)]  # fmt: skip
     body = [
-        [str(row.rank), _MARKS.get(row.trust, "") + ("θ0" if row.zero_value else ""), row.name,
+        [str(row.rank), trust_mark(row.trust, row.zero_value), row.name,
          f"{row.score:.2e}", f"{row.signed:+.2e}",
          *([_se(row.signed_se), _sign(row)] * errors), f"{100 * row.share:.1f}%",
          *([row.trust] * trust), *([", ".join(row.off_frame or ()) or "-"] * cameras)]

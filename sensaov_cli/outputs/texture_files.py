@@ -1,11 +1,9 @@
 """Texel fields in the texture's own domain, and Fig. 4's three-panel contact sheet.
 
-``<output>/textures/<texture>.<objective>.exr`` holds the field at the texture's resolution and
-in its UV layout (row 0 = the bitmap's first row, v = 0), what a texture artist opens beside
-the texture itself: ``raw`` (unpooled contributions) and ``pooled`` (the channel's units), as
-``Y`` or ``R, G, B``. A PNG preview of the pooled field sits beside it. File names come from the
-texture key with everything outside ``[A-Za-z0-9_-]`` replaced, plus a short hash of the key
-when that changed it, so two keys never share a file. Layout: ``docs/exr-layout.md``.
+``<output>/textures/<texture>.<objective>.exr`` holds the field in the texture's own resolution
+and UV layout (row 0 = the bitmap's first row, v = 0): ``raw`` (unpooled contributions) and
+``pooled`` (the channel's units), as ``Y`` or ``R, G, B``, with a PNG of the pooled field beside
+it. Layout: ``docs/exr-layout.md``.
 """
 
 from __future__ import annotations
@@ -102,7 +100,6 @@ def _png_writer(field: TexelField) -> Callable[[Path], None]:
     rgb = enlarged(diverging_rgb(values, peak))
 
     def write(tmp: Path) -> None:
-        # write_png renames into ``tmp`` itself; atomic_write_all then renames the whole set.
         write_png(tmp, rgb, {"sensaov/scale": repr(peak), "sensaov/texture": field.record.key})
 
     return write
@@ -116,8 +113,8 @@ def write_fig4_sheet(
     scales: Sequence[float],
     stamp: Mapping[str, str],
 ) -> Path:
-    """Fig. 4: the object, per-texel and joint panels of one texture side by side, each
-    titled with the value at which it saturates (its display scale, in the layer's metadata)."""
+    """Fig. 4: the object, per-texel and joint panels of one texture side by side, each titled
+    with its display scale."""
     mark = " !" if field.record.trust not in TRUSTED else ""
     tiles = [
         (f"{p.panel} ±{scale:.2e}{mark}", enlarged(diverging_rgb(_luminance(p.data), scale)))
