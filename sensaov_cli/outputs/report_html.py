@@ -1,19 +1,14 @@
 """The one-page HTML report of a job: every image embedded, no network, no server.
 
-The page is one file a browser opens straight from disk: images are PNG ``data:`` URIs, the
-style sheet is inline, and there is no script and no external link. It reads top-down as an
-artist would ask: a summary first (the question, each objective, its top objects with ± and
-trust, what was left out and why, next to its sunburst at 1:1), then one section per camera with
-its headline previews (each with its legend and scale) and the other passes folded away, then an
-appendix (rankings in full, the trust of every parameter, provenance). Every section records the
-buffer id and job version it was made from. Assembled from plain data (:class:`ReportContent`);
-:mod:`sensaov_cli.pipeline.report` gathers and checks that data.
+Images are PNG ``data:`` URIs, the style sheet is inline; no script, no external link. It reads
+as an artist would ask: a summary (each objective, its top objects with ± and trust, what was
+left out and why, its sunburst), one section per camera (headline previews, the other passes
+folded away), then an appendix (rankings in full, trust, provenance). Every section records the
+buffer id and job version it was made from. :mod:`sensaov_cli.pipeline.report` gathers the data.
 
-The previews it embeds are read back here (:func:`read_previews`): ``project --png`` wrote them,
-and anything may have happened to them since. A FIFO among them would block the report forever
-and a device never end: those are refused (exit 2, like any special input). A file that is not a
-whole PNG (empty, cut short, another format, too large to embed) is left out of the page, and
-the page says which and why.
+The previews are read back here (:func:`read_previews`): anything may have happened to them since
+``project --png``. Special files (a FIFO would block forever) are refused; a file that is not a
+whole PNG is left out, and the page says which and why.
 """
 
 from __future__ import annotations
@@ -80,8 +75,6 @@ class Picture:
 
 @dataclass(frozen=True)
 class ObjectiveSection:
-    """One objective in the summary: what it measures, its top objects, its sunburst."""
-
     name: str
     definition: str
     top: Ranking  # by object, trusted parameters only (left_out holds the rest)
@@ -91,8 +84,6 @@ class ObjectiveSection:
 
 @dataclass(frozen=True)
 class CameraSection:
-    """One camera: its headline previews, the others folded away, what it sees."""
-
     name: str
     visible: frozenset[str] | None  # None: no EXR from project
     headline: tuple[Picture, ...]
@@ -267,8 +258,7 @@ def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], numeric: set[i
 
 
 def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -> str:
-    """Rows of one ranking: score, signed sum with its standard error, significance, share,
-    trust and off-frame cameras (columns as docs/rankings.md)."""
+    """Rows of one ranking (columns as docs/rankings.md)."""
     if not rows:
         return '<p class="note">(none)</p>'
     cameras = any(row.off_frame is not None for row in rows)
@@ -291,8 +281,8 @@ def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -
 
 
 def _left_out_list(r: Ranking, keys: Mapping[str, tuple[ParamRecord, ...]]) -> str:
-    """What the headline ranking left out and why: per object, its untrusted parameters with
-    their labels and notes, and the parameters value weighting hides (θ = 0)."""
+    """What the headline ranking left out and why: per object its untrusted parameters, and the
+    parameters value weighting hides (θ = 0)."""
     parts = []
     if r.left_out:
         items = "".join(
@@ -403,8 +393,8 @@ def _significance(r: Ranking) -> str:
 
 
 def read_previews(output: Path, folder: Path) -> tuple[dict[str, bytes], dict[str, str]]:
-    """The ``*.png`` files under ``folder`` (links to folders not followed), by their path
-    relative to ``output``: the whole PNGs' bytes, and why each other one is left out."""
+    """The ``*.png`` files under ``folder`` by their path relative to ``output``: the whole PNGs'
+    bytes, and why each other one is left out."""
     whole: dict[str, bytes] = {}
     left_out: dict[str, str] = {}
     for path in _png_files(folder):
