@@ -137,39 +137,29 @@ def report_html(content: ReportContent) -> str:
 
 def _summary(content: ReportContent) -> str:
     primal = _figure(content.primal) if content.primal else '<p class="note">no primal.exr</p>'
+    items = "".join(
+        f"<li><b>{html.escape(o.name)}</b>: {html.escape(o.definition)}; "
+        f"M = {o.top.objective_value:.4g}</li>"
+        for o in content.objectives
+    )
     parts = [
         '<section id="summary">',
         f"<p><b>{html.escape(content.question)}</b></p>",
         _stamp_line(content.stamp),
-        f'<div class="row">{primal}<div>{_objective_list(content.objectives)}</div></div>',
+        f'<div class="row">{primal}<div><p>Objectives (one reverse-mode pass each):</p>'
+        f"<ul>{items}</ul></div></div>",
     ]
     for objective in content.objectives:
+        top = objective.top
+        apart = " (gradients sensaov stands behind)" if top.untrusted == "apart" else ""
         parts += [
             f"<h2>Objective {html.escape(objective.name)}</h2>",
-            f'<div class="row"><div class="col">{_top(objective)}</div>'
+            f'<div class="row"><div class="col"><h3>Top objects{apart}</h3>'
+            f"{_ranking_table(top, top.rows)}{_left_out_list(top, objective.left_out)}</div>"
             f"{_figure(objective.sunburst)}</div>",
         ]
     parts.append("</section>")
     return "\n".join(parts)
-
-
-def _objective_list(objectives: Sequence[ObjectiveSection]) -> str:
-    items = "".join(
-        f"<li><b>{html.escape(o.name)}</b>: {html.escape(o.definition)}; "
-        f"M = {o.top.objective_value:.4g}</li>"
-        for o in objectives
-    )
-    return f"<p>Objectives (one reverse-mode pass each):</p><ul>{items}</ul>"
-
-
-def _top(objective: ObjectiveSection) -> str:
-    ranking = objective.top
-    apart = ranking.untrusted == "apart"
-    head = (
-        f"<h3>Top objects{' (gradients sensaov stands behind)' if apart else ''}</h3>"
-        f"{_ranking_table(ranking, ranking.rows)}"
-    )
-    return head + _left_out_list(ranking, objective.left_out)
 
 
 def _camera(section: CameraSection, stamp: Stamp) -> str:
@@ -245,13 +235,9 @@ def _stamp_line(stamp: Stamp) -> str:
 
 def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], numeric: set[int]) -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
+    cell = [('<td class="n">' if i in numeric else "<td>") + "{}</td>" for i in range(len(headers))]
     body = "".join(
-        "<tr>"
-        + "".join(
-            f'<td class="n">{html.escape(c)}</td>' if i in numeric else f"<td>{html.escape(c)}</td>"
-            for i, c in enumerate(row)
-        )
-        + "</tr>"
+        "<tr>" + "".join(cell[i].format(html.escape(c)) for i, c in enumerate(row)) + "</tr>"
         for row in rows
     )
     return f"<table><tr>{head}</tr>{body}</table>"
@@ -330,14 +316,11 @@ def _rankings_html(by_cut: Mapping[str, tuple[Ranking, ...]]) -> str:
         parts.append(f"<h4>objective {html.escape(name)}</h4><div class=cuts>")
         for cut, found in by_cut.items():
             r = found[index]
-            left = (
-                "<p class=note>left out (untrusted)</p>"
-                + _ranking_table(r, r.left_out, notes=False)
-                if r.left_out
-                else ""
-            )
             rows = _ranking_table(r, r.rows, notes=False)
-            parts.append(f"<div><b>by {html.escape(cut)}</b>{rows}{left}</div>")  # fmt: skip
+            if r.left_out:
+                rows += "<p class=note>left out (untrusted)</p>"
+                rows += _ranking_table(r, r.left_out, notes=False)
+            parts.append(f"<div><b>by {html.escape(cut)}</b>{rows}</div>")
         parts.append("</div>")
     parts.append(
         f'<p class="note">{UNVERIFIED_MARK} biased or unverified gradient, {SUSPECT_MARK} '
