@@ -33,8 +33,6 @@ TYPE_NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,60}")
 _EXPONENT_SHIFT = 23
 _EXPONENT_MASK = 0xFF
 OBJECT_TYPE = "CryptoObject"
-# An ID channel and the coverage channel beside it: R with G, B with A.
-_PAIRS = (("R", "G"), ("B", "A"))
 
 
 def name_hash(name: str) -> int:
@@ -208,7 +206,7 @@ def seen_names(
     layers = {name[:-2] for name in channels if pattern.match(name)}
     ids: set[float] = set()
     for layer in sorted(layers):
-        for id_channel, coverage_channel in _PAIRS:
+        for id_channel, coverage_channel in (("R", "G"), ("B", "A")):  # an ID, its coverage
             pair = (f"{layer}.{id_channel}", f"{layer}.{coverage_channel}")
             missing = [name for name in pair if name not in channels]
             if missing:

@@ -85,9 +85,21 @@ def params_text(loaded: ParameterInventory, *, show_all: bool = False) -> str:
     lines = [f"{len(loaded.selected)} parameters selected over {len(loaded.objects)} objects"]
     lines += format_table(rows)
     lines += _unverified_legend(loaded)
-    lines += _repairs_legend(loaded)
-    lines += _textures(loaded)
-    lines += _split(loaded)
+    if loaded.repairs:
+        lines += [
+            "",
+            "REPAIRED: known wrong in reverse mode; run computes them again by central differences "
+            "(repair.budget permitting; textures never: two renders per texel) - "
+            'docs/verification.md, "Repairs"',
+        ]
+    if loaded.textures:
+        lines += ["", "textures in the buffer:"]
+        for key, source in loaded.textures.items():
+            how = "converted from 8-bit to float so its texels get gradients"
+            lines.append(f"  {key}: {source.file} ({how if source.converted else 'float'})")
+    if loaded.split:
+        lines += ["", "shared BSDFs split into one copy per object (parameters.shared: split):"]
+        lines += [f"  {name} -> {', '.join(shapes)}" for name, shapes in loaded.split.items()]
     lines += _changes(loaded)
     lines += _excluded(loaded, show_all)
     return "\n".join(lines)
@@ -101,39 +113,6 @@ def _unverified_legend(loaded: ParameterInventory) -> list[str]:
         return []
     head = "gradients sensaov does not stand behind (left out of object and type views):"
     return ["", head] + [f"  - {label}: {note}" for label, note in notes]
-
-
-def _repairs_legend(loaded: ParameterInventory) -> list[str]:
-    if not loaded.repairs:
-        return []
-    return [
-        "",
-        "REPAIRED: known wrong in reverse mode; run computes them again by central differences "
-        "(repair.budget permitting; textures never: two renders per texel) - "
-        'docs/verification.md, "Repairs"',
-    ]
-
-
-def _textures(loaded: ParameterInventory) -> list[str]:
-    if not loaded.textures:
-        return []
-    lines = ["", "textures in the buffer:"]
-    for key, source in loaded.textures.items():
-        how = (
-            "converted from 8-bit to float so its texels get gradients"
-            if source.converted
-            else "float"
-        )
-        lines.append(f"  {key}: {source.file} ({how})")
-    return lines
-
-
-def _split(loaded: ParameterInventory) -> list[str]:
-    if not loaded.split:
-        return []
-    lines = ["", "shared BSDFs split into one copy per object (parameters.shared: split):"]
-    lines += [f"  {name} -> {', '.join(shapes)}" for name, shapes in loaded.split.items()]
-    return lines
 
 
 def _changes(loaded: ParameterInventory) -> list[str]:
