@@ -84,13 +84,7 @@ def sunburst_bytes(
         warnings.filterwarnings(
             "ignore", message="Glyph .* missing from font", category=UserWarning
         )
-        fig, axes = plt.subplots(
-            1, len(panels), figsize=(panel_inches * len(panels), panel_inches + 1.1), squeeze=False
-        )
-        for ax, panel in zip(axes[0], panels, strict=True):
-            _draw_panel(ax, panel, panel_inches)
-        _legend(fig, order, encoding)
-        fig.subplots_adjust(left=0.01, right=0.99, top=0.96, bottom=0.12, wspace=0.02)
+        fig = _figure(panels, order, encoding, panel_inches)
         out = io.BytesIO()
         try:
             metadata = {"Description": json.dumps(provenance, sort_keys=True)}
@@ -98,6 +92,19 @@ def sunburst_bytes(
         finally:
             plt.close(fig)
     return out.getvalue()
+
+
+def _figure(panels: Sequence[Panel], order: str, encoding: str, inches: float) -> Figure:
+    from matplotlib import pyplot as plt
+
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(inches * len(panels), inches + 1.1), squeeze=False
+    )
+    for ax, panel in zip(axes[0], panels, strict=True):
+        _draw_panel(ax, panel, inches)
+    _legend(fig, order, encoding)
+    fig.subplots_adjust(left=0.01, right=0.99, top=0.96, bottom=0.12, wspace=0.02)
+    return fig
 
 
 def _draw_panel(ax: Axes, panel: Panel, inches: float) -> None:
