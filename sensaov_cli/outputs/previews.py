@@ -182,8 +182,7 @@ def contact_sheet(
     width = _layout([rgb.shape for _, rgb in tiles], columns, 0).width - 2 * PAD
     notes = [line for note in notes for line in _wrap(note, width)][:MAX_NOTES]
     layout = _layout([rgb.shape for _, rgb in tiles], columns, len(notes))
-    sheet = np.empty((layout.height, layout.width, 3), dtype=np.uint8)
-    sheet[...] = BACKGROUND
+    sheet = np.full((layout.height, layout.width, 3), BACKGROUND, dtype=np.uint8)
     texts: list[tuple[int, int, str, str]] = []
     cell_height, cell_width = layout.cell
     for index, (label, rgb) in enumerate(tiles):

@@ -54,9 +54,7 @@ def write_texture_files(
 
 
 def _channels(field: TexelField) -> dict[str, np.ndarray]:
-    names = ("R", "G", "B") if field.raw.shape[2] == 3 else tuple(f"C{i}" for i in range(9))
-    if field.raw.shape[2] == 1:
-        names = ("Y",)
+    names = {1: ("Y",), 3: ("R", "G", "B")}.get(field.raw.shape[2], [f"C{i}" for i in range(9)])
     out = {}
     parts = [("raw", field.raw), ("pooled", field.pooled)]
     if field.stderr is not None and field.stderr_pooled is not None:
