@@ -20,7 +20,7 @@ import signal
 import stat
 import tempfile
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
@@ -137,10 +137,8 @@ def _named(exc: OSError, path: Path) -> OSError:
 
 
 def _remove(tmp: Path) -> None:
-    try:
+    with suppress(OSError):  # the folder vanished or became read-only: nothing more to do
         tmp.unlink(missing_ok=True)
-    except OSError:
-        pass  # the folder vanished or became read-only: nothing more can be done
     _live.discard(tmp)
 
 
@@ -162,12 +160,10 @@ def _signals_held() -> Iterator[None]:
 
 def _mode_of(path: Path) -> int:
     """A replaced file's own permissions, else those of any new file."""
-    try:
+    with suppress(OSError):
         info = os.stat(path)
         if stat.S_ISREG(info.st_mode):
             return stat.S_IMODE(info.st_mode)
-    except OSError:
-        pass
     mask = os.umask(0)
     os.umask(mask)
     return 0o666 & ~mask
@@ -175,16 +171,13 @@ def _mode_of(path: Path) -> int:
 
 def _fsync_directory(folder: Path) -> None:
     """Make the rename itself durable (a farm node may lose power right after the job)."""
-    try:
+    # Some file systems cannot fsync a directory; the rename is still atomic.
+    with suppress(OSError):
         descriptor = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(descriptor)
-    except OSError:
-        pass  # some file systems cannot fsync a directory; the rename is still atomic
-    finally:
-        os.close(descriptor)
+        try:
+            os.fsync(descriptor)
+        finally:
+            os.close(descriptor)
 
 
 def check_writable(folder: Path, names: list[str]) -> None:

@@ -25,9 +25,9 @@ from typing import Any
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.limits import read_regular, regular_file
+from sensaov_cli.outputs import tables
 from sensaov_cli.outputs.atomic import atomic_write_bytes
 from sensaov_cli.outputs.png import png_problem
-from sensaov_cli.outputs.tables import LABEL_MEANINGS, SUSPECT_MARK, UNVERIFIED_MARK, trust_mark
 from sensaov_cli.views.hierarchy import Ranking, RankRow
 
 REPORT_FORMAT = "sensaov-report"
@@ -253,9 +253,9 @@ def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -
     headers = ["#", "", r.by, "score", "signed", *(["±", "sign"] * errors), "share",
                *(["trust"] * trust), *(["off-frame"] * cameras)]  # fmt: skip
     body = [
-        [str(row.rank), trust_mark(row.trust, row.zero_value), row.name,
+        [str(row.rank), tables.trust_mark(row.trust, row.zero_value), row.name,
          f"{row.score:.2e}", f"{row.signed:+.2e}",
-         *([_se(row.signed_se), _sign(row)] * errors), f"{100 * row.share:.1f}%",
+         *([tables.se_text(row.signed_se), _sign(row)] * errors), f"{100 * row.share:.1f}%",
          *([row.trust] * trust), *([", ".join(row.off_frame or ()) or "-"] * cameras)]
         for row in rows
     ]  # fmt: skip
@@ -280,7 +280,7 @@ def _left_out_list(r: Ranking, keys: Mapping[str, tuple[ParamRecord, ...]]) -> s
         )
         notes = sorted({(p.trust, p.note) for found in keys.values() for p in found})
         why = "".join(
-            f"<li>{html.escape(LABEL_MEANINGS.get(label, label))}"
+            f"<li>{html.escape(tables.LABEL_MEANINGS.get(label, label))}"
             f"{': ' + html.escape(note) if note else ''}</li>"
             for label, note in notes
         )
@@ -323,8 +323,8 @@ def _rankings_html(by_cut: Mapping[str, tuple[Ranking, ...]]) -> str:
             parts.append(f"<div><b>by {html.escape(cut)}</b>{rows}</div>")
         parts.append("</div>")
     parts.append(
-        f'<p class="note">{UNVERIFIED_MARK} biased or unverified gradient, {SUSPECT_MARK} '
-        "suspect, θ0 value exactly 0; share: of the total sum of squares; columns: "
+        f'<p class="note">{tables.UNVERIFIED_MARK} biased or unverified gradient, '
+        f"{tables.SUSPECT_MARK} suspect, θ0 value exactly 0; share: of the total sum of squares; columns: "
         "docs/rankings.md</p>"
     )
     first = next((r for found in by_cut.values() for r in found), None)
@@ -349,10 +349,6 @@ def _provenance_table(provenance: Mapping[str, Any]) -> str:
         _table(["field", "value"], rows, set())
         + f"<details><summary>all</summary><pre>{full}</pre></details>"
     )
-
-
-def _se(se: float | None) -> str:
-    return "-" if se is None else f"{se:.1e}"
 
 
 def _sign(row: RankRow) -> str:

@@ -121,11 +121,7 @@ def summary_json(summary: Summary, files: Mapping[str, str] | None = None) -> st
     document = {
         "format": SUMMARY_FORMAT,
         "format_version": SUMMARY_VERSION,
-        "aggregation": {
-            "method": summary.method,
-            "weight": summary.weight,
-            "contribution": CONTRIBUTION[summary.weight],
-        },
+        "aggregation": _aggregation(summary.method, summary.weight),
         "counts": {
             "parameters": len(buf.params),
             "objects": len(buf.objects),
@@ -140,6 +136,10 @@ def summary_json(summary: Summary, files: Mapping[str, str] | None = None) -> st
     if files is not None:
         document["files"] = dict(files)
     return json.dumps(document, indent=2)  # tuples become lists
+
+
+def _aggregation(method: str, weight: Weight) -> dict[str, str]:
+    return {"method": method, "weight": weight, "contribution": CONTRIBUTION[weight]}
 
 
 def _objective_json(summary: ObjectiveSummary) -> object:
@@ -354,11 +354,7 @@ def ranking_json(
         "format": RANKING_FORMAT,
         "format_version": RANKING_VERSION,
         "by": found[0].by if found else None,
-        "aggregation": {
-            "method": method,
-            "weight": weight,
-            "contribution": CONTRIBUTION[weight],
-        },
+        "aggregation": _aggregation(method, weight),
         "columns": COLUMNS,
         "cameras": cameras,
         "provenance": buf.provenance,
@@ -439,8 +435,8 @@ def _ranking_table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
     rows = []
     for row in shown:
         cells = [str(row.rank), trust_mark(row.trust, row.zero_value), f"{row.score:.2e}"]
-        cells += [*[_error(row.score_se)] * errors, f"{row.signed:+.2e}"]
-        cells += [*[_error(row.signed_se)] * errors, row.sign + "?" * (row.significant is False)]
+        cells += [*[se_text(row.score_se)] * errors, f"{row.signed:+.2e}"]
+        cells += [*[se_text(row.signed_se)] * errors, row.sign + "?" * (row.significant is False)]
         cells += [f"{100 * row.share:.1f}%", *[_value(row.value)] * values, row.estimator]
         rows.append([*cells, row.name, *[", ".join(row.off_frame or ()) or "-"] * cameras])
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "±", "signed", "share")}
@@ -448,7 +444,8 @@ def _ranking_table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
     return format_table([headers, *rows], numeric=numeric, indent="    ")
 
 
-def _error(se: float | None) -> str:
+def se_text(se: float | None) -> str:
+    """A standard error as the tables show it ("-": none measured)."""
     return "-" if se is None else f"{se:.1e}"
 
 
