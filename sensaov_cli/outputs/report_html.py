@@ -324,8 +324,8 @@ def _rankings_html(by_cut: Mapping[str, tuple[Ranking, ...]]) -> str:
         parts.append("</div>")
     parts.append(
         f'<p class="note">{tables.UNVERIFIED_MARK} biased or unverified gradient, '
-        f"{tables.SUSPECT_MARK} suspect, θ0 value exactly 0; share: of the total sum of squares; columns: "
-        "docs/rankings.md</p>"
+        f"{tables.SUSPECT_MARK} suspect, θ0 value exactly 0; share: of the total sum of squares; "
+        "columns: docs/rankings.md</p>"
     )
     first = next((r for found in by_cut.values() for r in found), None)
     if first is not None:
