@@ -66,7 +66,11 @@ def write_previews(
     sheets: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
     for layer, scale in layers:
         values = signed_pixels(layer.data, layer.kind)
-        rgb = _picture(values, scale.value, layer, beauty, visibility)
+        rgb = diverging_rgb(values, scale.value)
+        if beauty is not None:
+            rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
+        if layer.untrusted:
+            rgb = hatch(rgb, values != 0)
         entry = _layer_entry(camera, layer, scale, values)
         names = {"sensaov/camera": camera, "sensaov/objective": layer.objective}
         text = {**stamp, **names, "sensaov/pass": layer.pass_name,
@@ -125,21 +129,6 @@ def _remove_stale(folder: Path, manifest: Path, keep: set[str]) -> None:
             and stale.is_file()
         ):
             stale.unlink(missing_ok=True)
-
-
-def _picture(
-    values: np.ndarray,
-    scale: float,
-    layer: SensitivityLayer,
-    beauty: np.ndarray | None,
-    visibility: VisibilityPass,
-) -> np.ndarray:
-    rgb = diverging_rgb(values, scale)
-    if beauty is not None:
-        rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
-    if layer.untrusted:
-        rgb = hatch(rgb, values != 0)
-    return rgb
 
 
 def _layer_entry(

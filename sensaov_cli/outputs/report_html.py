@@ -36,6 +36,7 @@ REPORT_VERSION = 2  # 2: summary first, per-camera sections, appendix; buffer id
 SHOWN_PROVENANCE = ("tool_version", "mitsuba_version", "drjit_version", "variant", "spp",
                     "max_depth", "primal_seed", "gradient_seeds", "resolution", "created_utc",
                     "wall_time_s", "timings_s", "buffer_id", "run_version")  # fmt: skip
+_SIGN = {None: "-", True: "significant", False: "noise"}  # a row's significance
 MAX_PREVIEW_BYTES = 64 << 20  # a preview is a few hundred kB; a page embeds every one
 _STYLE = """
 body{font:15px/1.45 system-ui,sans-serif;max-width:1280px;margin:1.5em auto;padding:0 1em;
@@ -255,8 +256,9 @@ def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -
     body = [
         [str(row.rank), tables.trust_mark(row.trust, row.zero_value), row.name,
          f"{row.score:.2e}", f"{row.signed:+.2e}",
-         *([tables.se_text(row.signed_se), _sign(row)] * errors), f"{100 * row.share:.1f}%",
-         *([row.trust] * trust), *([", ".join(row.off_frame or ()) or "-"] * cameras)]
+         *([tables.se_text(row.signed_se), _SIGN[row.significant]] * errors),
+         f"{100 * row.share:.1f}%", *([row.trust] * trust),
+         *([", ".join(row.off_frame or ()) or "-"] * cameras)]
         for row in rows
     ]  # fmt: skip
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "signed", "±", "share")}
@@ -349,12 +351,6 @@ def _provenance_table(provenance: Mapping[str, Any]) -> str:
         _table(["field", "value"], rows, set())
         + f"<details><summary>all</summary><pre>{full}</pre></details>"
     )
-
-
-def _sign(row: RankRow) -> str:
-    if row.significant is None:
-        return "-"
-    return "significant" if row.significant else "noise"
 
 
 def _significance(r: Ranking) -> str:

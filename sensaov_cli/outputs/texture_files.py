@@ -115,7 +115,10 @@ def write_fig4_sheet(
     with its display scale."""
     mark = " !" if field.record.trust not in TRUSTED else ""
     tiles = [
-        (f"{p.panel} ±{scale:.2e}{mark}", enlarged(diverging_rgb(_luminance(p.data), scale)))
+        (
+            f"{p.panel} ±{scale:.2e}{mark}",
+            enlarged(diverging_rgb(p.data if p.data.ndim == 2 else p.data.sum(axis=2), scale)),
+        )
         for p, scale in zip(passes, scales, strict=True)
     ]
     texture = field.record.key
@@ -125,7 +128,3 @@ def write_fig4_sheet(
     sheet = contact_sheet(tiles, len(tiles), scale=1.0, title=title, notes=notes)
     write_png(path, sheet, {**stamp, "sensaov/camera": camera, "sensaov/texture": texture})
     return path
-
-
-def _luminance(data: np.ndarray) -> np.ndarray:
-    return data if data.ndim == 2 else data.sum(axis=2)
