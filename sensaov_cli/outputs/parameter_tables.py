@@ -21,7 +21,7 @@ _PARAMS_NOTES = {
     "unverified": "UNVERIFIED", "biased": "BIASED", "suspect": "SUSPECT",
     "no_gradient": "NO GRADIENT",
 }  # fmt: skip
-# The keys of a selected parameter in params --json, in the order they always had.
+# The keys of a selected parameter in params --json, in their order.
 _SELECTED_KEYS = ("key", "type", "owners", "plugin", "shape", "is_texture", "flags", "verified",
                   "trust", "note", "texture_file", "converted", "estimator", "repair")  # fmt: skip
 
