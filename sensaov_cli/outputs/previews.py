@@ -138,7 +138,6 @@ class _Layout:
     columns: int
     cell: tuple[int, int]  # (height, width) of the largest tile
     legend_top: int
-    notes: int = 0  # lines of text under the legend's numbers
 
     def cell_origin(self, index: int) -> tuple[int, int]:
         """(top, left) of tile ``index``'s label line; the tile itself starts below it."""
@@ -157,7 +156,7 @@ def _layout(shapes: Sequence[tuple[int, ...]], columns: int, notes: int) -> _Lay
     grid_height = PAD + rows * (LABEL_HEIGHT + cell[0] + PAD)
     width = max(PAD + columns * (cell[1] + PAD), MIN_WIDTH)
     height = grid_height + LEGEND_HEIGHT + notes * LABEL_HEIGHT
-    return _Layout(width, height, columns, cell, grid_height, notes)
+    return _Layout(width, height, columns, cell, grid_height)
 
 
 def contact_sheet(
@@ -235,17 +234,14 @@ def _fit(text: str, width: int) -> str:
     """``text``, cut short in the middle with "..." if wider than ``width`` pixels: the end of
     a label (its ± scale, a mark) tells tiles apart."""
 
-    def fits(candidate: str) -> bool:
-        return _text_width(candidate) <= width
-
     def cut(keep: int) -> str:
         head = keep - keep // 2
         return text[:head] + "..." + text[len(text) - keep // 2 :]
 
-    if fits(text):
+    if _text_width(text) <= width:
         return text
     keep = len(text) - 1
-    while keep > 0 and not fits(cut(keep)):
+    while keep > 0 and _text_width(cut(keep)) > width:
         keep -= 1
     return cut(keep) if keep else ""
 
