@@ -1,16 +1,11 @@
 """Output files, written safely: atomically, never over an input, under names that are safe.
 
-One discipline for every output (buffers, EXRs, PNGs, HTML, SVG): each file is written to a
-temporary beside it, the write is checked (an empty or failed write is an error, ``fsync``
-reports a full disk the page cache hid), and only then renamed over the old file. The stop
-signals (SIGINT, SIGTERM, SIGHUP) are held back while a temporary is created and while the
-renames run, so a stop can never leave a temporary nobody knows about, and a set of files is
-replaced together. A ledger of what this process replaced lets whoever reports a failure or a
-stop say exactly which outputs are new and which are as they were (:func:`replaced`).
-
-Before any work, outputs that cannot be written (:func:`check_writable`) or would replace a
-file the command reads (:func:`refuse_unsafe_outputs`) are refused; names from scenes and
-buffers are data, never paths: a file name is built only from :func:`file_token`'s output.
+Each file is written to a temporary beside it, checked (an empty write is an error; ``fsync``
+reports a full disk the page cache hid), then renamed over the old file. The stop signals are
+held back while a temporary is created and while the renames run, so a stop never leaves an
+unknown temporary and a set of files is replaced together. The ledger (:func:`replaced`) lets
+a failure or a stop name exactly which outputs are new. Names from scenes and buffers are data,
+never paths: a file name is built only from :func:`file_token`'s output.
 """
 
 from __future__ import annotations
@@ -25,7 +20,7 @@ import signal
 import stat
 import tempfile
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
@@ -47,9 +42,17 @@ def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
     atomic_write_all([(path, write)])
 
 
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """``data`` as the whole of one file, written atomically."""
+
+    def write(tmp: Path) -> None:
+        tmp.write_bytes(data)
+
+    atomic_write(path, write)
+
+
 def atomic_write_all(files: list[tuple[Path, Callable[[Path], None]]]) -> None:
-    """Write every file to a temporary beside it, then rename them all, with stop signals
-    held back during the renames: a run's outputs are replaced together or not at all.
+    """Write every file to a temporary beside it, then rename them all together.
 
     An ``OSError`` names the output it was writing (``filename``); a stop asked for while a
     writer ran surfaces as ``KeyboardInterrupt`` whatever the writer raised in its wake.
@@ -71,8 +74,8 @@ def atomic_write_all(files: list[tuple[Path, Callable[[Path], None]]]) -> None:
 
 
 def scratch_folder(purpose: str) -> Path:
-    """A private temporary folder (a library's cache), removed at exit, and with the outputs'
-    temporaries when a stop or a failure ends the process (:func:`remove_temporaries`)."""
+    """A private temporary folder (a library's cache), removed at exit or with the outputs'
+    temporaries (:func:`remove_temporaries`)."""
     if not _scratch:
         atexit.register(remove_temporaries)
     folder = Path(tempfile.mkdtemp(prefix=f"sensaov-{purpose}-"))
@@ -94,7 +97,6 @@ def remove_temporaries() -> None:
 
 
 def _written_temporary(path: Path, write: Callable[[Path], None]) -> Path:
-    """``write(tmp)`` on a temporary file beside ``path``; returns it (removed on failure)."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with _signals_held():  # a temporary exists only once the ledger knows it
@@ -131,15 +133,12 @@ def _check_written(tmp: Path, path: Path) -> None:
 
 
 def _named(exc: OSError, path: Path) -> OSError:
-    """``exc`` naming the output it was writing, not the temporary beside it."""
     return OSError(exc.errno, exc.strerror or str(exc), str(path))
 
 
 def _remove(tmp: Path) -> None:
-    try:
+    with suppress(OSError):  # the folder vanished or became read-only: nothing more to do
         tmp.unlink(missing_ok=True)
-    except OSError:
-        pass  # the folder vanished or became read-only: nothing more can be done
     _live.discard(tmp)
 
 
@@ -160,39 +159,32 @@ def _signals_held() -> Iterator[None]:
 
 
 def _mode_of(path: Path) -> int:
-    try:
+    """A replaced file's own permissions, else those of any new file."""
+    with suppress(OSError):
         info = os.stat(path)
-    except OSError:
-        return 0o666 & ~_umask()
-    return stat.S_IMODE(info.st_mode) if stat.S_ISREG(info.st_mode) else 0o666 & ~_umask()
-
-
-def _umask() -> int:
+        if stat.S_ISREG(info.st_mode):
+            return stat.S_IMODE(info.st_mode)
     mask = os.umask(0)
     os.umask(mask)
-    return mask
+    return 0o666 & ~mask
 
 
 def _fsync_directory(folder: Path) -> None:
     """Make the rename itself durable (a farm node may lose power right after the job)."""
-    try:
+    # Some file systems cannot fsync a directory; the rename is still atomic.
+    with suppress(OSError):
         descriptor = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(descriptor)
-    except OSError:
-        pass  # some file systems cannot fsync a directory; the rename is still atomic
-    finally:
-        os.close(descriptor)
+        try:
+            os.fsync(descriptor)
+        finally:
+            os.close(descriptor)
 
 
 def check_writable(folder: Path, names: list[str]) -> None:
     """Fail before any work if ``folder/<name>`` cannot be written (nothing is created here).
 
-    A name may be a sub-folder (``previews/``): an existing file in its place is refused too,
-    and so is a symbolic link that leads nowhere (dangling, or a loop) in place of the folder,
-    a sub-folder or an output: creating it would fail only once the work is done.
+    A name may be a sub-folder (``previews/``). A dangling or looping link in place of the
+    folder, a sub-folder or an output is refused too: creating it would fail after the work.
     """
     for name in names:
         target = folder / name
@@ -217,7 +209,6 @@ def check_writable(folder: Path, names: list[str]) -> None:
 
 
 def _refuse_broken_link(path: Path) -> None:
-    """A link whose target does not exist (or that loops) cannot be written through."""
     if not path.is_symlink():
         return
     try:
@@ -241,15 +232,11 @@ def refuse_unsafe_outputs(
 ) -> None:
     """Refuse, before any work, outputs that would replace an input or a folder that is a file.
 
-    With ``output`` set to the scene's folder, an inspection camera named like a texture would
-    replace the texture, and the scene would no longer load; ``report -o`` onto the buffer
-    would replace the buffer. ``inputs`` are every file the command reads (the job, every file
-    the prepared scene lists, masks, targets, the buffer, shards, primals, camera EXRs,
-    previews; for a command that reads only a buffer, :func:`recorded_inputs`), ``files`` the
-    outputs' paths, ``folders`` the folders whose contents it writes (``previews/``). The same
-    path after resolving links, or the same file under another name (a hard link), is refused.
-    ``where`` names the job (or the option) in messages, ``hint`` says how to choose another
-    output.
+    With ``output`` set to the scene's folder, a camera named like a texture would replace the
+    texture; ``report -o`` onto the buffer would replace the buffer. ``inputs`` are every file
+    the command reads (for a command that reads only a buffer, :func:`recorded_inputs`),
+    ``folders`` those whose contents it writes (``previews/``). The same file through a link or
+    under another name (a hard link) is refused too.
     """
     folders = list(folders)
     for folder in folders:
@@ -284,21 +271,18 @@ def refuse_unsafe_outputs(
 
 def recorded_inputs(provenance: Mapping[str, Any]) -> tuple[Path, ...]:
     """The files a buffer's provenance says its run read: the job, the scene and every file the
-    scene reads (``scene_files``; a buffer written before it was recorded: the scene and its
-    textures). Provenance is a stranger's data: what is not a string is ignored (a hostile
-    entry can only make a command refuse more)."""
+    scene reads (``scene_files``; older buffers: the scene and its textures). Provenance is a
+    stranger's data: what is not a string is ignored (a hostile entry can only refuse more)."""
     named = [provenance.get("job_path"), provenance.get("scene_path")]
-    named += _strings(provenance.get("scene_files"))
+    scene_files = provenance.get("scene_files")
+    if isinstance(scene_files, list):
+        named += scene_files
     textures = provenance.get("textures")
     if isinstance(textures, list):
         named += [entry.get("file") for entry in textures if isinstance(entry, dict)]
     return tuple(
         Path(name) for name in named if isinstance(name, str) and name and "\0" not in name
     )
-
-
-def _strings(value: Any) -> list[str]:
-    return [item for item in value if isinstance(item, str)] if isinstance(value, list) else []
 
 
 def _same_file(output: Path, inputs: Iterable[Path]) -> Path | None:
@@ -316,12 +300,10 @@ def _same_file(output: Path, inputs: Iterable[Path]) -> Path | None:
 def file_token(name: str) -> str:
     """``name`` itself when it is a safe file-name token already, else a sanitised stand-in.
 
-    An objective's name, a parameter type or an object id read from a stranger's buffer may
-    hold ``/``, ``..``, control characters, 300 characters or any Unicode. A token holds ASCII
-    letters, digits, ``_``, ``-`` and inner ``.``, at most :data:`MAX_TOKEN` characters, never
-    empty, never ``.`` or ``..``, never hidden. A name that needed changing gets a short hash
-    of the original, so two names never share a file; the writer keeps the original in the
-    file's metadata.
+    A name from a stranger's buffer may hold ``/``, ``..``, control characters or any Unicode.
+    A token holds ASCII letters, digits, ``_``, ``-`` and inner ``.``, at most
+    :data:`MAX_TOKEN` characters, never empty, never hidden. A changed name gets a short hash
+    of the original, so two names never share a file; the file's metadata keeps the original.
     """
     if _is_safe(name):
         return name

@@ -1,13 +1,11 @@
 """PNG previews of a projected view: one legended image per pass, a contact sheet per objective,
 and the camera's manifest of what was written from which buffer.
 
-Every picture saturates at its layer's display scale (:mod:`sensaov_cli.views.display_scale`):
-by default one scale per (objective, channel) shared by every camera of the job, so the same
-object has the same colour in every view. Each single preview carries its own legend: the
-colour bar at ±scale, the scale's rule and scope, the share of pixels it clips here and over all
-cameras, and what the layer leaves out. A layer of untrusted gradients is hatched. The manifest
-``<previews>/<camera>.json`` lists every file with the buffer id and job version it was made
-from: ``sensaov report`` shows exactly those files, and refuses them if they are stale.
+Every picture saturates at its layer's display scale (:mod:`sensaov_cli.views.display_scale`),
+so the same object has the same colour in every view; each single preview's legend says the
+scale's rule, what it clips and what the layer leaves out. Untrusted layers are hatched. The
+manifest ``<previews>/<camera>.json`` lists every file with the buffer id and job version it was
+made from: ``sensaov report`` shows exactly those files, and refuses them if they are stale.
 """
 
 from __future__ import annotations
@@ -21,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli.outputs.atomic import atomic_write, file_token
+from sensaov_cli.outputs.atomic import atomic_write_bytes, file_token
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.png import write_png
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay
@@ -63,13 +61,16 @@ def write_previews(
     stamp: Mapping[str, str],
 ) -> list[PreviewFile]:
     """``folder/<camera>/<objective>.<pass>.png`` per layer and ``folder/<camera>_<objective>.png``
-    per objective. Names in paths are :func:`~.atomic.file_token`; the names as they were are
-    kept in each PNG's text chunks, with the ``stamp`` (buffer id, job version)."""
+    per objective; the names as they were are kept in each PNG's text, with the ``stamp``."""
     written = []
     sheets: dict[str, list[tuple[str, np.ndarray]]] = defaultdict(list)
     for layer, scale in layers:
         values = signed_pixels(layer.data, layer.kind)
-        rgb = _picture(values, scale.value, layer, beauty, visibility)
+        rgb = diverging_rgb(values, scale.value)
+        if beauty is not None:
+            rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
+        if layer.untrusted:
+            rgb = hatch(rgb, values != 0)
         entry = _layer_entry(camera, layer, scale, values)
         names = {"sensaov/camera": camera, "sensaov/objective": layer.objective}
         text = {**stamp, **names, "sensaov/pass": layer.pass_name,
@@ -97,9 +98,7 @@ def write_manifest(
     folder: Path, camera: str, files: Sequence[PreviewFile], stamp: Mapping[str, str]
 ) -> Path:
     """``folder/<camera>.json``: every preview of the camera and what it was made from.
-
-    Previews the camera's previous manifest listed and this one does not (an objective or a
-    channel since renamed) are removed first: they were made from another state of the job."""
+    Previews only the previous manifest listed (made from another state of the job) go first."""
     path = folder / f"{file_token(camera)}.json"
     _remove_stale(folder, path, {entry.file for entry in files})
     document: dict[str, Any] = {
@@ -110,11 +109,7 @@ def write_manifest(
         "files": [asdict(entry) for entry in files],
     }
     text = json.dumps(document, indent=1, sort_keys=True) + "\n"
-
-    def write(tmp: Path) -> None:
-        tmp.write_text(text, encoding="utf-8")
-
-    atomic_write(path, write)
+    atomic_write_bytes(path, text.encode("utf-8"))
     return path
 
 
@@ -134,21 +129,6 @@ def _remove_stale(folder: Path, manifest: Path, keep: set[str]) -> None:
             and stale.is_file()
         ):
             stale.unlink(missing_ok=True)
-
-
-def _picture(
-    values: np.ndarray,
-    scale: float,
-    layer: SensitivityLayer,
-    beauty: np.ndarray | None,
-    visibility: VisibilityPass,
-) -> np.ndarray:
-    rgb = diverging_rgb(values, scale)
-    if beauty is not None:
-        rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
-    if layer.untrusted:
-        rgb = hatch(rgb, values != 0)
-    return rgb
 
 
 def _layer_entry(
@@ -217,9 +197,8 @@ def _sheet_notes(
     ]
     if any(layer.untrusted for layer, _ in mine):
         notes.append(UNTRUSTED_NOTE)
-    # What the tiles cannot show, as their single previews say it: a tile is never read as
-    # "no sensitivity" where the check failed or the objects carrying it are off-frame. The
-    # failure first and the objects capped: the sheet draws at most MAX_NOTES wrapped lines.
+    # What the tiles cannot show (a failed check, off-frame objects), the failure first and the
+    # objects capped: the sheet draws at most MAX_NOTES wrapped lines.
     failed = [layer.pass_name for layer, _ in mine if layer.duality_failed]
     if failed:
         notes.insert(0, "duality check FAILED, do not trust (marked !): " + ", ".join(failed))

@@ -1,18 +1,15 @@
 """Cryptomatte 1.2 ID layers: object names hashed into float IDs, ranked coverage, manifest;
 and, read back from a camera's EXR, which objects that camera sees.
 
-Any Cryptomatte keyer (Nuke's gizmo, Natron's, Blender's compositor node) picks an object by
-hashing the name the artist chose, so the IDs written here must be exactly the specification's:
-MurmurHash3_x86_32 (seed 0) of the UTF-8 name, its exponent forced into [1, 254] so the bits
-never form a denormal, an infinity or a NaN, stored as the bits of a little-endian float32.
-Layers are ``{T}00``, ``{T}01``, … each holding two ranks as (ID, coverage, ID, coverage); the
-deprecated un-numbered preview layer ``{T}.R/G/B`` is never written (Blender 3.4 mistakes it for
-another rank). See ``docs/exr-layout.md``.
+A keyer picks an object by hashing the name the artist chose, so the IDs must be exactly the
+specification's: MurmurHash3_x86_32 (seed 0) of the UTF-8 name, its exponent forced into
+[1, 254] (never a denormal, infinity or NaN), as the bits of a little-endian float32. Layers
+``{T}00``, ``{T}01``, … hold two ranks each as (ID, coverage, ID, coverage); the deprecated
+preview layer ``{T}.R/G/B`` is never written (Blender 3.4 mistakes it for another rank). See
+``docs/exr-layout.md``.
 
-The buffer knows nothing of cameras, so "off-frame" is a property of a camera: an object is in
-its frame when its Cryptomatte ID covers some pixel of the camera's ``CryptoObject`` layers
-(:func:`visible_objects`). The manifest is not enough: it names every object of the scene, seen
-or not.
+An object is in a camera's frame when its ID covers some pixel of the camera's ``CryptoObject``
+layers (:func:`visible_objects`); the manifest names every object of the scene, seen or not.
 """
 
 from __future__ import annotations
@@ -36,8 +33,6 @@ TYPE_NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,60}")
 _EXPONENT_SHIFT = 23
 _EXPONENT_MASK = 0xFF
 OBJECT_TYPE = "CryptoObject"
-# An ID channel and the coverage channel beside it: R with G, B with A.
-_PAIRS = (("R", "G"), ("B", "A"))
 
 
 def name_hash(name: str) -> int:
@@ -70,10 +65,8 @@ def id_hex(name: str) -> str:
 
 
 def manifest(names: Sequence[str]) -> str:
-    """The JSON manifest ``{"name": "8-hex ID"}``, sorted, compact, UTF-8 names unescaped.
-
-    Identical names merge into one entry, as the specification intends.
-    """
+    """The JSON manifest ``{"name": "8-hex ID"}``, sorted, compact, UTF-8 names unescaped
+    (identical names merge into one entry, as the specification intends)."""
     entries = {name: id_hex(name) for name in sorted(set(names))}
     return json.dumps(entries, ensure_ascii=False, separators=(",", ":"), sort_keys=True)
 
@@ -104,13 +97,12 @@ def rank_channels(
 ) -> dict[str, np.ndarray]:
     """Cryptomatte channels (name -> H x W float32) from per-pixel ranked coverage.
 
-    ``rank_index`` (H, W, R) indexes ``names`` (-1 = empty rank) and ``rank_coverage`` (H, W, R)
-    is the coverage of that rank. Ranks are (stably) re-sorted by coverage, largest first, with
-    empty ranks last; then the first ``ranks`` are written, padded with ID 0 / coverage 0, into
-    a fixed count of ``ceil(ranks / 2)`` layers, so a sequence keeps the same channels on every
-    frame. Coverage beyond ``ranks`` is dropped, as in every Cryptomatte writer. ``ordered``
-    promises the ranks are in that order already, empty ones last at coverage 0, as a
-    visibility pass builds them: nothing is then zeroed, checked or sorted.
+    ``rank_index`` (H, W, R) indexes ``names`` (-1 = empty rank); ``rank_coverage`` (H, W, R)
+    is each rank's coverage. Ranks are stably sorted by coverage, largest first, empty ranks
+    last; the first ``ranks`` are written, padded with ID 0 / coverage 0, into a fixed
+    ``ceil(ranks / 2)`` layers, so a sequence keeps its channels on every frame. ``ordered``
+    promises that order already (empty ranks at coverage 0, as a visibility pass builds them):
+    nothing is then zeroed, checked or sorted.
     """
     _check_type_name(type_name)
     index, coverage = _checked_ranks(names, rank_index, rank_coverage)
@@ -159,8 +151,7 @@ def _check_type_name(type_name: str) -> None:
 
 
 def _in_rank_order(coverage: np.ndarray, empty: np.ndarray) -> bool:
-    """Whether every pixel's ranks are already as the stable sort would leave them (no empty
-    rank before a filled one, coverage not increasing): then sorting is the identity."""
+    """Whether the stable sort would leave every pixel's ranks as they are."""
     filled_after_empty = empty[..., :-1] & ~empty[..., 1:]
     increasing = coverage[..., 1:] > coverage[..., :-1]
     return not (filled_after_empty.any() or (increasing & ~empty[..., 1:]).any())
@@ -215,7 +206,7 @@ def seen_names(
     layers = {name[:-2] for name in channels if pattern.match(name)}
     ids: set[float] = set()
     for layer in sorted(layers):
-        for id_channel, coverage_channel in _PAIRS:
+        for id_channel, coverage_channel in (("R", "G"), ("B", "A")):  # an ID, its coverage
             pair = (f"{layer}.{id_channel}", f"{layer}.{coverage_channel}")
             missing = [name for name in pair if name not in channels]
             if missing:
@@ -247,9 +238,8 @@ def _manifest_names(manifest: Any, where: str) -> list[str]:
             where=where,
             hint="pass an inspection camera's EXR written by 'sensaov project'",
         )
-    # Names are matched by their hash (MurmurHash3, as every Cryptomatte writer computes it):
-    # an ID that is not that hash means the file was damaged or names other objects, and the
-    # objects it lists as seen would be the wrong ones.
+    # Names are matched by their hash: an ID that is not its name's hash would list the wrong
+    # objects as seen.
     wrong = next((name for name, value in names.items() if value.lower() != id_hex(name)), None)
     if wrong is not None:
         raise CameraFileError(

@@ -1,7 +1,7 @@
 """OpenEXR files: float32 channels plus string metadata, written atomically, and read back.
 
-The multilayer layout for compositors (beauty, Cryptomatte, sensitivity passes) is assembled in
-``layered_exr.py``; this module only moves named channels and header strings to and from disk.
+The compositor layout is ``layered_exr.py``'s; this module only moves named channels and header
+strings to and from disk.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ def write_exr(path: Path, channels: dict[str, np.ndarray], attributes: dict[str,
 def exr_writer(
     channels: dict[str, np.ndarray], attributes: dict[str, str]
 ) -> Callable[[Path], None]:
-    """A function writing the EXR to a given (temporary) path, for paired atomic writes."""
+    """A function writing the EXR to a given (temporary) path, for :func:`atomic_write_all`."""
     exr = _exr_file(channels, attributes)
 
     def write(tmp: Path) -> None:
@@ -49,19 +49,17 @@ def exr_writer(
 
 
 def _exr_file(channels: dict[str, np.ndarray], attributes: dict[str, str]) -> Any:
-    """The ``OpenEXR.File`` of a ZIP scanline file, to be compressed on every core."""
+    """The ``OpenEXR.File`` of a ZIP scanline file: half channels stay half (display layers),
+    all else becomes float32."""
     import OpenEXR
 
     _use_every_core(OpenEXR)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    pixels = {name: _pixels(data) for name, data in channels.items()}
+    pixels = {
+        name: np.ascontiguousarray(data, np.float16 if data.dtype == np.float16 else np.float32)
+        for name, data in channels.items()
+    }
     return OpenEXR.File(header | attributes, pixels)
-
-
-def _pixels(data: np.ndarray) -> np.ndarray:
-    """A channel as the binding writes it: half stays half (display layers), all else float32."""
-    kind = np.float16 if np.asarray(data).dtype == np.float16 else np.float32
-    return np.ascontiguousarray(data, dtype=kind)
 
 
 def encode_exr(channels: dict[str, np.ndarray], attributes: dict[str, str]) -> bytes:
@@ -75,9 +73,8 @@ def encode_exr(channels: dict[str, np.ndarray], attributes: dict[str, str]) -> b
 
 
 def _use_every_core(openexr: Any) -> None:
-    """Let OpenEXR compress its blocks on every core this process may run on (its default is
-    one thread): ZIP on a 512² view of ~50 channels is most of the write. Blocks are still
-    written in line order, so the file's bytes do not depend on the thread count."""
+    """Let OpenEXR compress on every core this process may use (its default is one thread).
+    Blocks are still written in line order: the bytes do not depend on the thread count."""
     affinity = getattr(os, "sched_getaffinity", None)  # Linux; elsewhere every core counts
     cores = len(affinity(0)) if affinity else (os.cpu_count() or 1)
     if openexr.global_thread_count() != cores:
@@ -85,7 +82,7 @@ def _use_every_core(openexr: Any) -> None:
 
 
 def _os_error(message: str) -> OSError:
-    """OpenEXR's message as the OSError it reports ("... No space left on device.")."""
+    """OpenEXR's message ("... No space left on device.") as its OSError."""
     for code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EROFS):
         if os.strerror(code) in message:
             return OSError(code, os.strerror(code))
@@ -101,22 +98,19 @@ def image_channels(image: np.ndarray) -> dict[str, np.ndarray]:
 def read_exr(
     path: Path, what: str = "OpenEXR file"
 ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """Every channel of a scanline EXR by its full name (``layer.pass.Y``) and the header.
+    """Every channel of a scanline EXR by its full name (``layer.pass.Y``), H x W in the stored
+    type, and the header as the binding gives it.
 
-    Channels come back as H x W arrays in the stored type (float32, or float16 for half); the
-    header as the OpenEXR binding gives it (strings stay strings, windows are arrays). A file
-    that cannot be read is bad input (:class:`ExrReadError`, exit 2): a special file, a corrupt
-    or truncated one, or one whose declared size is over the memory budget (its header is read
-    first, so a 6 kB file declaring a gigapixel image allocates nothing).
+    A special file, a corrupt or truncated one, or one whose declared size is over the memory
+    budget (checked on the header first) is bad input (:class:`ExrReadError`).
     """
     import OpenEXR
 
     # Checked first: else a FIFO blocks, and the library prints its own line to stderr first.
     regular_file(path, what, error=ExrReadError)
     try:
-        # ``separate_channels`` keeps full channel names: by default the binding groups
-        # ``X.R``, ``X.G``, ``X.B`` into one ``X`` entry. Read inside ``with``: the File's
-        # header and pixels are invalid once it is closed.
+        # ``separate_channels`` keeps full channel names (the binding groups ``X.R/G/B`` into
+        # one ``X`` by default). Read inside ``with``: a closed File's data are invalid.
         with _library_quiet() as said:
             with OpenEXR.File(str(path), header_only=True) as exr:
                 declared = exr.header()
@@ -143,9 +137,8 @@ def read_exr(
 
 @contextmanager
 def _library_quiet() -> Iterator[list[str]]:
-    """The OpenEXR library prints its complaints to the process's stdout and stderr, which
-    would break the one-line error (and ``--json`` on stdout): they are caught here instead,
-    and what it said is yielded (filled once the block ends)."""
+    """Catch what the OpenEXR library prints to the process's stdout and stderr (it would break
+    the one-line error and ``--json``); yields the lines, filled once the block ends."""
     said: list[str] = []
     saved = [os.dup(1), os.dup(2)]
     with tempfile.TemporaryFile() as caught:
@@ -167,7 +160,7 @@ def _library_quiet() -> Iterator[list[str]]:
 
 
 def _check_declared_size(window: object, listed: Sized, path: Path, what: str) -> None:
-    """The pixels a header's data window and channels declare, against the memory budget."""
+    """The pixels a header declares, against the memory budget."""
     corners = np.asarray(window, dtype=np.int64).reshape(-1)
     if corners.size != 4:
         raise ExrReadError(f"the {what} has no data window", where=str(path))

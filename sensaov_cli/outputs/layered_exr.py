@@ -1,21 +1,16 @@
 """The multilayer EXR a compositor opens: beauty, Cryptomatte ID layers, sensitivity passes and
 their display layers.
 
-One file per camera. Channel names follow ``Layer.Pass.Channel`` — here
-``objective.pass.Y`` (or ``.R/.G/.B``) — beside a plain ``R,G,B,A`` beauty and a real
-Cryptomatte (``CryptoObject00..02``), so a keyer's matte can gate any sensitivity pass.
-Compositors are strict about names (MITSUBA-NOTES "Compositors"): every token is rewritten to
-``[A-Za-z0-9_]`` and at most 63 bytes, names stay unique, and the original names go into the
-metadata. Everything is float32 with ZIP compression: half floats would destroy Cryptomatte IDs
-and small sensitivities alike. The layout is specified in ``docs/exr-layout.md``.
+One file per camera: ``objective.pass.Y`` (or ``.R/.G/.B``) beside an ``R,G,B,A`` beauty and a
+real Cryptomatte (``CryptoObject00..02``), so a keyer's matte can gate any pass. Compositors are
+strict about names (MITSUBA-NOTES "Compositors"): every token becomes ``[A-Za-z0-9_]``, at most
+63 bytes, unique, the original names kept in the metadata. Data are float32 (ZIP): half would
+destroy Cryptomatte IDs and small sensitivities alike. Layout: ``docs/exr-layout.md``.
 
-A raw layer keeps its values untouched (a few 1e-2 at most, often 1e-5: black in any viewer).
-Its display layer ``<objective>.<pass>_display.R/G/B`` holds the previews' picture of it: the
-signed value at the group's display scale (:mod:`sensaov_cli.views.display_scale`) on the
-diverging RdBu map (blue lowers M, red raises it, near-white 0), as linear Rec. 709 values whose
-sRGB encoding is exactly the previews' colours, stored as half floats; where the camera hits
-nothing it is black. Both layers record the scale, its rule and the share of pixels it clips.
-Layers carry typed values; :func:`layer_metadata` alone turns them into header strings.
+A raw layer keeps its values (often 1e-5: black in any viewer). Its display layer
+``<objective>.<pass>_display.R/G/B`` holds the previews' picture of it at the group's display
+scale, as half-float linear Rec. 709 whose sRGB encoding is exactly the previews' colours; black
+where the camera hits nothing. :func:`layer_metadata` alone turns layers into header strings.
 """
 
 from __future__ import annotations
@@ -54,11 +49,8 @@ LayerKind = Literal["", "forward", "transport", "texel", "display"]
 
 @dataclass(frozen=True, eq=False)
 class CryptoLayer:
-    """Ranked per-pixel coverage of named things (objects, materials) for one Cryptomatte type.
-
-    ``rank_index`` (H, W, R) indexes ``names`` (-1 = empty); ``rank_coverage`` (H, W, R) is the
-    coverage of each rank, largest first.
-    """
+    """Ranked per-pixel coverage of named things for one Cryptomatte type (as
+    :func:`cryptomatte.rank_channels` takes it)."""
 
     type_name: str
     names: Sequence[str]
@@ -89,8 +81,7 @@ class Display:
 class SensitivityLayer:
     """One sensitivity pass: (H, W) data becomes channel ``Y``, (H, W, 3) becomes ``R, G, B``.
 
-    ``metadata`` (selection, aggregate, weight, encoding, spp, buffer …) is written as it is
-    under ``sensaov/<key>/``; the typed fields after it are written there too, when set.
+    ``metadata`` is written as it is under ``sensaov/<key>/``, the typed fields when set.
     """
 
     objective: str
@@ -153,12 +144,8 @@ def write_layered_exr(
 
 
 def sanitise_token(text: str) -> tuple[str, bool]:
-    """``text`` as a compositor-safe token and whether it had to change.
-
-    Every character outside ``[A-Za-z0-9_]`` becomes ``_`` (an empty token becomes ``_``); a
-    token over 63 bytes is cut and ends in ``_`` plus 6 hex digits of the original's hash, so
-    two long names that share a beginning stay apart.
-    """
+    """``text`` as a compositor-safe token and whether it had to change: a token over 63 bytes
+    ends in ``_`` plus 6 hex digits of the original's hash, so long names stay apart."""
     clean = _UNSAFE.sub("_", text) or "_"
     if len(clean) > TOKEN_BYTES:
         clean = _with_suffix(clean, text)
@@ -168,12 +155,10 @@ def sanitise_token(text: str) -> tuple[str, bool]:
 def layer_names(
     layers: Sequence[SensitivityLayer], *, reserved: set[str] | frozenset[str] = frozenset()
 ) -> list[str]:
-    """The final ``objective.pass`` of each layer: sanitised, at most 63 bytes a token, unique.
-
-    Uniqueness is checked on ``objective_pass`` too, the name Nuke shows once it rewrites the
-    dot, and against the ``reserved`` Cryptomatte layer names. In a clash, the layers whose
-    names were sanitised get ``_`` plus 6 hex digits of their original name's hash on the pass
-    token; clean names keep theirs unless clean names clash among themselves.
+    """The final ``objective.pass`` of each layer: sanitised and unique, also as
+    ``objective_pass`` (Nuke's rewrite of the dot) and against the ``reserved`` Cryptomatte
+    layers. In a clash, sanitised names get a hash suffix on the pass token; clean names keep
+    theirs unless clean names clash among themselves.
     """
     seen = Counter((layer.objective, layer.pass_name) for layer in layers)
     duplicates = sorted(f"{o}.{p}" for (o, p), count in seen.items() if count > 1)
@@ -204,8 +189,7 @@ def layer_names(
 
 
 def layer_metadata(layer: SensitivityLayer, name: str) -> dict[str, str]:
-    """``sensaov/<key>/...`` attributes of one layer: name, objective, pass, channels, its
-    metadata and its typed fields, as header strings."""
+    """The ``sensaov/<key>/...`` header strings of one layer."""
     entries = {
         "name": name,
         "objective": layer.objective,
@@ -239,7 +223,6 @@ def layer_metadata(layer: SensitivityLayer, name: str) -> dict[str, str]:
 
 
 def _display_metadata(display: Display) -> dict[str, str]:
-    """What a raw layer and its display layer both record about the picture's scale."""
     scale = display.scale
     return {
         "display_scale": repr(scale.value),
@@ -252,10 +235,9 @@ def _display_metadata(display: Display) -> dict[str, str]:
 
 
 def display_background(hit: np.ndarray) -> np.ndarray:
-    """(3, H, W) half planes: the display colour of a zero pixel of one camera, whatever the
-    layer. Zero is the map's centre at every scale; it fades to black with ``hit``, the
-    camera's per-pixel coverage by any object: the float32 colour times the float32 coverage
-    clipped to [0, 1], rounded to half once. Computed once per camera, shared by its layers."""
+    """(3, H, W) half planes: the display colour of a zero pixel of one camera, any layer: the
+    map's centre faded to black with ``hit``, the camera's coverage by any object, rounded to
+    half once."""
     centre = diverging_linear(np.zeros(1), 1.0)[0]  # (3,) float32, the same at every scale
     fade = np.clip(np.asarray(hit, np.float32), 0.0, 1.0)
     return (centre[:, None, None] * fade[None]).astype(np.float16)
@@ -268,9 +250,7 @@ def with_display(
     camera's :func:`display_background`, shown where the layer is zero)."""
     values = signed_pixels(layer.data, layer.kind)
     shown = Display(scale, clipped_share([values], scale.value))
-    # Stored as half: a picture in [0, 1] needs no more (its sRGB 8-bit codes are the same as
-    # float32's, tested), and half the bytes make the EXR write faster. Drawn as planes, so
-    # each EXR channel is contiguous as it is; the layer sees (H, W, 3).
+    # Half keeps the picture's sRGB 8-bit codes (tested); planes make each channel contiguous.
     planes = diverging_linear_planes(values, scale.value, np.float16)
     np.copyto(planes, background, where=(values == 0)[None])
     display_name = layer.pass_name + DISPLAY_SUFFIX
@@ -326,8 +306,8 @@ def _sensitivity_channels(layer: SensitivityLayer, name: str) -> dict[str, np.nd
 
 
 def _non_finite(data: np.ndarray) -> int:
-    """How many values are NaN or infinite. Half (display layers) by its exponent bits, all
-    ones exactly there: numpy's isfinite has no vector loop for half, 10x slower."""
+    """How many values are NaN or infinite; half by its exponent bits (numpy's isfinite has no
+    vector loop for half)."""
     if data.dtype == np.float16:
         return int(np.count_nonzero((data.view(np.uint16) & 0x7C00) == 0x7C00))
     return int(np.count_nonzero(~np.isfinite(data)))

@@ -1,10 +1,9 @@
 """What ``sensaov params`` and ``sensaov check`` print: a scene's parameters, and their checks.
 
-``params``: the selected parameters, what was left out, and why; its text and ``--json`` come
-from one :class:`ParameterInventory`, so they always agree. ``check``: reverse mode against
-finite differences, and duality; the rows are the render stage's check results, read through the
-protocols below so that this stage never imports the renderer. The aligned table is tables.py's.
-Plain text only, like every terminal table.
+``params``: the selected parameters, what was left out, and why; text and ``--json`` come from
+one :class:`ParameterInventory`, so they agree. ``check``: reverse mode against finite
+differences, and duality; its rows are the render stage's results, read through the protocols
+below so that this stage never imports the renderer.
 """
 
 from __future__ import annotations
@@ -22,7 +21,7 @@ _PARAMS_NOTES = {
     "unverified": "UNVERIFIED", "biased": "BIASED", "suspect": "SUSPECT",
     "no_gradient": "NO GRADIENT",
 }  # fmt: skip
-# The keys of a selected parameter in params --json, in the order they always had.
+# The keys of a selected parameter in params --json, in their order.
 _SELECTED_KEYS = ("key", "type", "owners", "plugin", "shape", "is_texture", "flags", "verified",
                   "trust", "note", "texture_file", "converted", "estimator", "repair")  # fmt: skip
 
@@ -86,9 +85,21 @@ def params_text(loaded: ParameterInventory, *, show_all: bool = False) -> str:
     lines = [f"{len(loaded.selected)} parameters selected over {len(loaded.objects)} objects"]
     lines += format_table(rows)
     lines += _unverified_legend(loaded)
-    lines += _repairs_legend(loaded)
-    lines += _textures(loaded)
-    lines += _split(loaded)
+    if loaded.repairs:
+        lines += [
+            "",
+            "REPAIRED: known wrong in reverse mode; run computes them again by central differences "
+            "(repair.budget permitting; textures never: two renders per texel) - "
+            'docs/verification.md, "Repairs"',
+        ]
+    if loaded.textures:
+        lines += ["", "textures in the buffer:"]
+        for key, source in loaded.textures.items():
+            how = "converted from 8-bit to float so its texels get gradients"
+            lines.append(f"  {key}: {source.file} ({how if source.converted else 'float'})")
+    if loaded.split:
+        lines += ["", "shared BSDFs split into one copy per object (parameters.shared: split):"]
+        lines += [f"  {name} -> {', '.join(shapes)}" for name, shapes in loaded.split.items()]
     lines += _changes(loaded)
     lines += _excluded(loaded, show_all)
     return "\n".join(lines)
@@ -102,39 +113,6 @@ def _unverified_legend(loaded: ParameterInventory) -> list[str]:
         return []
     head = "gradients sensaov does not stand behind (left out of object and type views):"
     return ["", head] + [f"  - {label}: {note}" for label, note in notes]
-
-
-def _repairs_legend(loaded: ParameterInventory) -> list[str]:
-    if not loaded.repairs:
-        return []
-    return [
-        "",
-        "REPAIRED: known wrong in reverse mode; run computes them again by central differences "
-        "(repair.budget permitting; textures never: two renders per texel) - "
-        'docs/verification.md, "Repairs"',
-    ]
-
-
-def _textures(loaded: ParameterInventory) -> list[str]:
-    if not loaded.textures:
-        return []
-    lines = ["", "textures in the buffer:"]
-    for key, source in loaded.textures.items():
-        how = (
-            "converted from 8-bit to float so its texels get gradients"
-            if source.converted
-            else "float"
-        )
-        lines.append(f"  {key}: {source.file} ({how})")
-    return lines
-
-
-def _split(loaded: ParameterInventory) -> list[str]:
-    if not loaded.split:
-        return []
-    lines = ["", "shared BSDFs split into one copy per object (parameters.shared: split):"]
-    lines += [f"  {name} -> {', '.join(shapes)}" for name, shapes in loaded.split.items()]
-    return lines
 
 
 def _changes(loaded: ParameterInventory) -> list[str]:
@@ -221,24 +199,12 @@ def checks_text(checks: Sequence[GradientRow]) -> str:
         ("key", "plugin", "type", "table", "method", "adjoint", "finite diff", "std err", "verdict")
     ]
     for c in checks:
-        rows.append(
-            (
-                c.key,
-                c.plugin,
-                c.type,
-                c.claimed,  # the table's own label: biased kinds say biased
-                c.method,
-                f"{c.adjoint:+.3e}",
-                f"{c.finite_difference:+.3e}",
-                "-" if c.method == "same seed" else f"{c.standard_error:.1e}",
-                c.verdict
-                + (
-                    "  <-- CONTRADICTS THE TABLE"
-                    if c.claimed_verified and c.verdict == "disagrees"
-                    else ""
-                ),
-            )
-        )
+        error = "-" if c.method == "same seed" else f"{c.standard_error:.1e}"
+        contradicts = c.claimed_verified and c.verdict == "disagrees"
+        verdict = c.verdict + ("  <-- CONTRADICTS THE TABLE" if contradicts else "")
+        # c.claimed: the table's own label (biased kinds say biased)
+        numbers = (f"{c.adjoint:+.3e}", f"{c.finite_difference:+.3e}", error, verdict)
+        rows.append((c.key, c.plugin, c.type, c.claimed, c.method, *numbers))
     return "\n".join(format_table(rows))
 
 
@@ -256,18 +222,8 @@ def duality_text(rows: Sequence[DualityRow], buffer: Path, fd_tolerance: float) 
         central = "n/a" if d.central is None else f"{d.central:+.4e}"
         central = central if d.central_asked else "(--full)"
         error = "" if d.central_error is None else f"{d.central_error:.1e}"
+        duality = (f"{d.reverse:+.4e}", f"{d.forward:+.4e}", f"{d.duality_error:.1e}")
         table.append(
-            (
-                d.objective,
-                d.key,
-                d.direction,
-                d.trust,
-                f"{d.reverse:+.4e}",
-                f"{d.forward:+.4e}",
-                f"{d.duality_error:.1e}",
-                central,
-                error,
-                d.verdict,
-            )  # fmt: skip
+            (d.objective, d.key, d.direction, d.trust, *duality, central, error, d.verdict)
         )
     return "\n".join([head, *format_table(table)])

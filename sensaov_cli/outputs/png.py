@@ -1,11 +1,8 @@
 """PNG files: encoded by Pillow in memory, written atomically, read back whole or for their text.
 
-OpenImageIO's PNG writer reports success on a full disk and leaves a cut-off file; here Pillow
-encodes in memory and Python writes the bytes, whose ``write`` raises ``OSError`` (``ENOSPC``,
-``EIO``) for every failure, and then renames them into place (:mod:`.atomic`). Text chunks
-(``tEXt``, Latin-1) carry the attributes that trace a preview back to its data. Pillow's PNG
-encoder holds the GIL, so a worker thread could not compress beside the drawing: previews are
-written one after the other, each as soon as it is drawn.
+OpenImageIO's PNG writer reports success on a full disk and leaves a cut-off file; Python's
+``write`` raises ``OSError`` for every failure. Text chunks (``tEXt``, Latin-1) trace a preview
+back to its data. Pillow's encoder holds the GIL, so previews are written one after the other.
 """
 
 from __future__ import annotations
@@ -19,15 +16,13 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, PngImagePlugin
 
-from sensaov_cli.outputs.atomic import atomic_write
+from sensaov_cli.outputs.atomic import atomic_write_bytes
 
 _SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _MAX_KEYWORD = 79  # bytes, by the PNG specification
 # A header declaring more pixels than Pillow decodes (the warning: made an error below).
 _TOO_LARGE = (Image.DecompressionBombError, Image.DecompressionBombWarning)
-# zlib's level for files: on the demo's previews, 3 was as small as 4 and 5, and far faster
-# than the default 6 for a few per cent more bytes. The live view asks for 1.
-LEVEL = 3
+LEVEL = 3  # zlib's level for files: nearly as small as the default 6, far faster
 
 
 def encode_png(
@@ -46,20 +41,13 @@ def encode_png(
 
 
 def write_png(path: Path, rgb_uint8: np.ndarray, text: Mapping[str, str] | None = None) -> None:
-    """Encode (as :func:`encode_png`), then write atomically: a failed write leaves the
-    previous file as it was. ``text`` traces a preview back to its data (encoding, scale)."""
-    data = encode_png(rgb_uint8, text)
-
-    def write(tmp: Path) -> None:
-        with open(tmp, "wb") as stream:
-            stream.write(data)  # raises OSError on a short write; close flushes, and may raise
-
-    atomic_write(Path(path), write)
+    """Encode (as :func:`encode_png`), then write atomically."""
+    atomic_write_bytes(Path(path), encode_png(rgb_uint8, text))
 
 
 def check_rgb(rgb: np.ndarray) -> None:
-    """Refuse anything but an (H, W, 3) uint8 image (ValueError): Pillow would write another
-    kind of PNG (grey, RGBA, 16-bit) without a word."""
+    """Refuse anything but an (H, W, 3) uint8 image: Pillow would write another kind of PNG
+    (grey, RGBA, 16-bit) without a word."""
     if rgb.dtype != np.uint8:
         raise ValueError(f"expected a uint8 image, got {rgb.dtype}")
     if rgb.ndim != 3 or rgb.shape[2] != 3:
@@ -91,9 +79,8 @@ def png_problem(data: bytes) -> str | None:
 
 
 def read_png_text(path: Path) -> dict[str, str]:
-    """The text chunks of a PNG file before its pixels (sensaov writes its text there),
-    without decoding the pixels. Raises ``OSError`` for a file that is not a PNG, and
-    ``OSError`` or ``ValueError`` for one whose chunks are damaged."""
+    """The text chunks of a PNG file before its pixels (where sensaov writes its text), without
+    decoding the pixels. Raises ``OSError`` or ``ValueError`` for a damaged file."""
     with Image.open(path, formats=["PNG"]) as image:
         info = image.info.items()  # text as str; the rest (gamma, dpi, ...) as other types
         return {

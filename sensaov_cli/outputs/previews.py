@@ -1,13 +1,9 @@
 """PNG previews of sensitivity channels, for people who would rather look than read.
 
-Values are drawn with a diverging colour map (ColorBrewer RdBu): blue where increasing the
-parameters lowers the objective, red where it raises it, near-white at zero, saturating at
-±scale. The scale is always an argument, so one channel seen from several cameras is drawn
-on one scale by passing the same number (Fig. 6); choosing it is :mod:`.encoding`'s job.
-
-Text (labels, legend numbers) is drawn with OpenImageIO's ``render_text`` in the DroidSans
-font that the OpenImageIO wheel ships, so previews need nothing beyond the pip dependencies.
-Previews are for eyes only: the data live in the EXRs, linear and unencoded by default.
+Values are drawn on ColorBrewer's RdBu: blue where increasing the parameters lowers the
+objective, red where it raises it, near-white at zero, saturating at ±scale. The scale is an
+argument, so one channel seen from several cameras shares one (Fig. 6). Text is drawn with
+OpenImageIO's ``render_text`` in the DroidSans font its wheel ships. The data live in the EXRs.
 """
 
 from __future__ import annotations
@@ -23,8 +19,8 @@ from sensaov_cli.errors import NonFiniteError, PreviewError
 from sensaov_cli.outputs.png import check_rgb
 from sensaov_cli.views.coverage import run_starts
 
-# ColorBrewer RdBu, 11 classes (Brewer 2002), ordered from -scale (blue) to +scale (red).
-# It is diverging and symmetric in lightness, so |value| reads as darkness whatever the sign.
+# ColorBrewer RdBu, 11 classes (Brewer 2002), from -scale (blue) to +scale (red); symmetric in
+# lightness, so |value| reads as darkness whatever the sign.
 RDBU = np.array(
     [
         (0x05, 0x30, 0x61),
@@ -56,47 +52,35 @@ MAX_NOTES = 10  # lines of text under a legend: the scale's rule, what it clips,
 
 
 def diverging_rgb(values: np.ndarray, scale: float) -> np.ndarray:
-    """``values`` (any shape) as uint8 RGB (shape + (3,)) on RdBu, saturating at ±``scale``.
-
-    The table is interpolated linearly between its stops in sRGB, as ColorBrewer's maps are
-    meant to be. A scale of 0 draws zero at the centre and anything else at the ends.
-    """
+    """``values`` (any shape) as uint8 RGB (shape + (3,)) on RdBu, saturating at ±``scale``,
+    interpolated in sRGB as ColorBrewer's maps are meant to be. A scale of 0 draws zero at the
+    centre and anything else at the ends."""
     return np.rint(_diverging_srgb(values, scale)).astype(np.uint8)
 
 
 def diverging_linear(values: np.ndarray, scale: float) -> np.ndarray:
-    """``values`` as float32 linear Rec. 709 RGB (shape + (3,)): the 8-bit RdBu colours of
-    :func:`diverging_rgb` decoded from sRGB, so that a viewer's sRGB (Standard) display shows
-    exactly the previews' colours. Display layers of EXRs are drawn with it; decoded from the
-    rounded codes, they keep those codes when stored as half (half's rounding moves a code by
-    at most 0.05 of a step, the rounding of an unrounded colour could go either way)."""
+    """``values`` as float32 linear Rec. 709 RGB (shape + (3,)): the 8-bit colours of
+    :func:`diverging_rgb` decoded from sRGB, so an sRGB display shows exactly the previews'
+    colours. Decoded from the rounded codes, they keep those codes when stored as half."""
     return np.moveaxis(diverging_linear_planes(values, scale), 0, -1)
 
 
 def diverging_linear_planes(
     values: np.ndarray, scale: float, dtype: type[np.floating] = np.float32
 ) -> np.ndarray:
-    """:func:`diverging_linear` as three contiguous planes, (3,) + shape, in ``dtype`` (half
-    for display layers: the float32 colours rounded once): R, G, B each ready for an EXR
-    channel without the copy a strided slice of (..., 3) needs."""
+    """:func:`diverging_linear` as three contiguous planes, (3,) + shape, in ``dtype`` (the
+    float32 colours rounded once), each ready for an EXR channel without a strided copy."""
     x = np.asarray(values)
-    colours, lengths = _run_colours(x, scale)
-    colours = colours.astype(dtype)
+    # A painted layer is runs of equal pixels (an object's inside): colours once per run.
+    flat = x.reshape(-1)
+    starts = run_starts(flat)
+    lengths = np.diff(starts, append=flat.size)
+    srgb = np.rint(_diverging_srgb(flat[starts], scale)) / 255.0
+    colours = _linear(srgb).astype(np.float32).astype(dtype)
     planes = np.empty((3, x.size), dtype)
     for channel in range(3):
         planes[channel] = np.repeat(colours[:, channel], lengths)
     return planes.reshape(3, *x.shape)
-
-
-def _run_colours(x: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """The float32 colours of each run of equal values of ``x`` (flattened) and the runs'
-    lengths. A painted layer is runs of equal pixels (an object's inside): the colours, power
-    law and all, are computed once per run, pixel for pixel the same as computed apart."""
-    flat = x.reshape(-1)
-    starts = run_starts(flat)
-    lengths = np.diff(starts, append=flat.size)
-    colours = _linear(np.rint(_diverging_srgb(flat[starts], scale)) / 255.0).astype(np.float32)
-    return colours, lengths
 
 
 def _diverging_srgb(values: np.ndarray, scale: float) -> np.ndarray:
@@ -115,8 +99,7 @@ def _diverging_srgb(values: np.ndarray, scale: float) -> np.ndarray:
 
 
 def hatch(rgb_uint8: np.ndarray, mask: np.ndarray, period: int = 8, width: int = 2) -> np.ndarray:
-    """``rgb_uint8`` with dark diagonal stripes over ``mask``: the mark of a picture of
-    gradients left out of the headline views (untrusted), as the sunburst hatches them."""
+    """``rgb_uint8`` with dark diagonal stripes over ``mask`` (untrusted gradients)."""
     rows, columns = np.indices(rgb_uint8.shape[:2])
     stripe = ((rows + columns) % period < width) & np.asarray(mask, bool)
     out = rgb_uint8.copy()
@@ -132,10 +115,9 @@ def underlay(
 ) -> np.ndarray:
     """A preview with the beauty pass beneath it, so a viewer can tell what is where.
 
-    Where nothing is hit the beauty shows, clipped to [0, 1], sRGB-encoded and dimmed to
-    ``strength``. Where objects are hit their colour is darkened by up to ``strength`` with the
-    beauty's luminance: shading, never hue, since hue carries the sign. Partial coverage mixes
-    the two. Non-finite beauty pixels show black: the underlay is context, not data.
+    Where nothing is hit the beauty shows, dimmed to ``strength``; where objects are hit their
+    colour is darkened by up to ``strength`` with the beauty's luminance: shading, never hue,
+    since hue carries the sign. Non-finite beauty pixels show black.
     """
     beauty = np.asarray(beauty_linear, dtype=np.float64)
     coverage = np.asarray(coverage_or_alpha, dtype=np.float64)
@@ -156,7 +138,6 @@ class _Layout:
     columns: int
     cell: tuple[int, int]  # (height, width) of the largest tile
     legend_top: int
-    notes: int = 0  # lines of text under the legend's numbers
 
     def cell_origin(self, index: int) -> tuple[int, int]:
         """(top, left) of tile ``index``'s label line; the tile itself starts below it."""
@@ -175,7 +156,7 @@ def _layout(shapes: Sequence[tuple[int, ...]], columns: int, notes: int) -> _Lay
     grid_height = PAD + rows * (LABEL_HEIGHT + cell[0] + PAD)
     width = max(PAD + columns * (cell[1] + PAD), MIN_WIDTH)
     height = grid_height + LEGEND_HEIGHT + notes * LABEL_HEIGHT
-    return _Layout(width, height, columns, cell, grid_height, notes)
+    return _Layout(width, height, columns, cell, grid_height)
 
 
 def contact_sheet(
@@ -187,12 +168,9 @@ def contact_sheet(
     notes: Sequence[str] = (),
 ) -> np.ndarray:
     """The ``tiles`` (label, uint8 RGB) on a grid ``columns`` wide, each under its label, above
-    a blue-white-red colour bar marked -``scale``, 0 and +``scale``, with ``title`` over it and
-    up to MAX_NOTES lines of ``notes`` (the scale's rule, what it clips) under it.
-
-    ``scale`` is the value at which the tiles' colours saturate, in the units the caller wants
-    read (the sheet states it, it cannot check it). Tiles of different sizes are centred in
-    cells of the largest; labels too long for a cell are cut short in the middle with "...".
+    a colour bar marked -``scale``, 0 and +``scale`` with ``title`` over it and up to MAX_NOTES
+    lines of ``notes`` under it. Tiles are centred in cells of the largest; long labels are cut
+    short in the middle with "...".
     """
     if not tiles:
         raise ValueError("a contact sheet needs at least one tile")
@@ -203,8 +181,7 @@ def contact_sheet(
     width = _layout([rgb.shape for _, rgb in tiles], columns, 0).width - 2 * PAD
     notes = [line for note in notes for line in _wrap(note, width)][:MAX_NOTES]
     layout = _layout([rgb.shape for _, rgb in tiles], columns, len(notes))
-    sheet = np.empty((layout.height, layout.width, 3), dtype=np.uint8)
-    sheet[...] = BACKGROUND
+    sheet = np.full((layout.height, layout.width, 3), BACKGROUND, dtype=np.uint8)
     texts: list[tuple[int, int, str, str]] = []
     cell_height, cell_width = layout.cell
     for index, (label, rgb) in enumerate(tiles):
@@ -226,7 +203,7 @@ def contact_sheet(
 def _legend(
     sheet: np.ndarray, layout: _Layout, scale: float, title: str
 ) -> list[tuple[int, int, str, str]]:
-    """Paint the colour bar into ``sheet``; return the legend's text lines to draw."""
+    """Paint the colour bar into ``sheet``; return the legend's text lines."""
     left, right = PAD, layout.width - PAD
     bar_top = layout.legend_top + LABEL_HEIGHT
     ramp = diverging_rgb(np.linspace(-1.0, 1.0, right - left), 1.0)
@@ -242,8 +219,7 @@ def _legend(
 
 
 def _wrap(text: str, width: int) -> list[str]:
-    """``text`` broken at spaces into lines at most ``width`` pixels wide at FONT_SIZE (a word
-    wider than a line is cut by :func:`_fit`)."""
+    """``text`` broken at spaces into lines at most ``width`` pixels wide."""
     lines: list[str] = []
     for word in text.split(" "):
         candidate = f"{lines[-1]} {word}" if lines else word
@@ -255,28 +231,24 @@ def _wrap(text: str, width: int) -> list[str]:
 
 
 def _fit(text: str, width: int) -> str:
-    """``text``, cut short in the middle with "..." if wider than ``width`` pixels at
-    FONT_SIZE: the end of a label (a panel's kind, its ± scale, a mark) tells tiles apart."""
-
-    def fits(candidate: str) -> bool:
-        return _text_width(candidate) <= width
+    """``text``, cut short in the middle with "..." if wider than ``width`` pixels: the end of
+    a label (its ± scale, a mark) tells tiles apart."""
 
     def cut(keep: int) -> str:
         head = keep - keep // 2
         return text[:head] + "..." + text[len(text) - keep // 2 :]
 
-    if fits(text):
+    if _text_width(text) <= width:
         return text
     keep = len(text) - 1
-    while keep > 0 and not fits(cut(keep)):
+    while keep > 0 and _text_width(cut(keep)) > width:
         keep -= 1
     return cut(keep) if keep else ""
 
 
 @functools.lru_cache(maxsize=4096)
 def _text_width(text: str) -> int:
-    """``text``'s width in pixels at FONT_SIZE. Cached: a project's sheets measure the same
-    labels and notes over and over, word by word."""
+    """``text``'s width in pixels at FONT_SIZE (cached: sheets measure the same words often)."""
     from OpenImageIO import ImageBufAlgo
 
     return int(ImageBufAlgo.text_size(text, FONT_SIZE, FONT).width)
@@ -298,8 +270,7 @@ def _draw_text(canvas: np.ndarray, texts: Sequence[tuple[int, int, str, str]]) -
         cover = glyphs[band.start - top : band.stop - top, span.start - left : span.stop - left]
         under = alpha[band, span]
         under[...] = cover + (1.0 - cover) * under  # "over", as render_text composites
-    # Blended only where a glyph covers the pixel (a few per cent of a sheet): elsewhere the
-    # blend gives the canvas back, so a whole-sheet float64 blend would be waste.
+    # Blended only where a glyph covers the pixel: elsewhere the blend gives the canvas back.
     np.clip(alpha, 0.0, 1.0, out=alpha)
     rows, columns = np.nonzero(alpha)
     covered = alpha[rows, columns][:, None]
@@ -311,10 +282,7 @@ def _draw_text(canvas: np.ndarray, texts: Sequence[tuple[int, int, str, str]]) -
 def _glyphs(text: str, align: str) -> tuple[np.ndarray, int, int]:
     """``text`` rasterised once: its coverage (h, w) float32, cropped to the glyphs, and the
     offset (down, right) of its top-left pixel from the (top, x) the line is drawn at.
-
-    OpenImageIO renders a line the same at every whole-pixel anchor, so a label is drawn once
-    per process and copied after that: a project's previews draw the same lines many times
-    over. The bytes are those of drawing in place (tested).
+    OpenImageIO renders a line the same at every whole-pixel anchor (tested).
     """
     from OpenImageIO import ImageBuf, ImageBufAlgo, ImageSpec
 

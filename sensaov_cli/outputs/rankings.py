@@ -18,8 +18,8 @@ from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.outputs.tables import (
     CONTRIBUTION,
     NO_GRADIENT_MARK,
-    ZERO_VALUE_MARK,
     format_table,
+    se_text,
     trust_legend,
     trust_mark,
     zero_value_legend,
@@ -126,44 +126,19 @@ def _table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
     cameras = any(row.off_frame is not None for row in shown)
     values = r.by == "key"  # only a parameter has a value; groups leave the column out
     errors = r.batches is not None or any(row.signed_se is not None for row in r.rows)
-    headers = [
-        "#",
-        "",
-        "score",
-        *(["±"] * errors),
-        "signed",
-        *(["±"] * errors),
-        "sign",
-        "share",
-        *(["value"] * values),
-        "estimator",
-        r.by,
-        *(["off-frame"] * cameras),
-    ]
-    rows = [
-        [
-            str(row.rank),
-            trust_mark(row.trust) + (ZERO_VALUE_MARK if row.zero_value else ""),
-            f"{row.score:.2e}",
-            *([_error(row.score_se)] * errors),
-            f"{row.signed:+.2e}",
-            *([_error(row.signed_se)] * errors),
-            row.sign + ("" if row.significant is not False else "?"),
-            f"{100 * row.share:.1f}%",
-            *([_value(row.value)] * values),
-            row.estimator,
-            row.name,
-            *([", ".join(row.off_frame or ()) or "-"] * cameras),
-        ]
-        for row in shown
-    ]
+    se = ["±"] * errors
+    headers = ["#", "", "score", *se, "signed", *se, "sign", "share", *(["value"] * values)]
+    headers += ["estimator", r.by, *(["off-frame"] * cameras)]
+    rows = []
+    for row in shown:
+        cells = [str(row.rank), trust_mark(row.trust, row.zero_value), f"{row.score:.2e}"]
+        cells += [*[se_text(row.score_se)] * errors, f"{row.signed:+.2e}"]
+        cells += [*[se_text(row.signed_se)] * errors, row.sign + "?" * (row.significant is False)]
+        cells += [f"{100 * row.share:.1f}%", *[_value(row.value)] * values, row.estimator]
+        rows.append([*cells, row.name, *[", ".join(row.off_frame or ()) or "-"] * cameras])
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "±", "signed", "share")}
     numeric |= {headers.index("value")} if values else set()
     return format_table([headers, *rows], numeric=numeric, indent="    ")
-
-
-def _error(se: float | None) -> str:
-    return "-" if se is None else f"{se:.1e}"
 
 
 def _value(value: float | None) -> str:

@@ -1,19 +1,14 @@
 """The one-page HTML report of a job: every image embedded, no network, no server.
 
-The page is one file a browser opens straight from disk: images are PNG ``data:`` URIs, the
-style sheet is inline, and there is no script and no external link. It reads top-down as an
-artist would ask: a summary first (the question, each objective, its top objects with ± and
-trust, what was left out and why, next to its sunburst at 1:1), then one section per camera with
-its headline previews (each with its legend and scale) and the other passes folded away, then an
-appendix (rankings in full, the trust of every parameter, provenance). Every section records the
-buffer id and job version it was made from. Assembled from plain data (:class:`ReportContent`);
-:mod:`sensaov_cli.pipeline.report` gathers and checks that data.
+Images are PNG ``data:`` URIs, the style sheet is inline; no script, no external link. It reads
+as an artist would ask: a summary (each objective, its top objects with ± and trust, what was
+left out and why, its sunburst), one section per camera (headline previews, the other passes
+folded away), then an appendix (rankings in full, trust, provenance). Every section records the
+buffer id and job version it was made from. :mod:`sensaov_cli.pipeline.report` gathers the data.
 
-The previews it embeds are read back here (:func:`read_previews`): ``project --png`` wrote them,
-and anything may have happened to them since. A FIFO among them would block the report forever
-and a device never end: those are refused (exit 2, like any special input). A file that is not a
-whole PNG (empty, cut short, another format, too large to embed) is left out of the page, and
-the page says which and why.
+The previews are read back here (:func:`read_previews`): anything may have happened to them since
+``project --png``. Special files (a FIFO would block forever) are refused; a file that is not a
+whole PNG is left out, and the page says which and why.
 """
 
 from __future__ import annotations
@@ -30,9 +25,9 @@ from typing import Any
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.limits import read_regular, regular_file
-from sensaov_cli.outputs.atomic import atomic_write
+from sensaov_cli.outputs import tables
+from sensaov_cli.outputs.atomic import atomic_write_bytes
 from sensaov_cli.outputs.png import png_problem
-from sensaov_cli.outputs.tables import LABEL_MEANINGS, SUSPECT_MARK, UNVERIFIED_MARK
 from sensaov_cli.views.hierarchy import Ranking, RankRow
 
 REPORT_FORMAT = "sensaov-report"
@@ -41,7 +36,7 @@ REPORT_VERSION = 2  # 2: summary first, per-camera sections, appendix; buffer id
 SHOWN_PROVENANCE = ("tool_version", "mitsuba_version", "drjit_version", "variant", "spp",
                     "max_depth", "primal_seed", "gradient_seeds", "resolution", "created_utc",
                     "wall_time_s", "timings_s", "buffer_id", "run_version")  # fmt: skip
-_MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
+_SIGN = {None: "-", True: "significant", False: "noise"}  # a row's significance
 MAX_PREVIEW_BYTES = 64 << 20  # a preview is a few hundred kB; a page embeds every one
 _STYLE = """
 body{font:15px/1.45 system-ui,sans-serif;max-width:1280px;margin:1.5em auto;padding:0 1em;
@@ -81,8 +76,6 @@ class Picture:
 
 @dataclass(frozen=True)
 class ObjectiveSection:
-    """One objective in the summary: what it measures, its top objects, its sunburst."""
-
     name: str
     definition: str
     top: Ranking  # by object, trusted parameters only (left_out holds the rest)
@@ -92,8 +85,6 @@ class ObjectiveSection:
 
 @dataclass(frozen=True)
 class CameraSection:
-    """One camera: its headline previews, the others folded away, what it sees."""
-
     name: str
     visible: frozenset[str] | None  # None: no EXR from project
     headline: tuple[Picture, ...]
@@ -120,12 +111,7 @@ class ReportContent:
 
 def write_report(path: Path, content: ReportContent) -> None:
     """Write the page to ``path`` atomically (UTF-8)."""
-    page = report_html(content)
-
-    def write(tmp: Path) -> None:
-        tmp.write_text(page, encoding="utf-8")
-
-    atomic_write(path, write)
+    atomic_write_bytes(path, report_html(content).encode("utf-8"))
 
 
 def report_html(content: ReportContent) -> str:
@@ -152,39 +138,29 @@ def report_html(content: ReportContent) -> str:
 
 def _summary(content: ReportContent) -> str:
     primal = _figure(content.primal) if content.primal else '<p class="note">no primal.exr</p>'
+    items = "".join(
+        f"<li><b>{html.escape(o.name)}</b>: {html.escape(o.definition)}; "
+        f"M = {o.top.objective_value:.4g}</li>"
+        for o in content.objectives
+    )
     parts = [
         '<section id="summary">',
         f"<p><b>{html.escape(content.question)}</b></p>",
         _stamp_line(content.stamp),
-        f'<div class="row">{primal}<div>{_objective_list(content.objectives)}</div></div>',
+        f'<div class="row">{primal}<div><p>Objectives (one reverse-mode pass each):</p>'
+        f"<ul>{items}</ul></div></div>",
     ]
     for objective in content.objectives:
+        top = objective.top
+        apart = " (gradients sensaov stands behind)" if top.untrusted == "apart" else ""
         parts += [
             f"<h2>Objective {html.escape(objective.name)}</h2>",
-            f'<div class="row"><div class="col">{_top(objective)}</div>'
+            f'<div class="row"><div class="col"><h3>Top objects{apart}</h3>'
+            f"{_ranking_table(top, top.rows)}{_left_out_list(top, objective.left_out)}</div>"
             f"{_figure(objective.sunburst)}</div>",
         ]
     parts.append("</section>")
     return "\n".join(parts)
-
-
-def _objective_list(objectives: Sequence[ObjectiveSection]) -> str:
-    items = "".join(
-        f"<li><b>{html.escape(o.name)}</b>: {html.escape(o.definition)}; "
-        f"M = {o.top.objective_value:.4g}</li>"
-        for o in objectives
-    )
-    return f"<p>Objectives (one reverse-mode pass each):</p><ul>{items}</ul>"
-
-
-def _top(objective: ObjectiveSection) -> str:
-    ranking = objective.top
-    apart = ranking.untrusted == "apart"
-    head = (
-        f"<h3>Top objects{' (gradients sensaov stands behind)' if apart else ''}</h3>"
-        f"{_ranking_table(ranking, ranking.rows)}"
-    )
-    return head + _left_out_list(ranking, objective.left_out)
 
 
 def _camera(section: CameraSection, stamp: Stamp) -> str:
@@ -260,21 +236,16 @@ def _stamp_line(stamp: Stamp) -> str:
 
 def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], numeric: set[int]) -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
+    cell = [('<td class="n">' if i in numeric else "<td>") + "{}</td>" for i in range(len(headers))]
     body = "".join(
-        "<tr>"
-        + "".join(
-            f'<td class="n">{html.escape(c)}</td>' if i in numeric else f"<td>{html.escape(c)}</td>"
-            for i, c in enumerate(row)
-        )
-        + "</tr>"
+        "<tr>" + "".join(cell[i].format(html.escape(c)) for i, c in enumerate(row)) + "</tr>"
         for row in rows
     )
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
 def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -> str:
-    """Rows of one ranking: score, signed sum with its standard error, significance, share,
-    trust and off-frame cameras (columns as docs/rankings.md)."""
+    """Rows of one ranking (columns as docs/rankings.md)."""
     if not rows:
         return '<p class="note">(none)</p>'
     cameras = any(row.off_frame is not None for row in rows)
@@ -283,10 +254,11 @@ def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -
     headers = ["#", "", r.by, "score", "signed", *(["±", "sign"] * errors), "share",
                *(["trust"] * trust), *(["off-frame"] * cameras)]  # fmt: skip
     body = [
-        [str(row.rank), _MARKS.get(row.trust, "") + ("θ0" if row.zero_value else ""), row.name,
+        [str(row.rank), tables.trust_mark(row.trust, row.zero_value), row.name,
          f"{row.score:.2e}", f"{row.signed:+.2e}",
-         *([_se(row.signed_se), _sign(row)] * errors), f"{100 * row.share:.1f}%",
-         *([row.trust] * trust), *([", ".join(row.off_frame or ()) or "-"] * cameras)]
+         *([tables.se_text(row.signed_se), _SIGN[row.significant]] * errors),
+         f"{100 * row.share:.1f}%", *([row.trust] * trust),
+         *([", ".join(row.off_frame or ()) or "-"] * cameras)]
         for row in rows
     ]  # fmt: skip
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "signed", "±", "share")}
@@ -297,8 +269,8 @@ def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -
 
 
 def _left_out_list(r: Ranking, keys: Mapping[str, tuple[ParamRecord, ...]]) -> str:
-    """What the headline ranking left out and why: per object, its untrusted parameters with
-    their labels and notes, and the parameters value weighting hides (θ = 0)."""
+    """What the headline ranking left out and why: per object its untrusted parameters, and the
+    parameters value weighting hides (θ = 0)."""
     parts = []
     if r.left_out:
         items = "".join(
@@ -310,7 +282,7 @@ def _left_out_list(r: Ranking, keys: Mapping[str, tuple[ParamRecord, ...]]) -> s
         )
         notes = sorted({(p.trust, p.note) for found in keys.values() for p in found})
         why = "".join(
-            f"<li>{html.escape(LABEL_MEANINGS.get(label, label))}"
+            f"<li>{html.escape(tables.LABEL_MEANINGS.get(label, label))}"
             f"{': ' + html.escape(note) if note else ''}</li>"
             for label, note in notes
         )
@@ -346,19 +318,16 @@ def _rankings_html(by_cut: Mapping[str, tuple[Ranking, ...]]) -> str:
         parts.append(f"<h4>objective {html.escape(name)}</h4><div class=cuts>")
         for cut, found in by_cut.items():
             r = found[index]
-            left = (
-                "<p class=note>left out (untrusted)</p>"
-                + _ranking_table(r, r.left_out, notes=False)
-                if r.left_out
-                else ""
-            )
             rows = _ranking_table(r, r.rows, notes=False)
-            parts.append(f"<div><b>by {html.escape(cut)}</b>{rows}{left}</div>")  # fmt: skip
+            if r.left_out:
+                rows += "<p class=note>left out (untrusted)</p>"
+                rows += _ranking_table(r, r.left_out, notes=False)
+            parts.append(f"<div><b>by {html.escape(cut)}</b>{rows}</div>")
         parts.append("</div>")
     parts.append(
-        f'<p class="note">{UNVERIFIED_MARK} biased or unverified gradient, {SUSPECT_MARK} '
-        "suspect, θ0 value exactly 0; share: of the total sum of squares; columns: "
-        "docs/rankings.md</p>"
+        f'<p class="note">{tables.UNVERIFIED_MARK} biased or unverified gradient, '
+        f"{tables.SUSPECT_MARK} suspect, θ0 value exactly 0; share: of the total sum of squares; "
+        "columns: docs/rankings.md</p>"
     )
     first = next((r for found in by_cut.values() for r in found), None)
     if first is not None:
@@ -384,16 +353,6 @@ def _provenance_table(provenance: Mapping[str, Any]) -> str:
     )
 
 
-def _se(se: float | None) -> str:
-    return "-" if se is None else f"{se:.1e}"
-
-
-def _sign(row: RankRow) -> str:
-    if row.significant is None:
-        return "-"
-    return "significant" if row.significant else "noise"
-
-
 def _significance(r: Ranking) -> str:
     if r.significance is None:
         return (
@@ -409,8 +368,8 @@ def _significance(r: Ranking) -> str:
 
 
 def read_previews(output: Path, folder: Path) -> tuple[dict[str, bytes], dict[str, str]]:
-    """The ``*.png`` files under ``folder`` (links to folders not followed), by their path
-    relative to ``output``: the whole PNGs' bytes, and why each other one is left out."""
+    """The ``*.png`` files under ``folder`` by their path relative to ``output``: the whole PNGs'
+    bytes, and why each other one is left out."""
     whole: dict[str, bytes] = {}
     left_out: dict[str, str] = {}
     for path in _png_files(folder):

@@ -1,12 +1,9 @@
 """The sunburst as an SVG or PNG (paper Fig. 1), drawn with matplotlib from views' wedges.
 
 :mod:`sensaov_cli.views.sunburst_geometry` computes every angle; this module only draws.
-Colour is the wedge's signed sum Σc on the previews' RdBu (blue: increasing the group lowers M,
-red: raises it), relative to the largest |Σc| in its ring, so a pale wedge is a small one or one
-whose parameters pull both ways. Wedges with a gradient that is not verified are hatched. Labels
-go on the wedges wide enough to hold a line of text, along the radius, shortened to fit.
-matplotlib is imported inside the functions, with the Agg backend: no display is needed, and
-importing this module costs nothing.
+Colour is the wedge's signed sum Σc on the previews' RdBu relative to the largest |Σc| in its
+ring, so a pale wedge is a small one or one whose parameters pull both ways. Unverified wedges
+are hatched. matplotlib is imported lazily, with the Agg backend: no display is needed.
 """
 
 from __future__ import annotations
@@ -24,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from sensaov_cli.errors import OutputError
-from sensaov_cli.outputs.atomic import atomic_write, scratch_folder
+from sensaov_cli.outputs.atomic import atomic_write_bytes, scratch_folder
 from sensaov_cli.outputs.previews import RDBU, diverging_rgb
 from sensaov_cli.views.sunburst_geometry import Panel, Wedge
 
@@ -35,8 +32,7 @@ if TYPE_CHECKING:
 FORMATS = ("svg", "png")
 PANEL_INCHES = 7.0
 DPI = 120  # PNG only
-# Outer radius of the objective's disc and of each ring; the parameters' ring is the widest
-# because keys are the longest labels.
+# Outer radius of the objective's disc and of each ring; keys, the longest labels, get the widest.
 RADII = (0.17, 0.43, 0.68, 1.0)
 FONT_PT = 8.0  # 13.3 px at DPI: every text of the drawing is at least MIN_TEXT_PX at 1:1
 MIN_TEXT_PX = 11.0
@@ -62,11 +58,7 @@ def write_sunburst(
             hint="name the file .svg or .png",
         )
     data = sunburst_bytes(panels, fmt=fmt, order=order, encoding=encoding, provenance=provenance)
-
-    def write(tmp: Path) -> None:
-        tmp.write_bytes(data)
-
-    atomic_write(path, write)
+    atomic_write_bytes(path, data)
 
 
 def sunburst_bytes(
@@ -79,9 +71,8 @@ def sunburst_bytes(
     panel_inches: float = PANEL_INCHES,
 ) -> bytes:
     """The drawing as the bytes of an SVG or PNG file (a report embeds them at 1:1)."""
-    # matplotlib keeps a font cache in MPLCONFIGDIR, by default under $HOME (and warns when
-    # HOME is read-only): sensaov writes nowhere but its outputs, so it gets a folder of its
-    # own, removed at exit, unless the user set one (docs/rankings.md, "Sunburst").
+    # matplotlib's font cache: sensaov writes nowhere but its outputs (and $HOME may be
+    # read-only), so a folder of its own unless the user set one (docs/rankings.md, "Sunburst").
     os.environ.setdefault("MPLCONFIGDIR", str(scratch_folder("matplotlib")))
     import matplotlib
 
@@ -89,8 +80,7 @@ def sunburst_bytes(
     from matplotlib import pyplot as plt
 
     with warnings.catch_warnings():
-        # A name in a script DejaVu Sans lacks is drawn with boxes; the name is in the file's
-        # metadata and in 'rank', so a warning per glyph on stderr says nothing more.
+        # A name in a script DejaVu Sans lacks is drawn with boxes: a warning per glyph is noise.
         warnings.filterwarnings(
             "ignore", message="Glyph .* missing from font", category=UserWarning
         )
@@ -202,8 +192,8 @@ def _label(
 
 
 def _short(wedge: Wedge, fits: int) -> str:
-    """The wedge's name, cut to ``fits`` characters with an ellipsis; for a key, without what
-    the rings inside already say (its object's name in front, ``.value``/``.data`` behind)."""
+    """The wedge's name, cut to ``fits`` characters, without what the rings inside already say
+    (its object's name in front) or ``.value``/``.data`` behind."""
     label = wedge.label
     for inner in wedge.path[:-1]:
         label = label.removeprefix(f"{inner}.")

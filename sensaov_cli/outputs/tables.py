@@ -1,9 +1,9 @@
 """What a terminal shows and ``rank``/``run`` print: the summary's text and JSON, aligned tables.
 
-One aligned-table function serves them, ``params`` (parameter_tables.py) and ``check``'s tables
-(parameter_tables.py); the summary's text and its JSON document are both written from one
-:class:`~sensaov_cli.views.hierarchy.Summary`, so text and JSON always agree.
-Plain text only: no colour, no box drawing, so logs and farm consoles read it as it is.
+One aligned-table function serves them, rankings.py and ``params``/``check``
+(parameter_tables.py); text and JSON are both written from one
+:class:`~sensaov_cli.views.hierarchy.Summary`, so they agree. Plain text only: no colour, no box
+drawing, so logs and farm consoles read it as it is.
 """
 
 from __future__ import annotations
@@ -48,9 +48,7 @@ def format_table(
     rows: Sequence[Sequence[str]], *, numeric: Collection[int] = (), indent: str = ""
 ) -> list[str]:
     """Columns separated by two spaces, the first row the header; ``numeric`` right-aligned.
-
-    Cells pass through :func:`printable`: a key with a newline must not break the table.
-    """
+    Cells pass through :func:`printable`: a key with a newline must not break the table."""
     rows = [[printable(cell) for cell in row] for row in rows]
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     return [
@@ -85,12 +83,6 @@ def summary_text(
 ) -> str:
     """The summary as short aligned tables, one block per objective, for a terminal."""
     summary = ranked_summary(buf, top=top, method=method, weight=weight, untrusted=untrusted)
-    return _text(summary)
-
-
-def _text(summary: Summary) -> str:
-    """The text of a :class:`Summary`."""
-    buf = summary.buffer
     counts = {"parameter": len(buf.params), "object": len(buf.objects),
               "objective": len(buf.objectives)}  # fmt: skip
     head = "sensitivity buffer: " + ", ".join(_count(n, noun) for noun, n in counts.items())
@@ -134,8 +126,6 @@ def summary_json(summary: Summary, files: Mapping[str, str] | None = None) -> st
             "objectives": len(buf.objectives),
             "ranked_parameters": summary.ranked_parameters,
             "ranked_objects": summary.ranked_objects,
-            # batches behind the buffer's standard errors (None: no statistics); the summary
-            # points at `rank --by`, which shows them
             "batches": None if buf.statistics is None else buf.statistics.batches,
         },
         "provenance": buf.provenance,
@@ -195,9 +185,9 @@ def _fmt(score: float, signed: bool) -> str:
     return f"{score:+.2e}" if signed else f"{score:.2e}"
 
 
-def trust_mark(trust: str) -> str:
-    """The mark a ranked row of this label carries ("" for verified)."""
-    return _MARKS.get(trust, "")
+def trust_mark(trust: str, zero_value: bool = False) -> str:
+    """The marks of a ranked row: its label's ("" for verified), and θ0 for a zero value."""
+    return _MARKS.get(trust, "") + (ZERO_VALUE_MARK if zero_value else "")
 
 
 def _owners(owners: Sequence[str]) -> str:
@@ -210,14 +200,13 @@ def _objective_lines(summary: ObjectiveSummary, method: str, ranked: int) -> lis
     signed = method == "sum"
     params, objects, types = summary.parameters, summary.objects, summary.types
     lines = [f"objective {summary.objective.name!r}   M = {summary.objective.value:.4g}"]
-
     lines.append(f"  parameters (top {len(params)} of {ranked})")
     headers = ["#", "", "score", *([] if signed else ["signed"]), "type", "estimator", "key",
                "owners"]  # fmt: skip
     rows = [
-        [str(i), trust_mark(p.record.trust) + (ZERO_VALUE_MARK if p.zero_value else ""),
-         _fmt(p.score, signed), *([] if signed else [_fmt(p.signed, True)]), p.record.type,
-         p.record.estimator, p.record.key, _owners(p.record.owners)]
+        [str(i), trust_mark(p.record.trust, p.zero_value), _fmt(p.score, signed),
+         *([] if signed else [_fmt(p.signed, True)]), p.record.type, p.record.estimator,
+         p.record.key, _owners(p.record.owners)]
         for i, p in enumerate(params, 1)
     ]  # fmt: skip
     lines.extend(_indented(headers, rows, numeric={0, 2} if signed else {0, 2, 3}))
@@ -239,7 +228,7 @@ def _objective_lines(summary: ObjectiveSummary, method: str, ranked: int) -> lis
 
 
 def _repairs_lines(figures: object) -> list[str]:
-    """What the run repaired by finite differences, and what it left labelled (and why)."""
+    """What the run repaired by finite differences, and what it left labelled and why."""
     if not isinstance(figures, dict) or not (
         figures.get("repaired") or figures.get("not_repaired")
     ):
@@ -256,7 +245,6 @@ def _repairs_lines(figures: object) -> list[str]:
 
 
 def _repaired_legend(parameters: Sequence[RankedParameter]) -> list[str]:
-    """Each repaired parameter shown: its signed sum with its own standard error."""
     shown = [(p, p.repaired) for p in parameters if p.repaired is not None]
     if not shown:
         return []
@@ -273,19 +261,14 @@ def _repaired_legend(parameters: Sequence[RankedParameter]) -> list[str]:
 
 
 def _group_table(title: str, entries: Sequence[RankedGroup], signed: bool) -> list[str]:
-    if signed:
-        rows = [
-            [str(i), trust_mark(e.trust) + (ZERO_VALUE_MARK if e.zero_value else ""),
-             _fmt(e.score, signed), e.name]
-            for i, e in enumerate(entries, 1)
-        ]  # fmt: skip
-        return _indented(["#", "", "score", title], rows, numeric={0, 2})
-    rows = [  # the signed sum and its rank beside the score (docs/encoding.md: which to read)
-        [str(i), trust_mark(e.trust) + (ZERO_VALUE_MARK if e.zero_value else ""),
-         _fmt(e.score, False), _fmt(e.signed, True), str(e.signed_rank), e.name]
+    # Unless the score is the signed sum, the signed sum and its rank stand beside it.
+    sums = [] if signed else ["signed", "#sum"]
+    rows = [
+        [str(i), trust_mark(e.trust, e.zero_value), _fmt(e.score, signed),
+         *([] if signed else [_fmt(e.signed, True), str(e.signed_rank)]), e.name]
         for i, e in enumerate(entries, 1)
     ]  # fmt: skip
-    return _indented(["#", "", "score", "signed", "#sum", title], rows, numeric={0, 2, 3, 4})
+    return _indented(["#", "", "score", *sums, title], rows, {0, 2} if signed else {0, 2, 3, 4})
 
 
 def trust_legend(trusts: Sequence[str], *, groups: bool) -> list[str]:
@@ -331,7 +314,6 @@ def _legend(summary: ObjectiveSummary) -> list[str]:
 
 
 def _no_gradient_lines(found: Sequence[ParamRecord]) -> list[str]:
-    """The parameters no gradient flows to, each with its reason: they are never ranked."""
     if not found:
         return []
     lines = [f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:"]
@@ -341,7 +323,11 @@ def _no_gradient_lines(found: Sequence[ParamRecord]) -> list[str]:
 
 
 def _indented(headers: list[str], rows: list[list[str]], numeric: set[int]) -> list[str]:
-    """Aligned rows indented under a section title."""
     if not rows:
         return ["    (none)"]
     return format_table([headers, *rows], numeric=numeric, indent="    ")
+
+
+def se_text(se: float | None) -> str:
+    """A standard error as the tables show it ("-": none measured)."""
+    return "-" if se is None else f"{se:.1e}"

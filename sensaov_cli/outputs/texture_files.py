@@ -1,11 +1,9 @@
 """Texel fields in the texture's own domain, and Fig. 4's three-panel contact sheet.
 
-``<output>/textures/<texture>.<objective>.exr`` holds the field at the texture's resolution and
-in its UV layout (row 0 = the bitmap's first row, v = 0), what a texture artist opens beside
-the texture itself: ``raw`` (unpooled contributions) and ``pooled`` (the channel's units), as
-``Y`` or ``R, G, B``. A PNG preview of the pooled field sits beside it. File names come from the
-texture key with everything outside ``[A-Za-z0-9_-]`` replaced, plus a short hash of the key
-when that changed it, so two keys never share a file. Layout: ``docs/exr-layout.md``.
+``<output>/textures/<texture>.<objective>.exr`` holds the field in the texture's own resolution
+and UV layout (row 0 = the bitmap's first row, v = 0): ``raw`` (unpooled contributions) and
+``pooled`` (the channel's units), as ``Y`` or ``R, G, B``, with a PNG of the pooled field beside
+it. Layout: ``docs/exr-layout.md``.
 """
 
 from __future__ import annotations
@@ -56,9 +54,7 @@ def write_texture_files(
 
 
 def _channels(field: TexelField) -> dict[str, np.ndarray]:
-    names = ("R", "G", "B") if field.raw.shape[2] == 3 else tuple(f"C{i}" for i in range(9))
-    if field.raw.shape[2] == 1:
-        names = ("Y",)
+    names = {1: ("Y",), 3: ("R", "G", "B")}.get(field.raw.shape[2], [f"C{i}" for i in range(9)])
     out = {}
     parts = [("raw", field.raw), ("pooled", field.pooled)]
     if field.stderr is not None and field.stderr_pooled is not None:
@@ -102,7 +98,6 @@ def _png_writer(field: TexelField) -> Callable[[Path], None]:
     rgb = enlarged(diverging_rgb(values, peak))
 
     def write(tmp: Path) -> None:
-        # write_png renames into ``tmp`` itself; atomic_write_all then renames the whole set.
         write_png(tmp, rgb, {"sensaov/scale": repr(peak), "sensaov/texture": field.record.key})
 
     return write
@@ -116,11 +111,14 @@ def write_fig4_sheet(
     scales: Sequence[float],
     stamp: Mapping[str, str],
 ) -> Path:
-    """Fig. 4: the object, per-texel and joint panels of one texture side by side, each
-    titled with the value at which it saturates (its display scale, in the layer's metadata)."""
+    """Fig. 4: the object, per-texel and joint panels of one texture side by side, each titled
+    with its display scale."""
     mark = " !" if field.record.trust not in TRUSTED else ""
     tiles = [
-        (f"{p.panel} ±{scale:.2e}{mark}", enlarged(diverging_rgb(_luminance(p.data), scale)))
+        (
+            f"{p.panel} ±{scale:.2e}{mark}",
+            enlarged(diverging_rgb(p.data if p.data.ndim == 2 else p.data.sum(axis=2), scale)),
+        )
         for p, scale in zip(passes, scales, strict=True)
     ]
     texture = field.record.key
@@ -130,7 +128,3 @@ def write_fig4_sheet(
     sheet = contact_sheet(tiles, len(tiles), scale=1.0, title=title, notes=notes)
     write_png(path, sheet, {**stamp, "sensaov/camera": camera, "sensaov/texture": texture})
     return path
-
-
-def _luminance(data: np.ndarray) -> np.ndarray:
-    return data if data.ndim == 2 else data.sum(axis=2)
