@@ -6,13 +6,12 @@ backward passes' seeds, and are written beside the buffer in the forward sidecar
 
 from __future__ import annotations
 
-import dataclasses
 import datetime
 import os
 import platform
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -138,7 +137,13 @@ def run_job(
             f"render.spp = {job.render.spp} (both are recorded in the buffer)"
         )
     width, height = loaded.resolution
-    _check_memory(job, width, height)
+    check_render(  # the objective camera's passes, at the film the scene gave
+        width * height,
+        job.render.spp,
+        objectives=len(job.objectives) * job.render.batches,
+        setting=f"render.spp = {job.render.spp} at {width}x{height}",
+        where=str(job.path),
+    )
     progress.note(
         f"{len(loaded.selected)} parameters over {len(loaded.objects)} objects, "
         f"variant {loaded.variant}, {len(job.objectives)} objective(s)"
@@ -207,17 +212,6 @@ def run_job(
     return RunOutputs(buffer, buffer_path, primal_path)
 
 
-def _check_memory(job: JobSpec, width: int, height: int) -> None:
-    """The objective camera's passes against the memory budget, at the film the scene gave."""
-    check_render(
-        width * height,
-        job.render.spp,
-        objectives=len(job.objectives) * job.render.batches,
-        setting=f"render.spp = {job.render.spp} at {width}x{height}",
-        where=str(job.path),
-    )
-
-
 def _depth(depth: int) -> str:
     return "unbounded" if depth < 0 else str(depth)
 
@@ -274,15 +268,10 @@ def _make_buffer(
 
 def _task_job(job: JobSpec, task: Task) -> JobSpec:
     """The job restricted to the task's objectives (each named once, in the job's order)."""
-    if task.shard is not None:
-        index, count = task.shard
-        if not 1 <= index <= count or count > job.render.spp:
-            raise SpecError(
-                f"shard {index}/{count} is not one of 1/{count} ... {count}/{count}"
-                if not 1 <= index <= count
-                else f"{count} shards cannot split render.spp = {job.render.spp}",
-                where="--shard",
-            )
+    if task.shard is not None and task.shard[1] > job.render.spp:
+        raise SpecError(
+            f"{task.shard[1]} shards cannot split render.spp = {job.render.spp}", where="--shard"
+        )
     if not task.objectives:
         return job
     known = [spec.name for spec in job.objectives]
@@ -439,7 +428,12 @@ def run_forward(
         passes=tuple(runner.passes),
         layers=_unique_layers(layers),
     )
-    _warn_duality(data, buffer, progress)
+    for view in transport_views(buffer, data):
+        if not view.agrees:
+            progress.note(
+                f"warning: transport layer {view.objective}.{view.name}: duality "
+                f"residual {view.residual:.2e} exceeds {view.tolerance:.1e} (layer marked)"
+            )
     return data
 
 
@@ -453,7 +447,7 @@ def _unique_layers(layers: list[ForwardLayer]) -> tuple[ForwardLayer, ...]:
                 break
             name += "_2"
         else:
-            kept[(layer.kind, layer.objective, name)] = dataclasses.replace(layer, name=name)
+            kept[(layer.kind, layer.objective, name)] = replace(layer, name=name)
     return tuple(kept.values())
 
 
@@ -488,8 +482,8 @@ class _Passes:
     shape: tuple[int, ...]
     progress: Progress
     backward_s: float
-    passes: list[ForwardPass] = dataclasses.field(default_factory=list)
-    index: dict[tuple[tuple[str, ...], str, int], int] = dataclasses.field(default_factory=dict)
+    passes: list[ForwardPass] = field(default_factory=list)
+    index: dict[tuple[tuple[str, ...], str, int], int] = field(default_factory=dict)
 
     def get(self, group: _ForwardGroup, seed: int) -> int:
         key = (tuple(sorted(group.keys)), group.direction, seed)
@@ -527,12 +521,3 @@ def _forward_provenance(job: JobSpec, runner: _Passes) -> dict[str, object]:
         "backward_s": runner.backward_s,
         "forward_s": [round(p.seconds, 4) for p in runner.passes],
     }
-
-
-def _warn_duality(data: ForwardData, buffer: SensitivityBuffer, progress: Progress) -> None:
-    for view in transport_views(buffer, data):
-        if not view.agrees:
-            progress.note(
-                f"warning: transport layer {view.objective}.{view.name}: duality "
-                f"residual {view.residual:.2e} exceeds {view.tolerance:.1e} (layer marked)"
-            )
