@@ -92,9 +92,8 @@ def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:
             raise MergeError(f"the primal is not the shard's {width}x{height}", where=str(path))
         images.append(channels)
         spp.append(int(shard.buffer.provenance["spp"]))
-    names = list(images[0])
-    for image, (_, first) in zip(images, sorted(first_of_index.items()), strict=True):
-        if list(image) != names:
-            where = str(primal_beside(first.path))
+    for image, (_, shard) in zip(images, sorted(first_of_index.items()), strict=True):
+        if list(image) != list(images[0]):
+            where = str(primal_beside(shard.path))
             raise MergeError("this primal has other channels than the first shard's", where=where)
-    return {name: weighted_mean([image[name] for image in images], spp) for name in names}
+    return {name: weighted_mean([image[name] for image in images], spp) for name in images[0]}

@@ -136,7 +136,7 @@ def project_job(
     with progress.stage("load_s", f"loading {job.scene.name} with {len(every)} camera(s)"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     check_objects(buffer, loaded, buffer_path)
-    _check_views(job, every, loaded, bool(forward))  # before the first view writes a file
+    _check_views(job, loaded, bool(forward))  # before the first view writes a file
     texels: list[TexelField] = []
     if texel_stage:
         with progress.stage("texels_s", "texel fields and <output>/textures"):
@@ -202,14 +202,12 @@ def _chosen(cameras: list[CameraSpec], names: tuple[str, ...]) -> list[CameraSpe
     return [known[name] for name in dict.fromkeys(names)] or cameras
 
 
-def _check_views(
-    job: JobSpec, cameras: list[CameraSpec], loaded: LoadedScene, forward: bool
-) -> None:
+def _check_views(job: JobSpec, loaded: LoadedScene, forward: bool) -> None:
     """What a view would refuse, refused before the first one writes its EXR (exit 2 means
     nothing was written): settings over the memory budget, forward layers at another size."""
     sizes = sensor_sizes(loaded)
     check_job(job, sizes)
-    objective = next((c.name for c in cameras if c.objective), None)
+    objective = next((c.name for c in job.projected_cameras() if c.objective), None)
     if forward and objective is not None and sizes[objective] != loaded.resolution:
         raise SpecError(
             "forward and transport layers are rendered at render.resolution, "
@@ -227,11 +225,7 @@ def forward_layers(
 ) -> list[SensitivityLayer]:
     """The objective camera's forward and transport layers, each in its display scale group:
     a forward channel alone, a transport entry's layers per objective, a transport channel's
-    top objects per (objective, channel).
-
-    Empty when the job asks for no forward pass. A pass Mitsuba could not push is reported,
-    never written as a black image.
-    """
+    top objects per (objective, channel)."""
     if not job.wants_forward:
         return []
     if not single_pass(buffer.provenance):
@@ -366,10 +360,9 @@ class _TexelPanels:
 def _texel_panels(
     fields: list[TexelField], visibility: VisibilityPass, buffer_path: Path, camera: str
 ) -> list[_TexelPanels]:
-    """Per field, its three panels and their layers.
-
-    A panel's display scale is shared by every texture of its (objective, channel) and every
-    camera; the joint panel's is fixed at 1, its meaning (the object's value spread evenly)."""
+    """Per field, its three panels and their layers. A panel's display scale is shared by every
+    texture of its (objective, channel) and every camera; the joint panel's is fixed at 1, its
+    meaning (the object's value spread evenly)."""
     result = []
     footprints: dict[tuple[str, str], Footprint] = {}  # one per texture and lookup, not per field
     for field in fields:

@@ -67,7 +67,6 @@ class RunOutputs:
     buffer: SensitivityBuffer
     buffer_path: Path
     primal_path: Path
-    resumed: bool = False  # the outputs were already complete (--resume): nothing ran
 
 
 @dataclass(frozen=True)
@@ -107,7 +106,7 @@ def run_job(
         done = completed(whole, task, buffer_path, primal_path, prepared.fingerprint)
         if done is not None:
             progress.note(f"{buffer_path.name} is complete for this job: skipped (--resume)")
-            return RunOutputs(done, buffer_path, primal_path, resumed=True)
+            return RunOutputs(done, buffer_path, primal_path)
     # Duality needs the forward pass at the backward's samples: one batch, the whole job.
     single = task.shard is None and not task.objectives and job.render.batches == 1
     forward_wanted = job.wants_forward and single
@@ -423,7 +422,14 @@ def run_forward(
             layers += _top_layers(runner, buffer, seeds, channel, position)
     data = ForwardData(
         ties=ties_of(buffer),
-        provenance=_forward_provenance(job, runner),
+        provenance={
+            **made_by(" ".join(sys.argv)),
+            "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+            "spp": job.render.spp,
+            "max_depth": loaded.prepared.integration.max_depth,
+            "backward_s": backward_s,
+            "forward_s": [round(p.seconds, 4) for p in runner.passes],
+        },
         adjoints=adjoint_images(loaded, objectives, primal),
         passes=tuple(runner.passes),
         layers=_unique_layers(layers),
@@ -510,14 +516,3 @@ class _Passes:
         ))  # fmt: skip
         self.index[key] = n
         return n
-
-
-def _forward_provenance(job: JobSpec, runner: _Passes) -> dict[str, object]:
-    return {
-        **made_by(" ".join(sys.argv)),
-        "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "spp": job.render.spp,
-        "max_depth": runner.loaded.prepared.integration.max_depth,
-        "backward_s": runner.backward_s,
-        "forward_s": [round(p.seconds, 4) for p in runner.passes],
-    }
