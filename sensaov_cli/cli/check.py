@@ -31,9 +31,7 @@ from sensaov_cli.cli import options
 @click.option(
     "--key", "keys", multiple=True, help="Check these keys (default: one per plugin and type)."
 )
-@click.option(
-    "--buffer",
-    "buffer_path",
+@options.buffer_option(
     type=options.FilePath(path_type=Path, dir_okay=False),
     help="Buffer whose gradients the duality column checks (default: <output>/buffer.npz).",
 )

@@ -13,9 +13,7 @@ from sensaov_cli.cli import options
 @click.argument(
     "shards", nargs=-1, required=True, type=options.FilePath(path_type=Path, dir_okay=False)
 )
-@click.option(
-    "-o",
-    "--output",
+@options.output_option(
     required=True,
     type=options.FilePath(path_type=Path, dir_okay=False),
     help="The merged buffer; its primal is written beside it (buffer -> primal, .exr).",

@@ -16,7 +16,7 @@ import select
 import sys
 import traceback
 from collections.abc import Callable, Iterator
-from functools import wraps
+from functools import partial, wraps
 from pathlib import Path
 from typing import Any
 
@@ -26,8 +26,6 @@ from sensaov_cli import interrupts
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_MEANINGS, SensaovError
 from sensaov_cli.outputs import atomic
 from sensaov_cli.vocabulary import AGGREGATES, UNTRUSTED_MODES, WEIGHTS
-
-Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 
 # The end of every --help, from the one table of exit codes in errors.py.
 EXIT_CODES_EPILOG = "\b\nExit codes:\n" + "".join(
@@ -86,6 +84,12 @@ untrusted_option = click.option(
     help="apart: objects and types add up trusted gradients only, the rest shown apart; "
     "include: mix them in, marked (docs/encoding.md, 'Trusted numbers').",
 )
+# Each command gives these their own help.
+objective_option = partial(click.option, "--objective", multiple=True)
+top_option = partial(click.option, "--top", default=8, show_default=True, type=click.IntRange(1))
+buffer_option = partial(click.option, "--buffer", "buffer_path", type=FilePath(path_type=Path))
+output_option = partial(click.option, "-o", "--output", type=FilePath(path_type=Path))
+force_option = partial(click.option, "--force", is_flag=True)
 
 
 class OneLineGroup(click.Group):
@@ -120,18 +124,6 @@ class OneLineGroup(click.Group):
         sys.exit(result if isinstance(result, int) else 0)
 
 
-def objective_option(help_text: str, *, multiple: bool = False) -> Decorator:
-    """``--objective NAME``: an objective of the buffer (all of them when not given)."""
-    return click.option("--objective", multiple=multiple, help=help_text)
-
-
-def top_option(help_text: str) -> Decorator:
-    """``--top N`` (at least 1, default 8): how many rows a ranking table shows."""
-    return click.option(
-        "--top", default=8, show_default=True, type=click.IntRange(min=1), help=help_text
-    )
-
-
 def echo_json(data: Any, **dumps: Any) -> None:
     """``data`` as indented JSON on stdout (``dumps``: more ``json.dumps`` arguments)."""
     click.echo(json.dumps(data, indent=2, **dumps))
@@ -157,10 +149,9 @@ def _silence(descriptor: int) -> None:
 
 
 def _stopped(earlier: int) -> None:
-    """Report a stop and end the process at once with 130/143. Interpreter finalisation is
-    skipped on purpose: a stop that arrived while Dr.Jit initialised could otherwise end the
-    process by SIGINT (exit -2) after the line was printed (seen with a SIGTERM soon after
-    start). Outputs are settled here: temporaries removed, nothing else is open."""
+    """Report a stop and end the process at once with 130/143, skipping interpreter
+    finalisation: a stop that arrived while Dr.Jit initialised could else end the process by
+    SIGINT (exit -2) after the line was printed. Temporaries are removed; nothing else is open."""
     code = interrupts.exit_code()
     try:
         _fail(f"stopped by {interrupts.signal_name()}", code, earlier)
@@ -229,10 +220,9 @@ def _os_failure(err: OSError) -> tuple[str, int] | None:
 
 
 def _stdout_refuses(err: OSError) -> bool:
-    """Whether it is stdout that cannot take what was printed (``> /dev/full``, a full disk
-    under a redirected result): an error without a file name, raised by ``click.echo`` writing
-    to descriptor 1, or one that flushing stdout repeats (a buffered writer keeps what it could
-    not write)."""
+    """Whether it is stdout that cannot take what was printed (``> /dev/full``): an error raised
+    by ``click.echo`` writing to descriptor 1, or one that flushing stdout repeats (a buffered
+    writer keeps what it could not write)."""
     trace = err.__traceback__
     while trace is not None:
         frame = trace.tb_frame
@@ -275,10 +265,8 @@ def _reported(err: BaseException, verbose: int = 0) -> tuple[str, int]:
 
 def _require_stdout() -> None:
     """A closed stdout (``>&-``) cannot take the result: refused before any work (exit 2).
-
-    The closed standard descriptors are first given /dev/null: else the first file the
-    command opens becomes descriptor 1, and whatever prints (a library's log) writes into it.
-    """
+    Closed standard descriptors get /dev/null first: else the first file the command opens
+    becomes descriptor 1, and whatever prints (a library's log) writes into it."""
     closed = [descriptor for descriptor in (0, 1, 2) if not _is_open(descriptor)]
     for _ in closed:  # open() takes the lowest free descriptor: the closed ones, in order
         os.open(os.devnull, os.O_RDWR)
@@ -328,11 +316,9 @@ def stdout_to_stderr() -> Iterator[None]:
 
 
 def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn any failure into one line on stderr and a documented exit code (traceback at -vv).
-
-    Library errors become an exit code here, and only here. Every line ends saying which
-    outputs this process replaced (none, or which), so a farm's log tells what is on disk.
-    """
+    """Turn any failure into one line on stderr and a documented exit code (traceback at -vv),
+    here and only here. Every line ends saying which outputs this process replaced (none, or
+    which), so a farm's log tells what is on disk."""
 
     @wraps(command)
     def wrapper(*args: Any, **kwargs: Any) -> Any:

@@ -17,7 +17,7 @@ from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
     type=click.Choice(CUTS),
     help="One table per objective at this cut, with share, signed sum, sign, value, trust.",
 )
-@options.objective_option("Rank only this objective (repeatable; with --by).", multiple=True)
+@options.objective_option(help="Rank only this objective (repeatable; with --by).")
 @options.json_option
 @click.option("--csv", "as_csv", is_flag=True, help="Print CSV on stdout (with --by).")
 @click.option(
@@ -27,7 +27,7 @@ from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
     type=options.FilePath(path_type=Path),
     help="A camera's EXR from 'sensaov project' (repeatable): label rows off-frame for it.",
 )
-@options.top_option("Rows per table.")
+@options.top_option(help="Rows per table.")
 @options.aggregate_option
 @options.weight_option
 @options.untrusted_option

@@ -24,7 +24,7 @@ def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tup
 @options.job_argument
 @options.json_option
 @options.quiet_option
-@options.top_option("Rows per table in the summary.")
+@options.top_option(help="Rows per table in the summary.")
 @options.allow_python_option
 @click.option(
     "--shard",
@@ -34,7 +34,7 @@ def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tup
     "'sensaov merge' combines the N shards.",
 )
 @options.objective_option(
-    "Differentiate this objective only (repeatable): one farm task per pass.", multiple=True
+    help="Differentiate this objective only (repeatable): one farm task per pass."
 )
 @click.option(
     "--resume",

@@ -13,7 +13,7 @@ from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Untrusted, Weight
 @click.command(epilog=options.EXIT_CODES_EPILOG)
 @click.argument("buffer", type=options.FilePath(path_type=Path))
 @options.objective_option(
-    "Draw only this objective (repeatable; default: one disc per objective).", multiple=True
+    help="Draw only this objective (repeatable; default: one disc per objective)."
 )
 @click.option(
     "--order",
@@ -25,13 +25,8 @@ from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Untrusted, Weight
 @options.aggregate_option
 @options.weight_option
 @options.untrusted_option
-@click.option(
-    "-o",
-    "--output",
-    type=options.FilePath(path_type=Path),
-    default=Path("sunburst.svg"),
-    show_default=True,
-    help="The file to write: .svg or .png.",
+@options.output_option(
+    default=Path("sunburst.svg"), show_default=True, help="The file to write: .svg or .png."
 )
 @options.reports_errors
 def sunburst(
