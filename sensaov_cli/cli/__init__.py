@@ -1,11 +1,8 @@
 """The ``sensaov`` command line: the click group and its commands, with no logic of their own.
 
-One module per command, named after its verb (``cli/run.py`` holds ``sensaov run``); what the
-commands share is in :mod:`sensaov_cli.cli.options`. Each command calls its wiring in
-:mod:`sensaov_cli.pipeline` (``pipeline/run.py`` for ``sensaov run``) and prints what it
-returns; heavy imports (Mitsuba, Dr.Jit, pydantic, numpy) happen inside, so ``sensaov --help`` and
-``sensaov rank`` start instantly. Library errors become one line on stderr and an exit code in
-:func:`~sensaov_cli.cli.options.reports_errors`, and only there.
+One module per command, named after its verb; what the commands share is in
+:mod:`sensaov_cli.cli.options`. Each command calls its wiring in :mod:`sensaov_cli.pipeline` and
+prints what it returns; heavy imports happen inside, so ``sensaov --help`` starts instantly.
 """
 
 from __future__ import annotations

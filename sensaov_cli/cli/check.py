@@ -10,7 +10,7 @@ import click
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
 @options.json_option
 @click.option("--objective", help="Objective to check (default: the job's first).")
@@ -47,7 +47,6 @@ from sensaov_cli.cli import options
 @options.allow_python_option
 @options.quiet_option
 @options.progress_option
-@options.reports_errors
 def check(
     job: Path,
     as_json: bool,

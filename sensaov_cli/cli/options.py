@@ -1,8 +1,7 @@
 """What the commands share: arguments, options, the exit-code epilog and the error reporting.
 
-After rasterio's ``rio/options.py``: a command module takes its common parameters from here
-rather than declaring them again, so ``--json`` or the job argument read the same in every
-``--help``. Standard library and click only; the stages are imported inside the commands.
+After rasterio's ``rio/options.py``: a command takes its common parameters from here, so
+``--json`` or the job argument read the same in every ``--help``.
 """
 
 from __future__ import annotations
@@ -153,15 +152,11 @@ def _stopped(earlier: int) -> None:
     finalisation: a stop that arrived while Dr.Jit initialised could else end the process by
     SIGINT (exit -2) after the line was printed. Temporaries are removed; nothing else is open."""
     code = interrupts.exit_code()
-    try:
+    with contextlib.suppress(SystemExit):
         _fail(f"stopped by {interrupts.signal_name()}", code, earlier)
-    except SystemExit:
-        pass
     for stream in (sys.stdout, sys.stderr):
-        try:
+        with contextlib.suppress(OSError, ValueError):
             stream.flush()
-        except (OSError, ValueError):
-            pass
     os._exit(code)
 
 
@@ -176,10 +171,8 @@ def _one_line(text: str) -> str:
 def _written(earlier: int) -> str:
     """What this command replaced before it stopped (the process's ledger after its first
     ``earlier`` entries); everything else is as it was."""
-    from sensaov_cli.outputs.atomic import remove_temporaries, replaced
-
-    remove_temporaries()
-    done = replaced()[earlier:]
+    atomic.remove_temporaries()
+    done = atomic.replaced()[earlier:]
     if not done:
         return _NOTHING_REPLACED
     return f"; replaced: {', '.join(map(str, done))}; no other output was touched"
@@ -345,3 +338,9 @@ def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
             _fail(*_reported(err, verbose), earlier)
 
     return wrapper
+
+
+def command(function: Callable[..., Any]) -> click.Command:
+    """A ``sensaov`` command: failures reported by :func:`reports_errors`, the exit codes at the
+    end of its ``--help``."""
+    return click.command(epilog=EXIT_CODES_EPILOG)(reports_errors(function))

@@ -9,7 +9,7 @@ import click
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
 @click.option(
     "--camera", "cameras", multiple=True, help="Only this camera (repeatable); default: all."
@@ -31,7 +31,6 @@ from sensaov_cli.cli import options
 )
 @options.json_option
 @options.quiet_option
-@options.reports_errors
 def project(
     job: Path,
     cameras: tuple[str, ...],

@@ -10,7 +10,7 @@ from sensaov_cli.cli import options
 from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @click.argument("buffer", type=options.FilePath(path_type=Path))
 @click.option(
     "--by",
@@ -31,7 +31,6 @@ from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
 @options.aggregate_option
 @options.weight_option
 @options.untrusted_option
-@options.reports_errors
 def rank(
     buffer: Path,
     by: Cut | None,

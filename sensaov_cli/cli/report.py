@@ -9,10 +9,9 @@ import click
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
 @options.output_option(help="The page to write (default: <output>/report.html of the job).")
-@options.reports_errors
 def report(job: Path, output: Path | None) -> None:
     """Write one HTML page of a job's outputs: nothing is rendered again.
 

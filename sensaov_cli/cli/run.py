@@ -20,7 +20,7 @@ def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tup
     return int(match.group(1)), int(match.group(2))
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
 @options.json_option
 @options.quiet_option
@@ -42,7 +42,6 @@ def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tup
     help="Skip the work if this task's outputs are complete and were made by this job.",
 )
 @options.progress_option
-@options.reports_errors
 def run(
     job: Path,
     as_json: bool,

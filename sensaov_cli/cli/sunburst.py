@@ -10,7 +10,7 @@ from sensaov_cli.cli import options
 from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Untrusted, Weight
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @click.argument("buffer", type=options.FilePath(path_type=Path))
 @options.objective_option(
     help="Draw only this objective (repeatable; default: one disc per objective)."
@@ -28,7 +28,6 @@ from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Untrusted, Weight
 @options.output_option(
     default=Path("sunburst.svg"), show_default=True, help="The file to write: .svg or .png."
 )
-@options.reports_errors
 def sunburst(
     buffer: Path,
     objective: tuple[str, ...],

@@ -10,7 +10,7 @@ import click
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
 @click.option(
     "--port",
@@ -33,7 +33,6 @@ from sensaov_cli.cli import options
 )
 @click.option("--log", "log_requests", is_flag=True, help="Print every request on stderr.")
 @options.quiet_option
-@options.reports_errors
 def view(
     job: Path,
     port: int,

@@ -1,12 +1,4 @@
-"""Wire the stages of ``sensaov check``: spec -> scene -> finite differences and duality.
-
-The job's objective (the first, or the one named) is built for the objective camera and
-:func:`~sensaov_cli.render.verify.fdcheck.audit` compares its reverse-mode gradients with
-central finite differences (one seed where that suffices, several where the value steers
-sampling); the stored buffer, when there is one, is replayed against forward mode
-(:func:`~sensaov_cli.render.verify.duality.check_duality`); :func:`exit_code` says whether the
-result is a failure. Every render is a progress line.
-"""
+"""Wire the stages of ``sensaov check``: spec -> scene -> finite differences and duality."""
 
 from __future__ import annotations
 

@@ -1,11 +1,8 @@
 """``sensaov report``: gather a job's outputs into one self-contained HTML page.
 
-Reads what ``run`` and ``project`` wrote under the job's output folder (the buffer, the primal,
-the cameras' EXRs, the previews and their manifests) and renders nothing. Everything shown must
-come from one state: the buffer must be this job's (its run version), and each camera's EXR and
-previews must be made from that buffer by this very job; anything else is refused in one line,
-exit 2, naming the file and the command that remakes it. Previews no manifest lists (left over
-from an objective or a channel since renamed) are not shown, and the page says how many.
+Reads what ``run`` and ``project`` wrote and renders nothing. Everything shown comes from one
+state (:mod:`~sensaov_cli.pipeline.consistency`); previews no manifest lists (left over from an
+objective or a channel since renamed) are not shown, and the page names them.
 """
 
 from __future__ import annotations
