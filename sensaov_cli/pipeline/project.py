@@ -75,8 +75,6 @@ from sensaov_cli.views.texels import (
 )
 from sensaov_cli.views.transport import ForwardView, TransportView, forward_views, transport_views
 
-# The quick pass's spp: a reference for the compositor, and a full path trace. The objective
-# camera shows run's own primal instead when it can (run_beauty).
 DEFAULT_BEAUTY_SPP = 4
 PROBE_TOLERANCE = 1e-4  # relative to the texture's largest value; float32 lookups agree to ~1e-6
 
@@ -113,20 +111,13 @@ def project_job(
     if not force:
         check_buffer_of_job(job, buffer, buffer_path, override="pass --force to project it anyway")
     texel_stage = any(channel.kind == "texel" for channel in job.channels)
+    exrs = [f"{camera.name}.exr" for camera in chosen]
     folders = ["textures/"] * texel_stage + ["previews/"] * png
-    check_writable(job.output, [f"{camera.name}.exr" for camera in chosen] + folders)
-    refuse_unsafe_outputs(
-        (
-            *job.input_files(),
-            *prepared.files,
-            buffer_path,
-            buffer_path.with_name(FORWARD_NAME),
-            primal_beside(buffer_path),
-        ),  # fmt: skip
-        [job.output / f"{camera.name}.exr" for camera in chosen],
-        folders=[job.output / folder for folder in folders],
-        where=str(job.path),
-    )
+    check_writable(job.output, exrs + folders)
+    read = [*job.input_files(), *prepared.files, buffer_path, buffer_path.with_name(FORWARD_NAME)]
+    read.append(primal_beside(buffer_path))
+    written = [job.output / name for name in exrs]
+    refuse_unsafe_outputs(read, written, [job.output / f for f in folders], where=str(job.path))
     passes = channel_values(buffer, job.channels, untrusted=job.views.untrusted)
     forward = forward_layers(job, buffer, buffer_path, progress)  # the objective camera's
     for index, channel in enumerate(job.channels):  # one selecting no texture: refused now

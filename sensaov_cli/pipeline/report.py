@@ -78,9 +78,10 @@ def make_report(job: JobSpec, path: Path | None = None) -> Path:
     seen = {name: objects for name, objects in visible.items() if objects is not None}
     sections = [_camera_section(job, buf, c, visible[c.name]) for c in cameras]
     listed = {f for section in sections for f in section.files}
+    names = ", ".join(o.name for o in buf.objectives)
     content = ReportContent(
         title=f"sensaov report: {job.path.name}",
-        question=_question(job, buf),
+        question=f"Which parts of {job.scene.name} matter for {names}?",
         stamp=_stamp(job, buf),
         primal=_primal(job.output / PRIMAL_NAME, buf),
         objectives=tuple(_objective(job, buf, o.name, seen) for o in buf.objectives),
@@ -259,11 +260,6 @@ def _definition(definition: dict[str, Any]) -> str:
         return text.format(**{k: definition.get(k) for k in ("region", "target", "function")})
     except (KeyError, IndexError, ValueError):
         return text
-
-
-def _question(job: JobSpec, buf: SensitivityBuffer) -> str:
-    names = ", ".join(o.name for o in buf.objectives)
-    return f"Which parts of {job.scene.name} matter for {names}?"
 
 
 def _stamp(job: JobSpec, buf: SensitivityBuffer) -> dict[str, str]:
