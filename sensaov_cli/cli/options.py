@@ -248,12 +248,9 @@ def _reported(err: BaseException, verbose: int = 0) -> tuple[str, int]:
     known = _os_failure(err) if isinstance(err, OSError) else None
     if known is not None:
         return known
-    detail = str(err).strip().splitlines()
+    detail = str(err).strip().splitlines() or [""]
     hint = "" if verbose >= 2 else " (run with -vv for the traceback)"
-    return (
-        f"internal error: {type(err).__name__}: {detail[-1] if detail else ''}{hint}",
-        EXIT_JOB_FAILED,
-    )
+    return f"internal error: {type(err).__name__}: {detail[-1]}{hint}", EXIT_JOB_FAILED
 
 
 def _require_stdout() -> None:

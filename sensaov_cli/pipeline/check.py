@@ -59,13 +59,9 @@ def check_job(
     allow_python: bool,
     progress: Progress,
 ) -> CheckReport:
-    """Check one objective's gradients at ``spp`` (default: the job's), one parameter of each
-    kind or the ``keys`` named: at seed 0 where one seed suffices, over seeds ``0 .. seeds-1``
-    where the value steers sampling (``full``: every kind over every seed, known-biased ones
-    included). Then, when the job's buffer (or ``buffer_path``) exists, its ``top`` parameters
-    per objective against forward mode along ones and ``directions`` random directions, and
-    with ``full`` against central differences of the image. The scene is prepared and loaded
-    once."""
+    """One objective's gradients against central finite differences, then, when the job's
+    buffer (or ``buffer_path``) exists, its ``top`` parameters per objective against forward
+    mode (``sensaov check --help`` says how); the scene is prepared and loaded once."""
     if directions is None:
         directions = FULL_DIRECTIONS if full else 0
     chosen = _objective(job, objective)  # the command's own options are checked first
