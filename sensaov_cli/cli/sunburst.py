@@ -54,8 +54,8 @@ def sunburst(
     """
     from sensaov_cli.pipeline.sunburst import draw_sunburst
 
-    written = draw_sunburst(
+    draw_sunburst(
         buffer, output, objectives=objective, order=order, method=aggregate, weight=weight,
         untrusted=untrusted,
     )  # fmt: skip
-    click.echo(str(written))
+    click.echo(str(output))

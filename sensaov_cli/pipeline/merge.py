@@ -6,7 +6,6 @@ files, finds each shard's primal beside it, and writes both results atomically t
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,7 +30,6 @@ class MergeOutputs:
     buffer_path: Path
     primal_path: Path
     shards: int
-    seconds: float
 
 
 def primal_beside(buffer_path: Path) -> Path:
@@ -44,7 +42,6 @@ def primal_beside(buffer_path: Path) -> Path:
 
 
 def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> MergeOutputs:
-    started = time.perf_counter()
     primal_path = primal_beside(output)
     check_writable(output.parent, [output.name, primal_path.name])
     shards = []
@@ -73,7 +70,7 @@ def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> Merge
             raise SensaovError(
                 f"cannot write outputs: {exc.strerror or exc}", where=str(output.parent)
             ) from exc
-    return MergeOutputs(merged, output, primal_path, len(shards), time.perf_counter() - started)
+    return MergeOutputs(merged, output, primal_path, len(shards))
 
 
 def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:

@@ -419,7 +419,7 @@ def run_forward(
                 layers.append(ForwardLayer("transport", name, objective, index, group.source))
     for position, channel in enumerate(job.channels):
         if channel.kind == "transport":
-            layers += _top_layers(runner, buffer, seeds, channel, position)
+            layers += _top_layers(runner, seeds, channel, position)
     data = ForwardData(
         ties=ties_of(buffer),
         provenance={
@@ -458,18 +458,14 @@ def _unique_layers(layers: list[ForwardLayer]) -> tuple[ForwardLayer, ...]:
 
 
 def _top_layers(
-    runner: _Passes,
-    buffer: SensitivityBuffer,
-    seeds: dict[str, int],
-    channel: ChannelSpec,
-    position: int,
+    runner: _Passes, seeds: dict[str, int], channel: ChannelSpec, position: int
 ) -> list[ForwardLayer]:
     """``<objective>.<channel>_<object>`` for the channel's top objects of every objective."""
     direction = "value" if channel.weight == "value" else "ones"
     layers = []
     for objective in seeds:
-        for name in top_objects(buffer, objective, channel.top, channel.weight):
-            keys = tuple(p.key for p in buffer.params if name in p.owners)
+        for name in top_objects(runner.buffer, objective, channel.top, channel.weight):
+            keys = tuple(p.key for p in runner.buffer.params if name in p.owners)
             source = f"channels[{position}] (top {channel.top} of {objective})"
             group = _ForwardGroup(name, keys, direction, True, source)
             index = runner.get(group, seeds[objective])

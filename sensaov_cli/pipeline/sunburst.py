@@ -22,7 +22,7 @@ def draw_sunburst(
     method: Aggregate,
     weight: Weight,
     untrusted: Untrusted = "apart",
-) -> Path:
+) -> None:
     """Write one disc per objective (or per named objective) to ``output``."""
     loaded = read_buffer(buffer)
     check_writable(output.parent, [output.name])
@@ -48,4 +48,3 @@ def draw_sunburst(
     write_sunburst(
         output, drawn, order=order, encoding=f"{method} of {contribution}", provenance=provenance
     )
-    return output
