@@ -1,11 +1,8 @@
 """The ``sensaov`` command line: the click group and its commands, with no logic of their own.
 
-One module per command, named after its verb (``cli/run.py`` holds ``sensaov run``); what the
-commands share is in :mod:`sensaov_cli.cli.options`. Each command calls its wiring in
-:mod:`sensaov_cli.pipeline` (``pipeline/run.py`` for ``sensaov run``) and prints what it
-returns; heavy imports (Mitsuba, Dr.Jit, pydantic, numpy) happen inside, so ``sensaov --help`` and
-``sensaov rank`` start instantly. Library errors become one line on stderr and an exit code in
-:func:`~sensaov_cli.cli.options.reports_errors`, and only there.
+One module per command, named after its verb; what the commands share is in
+:mod:`sensaov_cli.cli.options`. Each command calls its wiring in :mod:`sensaov_cli.pipeline` and
+prints what it returns; heavy imports happen inside, so ``sensaov --help`` starts instantly.
 """
 
 from __future__ import annotations
@@ -61,30 +58,19 @@ def main(verbose: int) -> None:
     """
 
 
-main.add_command(validate.validate)
-main.add_command(schema.schema)
-main.add_command(params.params)
-main.add_command(run.run)
-main.add_command(project.project)
-main.add_command(check.check)
-main.add_command(merge.merge)
-main.add_command(rank.rank)
-main.add_command(sunburst.sunburst)
-main.add_command(report.report)
-main.add_command(view.view)
+# Each command module holds one command, named after it (cli/run.py: run).
+for module in (validate, schema, params, run, project, check, merge, rank, sunburst, report, view):
+    main.add_command(getattr(module, module.__name__.rpartition(".")[2]))
 
 
 def console() -> None:
     """The ``sensaov`` executable: :func:`main`, then the process ends at once.
 
-    Once a command is over (its files closed, its line printed), what the interpreter's
-    finalisation still does is tear down Dr.Jit, LLVM and every module, a noticeable share of a
-    short ``project`` or ``run``, in which Python has already put SIGTERM back to its default, so
-    a farm's SIGTERM then killed a finished process (status -15, no line). Here the streams are
-    flushed and the process exits with the command's code, as a stop already does
-    (``options._stopped``). Of the exit handlers it skips, sensaov's own, which removes its
-    scratch folders (matplotlib's cache of a sunburst), runs here first. A flush that fails
-    (stdout on a full disk, a closed pipe) takes the ordinary exit, which reports it.
+    The interpreter's finalisation tears down Dr.Jit, LLVM and every module, with SIGTERM
+    already back at its default: a farm's SIGTERM then would kill a finished process. So the
+    streams are flushed and the process exits with the command's code, as a stop does
+    (``options._stopped``), after sensaov's own exit handler (its scratch folders). A flush that
+    fails (stdout on a full disk, a closed pipe) takes the ordinary exit, which reports it.
     In-process callers (tests) use :func:`main`.
     """
     from sensaov_cli.outputs.atomic import remove_temporaries

@@ -10,7 +10,7 @@ import click
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
 @options.json_option
 @click.option("--objective", help="Objective to check (default: the job's first).")
@@ -31,9 +31,7 @@ from sensaov_cli.cli import options
 @click.option(
     "--key", "keys", multiple=True, help="Check these keys (default: one per plugin and type)."
 )
-@click.option(
-    "--buffer",
-    "buffer_path",
+@options.buffer_option(
     type=options.FilePath(path_type=Path, dir_okay=False),
     help="Buffer whose gradients the duality column checks (default: <output>/buffer.npz).",
 )
@@ -49,7 +47,6 @@ from sensaov_cli.cli import options
 @options.allow_python_option
 @options.quiet_option
 @options.progress_option
-@options.reports_errors
 def check(
     job: Path,
     as_json: bool,

@@ -9,20 +9,17 @@ import click
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @click.argument(
     "shards", nargs=-1, required=True, type=options.FilePath(path_type=Path, dir_okay=False)
 )
-@click.option(
-    "-o",
-    "--output",
+@options.output_option(
     required=True,
     type=options.FilePath(path_type=Path, dir_okay=False),
     help="The merged buffer; its primal is written beside it (buffer -> primal, .exr).",
 )
 @options.quiet_option
 @options.progress_option
-@options.reports_errors
 def merge(shards: tuple[Path, ...], output: Path, quiet: bool, progress_style: str) -> None:
     """Merge the shards of a job ('sensaov run JOB --shard I/N') into one buffer.
 

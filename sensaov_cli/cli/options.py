@@ -1,8 +1,7 @@
 """What the commands share: arguments, options, the exit-code epilog and the error reporting.
 
-After rasterio's ``rio/options.py``: a command module takes its common parameters from here
-rather than declaring them again, so ``--json`` or the job argument read the same in every
-``--help``. Standard library and click only; the stages are imported inside the commands.
+After rasterio's ``rio/options.py``: a command takes its common parameters from here, so
+``--json`` or the job argument read the same in every ``--help``.
 """
 
 from __future__ import annotations
@@ -16,7 +15,7 @@ import select
 import sys
 import traceback
 from collections.abc import Callable, Iterator
-from functools import wraps
+from functools import partial, wraps
 from pathlib import Path
 from typing import Any
 
@@ -26,8 +25,6 @@ from sensaov_cli import interrupts
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_MEANINGS, SensaovError
 from sensaov_cli.outputs import atomic
 from sensaov_cli.vocabulary import AGGREGATES, UNTRUSTED_MODES, WEIGHTS
-
-Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 
 # The end of every --help, from the one table of exit codes in errors.py.
 EXIT_CODES_EPILOG = "\b\nExit codes:\n" + "".join(
@@ -86,6 +83,12 @@ untrusted_option = click.option(
     help="apart: objects and types add up trusted gradients only, the rest shown apart; "
     "include: mix them in, marked (docs/encoding.md, 'Trusted numbers').",
 )
+# Each command gives these their own help.
+objective_option = partial(click.option, "--objective", multiple=True)
+top_option = partial(click.option, "--top", default=8, show_default=True, type=click.IntRange(1))
+buffer_option = partial(click.option, "--buffer", "buffer_path", type=FilePath(path_type=Path))
+output_option = partial(click.option, "-o", "--output", type=FilePath(path_type=Path))
+force_option = partial(click.option, "--force", is_flag=True)
 
 
 class OneLineGroup(click.Group):
@@ -120,18 +123,6 @@ class OneLineGroup(click.Group):
         sys.exit(result if isinstance(result, int) else 0)
 
 
-def objective_option(help_text: str, *, multiple: bool = False) -> Decorator:
-    """``--objective NAME``: an objective of the buffer (all of them when not given)."""
-    return click.option("--objective", multiple=multiple, help=help_text)
-
-
-def top_option(help_text: str) -> Decorator:
-    """``--top N`` (at least 1, default 8): how many rows a ranking table shows."""
-    return click.option(
-        "--top", default=8, show_default=True, type=click.IntRange(min=1), help=help_text
-    )
-
-
 def echo_json(data: Any, **dumps: Any) -> None:
     """``data`` as indented JSON on stdout (``dumps``: more ``json.dumps`` arguments)."""
     click.echo(json.dumps(data, indent=2, **dumps))
@@ -157,20 +148,15 @@ def _silence(descriptor: int) -> None:
 
 
 def _stopped(earlier: int) -> None:
-    """Report a stop and end the process at once with 130/143. Interpreter finalisation is
-    skipped on purpose: a stop that arrived while Dr.Jit initialised could otherwise end the
-    process by SIGINT (exit -2) after the line was printed (seen with a SIGTERM soon after
-    start). Outputs are settled here: temporaries removed, nothing else is open."""
+    """Report a stop and end the process at once with 130/143, skipping interpreter
+    finalisation: a stop that arrived while Dr.Jit initialised could else end the process by
+    SIGINT (exit -2) after the line was printed. Temporaries are removed; nothing else is open."""
     code = interrupts.exit_code()
-    try:
+    with contextlib.suppress(SystemExit):
         _fail(f"stopped by {interrupts.signal_name()}", code, earlier)
-    except SystemExit:
-        pass
     for stream in (sys.stdout, sys.stderr):
-        try:
+        with contextlib.suppress(OSError, ValueError):
             stream.flush()
-        except (OSError, ValueError):
-            pass
     os._exit(code)
 
 
@@ -185,10 +171,8 @@ def _one_line(text: str) -> str:
 def _written(earlier: int) -> str:
     """What this command replaced before it stopped (the process's ledger after its first
     ``earlier`` entries); everything else is as it was."""
-    from sensaov_cli.outputs.atomic import remove_temporaries, replaced
-
-    remove_temporaries()
-    done = replaced()[earlier:]
+    atomic.remove_temporaries()
+    done = atomic.replaced()[earlier:]
     if not done:
         return _NOTHING_REPLACED
     return f"; replaced: {', '.join(map(str, done))}; no other output was touched"
@@ -229,10 +213,9 @@ def _os_failure(err: OSError) -> tuple[str, int] | None:
 
 
 def _stdout_refuses(err: OSError) -> bool:
-    """Whether it is stdout that cannot take what was printed (``> /dev/full``, a full disk
-    under a redirected result): an error without a file name, raised by ``click.echo`` writing
-    to descriptor 1, or one that flushing stdout repeats (a buffered writer keeps what it could
-    not write)."""
+    """Whether it is stdout that cannot take what was printed (``> /dev/full``): an error raised
+    by ``click.echo`` writing to descriptor 1, or one that flushing stdout repeats (a buffered
+    writer keeps what it could not write)."""
     trace = err.__traceback__
     while trace is not None:
         frame = trace.tb_frame
@@ -265,20 +248,15 @@ def _reported(err: BaseException, verbose: int = 0) -> tuple[str, int]:
     known = _os_failure(err) if isinstance(err, OSError) else None
     if known is not None:
         return known
-    detail = str(err).strip().splitlines()
+    detail = str(err).strip().splitlines() or [""]
     hint = "" if verbose >= 2 else " (run with -vv for the traceback)"
-    return (
-        f"internal error: {type(err).__name__}: {detail[-1] if detail else ''}{hint}",
-        EXIT_JOB_FAILED,
-    )
+    return f"internal error: {type(err).__name__}: {detail[-1]}{hint}", EXIT_JOB_FAILED
 
 
 def _require_stdout() -> None:
     """A closed stdout (``>&-``) cannot take the result: refused before any work (exit 2).
-
-    The closed standard descriptors are first given /dev/null: else the first file the
-    command opens becomes descriptor 1, and whatever prints (a library's log) writes into it.
-    """
+    Closed standard descriptors get /dev/null first: else the first file the command opens
+    becomes descriptor 1, and whatever prints (a library's log) writes into it."""
     closed = [descriptor for descriptor in (0, 1, 2) if not _is_open(descriptor)]
     for _ in closed:  # open() takes the lowest free descriptor: the closed ones, in order
         os.open(os.devnull, os.O_RDWR)
@@ -328,11 +306,9 @@ def stdout_to_stderr() -> Iterator[None]:
 
 
 def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
-    """Turn any failure into one line on stderr and a documented exit code (traceback at -vv).
-
-    Library errors become an exit code here, and only here. Every line ends saying which
-    outputs this process replaced (none, or which), so a farm's log tells what is on disk.
-    """
+    """Turn any failure into one line on stderr and a documented exit code (traceback at -vv),
+    here and only here. Every line ends saying which outputs this process replaced (none, or
+    which), so a farm's log tells what is on disk."""
 
     @wraps(command)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -359,3 +335,9 @@ def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
             _fail(*_reported(err, verbose), earlier)
 
     return wrapper
+
+
+def command(function: Callable[..., Any]) -> click.Command:
+    """A ``sensaov`` command: failures reported by :func:`reports_errors`, the exit codes at the
+    end of its ``--help``."""
+    return click.command(epilog=EXIT_CODES_EPILOG)(reports_errors(function))

@@ -9,13 +9,12 @@ import click
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
 @options.json_option
 @click.option(
     "--all", "show_all", is_flag=True, help="List every excluded key, not only a count per reason."
 )
-@options.reports_errors
 def params(job: Path, as_json: bool, show_all: bool) -> None:
     """Show which scene parameters enter the buffer, their owners and types.
 

@@ -9,17 +9,12 @@ import click
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
 @click.option(
     "--camera", "cameras", multiple=True, help="Only this camera (repeatable); default: all."
 )
-@click.option(
-    "--buffer",
-    "buffer_path",
-    type=options.FilePath(path_type=Path),
-    help="Buffer to project (default: <output>/buffer.npz of the job).",
-)
+@options.buffer_option(help="Buffer to project (default: <output>/buffer.npz of the job).")
 @click.option("--png", is_flag=True, help="Also write PNG previews and a contact sheet per camera.")
 @click.option(
     "--beauty-spp",
@@ -31,14 +26,11 @@ from sensaov_cli.cli import options
     "objective camera shows the run's primal.exr instead when it was written with this buffer "
     "at the view's size and at least these spp.",
 )
-@click.option(
-    "--force",
-    is_flag=True,
-    help="Project even if the scene or the job changed since the buffer was made.",
+@options.force_option(
+    help="Project even if the scene or the job changed since the buffer was made."
 )
 @options.json_option
 @options.quiet_option
-@options.reports_errors
 def project(
     job: Path,
     cameras: tuple[str, ...],

@@ -10,14 +10,14 @@ from sensaov_cli.cli import options
 from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @click.argument("buffer", type=options.FilePath(path_type=Path))
 @click.option(
     "--by",
     type=click.Choice(CUTS),
     help="One table per objective at this cut, with share, signed sum, sign, value, trust.",
 )
-@options.objective_option("Rank only this objective (repeatable; with --by).", multiple=True)
+@options.objective_option(help="Rank only this objective (repeatable; with --by).")
 @options.json_option
 @click.option("--csv", "as_csv", is_flag=True, help="Print CSV on stdout (with --by).")
 @click.option(
@@ -27,11 +27,10 @@ from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
     type=options.FilePath(path_type=Path),
     help="A camera's EXR from 'sensaov project' (repeatable): label rows off-frame for it.",
 )
-@options.top_option("Rows per table.")
+@options.top_option(help="Rows per table.")
 @options.aggregate_option
 @options.weight_option
 @options.untrusted_option
-@options.reports_errors
 def rank(
     buffer: Path,
     by: Cut | None,

@@ -9,15 +9,9 @@ import click
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
-@click.option(
-    "-o",
-    "--output",
-    type=options.FilePath(path_type=Path),
-    help="The page to write (default: <output>/report.html of the job).",
-)
-@options.reports_errors
+@options.output_option(help="The page to write (default: <output>/report.html of the job).")
 def report(job: Path, output: Path | None) -> None:
     """Write one HTML page of a job's outputs: nothing is rendered again.
 

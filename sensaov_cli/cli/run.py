@@ -20,11 +20,11 @@ def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tup
     return int(match.group(1)), int(match.group(2))
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
 @options.json_option
 @options.quiet_option
-@options.top_option("Rows per table in the summary.")
+@options.top_option(help="Rows per table in the summary.")
 @options.allow_python_option
 @click.option(
     "--shard",
@@ -34,7 +34,7 @@ def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tup
     "'sensaov merge' combines the N shards.",
 )
 @options.objective_option(
-    "Differentiate this objective only (repeatable): one farm task per pass.", multiple=True
+    help="Differentiate this objective only (repeatable): one farm task per pass."
 )
 @click.option(
     "--resume",
@@ -42,7 +42,6 @@ def _shard(ctx: click.Context, param: click.Parameter, value: str | None) -> tup
     help="Skip the work if this task's outputs are complete and were made by this job.",
 )
 @options.progress_option
-@options.reports_errors
 def run(
     job: Path,
     as_json: bool,

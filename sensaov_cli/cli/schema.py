@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import click
-
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
-@options.reports_errors
+@options.command
 def schema() -> None:
     """Print the JSON Schema of the job format (for editors and CI linting).
 

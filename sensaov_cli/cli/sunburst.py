@@ -10,10 +10,10 @@ from sensaov_cli.cli import options
 from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Untrusted, Weight
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @click.argument("buffer", type=options.FilePath(path_type=Path))
 @options.objective_option(
-    "Draw only this objective (repeatable; default: one disc per objective).", multiple=True
+    help="Draw only this objective (repeatable; default: one disc per objective)."
 )
 @click.option(
     "--order",
@@ -25,15 +25,9 @@ from sensaov_cli.vocabulary import ORDERS, Aggregate, Order, Untrusted, Weight
 @options.aggregate_option
 @options.weight_option
 @options.untrusted_option
-@click.option(
-    "-o",
-    "--output",
-    type=options.FilePath(path_type=Path),
-    default=Path("sunburst.svg"),
-    show_default=True,
-    help="The file to write: .svg or .png.",
+@options.output_option(
+    default=Path("sunburst.svg"), show_default=True, help="The file to write: .svg or .png."
 )
-@options.reports_errors
 def sunburst(
     buffer: Path,
     objective: tuple[str, ...],
@@ -60,8 +54,8 @@ def sunburst(
     """
     from sensaov_cli.pipeline.sunburst import draw_sunburst
 
-    written = draw_sunburst(
+    draw_sunburst(
         buffer, output, objectives=objective, order=order, method=aggregate, weight=weight,
         untrusted=untrusted,
     )  # fmt: skip
-    click.echo(str(written))
+    click.echo(str(output))

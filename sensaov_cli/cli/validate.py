@@ -9,9 +9,8 @@ import click
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
-@options.reports_errors
 def validate(job: Path) -> None:
     """Check a job file and its scene's XML without rendering.
 

@@ -10,7 +10,7 @@ import click
 from sensaov_cli.cli import options
 
 
-@click.command(epilog=options.EXIT_CODES_EPILOG)
+@options.command
 @options.job_argument
 @click.option(
     "--port",
@@ -27,20 +27,12 @@ from sensaov_cli.cli import options
     "the page shows the scene's names and saves cameras into the output folder.",
 )
 @click.option("--open", "open_browser", is_flag=True, help="Open the page in the default browser.")
-@click.option(
-    "--buffer",
-    "buffer_path",
-    type=options.FilePath(path_type=Path),
-    help="Buffer to inspect (default: <output>/buffer.npz of the job).",
-)
-@click.option(
-    "--force",
-    is_flag=True,
-    help="Inspect even if the scene or the job changed since the buffer was made.",
+@options.buffer_option(help="Buffer to inspect (default: <output>/buffer.npz of the job).")
+@options.force_option(
+    help="Inspect even if the scene or the job changed since the buffer was made."
 )
 @click.option("--log", "log_requests", is_flag=True, help="Print every request on stderr.")
 @options.quiet_option
-@options.reports_errors
 def view(
     job: Path,
     port: int,

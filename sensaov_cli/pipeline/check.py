@@ -1,12 +1,4 @@
-"""Wire the stages of ``sensaov check``: spec -> scene -> finite differences and duality.
-
-The job's objective (the first, or the one named) is built for the objective camera and
-:func:`~sensaov_cli.render.verify.fdcheck.audit` compares its reverse-mode gradients with
-central finite differences (one seed where that suffices, several where the value steers
-sampling); the stored buffer, when there is one, is replayed against forward mode
-(:func:`~sensaov_cli.render.verify.duality.check_duality`); :func:`exit_code` says whether the
-result is a failure. Every render is a progress line.
-"""
+"""Wire the stages of ``sensaov check``: spec -> scene -> finite differences and duality."""
 
 from __future__ import annotations
 
@@ -29,10 +21,7 @@ from sensaov_cli.scene import prepare_scene
 
 __all__ = ["FD_TOLERANCE", "CheckReport", "check_job", "exit_code"]
 
-DEFAULT_SEEDS = 6
-DEFAULT_TOP = 3
-DEFAULT_DIRECTIONS = 0  # random directions per parameter, besides ones
-FULL_DIRECTIONS = 2  # with --full
+FULL_DIRECTIONS = 2  # random directions per parameter besides ones, with --full (else 0)
 
 
 @dataclass(frozen=True)
@@ -59,27 +48,22 @@ class CheckReport:
 def check_job(
     job: JobSpec,
     *,
-    objective: str | None = None,
-    spp: int | None = None,
-    seeds: int = DEFAULT_SEEDS,
-    keys: Sequence[str] = (),
-    buffer_path: Path | None = None,
-    top: int = DEFAULT_TOP,
-    directions: int | None = None,
-    full: bool = False,
+    objective: str | None,
+    spp: int | None,
+    seeds: int,
+    keys: Sequence[str],
+    buffer_path: Path | None,
+    top: int,
+    directions: int | None,
+    full: bool,
     allow_python: bool,
-    progress: Progress | None = None,
+    progress: Progress,
 ) -> CheckReport:
-    """Check one objective's gradients at ``spp`` (default: the job's), one parameter of each
-    kind or the ``keys`` named: at seed 0 where one seed suffices, over seeds ``0 .. seeds-1``
-    where the value steers sampling (``full``: every kind over every seed, known-biased ones
-    included). Then, when the job's buffer (or ``buffer_path``) exists, its ``top`` parameters
-    per objective against forward mode along ones and ``directions`` random directions (default
-    0, with ``full`` 2), and with ``full`` against central differences of the image. The scene
-    is prepared and loaded once."""
-    progress = progress or Progress(quiet=True)
+    """One objective's gradients against central finite differences, then, when the job's
+    buffer (or ``buffer_path``) exists, its ``top`` parameters per objective against forward
+    mode (``sensaov check --help`` says how); the scene is prepared and loaded once."""
     if directions is None:
-        directions = FULL_DIRECTIONS if full else DEFAULT_DIRECTIONS
+        directions = FULL_DIRECTIONS if full else 0
     chosen = _objective(job, objective)  # the command's own options are checked first
     path = buffer_path or job.output / BUFFER_NAME
     buffer = _checkable_buffer(job, path) if path.is_file() else None

@@ -38,10 +38,9 @@ def check_buffer_of_job(
     The same version is the same ``run_version``, or (a job moved beside its scene, or a buffer
     older than ``run_version``) the same values of every key ``run`` reads, paths absolute.
     ``override`` names the command's way past the check, for the hint."""
-    made = buffer.provenance
     if run_version(buffer) == job.run_hash():
         return
-    stored = made.get("job")
+    stored = buffer.provenance.get("job")
     differ = _differing(stored, json.loads(json.dumps(job.to_dict())))
     if isinstance(stored, Mapping) and not differ:
         return

@@ -6,7 +6,6 @@ files, finds each shard's primal beside it, and writes both results atomically t
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,7 +34,6 @@ class MergeOutputs:
     buffer_path: Path
     primal_path: Path
     shards: int
-    seconds: float
 
 
 def primal_beside(buffer_path: Path) -> Path:
@@ -48,7 +46,6 @@ def primal_beside(buffer_path: Path) -> Path:
 
 
 def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> MergeOutputs:
-    started = time.perf_counter()
     primal_path = primal_beside(output)
     check_writable(output.parent, [output.name, primal_path.name])
     shards = []
@@ -77,7 +74,7 @@ def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> Merge
             raise SensaovError(
                 f"cannot write outputs: {exc.strerror or exc}", where=str(output.parent)
             ) from exc
-    return MergeOutputs(merged, output, primal_path, len(shards), time.perf_counter() - started)
+    return MergeOutputs(merged, output, primal_path, len(shards))
 
 
 def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:
@@ -96,9 +93,8 @@ def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:
             raise MergeError(f"the primal is not the shard's {width}x{height}", where=str(path))
         images.append(channels)
         spp.append(int(shard.buffer.provenance["spp"]))
-    names = list(images[0])
-    for image, (_, first) in zip(images, sorted(first_of_index.items()), strict=True):
-        if list(image) != names:
-            where = str(primal_beside(first.path))
+    for image, (_, shard) in zip(images, sorted(first_of_index.items()), strict=True):
+        if list(image) != list(images[0]):
+            where = str(primal_beside(shard.path))
             raise MergeError("this primal has other channels than the first shard's", where=where)
-    return {name: weighted_mean([image[name] for image in images], spp) for name in names}
+    return {name: weighted_mean([image[name] for image in images], spp) for name in images[0]}

@@ -4,13 +4,8 @@ Reads the buffer, traces primary visibility per camera and paints per-object val
 derivative is computed here (§3 "Binding"; the deferred-shading half of the paper). Every
 picture of a layer saturates at its group's display scale (views/display_scale.py): one per
 (objective, channel) read from the pixels of *every* camera of the job, so each camera's
-visibility is traced even when ``--camera`` picks one (primary rays only, a fraction of a view's
-cost): farm tasks that each write one camera derive the very same scales.
-
-The command reads top-down: checks, then the camera-independent layers (forward and transport
-from run's sidecar, texel fields through the scene's texture lookups), then each camera's
-visibility, the shared scales, and one EXR per camera with its beauty: run's own primal for the
-objective camera when it can stand in, else a quick path trace.
+visibility is traced even when ``--camera`` picks one: farm tasks that each write one camera
+derive the very same scales.
 """
 
 from __future__ import annotations
@@ -19,7 +14,6 @@ import json
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -78,10 +72,8 @@ from sensaov_cli.views.texels import (
     texture_footprint,
     texture_keys,
 )
-from sensaov_cli.views.transport import forward_views, transport_views
+from sensaov_cli.views.transport import ForwardView, TransportView, forward_views, transport_views
 
-# The quick pass's spp: a reference for the compositor, and a full path trace. The objective
-# camera shows run's own primal instead when it can (run_beauty).
 DEFAULT_BEAUTY_SPP = 4
 PROBE_TOLERANCE = 1e-4  # relative to the texture's largest value; float32 lookups agree to ~1e-6
 
@@ -111,35 +103,30 @@ def project_job(
     progress: Progress,
 ) -> list[ProjectedView]:
     buffer = read_buffer(buffer_path)
-    every = _cameras(job, ())
-    chosen = _cameras(job, tuple(dict.fromkeys(cameras)))  # a camera named twice renders once
+    every = list(job.projected_cameras())
+    chosen = _chosen(every, cameras)
     prepared = prepare_scene(job, tuple(every))  # every camera: the shared scales read them all
     check_fingerprint(job, buffer, buffer_path, prepared.fingerprint, force)
     if not force:
         check_buffer_of_job(job, buffer, buffer_path, override="pass --force to project it anyway")
     texel_stage = any(channel.kind == "texel" for channel in job.channels)
+    exrs = [f"{camera.name}.exr" for camera in chosen]
     folders = ["textures/"] * texel_stage + ["previews/"] * png
-    check_writable(job.output, [f"{camera.name}.exr" for camera in chosen] + folders)
-    refuse_unsafe_outputs(
-        (
-            *job.input_files(),
-            *prepared.files,
-            buffer_path,
-            buffer_path.with_name(FORWARD_NAME),
-            primal_beside(buffer_path),
-        ),  # fmt: skip
-        [job.output / f"{camera.name}.exr" for camera in chosen],
-        folders=[job.output / folder for folder in folders],
-        where=str(job.path),
-    )
+    check_writable(job.output, exrs + folders)
+    read = [*job.input_files(), *prepared.files, buffer_path, buffer_path.with_name(FORWARD_NAME)]
+    read.append(primal_beside(buffer_path))
+    written = [job.output / name for name in exrs]
+    refuse_unsafe_outputs(read, written, [job.output / f for f in folders], where=str(job.path))
     passes = channel_values(buffer, job.channels, untrusted=job.views.untrusted)
     forward = forward_layers(job, buffer, buffer_path, progress)  # the objective camera's
-    check_texel_channels(job, buffer)
+    for index, channel in enumerate(job.channels):  # one selecting no texture: refused now
+        if channel.kind == "texel":
+            texture_keys(buffer, channel, index)
     progress.plan(2 + texel_stage + len(chosen))  # load, visibility, texels, one per view
     with progress.stage("load_s", f"loading {job.scene.name} with {len(every)} camera(s)"):
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     check_objects(buffer, loaded, buffer_path)
-    _check_views(job, every, loaded, bool(forward))  # before the first view writes a file
+    _check_views(job, loaded, bool(forward))  # before the first view writes a file
     texels: list[TexelField] = []
     if texel_stage:
         with progress.stage("texels_s", "texel fields and <output>/textures"):
@@ -153,17 +140,16 @@ def project_job(
             for c in every
         }
         scales = _scales(job, raw)
-    objective_chosen = any(camera.objective for camera in chosen)
     # Not with --force: the scene may have changed since the run (nor is the primal read then).
-    reuse = objective_chosen and not force
+    reuse = any(camera.objective for camera in chosen) and not force
     reused = run_beauty(buffer, buffer_path, beauty_spp, progress) if reuse else None
     views = []
     for camera in chosen:
         stage = f"view_{camera.name}_s"
         with progress.stage(stage, f"view '{camera.name}'"):
             view = _project_camera(
-                job, buffer, buffer_path, loaded, camera, traced[camera.name],
-                raw[camera.name], scales, png, beauty_spp, reused if camera.objective else None,
+                job, buffer, buffer_path, loaded, camera, raw[camera.name], scales, png,
+                beauty_spp, reused if camera.objective else None,
             )  # fmt: skip
         views.append(replace(view, seconds=progress.timings[stage]))
     return views
@@ -193,18 +179,8 @@ def check_objects(buffer: SensitivityBuffer, loaded: LoadedScene, path: Path) ->
         )
 
 
-def check_texel_channels(job: JobSpec, buffer: SensitivityBuffer) -> None:
-    """Refuse a texel channel that selects no texture before anything is rendered."""
-    for index, channel in enumerate(job.channels):
-        if channel.kind == "texel":
-            texture_keys(buffer, channel, index)
-
-
-def _cameras(job: JobSpec, names: tuple[str, ...]) -> list[CameraSpec]:
-    """The job's inspection cameras plus the objective camera (once), or the named ones."""
-    cameras = list(job.projected_cameras())
-    if not names:
-        return cameras
+def _chosen(cameras: list[CameraSpec], names: tuple[str, ...]) -> list[CameraSpec]:
+    """The cameras named (a name given twice renders once), or all of them."""
     known = {camera.name: camera for camera in cameras}
     unknown = [name for name in names if name not in known]
     if unknown:
@@ -213,17 +189,15 @@ def _cameras(job: JobSpec, names: tuple[str, ...]) -> list[CameraSpec]:
             where="--camera",
             hint=f"cameras of this job: {', '.join(known)}",
         )
-    return [known[name] for name in names]
+    return [known[name] for name in dict.fromkeys(names)] or cameras
 
 
-def _check_views(
-    job: JobSpec, cameras: list[CameraSpec], loaded: LoadedScene, forward: bool
-) -> None:
+def _check_views(job: JobSpec, loaded: LoadedScene, forward: bool) -> None:
     """What a view would refuse, refused before the first one writes its EXR (exit 2 means
     nothing was written): settings over the memory budget, forward layers at another size."""
     sizes = sensor_sizes(loaded)
     check_job(job, sizes)
-    objective = next((c.name for c in cameras if c.objective), None)
+    objective = next((c.name for c in job.projected_cameras() if c.objective), None)
     if forward and objective is not None and sizes[objective] != loaded.resolution:
         raise SpecError(
             "forward and transport layers are rendered at render.resolution, "
@@ -241,11 +215,7 @@ def forward_layers(
 ) -> list[SensitivityLayer]:
     """The objective camera's forward and transport layers, each in its display scale group:
     a forward channel alone, a transport entry's layers per objective, a transport channel's
-    top objects per (objective, channel).
-
-    Empty when the job asks for no forward pass. A pass Mitsuba could not push is reported,
-    never written as a black image.
-    """
+    top objects per (objective, channel)."""
     if not job.wants_forward:
         return []
     if not single_pass(buffer.provenance):
@@ -264,22 +234,19 @@ def forward_layers(
         )
     data = read_forward(path)
     check_belongs(data, buffer, path)
-    common = {"buffer": str(buffer_path), "forward_file": str(path), "camera": "objective"}
     layers = []
     for f in forward_views(buffer, data):
         if f.data is None:
             progress.note(f"warning: no layer forward.{f.name}: Mitsuba failed: {f.failure}")
             continue
-        meta = {**common, **_forward_meta(f.keys, f.direction, f.seed, f.unverified)}
-        meta["aliases"] = json.dumps(list(f.aliases))
+        meta = _forward_metadata(f, buffer_path, path)
         group = ScaleGroup(f"forward/{f.name}")
         layers.append(
             SensitivityLayer("forward", f.name, f.data, meta, kind="forward", group=group)
         )
     for t in transport_views(buffer, data):
-        meta = {**common, **_forward_meta(t.keys, t.direction, t.seed, t.unverified)}
+        meta = _forward_metadata(t, buffer_path, path)
         meta.update(
-            aliases=json.dumps(list(t.aliases)),
             forward_sum=repr(t.forward_sum),
             reverse=repr(t.reverse),
             duality_residual=repr(t.residual),
@@ -301,15 +268,19 @@ def _transport_group(job: JobSpec, source: str, name: str) -> str:
     return name
 
 
-def _forward_meta(
-    keys: tuple[str, ...], direction: str, seed: int, unverified: tuple[str, ...]
+def _forward_metadata(
+    view: ForwardView | TransportView, buffer_path: Path, forward_path: Path
 ) -> dict[str, str]:
     return {
-        "keys": json.dumps(list(keys)),
-        "direction": direction,
-        "seed": str(seed),
+        "buffer": str(buffer_path),
+        "forward_file": str(forward_path),
+        "camera": "objective",
+        "keys": json.dumps(list(view.keys)),
+        "direction": view.direction,
+        "seed": str(view.seed),
         "encoding": "none (linear)",
-        "unverified": json.dumps(list(unverified)),
+        "unverified": json.dumps(list(view.unverified)),
+        "aliases": json.dumps(list(view.aliases)),
     }
 
 
@@ -379,10 +350,9 @@ class _TexelPanels:
 def _texel_panels(
     fields: list[TexelField], visibility: VisibilityPass, buffer_path: Path, camera: str
 ) -> list[_TexelPanels]:
-    """Per field, its three panels and their layers.
-
-    A panel's display scale is shared by every texture of its (objective, channel) and every
-    camera; the joint panel's is fixed at 1, its meaning (the object's value spread evenly)."""
+    """Per field, its three panels and their layers. A panel's display scale is shared by every
+    texture of its (objective, channel) and every camera; the joint panel's is fixed at 1, its
+    meaning (the object's value spread evenly)."""
     result = []
     footprints: dict[tuple[str, str], Footprint] = {}  # one per texture and lookup, not per field
     for field in fields:
@@ -431,8 +401,9 @@ def trace_camera(
 
 @dataclass(frozen=True)
 class _RawLayers:
-    """One camera's sensitivity layers before their display scales are known."""
+    """One camera's visibility and sensitivity layers before their display scales are known."""
 
+    visibility: VisibilityPass
     layers: list[SensitivityLayer]
     texel_panels: list[_TexelPanels]
 
@@ -450,7 +421,7 @@ def _raw_layers(
         layers += forward  # its size was checked before any view was written (_check_views)
     panels = _texel_panels(texels, visibility, buffer_path, camera.name)
     layers += [layer for panel in panels for layer in panel.layers]
-    return _RawLayers(layers, panels)
+    return _RawLayers(visibility, layers, panels)
 
 
 def _layer(
@@ -511,28 +482,19 @@ def _scales(job: JobSpec, raw: dict[str, _RawLayers]) -> Scales:
 
 @dataclass(frozen=True)
 class RunBeauty:
-    """The run's primal, read once before the views: linear RGB and how it was made.
-
-    The objective camera sees exactly what ``sensaov run`` rendered, at the run's spp, so its
-    ``primal.exr`` is that camera's beauty when it was written with this very buffer (the buffer
-    id its provenance records) at the view's size and with at least the spp asked for; reading
-    it costs milliseconds where the quick path trace costs more than the rest of the view.
-    """
+    """The run's primal, read once before the views: the objective camera sees exactly what
+    ``sensaov run`` rendered, so reading it costs milliseconds where the quick path trace costs
+    more than the rest of the view."""
 
     rgb: np.ndarray  # (H, W, 3) float32
-    path: Path
-    spp: int
-
-    def describe(self) -> str:
-        return f"{self.path.name} of the buffer's run ({self.spp} spp)"
+    made: str  # what it is, for the view's ``beauty``
 
 
 def run_beauty(
     buffer: SensitivityBuffer, buffer_path: Path, spp: int, progress: Progress
 ) -> RunBeauty | None:
-    """The primal written with ``buffer``, if it can stand in for a ``spp``-sample beauty: none
-    beside the buffer is passed over silently, one unreadable, from another buffer or with
-    fewer samples in one line."""
+    """The primal written with this very buffer, if it can stand in for a ``spp``-sample beauty:
+    none beside the buffer is passed over silently, one unusable in one line saying why."""
     path = primal_beside(buffer_path)
     if spp <= 0 or not path.is_file():
         return None
@@ -543,18 +505,17 @@ def run_beauty(
         return None
     provenance = header_provenance(header)
     recorded = int(provenance.get("spp") or 0) if provenance is not None else 0
-    reason = None
+    rgb = _rgb(channels)
     if provenance is None or provenance_id(provenance) != buffer_id(buffer):
         reason = "it was not written with this buffer"
     elif recorded < spp:
         reason = f"it has {recorded} spp, fewer than the {spp} asked for"
-    rgb = _rgb(channels)
-    if reason is None and rgb is None:
+    elif rgb is None:
         reason = "it has no R, G, B or Y channels"
-    if reason is not None or rgb is None:
-        progress.note(f"{path.name} not used as the objective camera's beauty: {reason}")
-        return None
-    return RunBeauty(rgb, path, recorded)
+    else:
+        return RunBeauty(rgb, f"{path.name} of the buffer's run ({recorded} spp)")
+    progress.note(f"{path.name} not used as the objective camera's beauty: {reason}")
+    return None
 
 
 def _rgb(channels: dict[str, np.ndarray]) -> np.ndarray | None:
@@ -567,7 +528,7 @@ def _rgb(channels: dict[str, np.ndarray]) -> np.ndarray | None:
 
 def _view_beauty(
     loaded: LoadedScene,
-    sensor: Any,
+    camera: str,
     visibility: VisibilityPass,
     spp: int,
     seed: int,
@@ -578,9 +539,9 @@ def _view_beauty(
         return None, "none (--beauty-spp 0)"
     if reused is not None and reused.rgb.shape[:2] == (visibility.height, visibility.width):
         alpha = visibility.coverage_hit[..., None].astype(np.float32)
-        return np.concatenate([reused.rgb, alpha], axis=2), reused.describe()
-    image = render_beauty(loaded, sensor, visibility, spp, seed)
-    return image, f"path trace at {spp} spp"
+        return np.concatenate([reused.rgb, alpha], axis=2), reused.made
+    sensor = loaded.inspection_sensors[camera]
+    return render_beauty(loaded, sensor, visibility, spp, seed), f"path trace at {spp} spp"
 
 
 # --- one camera's files --------------------------------------------------------------------------
@@ -592,15 +553,15 @@ def _project_camera(
     buffer_path: Path,
     loaded: LoadedScene,
     camera: CameraSpec,
-    visibility: VisibilityPass,
     raw: _RawLayers,
     scales: Scales,
     png: bool,
     beauty_spp: int,
     reused: RunBeauty | None,
 ) -> ProjectedView:
-    sensor = loaded.inspection_sensors[camera.name]
-    beauty, made = _view_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed, reused)
+    visibility = raw.visibility
+    seed = job.render.seed
+    beauty, made = _view_beauty(loaded, camera.name, visibility, beauty_spp, seed, reused)
     shown = [(layer, scales[(camera.name, layer.group.name)]) for layer in raw.layers]
     background = display_background(visibility.coverage_hit)  # once per view, every layer's
     pairs = [with_display(layer, scale, background) for layer, scale in shown]
@@ -611,18 +572,28 @@ def _project_camera(
     material = _material_cryptomatte(visibility, loaded.prepared.materials)
     path = job.output / f"{camera.name}.exr"
     made_from = stamp(buffer, job.job_hash())
-    attributes = {**_attributes(buffer, buffer_path, camera, beauty_spp, made), **made_from}
+    attributes = provenance_attributes(
+        {
+            **made_by("project"),
+            "camera": camera.name,
+            "vis_spp": camera.vis_spp,
+            "beauty_spp": beauty_spp,
+            "beauty": made,
+            "buffer": str(buffer_path),
+            "buffer_provenance": buffer.provenance,
+        }
+    )
     interrupts.check()
     write_layered_exr(
         path,
         beauty=beauty,
         cryptomattes=[crypto, material],
         layers=[layer for pair in pairs for layer in pair],
-        attributes=attributes,
+        attributes={**attributes, **made_from},
     )
     previews: tuple[Path, ...] = ()
     if png:
-        previews = _write_previews(job, camera, raw, scales, shown, beauty, visibility, made_from)
+        previews = _write_previews(job, camera, raw, scales, shown, beauty, made_from)
     return ProjectedView(
         camera.name, path, visibility.width, visibility.height, visibility.spp, 0.0, previews, made
     )
@@ -635,7 +606,6 @@ def _write_previews(
     scales: Scales,
     shown: list[tuple[SensitivityLayer, DisplayScale]],
     beauty: np.ndarray | None,
-    visibility: VisibilityPass,
     made_from: dict[str, str],
 ) -> tuple[Path, ...]:
     """The camera's PNG previews, its Fig. 4 sheets (``<camera>_<objective>_<texture>_fig4.png``
@@ -643,7 +613,7 @@ def _write_previews(
     from sensaov_cli.outputs.contact_sheets import PreviewFile, write_manifest, write_previews
 
     folder = job.output / "previews"
-    files = write_previews(folder, camera.name, shown, beauty, visibility, made_from)
+    files = write_previews(folder, camera.name, shown, beauty, raw.visibility, made_from)
     for panels in raw.texel_panels:
         field = panels.field
         stem = f"{camera.name}_{field.objective}_{field.channel.name}"
@@ -664,18 +634,3 @@ def _material_cryptomatte(visibility: VisibilityPass, materials: dict[str, str])
     coverage = visibility.coverage.regroup(group_of)
     index, amount = ranked(coverage, (visibility.height, visibility.width), visibility.spp)
     return CryptoLayer("CryptoMaterial", tuple(names), index, amount, ordered=True)
-
-
-def _attributes(
-    buffer: SensitivityBuffer, buffer_path: Path, camera: CameraSpec, beauty_spp: int, beauty: str
-) -> dict[str, str]:
-    made = {
-        **made_by("project"),
-        "camera": camera.name,
-        "vis_spp": camera.vis_spp,
-        "beauty_spp": beauty_spp,
-        "beauty": beauty,
-        "buffer": str(buffer_path),
-        "buffer_provenance": buffer.provenance,
-    }
-    return provenance_attributes(made)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
@@ -103,8 +102,7 @@ def _visible(
     from sensaov_cli.outputs.cryptomatte import visible_objects
     from sensaov_cli.pipeline.consistency import check_made_from
 
-    def made_from_this_buffer(path: Path, header: Mapping[str, Any]) -> None:
-        remake = f"sensaov project JOB, with the job that wrote {buffer.name}"
-        check_made_from(header, loaded, str(path), remake=remake)
-
-    return visible_objects(list(exrs), made_from_this_buffer)
+    remake = f"sensaov project JOB, with the job that wrote {buffer.name}"
+    return visible_objects(
+        list(exrs), lambda path, header: check_made_from(header, loaded, str(path), remake=remake)
+    )

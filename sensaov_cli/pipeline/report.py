@@ -1,11 +1,8 @@
 """``sensaov report``: gather a job's outputs into one self-contained HTML page.
 
-Reads what ``run`` and ``project`` wrote under the job's output folder (the buffer, the primal,
-the cameras' EXRs, the previews and their manifests) and renders nothing. Everything shown must
-come from one state: the buffer must be this job's (its run version), and each camera's EXR and
-previews must be made from that buffer by this very job; anything else is refused in one line,
-exit 2, naming the file and the command that remakes it. Previews no manifest lists (left over
-from an objective or a channel since renamed) are not shown, and the page says how many.
+Reads what ``run`` and ``project`` wrote and renders nothing. Everything shown comes from one
+state (:mod:`~sensaov_cli.pipeline.consistency`); previews no manifest lists (left over from an
+objective or a channel since renamed) are not shown, and the page names them.
 """
 
 from __future__ import annotations
@@ -84,9 +81,10 @@ def make_report(job: JobSpec, path: Path | None = None) -> Path:
     seen = {name: objects for name, objects in visible.items() if objects is not None}
     sections = [_camera_section(job, buf, c, visible[c.name]) for c in cameras]
     listed = {f for section in sections for f in section.files}
+    names = ", ".join(o.name for o in buf.objectives)
     content = ReportContent(
         title=f"sensaov report: {job.path.name}",
-        question=_question(job, buf),
+        question=f"Which parts of {job.scene.name} matter for {names}?",
         stamp=_stamp(job, buf),
         primal=_primal(job.output / PRIMAL_NAME, buf),
         objectives=tuple(_objective(job, buf, o.name, seen) for o in buf.objectives),
@@ -264,11 +262,6 @@ def _definition(definition: dict[str, Any]) -> str:
         return text.format(**{k: definition.get(k) for k in ("region", "target", "function")})
     except (KeyError, IndexError, ValueError):
         return text
-
-
-def _question(job: JobSpec, buf: SensitivityBuffer) -> str:
-    names = ", ".join(o.name for o in buf.objectives)
-    return f"Which parts of {job.scene.name} matter for {names}?"
 
 
 def _stamp(job: JobSpec, buf: SensitivityBuffer) -> Stamp:

@@ -6,13 +6,12 @@ backward passes' seeds, and are written beside the buffer in the forward sidecar
 
 from __future__ import annotations
 
-import dataclasses
 import datetime
 import os
 import platform
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +66,6 @@ class RunOutputs:
     buffer: SensitivityBuffer
     buffer_path: Path
     primal_path: Path
-    resumed: bool = False  # the outputs were already complete (--resume): nothing ran
 
 
 @dataclass(frozen=True)
@@ -107,7 +105,7 @@ def run_job(
         done = completed(whole, task, buffer_path, primal_path, prepared.fingerprint)
         if done is not None:
             progress.note(f"{buffer_path.name} is complete for this job: skipped (--resume)")
-            return RunOutputs(done, buffer_path, primal_path, resumed=True)
+            return RunOutputs(done, buffer_path, primal_path)
     # Duality needs the forward pass at the backward's samples: one batch, the whole job.
     single = task.shard is None and not task.objectives and job.render.batches == 1
     forward_wanted = job.wants_forward and single
@@ -137,7 +135,13 @@ def run_job(
             f"render.spp = {job.render.spp} (both are recorded in the buffer)"
         )
     width, height = loaded.resolution
-    _check_memory(job, width, height)
+    check_render(  # the objective camera's passes, at the film the scene gave
+        width * height,
+        job.render.spp,
+        objectives=len(job.objectives) * job.render.batches,
+        setting=f"render.spp = {job.render.spp} at {width}x{height}",
+        where=str(job.path),
+    )
     progress.note(
         f"{len(loaded.selected)} parameters over {len(loaded.objects)} objects, "
         f"variant {loaded.variant}, {len(job.objectives)} objective(s)"
@@ -206,17 +210,6 @@ def run_job(
     return RunOutputs(buffer, buffer_path, primal_path)
 
 
-def _check_memory(job: JobSpec, width: int, height: int) -> None:
-    """The objective camera's passes against the memory budget, at the film the scene gave."""
-    check_render(
-        width * height,
-        job.render.spp,
-        objectives=len(job.objectives) * job.render.batches,
-        setting=f"render.spp = {job.render.spp} at {width}x{height}",
-        where=str(job.path),
-    )
-
-
 def _depth(depth: int) -> str:
     return "unbounded" if depth < 0 else str(depth)
 
@@ -273,15 +266,10 @@ def _make_buffer(
 
 def _task_job(job: JobSpec, task: Task) -> JobSpec:
     """The job restricted to the task's objectives (each named once, in the job's order)."""
-    if task.shard is not None:
-        index, count = task.shard
-        if not 1 <= index <= count or count > job.render.spp:
-            raise SpecError(
-                f"shard {index}/{count} is not one of 1/{count} ... {count}/{count}"
-                if not 1 <= index <= count
-                else f"{count} shards cannot split render.spp = {job.render.spp}",
-                where="--shard",
-            )
+    if task.shard is not None and task.shard[1] > job.render.spp:
+        raise SpecError(
+            f"{task.shard[1]} shards cannot split render.spp = {job.render.spp}", where="--shard"
+        )
     if not task.objectives:
         return job
     known = [spec.name for spec in job.objectives]
@@ -430,15 +418,27 @@ def run_forward(
                 layers.append(ForwardLayer("transport", name, objective, index, group.source))
     for position, channel in enumerate(job.channels):
         if channel.kind == "transport":
-            layers += _top_layers(runner, buffer, seeds, channel, position)
+            layers += _top_layers(runner, seeds, channel, position)
     data = ForwardData(
         ties=ties_of(buffer),
-        provenance=_forward_provenance(job, runner),
+        provenance={
+            **made_by(" ".join(sys.argv)),
+            "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+            "spp": job.render.spp,
+            "max_depth": loaded.prepared.integration.max_depth,
+            "backward_s": backward_s,
+            "forward_s": [round(p.seconds, 4) for p in runner.passes],
+        },
         adjoints=adjoint_images(loaded, objectives, primal),
         passes=tuple(runner.passes),
         layers=_unique_layers(layers),
     )
-    _warn_duality(data, buffer, progress)
+    for view in transport_views(buffer, data):
+        if not view.agrees:
+            progress.note(
+                f"warning: transport layer {view.objective}.{view.name}: duality "
+                f"residual {view.residual:.2e} exceeds {view.tolerance:.1e} (layer marked)"
+            )
     return data
 
 
@@ -452,23 +452,19 @@ def _unique_layers(layers: list[ForwardLayer]) -> tuple[ForwardLayer, ...]:
                 break
             name += "_2"
         else:
-            kept[(layer.kind, layer.objective, name)] = dataclasses.replace(layer, name=name)
+            kept[(layer.kind, layer.objective, name)] = replace(layer, name=name)
     return tuple(kept.values())
 
 
 def _top_layers(
-    runner: _Passes,
-    buffer: SensitivityBuffer,
-    seeds: dict[str, int],
-    channel: ChannelSpec,
-    position: int,
+    runner: _Passes, seeds: dict[str, int], channel: ChannelSpec, position: int
 ) -> list[ForwardLayer]:
     """``<objective>.<channel>_<object>`` for the channel's top objects of every objective."""
     direction = "value" if channel.weight == "value" else "ones"
     layers = []
     for objective in seeds:
-        for name in top_objects(buffer, objective, channel.top, channel.weight):
-            keys = tuple(p.key for p in buffer.params if name in p.owners)
+        for name in top_objects(runner.buffer, objective, channel.top, channel.weight):
+            keys = tuple(p.key for p in runner.buffer.params if name in p.owners)
             source = f"channels[{position}] (top {channel.top} of {objective})"
             group = _ForwardGroup(name, keys, direction, True, source)
             index = runner.get(group, seeds[objective])
@@ -487,8 +483,8 @@ class _Passes:
     shape: tuple[int, ...]
     progress: Progress
     backward_s: float
-    passes: list[ForwardPass] = dataclasses.field(default_factory=list)
-    index: dict[tuple[tuple[str, ...], str, int], int] = dataclasses.field(default_factory=dict)
+    passes: list[ForwardPass] = field(default_factory=list)
+    index: dict[tuple[tuple[str, ...], str, int], int] = field(default_factory=dict)
 
     def get(self, group: _ForwardGroup, seed: int) -> int:
         key = (tuple(sorted(group.keys)), group.direction, seed)
@@ -515,23 +511,3 @@ class _Passes:
         ))  # fmt: skip
         self.index[key] = n
         return n
-
-
-def _forward_provenance(job: JobSpec, runner: _Passes) -> dict[str, object]:
-    return {
-        **made_by(" ".join(sys.argv)),
-        "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "spp": job.render.spp,
-        "max_depth": runner.loaded.prepared.integration.max_depth,
-        "backward_s": runner.backward_s,
-        "forward_s": [round(p.seconds, 4) for p in runner.passes],
-    }
-
-
-def _warn_duality(data: ForwardData, buffer: SensitivityBuffer, progress: Progress) -> None:
-    for view in transport_views(buffer, data):
-        if not view.agrees:
-            progress.note(
-                f"warning: transport layer {view.objective}.{view.name}: duality "
-                f"residual {view.residual:.2e} exceeds {view.tolerance:.1e} (layer marked)"
-            )

@@ -21,7 +21,7 @@ def draw_sunburst(
     method: Aggregate,
     weight: Weight,
     untrusted: Untrusted = "apart",
-) -> Path:
+) -> None:
     """Write one disc per objective (or per named objective) to ``output``."""
     loaded = read_buffer(buffer)
     check_writable(output.parent, [output.name])
@@ -47,4 +47,3 @@ def draw_sunburst(
     write_sunburst(
         output, drawn, order=order, encoding=f"{method} of {contribution}", provenance=provenance
     )
-    return output
