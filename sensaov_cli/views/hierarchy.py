@@ -1,26 +1,15 @@
 """Rankings of the hierarchy (numpy only): ``rank``'s summary, and one cut (``rank --by``).
 
-The summary (``sensaov rank``, ``run``) gives per objective the top parameters and objects
-and every type's score. Every parameter carries its trust label (docs/verification.md);
-objects and types carry the weakest label among their parameters. Objects and types add up
-only the parameters the tool stands behind (``untrusted: apart``, :mod:`.trusted`); each
-objective lists the rest apart, by object and by type, with every key's label. Parameters
-whose value is exactly 0 are listed with their raw gradient, and flagged where they are ranked.
-A parameter whose gradient is identically zero (label ``no_gradient``) is not a result: it is
-listed apart with its reason and left out of every score, and an object or type made only of
-such parameters is left out of its ranking. :mod:`sensaov_cli.outputs.tables` writes its text
-and its JSON document from the same :class:`Summary`, so both always say the same thing.
+The summary gives per objective the top parameters and objects and every type's score; a
+ranking at one cut (key, object or type) gives one table per objective (columns:
+docs/rankings.md). Objects and types add up the trusted parameters only (:mod:`.trusted`) and
+rank the untrusted rest apart; ``no_gradient`` parameters are listed apart, never scored, and a
+group made only of them is not ranked; zero-valued parameters are flagged with their raw
+gradient. :mod:`sensaov_cli.outputs.tables` writes text, JSON and CSV from these types.
 
-A ranking at one cut (key, object or type) gives one table per objective whose every row
-carries what a reader needs to judge it: the score (the chosen aggregate), the signed sum Σc
-beside it, its sign, the row's share of the total response, the parameter's value (key rows),
-the trust label and, when cameras are given, the cameras that do not see it (off-frame). The
-columns are documented in docs/rankings.md. Object and type rankings rank the untrusted rest of
-each group apart, one ``left_out`` row per object or type that has any, under the same columns.
-
-The share is taken of Σc² over every ranked parameter, whatever ``--aggregate`` says: Σc² adds
-up over disjoint groups, so the shares of keys and of types each sum to 1, while an l2 or a
-signed sum would not (object shares may sum past 1: a shared parameter counts for each owner).
+A row's share is of Σc² over every ranked parameter, whatever ``--aggregate`` says: Σc² adds
+up over disjoint groups, so the shares of keys and of types each sum to 1 (object shares may
+sum past 1: a shared parameter counts for each owner).
 """
 
 from __future__ import annotations
@@ -46,14 +35,8 @@ from sensaov_cli.views.uncertainty import GroupError, Significance, Uncertainty
 from sensaov_cli.vocabulary import ESTIMATORS, Aggregate, Cut, Grouping, Trust, Untrusted, Weight
 
 SUMMARY_FORMAT = "sensaov-summary"
-# 2: trust labels, the "no_gradient" list, ranked counts; 3: objects and types of trusted
-# parameters only ("untrusted", "left_out"), "zero_valued", and "zero_value" on parameters;
-# each parameter's estimator, and a repaired one's own standard error
 SUMMARY_VERSION = 3
 RANKING_FORMAT = "sensaov-ranking"
-# 2: standard errors, significance and stability; 3: Student-t significance, untrusted
-# parameters ranked apart (left_out), zero-valued parameters flagged, part and raw_signed,
-# each row's estimator
 RANKING_VERSION = 3
 # The grouping each cut reads: a key row is one parameter.
 GROUPING_OF: dict[Cut, Grouping] = {"key": "param", "object": "object", "type": "type"}
@@ -115,11 +98,8 @@ def rankings(
 ) -> tuple[Ranking, ...]:
     """The ranking of every objective (or of ``objectives``) at the cut ``by``.
 
-    With ``untrusted="apart"`` object and type rows add up trusted parameters only and the
-    untrusted rest of each group becomes a row of ``left_out``. ``visible`` maps a camera name
-    to the objects it sees; each row then lists the cameras that see none of its objects (for
-    a key: none of its owners; a key with no owner is off-frame everywhere).
-    Types have no place in a frame, so ``by="type"`` refuses cameras.
+    ``visible`` maps a camera to the objects it sees; each row then lists the cameras that see
+    none of its objects (a key: of its owners; a key with no owner is off-frame everywhere).
     """
     check_cut(by, cameras=visible is not None)
     names = [o.name for o in buf.objectives] if objectives is None else list(objectives)
@@ -430,8 +410,6 @@ def _ranked_groups(
     top: int | None,
     hidden: Mapping[str, ZeroValued],
 ) -> tuple[RankedGroup, ...]:
-    # The signed sum beside every score, with its own rank: a texture's l2 is about
-    # 1/sqrt(texels) of its sum, so l2 and sum can rank one group far apart (docs/encoding.md).
     sums = scores(stats, grouped, "sum")
     sum_rank = {name: i for i, (name, _) in enumerate(rank(sums), 1)}
     return tuple(
