@@ -2,19 +2,15 @@
 
 Ring 0 is the objective, a full disc. With the order ``object,type`` ring 1 holds the objects,
 ring 2 each object's parameter types and ring 3 the parameters (keys); ``type,object`` swaps
-rings 1 and 2. Every wedge is a group of keys scored with the chosen aggregate, and the
-siblings under one parent split the parent's angle in proportion to their scores' magnitudes:
-with l2 (or rms) a parent's score is not the sum of its children's, so "proportional" holds
-among siblings, which is what a reader compares. Angles are fractions of a turn, clockwise
-from the top, and numpy-free of drawing: :mod:`sensaov_cli.outputs.sunburst_drawing` draws them.
+rings 1 and 2. Siblings split their parent's angle in proportion to their scores' magnitudes
+(with l2 or rms a parent's score is not the sum of its children's: "proportional" holds among
+siblings, which is what a reader compares). Angles are fractions of a turn, clockwise from the
+top; :mod:`sensaov_cli.outputs.sunburst_drawing` draws them.
 
-As in the headline views (:mod:`.trusted`), a ring-1 group (an object, or a type) holds only the
-parameters the tool stands behind; the rest of it gets a sibling wedge of its own, named
-``"<name> (untrusted)"`` and hatched (``untrusted: include`` mixes them in instead).
-
-As in the rankings, only parameters a gradient flows to are drawn (``no_gradient`` ones are
-listed apart), a parameter shared by several objects sits under each of its owners, one that
-no object owns sits under :data:`SCENE_WIDE`, and a group that scores exactly 0 gets no wedge.
+A ring-1 group holds the trusted parameters only (:mod:`.trusted`); the rest of it gets a
+hatched sibling ``"<name> (untrusted)"``. As in the rankings, only parameters a gradient flows
+to are drawn, a shared parameter sits under each owner, one no object owns under
+:data:`SCENE_WIDE`, and a group that scores exactly 0 gets no wedge.
 """
 
 from __future__ import annotations
