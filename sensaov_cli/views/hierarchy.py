@@ -31,7 +31,7 @@ from sensaov_cli.views.trusted import (
     weakest_trust,
     zero_valued,
 )
-from sensaov_cli.views.uncertainty import GroupError, Significance, Uncertainty
+from sensaov_cli.views.uncertainty import Significance, Uncertainty
 from sensaov_cli.vocabulary import ESTIMATORS, Aggregate, Cut, Grouping, Trust, Untrusted, Weight
 
 SUMMARY_FORMAT = "sensaov-summary"
@@ -136,41 +136,81 @@ def _ranking(
     top: int | None,
 ) -> Ranking:
     stats = key_stats(buf, objective, flowing, weight=cut.weight)
-    total_sq = math.fsum(s.sum_sq for s in stats.values())
     split = split_groups(buf, grouped, cut.untrusted)
     hidden = zero_valued(buf, objective, list(flowing)) if cut.weight == "value" else {}
     noise = Uncertainty.of(buf, objective, cut.method, cut.weight)
-    part = "all" if cut.untrusted == "include" else "trusted"
-
-    def rows(groups: Mapping[str, Sequence[str]], part: str, limit: int | None) -> list[RankRow]:
-        ordered = rank(scores(stats, groups, cut.method))
-        made = [
-            _row(buf, i, name, score, groups[name], stats, total_sq, cut, hidden, part)
-            for i, (name, score) in enumerate(ordered if limit is None else ordered[:limit], 1)
-        ]
-        if noise is not None:
-            made = [_with_errors(row, noise.error(groups[row.name], row.score)) for row in made]
-        elif cut.by == "key":  # without batches, a repaired parameter has its own seeds' error
-            made = [_with_repair_error(buf, objective, r, cut.method, cut.weight) for r in made]
-        return made
-
+    total_sq = math.fsum(s.sum_sq for s in stats.values())
+    table = _Table(buf, objective, cut, stats, total_sq, hidden, noise)
     stable = None if noise is None else noise.stability(rank(scores(stats, split.kept)), split.kept)
     return Ranking(
         objective=objective,
         objective_value=buf.objective(objective).value,
         by=cut.by,
-        rows=tuple(rows(split.kept, part, top)),
+        rows=table.rows(split.kept, "all" if cut.untrusted == "include" else "trusted", top),
         ranked=len(split.kept),
         total_signed=math.fsum(s.total for s in stats.values()),
         no_gradient=tuple(p for p in buf.params if p.trust == "no_gradient"),
         batches=None if noise is None else noise.batches,
         stability=None if stable is None else stable[0],
         stability_top=None if stable is None else stable[1],
-        left_out=tuple(rows(split.left_out, "untrusted", None)),
+        left_out=table.rows(split.left_out, "untrusted", None),
         untrusted=cut.untrusted,
         significance=None if noise is None else noise.significance,
         zero_valued=tuple(hidden.values()),
     )
+
+
+@dataclass(frozen=True)
+class _Table:
+    """What every row of one objective's ranking is read from."""
+
+    buf: SensitivityBuffer
+    objective: str
+    cut: _Cut
+    stats: Mapping[str, KeyStats]
+    total_sq: float  # Σc² over every ranked parameter: what shares are of
+    hidden: Mapping[str, ZeroValued]
+    noise: Uncertainty | None
+
+    def rows(
+        self, groups: Mapping[str, Sequence[str]], part: str, limit: int | None
+    ) -> tuple[RankRow, ...]:
+        ordered = rank(scores(self.stats, groups, self.cut.method))[:limit]
+        return tuple(
+            self.row(i, name, s, groups[name], part) for i, (name, s) in enumerate(ordered, 1)
+        )
+
+    def row(self, index: int, name: str, score: float, keys: Sequence[str], part: str) -> RankRow:
+        buf, cut = self.buf, self.cut
+        group = [self.stats[k] for k in keys]
+        signed = math.fsum(s.total for s in group)
+        share = math.fsum(s.sum_sq for s in group) / self.total_sq if self.total_sq else 0.0
+        objects = buf.param(name).owners if cut.by == "key" else (name,)
+        zero = [self.hidden[k] for k in keys if k in self.hidden]
+        row = RankRow(
+            rank=index,
+            name=name,
+            score=score,
+            signed=signed,
+            share=share,
+            sign="+" if signed > 0 else "-" if signed < 0 else "0",
+            value=_mean_value(buf, name) if cut.by == "key" else None,
+            trust=weakest_trust(buf, keys),
+            off_frame=None if cut.visible is None else off_frame(objects, cut.visible),
+            part=part,
+            zero_value=bool(zero),
+            raw_signed=zero[0].raw_signed if cut.by == "key" and zero else None,
+            estimator=estimators(buf, keys),
+        )
+        if self.noise is not None:
+            error = self.noise.error(keys, score)
+            significant = error.significant(signed)
+            return replace(
+                row, score_se=error.score_se, signed_se=error.signed_se, significant=significant
+            )
+        if cut.by == "key":  # without batches, a repaired parameter has its own seeds' error
+            return _with_repair_error(buf, self.objective, row, cut.method, cut.weight)
+        return row
 
 
 def _with_repair_error(
@@ -213,49 +253,6 @@ def repair_error(
 def _theta(buf: SensitivityBuffer, key: str, weight: Weight) -> np.ndarray:
     """What a parameter's gradient is weighted by: its value, or ones."""
     return buf.value(key) if weight == "value" else np.ones(buf.param(key).shape)
-
-
-def _with_errors(row: RankRow, error: GroupError) -> RankRow:
-    return replace(
-        row,
-        score_se=error.score_se,
-        signed_se=error.signed_se,
-        significant=error.significant(row.signed),
-    )
-
-
-def _row(
-    buf: SensitivityBuffer,
-    index: int,
-    name: str,
-    score: float,
-    keys: Sequence[str],
-    stats: Mapping[str, KeyStats],
-    total_sq: float,
-    cut: _Cut,
-    hidden: Mapping[str, ZeroValued],
-    part: str,
-) -> RankRow:
-    group = [stats[k] for k in keys]
-    signed = math.fsum(s.total for s in group)
-    share = math.fsum(s.sum_sq for s in group) / total_sq if total_sq else 0.0
-    objects = buf.param(name).owners if cut.by == "key" else (name,)
-    zero = [hidden[k] for k in keys if k in hidden]
-    return RankRow(
-        rank=index,
-        name=name,
-        score=score,
-        signed=signed,
-        share=share,
-        sign="+" if signed > 0 else "-" if signed < 0 else "0",
-        value=_mean_value(buf, name) if cut.by == "key" else None,
-        trust=weakest_trust(buf, keys),
-        off_frame=None if cut.visible is None else off_frame(objects, cut.visible),
-        part=part,
-        zero_value=bool(zero),
-        raw_signed=zero[0].raw_signed if cut.by == "key" and zero else None,
-        estimator=estimators(buf, keys),
-    )
 
 
 def estimators(buf: SensitivityBuffer, keys: Sequence[str]) -> str:

@@ -320,60 +320,45 @@ def texel_fields(
 ) -> list[TexelField]:
     """Every (objective, texture) field a texel channel asks for."""
     keys = texture_keys(buf, channel, index)
-    spp = int(buf.provenance.get("spp", 1))
     width, height = buf.provenance.get("resolution", [1, 1])
+    samples = int(buf.provenance.get("spp", 1)) * width * height
     fields = []
-    for objective in buf.objectives:
-        values = per_object(buf, objective.name, method="sum", weight=channel.weight)
+    for objective in (o.name for o in buf.objectives):
+        values = per_object(buf, objective, method="sum", weight=channel.weight)
         for key in keys:
             sampling = samplings.get(key, TextureSampling(note="no lookup settings: defaults"))
+            record = buf.param(key)
+            raw = buf.grad(objective, key).astype(np.float64)
+            if channel.weight == "value":
+                raw = raw * buf.value(key)
+            pool = default_pool(1, samples, (raw.shape[0], raw.shape[1]))
+            if channel.pool is not None:  # the job's kind, and its radius or the default one
+                radius = pool.radius if channel.pool.radius is None else channel.pool.radius
+                pool = Pool(channel.pool.kind, radius, "job")
+            factor = raw.shape[0] * raw.shape[1] if channel.units == "uv_area" else 1
+            stderr = stderr_pooled = None
+            if buf.statistics is not None:
+                stderr = buf.statistics.stderr[objective][key].astype(np.float64)
+                if channel.weight == "value":
+                    stderr = stderr * np.abs(buf.value(key))
+                stderr_pooled = np.sqrt(pool_variance(stderr**2, pool, sampling.wrap)) * factor
             fields.append(
-                _field(buf, objective.name, channel, key, sampling, values, spp * width * height)
+                TexelField(
+                    objective,
+                    channel,
+                    record,
+                    sampling,
+                    raw,
+                    pool_field(raw, pool, sampling.wrap) * factor,
+                    pool,
+                    math.fsum(raw.ravel()),
+                    {name: float(values[name]) for name in record.owners},
+                    _notes(record, sampling),
+                    stderr,
+                    stderr_pooled,
+                )
             )
     return fields
-
-
-def _field(
-    buf: SensitivityBuffer,
-    objective: str,
-    channel: ChannelSpec,
-    key: str,
-    sampling: TextureSampling,
-    object_values: Mapping[str, float],
-    samples: int,
-) -> TexelField:
-    record = buf.param(key)
-    raw = buf.grad(objective, key).astype(np.float64)
-    if channel.weight == "value":
-        raw = raw * buf.value(key)
-    size = (raw.shape[0], raw.shape[1])
-    pool = default_pool(1, samples, size)
-    if channel.pool is not None:  # the job's kind, and its radius or the default one
-        radius = pool.radius if channel.pool.radius is None else channel.pool.radius
-        pool = Pool(channel.pool.kind, radius, "job")
-    factor = raw.shape[0] * raw.shape[1] if channel.units == "uv_area" else 1
-    pooled = pool_field(raw, pool, sampling.wrap) * factor
-    owners = {name: float(object_values[name]) for name in record.owners}
-    stderr = stderr_pooled = None
-    if buf.statistics is not None:
-        stderr = buf.statistics.stderr[objective][key].astype(np.float64)
-        if channel.weight == "value":
-            stderr = stderr * np.abs(buf.value(key))
-        stderr_pooled = np.sqrt(pool_variance(stderr**2, pool, sampling.wrap)) * factor
-    return TexelField(
-        objective,
-        channel,
-        record,
-        sampling,
-        raw,
-        pooled,
-        pool,
-        math.fsum(raw.ravel()),
-        owners,
-        _notes(record, sampling),
-        stderr,
-        stderr_pooled,
-    )
 
 
 def _notes(record: ParamRecord, sampling: TextureSampling) -> tuple[str, ...]:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import difflib
 import fnmatch
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -161,7 +161,7 @@ def forward_views(buffer: SensitivityBuffer, data: ForwardData) -> list[ForwardV
                 p.failure,
                 layer.source,
                 aliases,
-            )  # fmt: skip
+            )
         )
     return views
 
@@ -169,14 +169,14 @@ def forward_views(buffer: SensitivityBuffer, data: ForwardData) -> list[ForwardV
 def transport_views(buffer: SensitivityBuffer, data: ForwardData) -> list[TransportView]:
     """Every transport layer whose forward pass exists, with its duality residual."""
     return [
-        replace(transport_view(buffer, data, layer), aliases=aliases)
+        transport_view(buffer, data, layer, aliases)
         for layer, aliases in merged_layers(data, "transport")
         if data.passes[layer.pass_index].image is not None
     ]
 
 
 def transport_view(
-    buffer: SensitivityBuffer, data: ForwardData, layer: ForwardLayer
+    buffer: SensitivityBuffer, data: ForwardData, layer: ForwardLayer, aliases: tuple[str, ...]
 ) -> TransportView:
     assert layer.objective is not None
     p = data.passes[layer.pass_index]
@@ -191,6 +191,7 @@ def transport_view(
     return TransportView(
         layer.objective, layer.name, per_pixel.astype(np.float32), p.keys, p.direction, p.seed,
         forward_sum, reverse, residual, tolerance, unverified_keys(buffer, p.keys), layer.source,
+        aliases,
     )  # fmt: skip
 
 
