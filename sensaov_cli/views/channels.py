@@ -161,16 +161,23 @@ class PaintedPass:
     invisible: tuple[str, ...]  # objects with a non-zero value that this camera does not see
 
 
-def paint_pass(values: ChannelValues, visibility: VisibilityPass) -> PaintedPass:
-    """One pass painted into one camera: per-object values through the coverage, encoded."""
-    encoding = Encoding.from_channel(values.spec)
+def painted_values(
+    values: ChannelValues, visibility: VisibilityPass, sign: str
+) -> tuple[dict[str, float], np.ndarray]:
+    """Each object's value under ``sign``, and the (H, W) image they paint into this camera."""
     names = visibility.objects
     per_object = signed_object_values(
         dict(zip(names, values.magnitudes, strict=True)),
         dict(zip(names, values.signed_sums, strict=True)),
-        encoding.sign,
+        sign,
     )
-    painted = visibility.paint(np.array([per_object[name] for name in names]))
+    return per_object, visibility.paint(np.array([per_object[name] for name in names]))
+
+
+def paint_pass(values: ChannelValues, visibility: VisibilityPass) -> PaintedPass:
+    """One pass painted into one camera: per-object values through the coverage, encoded."""
+    encoding = Encoding.from_channel(values.spec)
+    per_object, painted = painted_values(values, visibility, encoding.sign)
     scale = choose_scale(encoding, per_object, painted if encoding.normalize == "channel" else None)
     data = encode_image(painted, encoding, scale.threshold, scale.scale)
     seen = set(visibility.visible_objects)

@@ -19,7 +19,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, combine, key_stats, rank
 from sensaov_cli.views.trusted import (
     ZeroValued,
@@ -98,25 +98,21 @@ def panels(
     )
 
 
-def _owners(buf: SensitivityBuffer, key: str) -> tuple[str, ...]:
-    return buf.param(key).owners or (SCENE_WIDE,)
+def _level(names: Callable[[ParamRecord], tuple[str, ...]]) -> Level:
+    """Keys grouped by ``names`` of their records, groups in order of first appearance."""
+
+    def group(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
+        found = dict.fromkeys(n for k in keys for n in names(buf.param(k)))
+        return {n: tuple(k for k in keys if n in names(buf.param(k))) for n in found}
+
+    return group
 
 
-def _by_object(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
-    owners = dict.fromkeys(o for k in keys for o in _owners(buf, k))
-    return {o: tuple(k for k in keys if o in _owners(buf, k)) for o in owners}
-
-
-def _by_type(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
-    types = dict.fromkeys(buf.param(k).type for k in keys)
-    return {t: tuple(k for k in keys if buf.param(k).type == t) for t in types}
-
-
-def _by_key(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
-    return {k: (k,) for k in keys}
-
-
-_LEVELS: dict[str, Level] = {"object": _by_object, "type": _by_type}
+_LEVELS: dict[str, Level] = {
+    "object": _level(lambda p: p.owners or (SCENE_WIDE,)),
+    "type": _level(lambda p: (p.type,)),
+    "key": _level(lambda p: (p.key,)),
+}
 
 
 def _apart(level: Level, mode: Untrusted) -> Level:
@@ -146,7 +142,7 @@ def sunburst_wedges(
     rings = _Rings(buf, key_stats(buf, objective, keys, weight=weight), method,
                    Uncertainty.of(buf, objective, method, weight))  # fmt: skip
     first, second = order.split(",")
-    levels = [_apart(_LEVELS[first], untrusted), _LEVELS[second], _by_key]
+    levels = [_apart(_LEVELS[first], untrusted), _LEVELS[second], _LEVELS["key"]]
     centre = rings.wedge(keys, 0, (), 0.0, 1.0)
     wedges = [centre]
     _children(rings, centre, keys, levels, wedges)
