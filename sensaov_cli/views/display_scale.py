@@ -172,13 +172,9 @@ def shared_channel_scale(
 
 def _painted(images: Sequence[np.ndarray]) -> np.ndarray:
     """|v| of every non-zero pixel of ``images``, flattened, float64."""
-    if not images:
-        return np.zeros(0)
-    parts = []
-    for image in images:
-        magnitude = _magnitude(image).ravel()
-        parts.append(magnitude[magnitude > 0].astype(np.float64))  # only the painted widened
-    return np.concatenate(parts)
+    magnitudes = (_magnitude(image).ravel() for image in images)
+    parts = [m[m > 0].astype(np.float64) for m in magnitudes]  # only the painted widened
+    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def _magnitude(image: np.ndarray) -> np.ndarray:

@@ -375,6 +375,25 @@ def _objective_summary(
     hidden = zero_valued(buf, objective.name, list(ranked["param"])) if weight == "value" else {}
     objects = split_groups(buf, ranked["object"], untrusted)
     types = split_groups(buf, ranked["type"], untrusted)
+
+    def ranked(grouped: Mapping[str, Sequence[str]], top: int | None) -> tuple[RankedGroup, ...]:
+        sums = scores(stats, grouped, "sum")
+        sum_rank = {name: i for i, (name, _) in enumerate(rank(sums), 1)}
+        return tuple(
+            RankedGroup(name, score, sums[name], sum_rank[name], weakest_trust(buf, grouped[name]),
+                        any(k in hidden for k in grouped[name]))
+            for name, score in rank(scores(stats, grouped, method), top)
+        )  # fmt: skip
+
+    def left_out(grouped: Mapping[str, Sequence[str]]) -> tuple[LeftOut, ...]:
+        """The untrusted part of each group, largest first, with each key and its label."""
+        sums = scores(stats, grouped, "sum")
+        return tuple(
+            LeftOut(name, score, sums[name], weakest_trust(buf, grouped[name]),
+                    tuple((k, buf.param(k).trust) for k in grouped[name]))
+            for name, score in rank(scores(stats, grouped, method))
+        )  # fmt: skip
+
     parameters = tuple(
         RankedParameter(
             buf.param(key),
@@ -390,42 +409,10 @@ def _objective_summary(
         untrusted,
         len(objects.kept),
         parameters,
-        _ranked_groups(buf, stats, objects.kept, method, top, hidden),
-        _ranked_groups(buf, stats, types.kept, method, None, hidden),
-        _left_out(buf, stats, objects.left_out, method),
-        _left_out(buf, stats, types.left_out, method),
+        ranked(objects.kept, top),
+        ranked(types.kept, None),
+        left_out(objects.left_out),
+        left_out(types.left_out),
         tuple(hidden.values()),
         tuple(p for p in buf.params if p.trust == "no_gradient"),
     )
-
-
-def _ranked_groups(
-    buf: SensitivityBuffer,
-    stats: Mapping[str, KeyStats],
-    grouped: Mapping[str, Sequence[str]],
-    method: Aggregate,
-    top: int | None,
-    hidden: Mapping[str, ZeroValued],
-) -> tuple[RankedGroup, ...]:
-    sums = scores(stats, grouped, "sum")
-    sum_rank = {name: i for i, (name, _) in enumerate(rank(sums), 1)}
-    return tuple(
-        RankedGroup(name, score, sums[name], sum_rank[name], weakest_trust(buf, grouped[name]),
-                    any(k in hidden for k in grouped[name]))
-        for name, score in rank(scores(stats, grouped, method), top)
-    )  # fmt: skip
-
-
-def _left_out(
-    buf: SensitivityBuffer,
-    stats: Mapping[str, KeyStats],
-    grouped: Mapping[str, Sequence[str]],
-    method: Aggregate,
-) -> tuple[LeftOut, ...]:
-    """The untrusted part of each group, largest first, with each key and its label."""
-    sums = scores(stats, grouped, "sum")
-    return tuple(
-        LeftOut(name, score, sums[name], weakest_trust(buf, grouped[name]),
-                tuple((k, buf.param(k).trust) for k in grouped[name]))
-        for name, score in rank(scores(stats, grouped, method))
-    )  # fmt: skip

@@ -82,8 +82,8 @@ def texel_weights(
     """For N hit UVs, the flat texel indices and weights the lookup reads: (N, 4) bilinear,
     (N, 1) nearest; each hit's weights sum to 1."""
     col, row, fx, fy = _cells(uv, size, sampling)
-    cells = _nearest_index if fx is None else _corner_index
-    return cells(col, row, size, sampling.wrap), _corner_weights(fx, fy, len(col))
+    index = _texel_index(col, row, size, sampling.wrap, corners=fx is not None)
+    return index, _corner_weights(fx, fy, len(col))
 
 
 def _cells(
@@ -107,21 +107,19 @@ def _cells(
     return x0.astype(np.int64), y0.astype(np.int64), x - x0, y - y0
 
 
-def _corner_index(col: np.ndarray, row: np.ndarray, size: tuple[int, int], wrap: str) -> np.ndarray:
-    """(N, 4) flat indices of the bilinear cells' corners (r0,c0), (r0,c1), (r1,c0), (r1,c1)."""
+def _texel_index(
+    col: np.ndarray, row: np.ndarray, size: tuple[int, int], wrap: str, *, corners: bool
+) -> np.ndarray:
+    """Flat indices of the cells at (``col``, ``row``), wrapped: (N, 1) the texels themselves,
+    or (N, 4) the bilinear ``corners`` (r0,c0), (r0,c1), (r1,c0), (r1,c1)."""
     height, width = size
-    c0, c1 = wrap_index(col, width, wrap), wrap_index(col + 1, width, wrap)
-    r0, r1 = wrap_index(row, height, wrap) * width, wrap_index(row + 1, height, wrap) * width
+    c0, r0 = wrap_index(col, width, wrap), wrap_index(row, height, wrap) * width
+    if not corners:
+        return (r0 + c0)[:, None]
+    c1, r1 = wrap_index(col + 1, width, wrap), wrap_index(row + 1, height, wrap) * width
     index = np.empty((len(col), 4), np.int64)
     index[:, 0], index[:, 1], index[:, 2], index[:, 3] = r0 + c0, r0 + c1, r1 + c0, r1 + c1
     return index
-
-
-def _nearest_index(
-    col: np.ndarray, row: np.ndarray, size: tuple[int, int], wrap: str
-) -> np.ndarray:
-    height, width = size
-    return (wrap_index(row, height, wrap) * width + wrap_index(col, width, wrap))[:, None]
 
 
 def _corner_weights(fx: np.ndarray | None, fy: np.ndarray | None, count: int) -> np.ndarray:
@@ -203,8 +201,7 @@ def footprint(
     for part in (pixel, row, col, owner):
         head[1:] |= part[1:] != part[:-1]
     runs = np.flatnonzero(head)
-    cells = _nearest_index if fx is None else _corner_index
-    index = cells(col[runs], row[runs], size, sampling.wrap)
+    index = _texel_index(col[runs], row[runs], size, sampling.wrap, corners=fx is not None)
     same = np.all(index[1:] == index[:-1], axis=1)
     same &= (pixel[runs[1:]] == pixel[runs[:-1]]) & (owner[runs[1:]] == owner[runs[:-1]])
     first = np.concatenate(([True], ~same))
