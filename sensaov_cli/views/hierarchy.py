@@ -376,7 +376,7 @@ def _objective_summary(
     objects = split_groups(buf, ranked["object"], untrusted)
     types = split_groups(buf, ranked["type"], untrusted)
 
-    def ranked(grouped: Mapping[str, Sequence[str]], top: int | None) -> tuple[RankedGroup, ...]:
+    def scored(grouped: Mapping[str, Sequence[str]], top: int | None) -> tuple[RankedGroup, ...]:
         sums = scores(stats, grouped, "sum")
         sum_rank = {name: i for i, (name, _) in enumerate(rank(sums), 1)}
         return tuple(
@@ -409,8 +409,8 @@ def _objective_summary(
         untrusted,
         len(objects.kept),
         parameters,
-        ranked(objects.kept, top),
-        ranked(types.kept, None),
+        scored(objects.kept, top),
+        scored(types.kept, None),
         left_out(objects.left_out),
         left_out(types.left_out),
         tuple(hidden.values()),
