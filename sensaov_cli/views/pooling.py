@@ -62,14 +62,28 @@ def white_noise_factor(pool: Pool) -> float:
 
 def pool_field(field: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
     """``field`` (H, W, C) pooled; float64, same shape, same sum (to rounding)."""
-    data = np.asarray(field, np.float64)
+    return _pool(field, pool, wrap, 1)
+
+
+def pool_variance(variance: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
+    """The variance of :func:`pool_field`'s output for texels with independent errors of the
+    given ``variance`` (H, W, C): the same linear map with its weights squared."""
+    return _pool(variance, pool, wrap, 2)
+
+
+def _pool(values: np.ndarray, pool: Pool, wrap: str, power: int) -> np.ndarray:
+    data = np.asarray(values, np.float64)
     if pool.kind == "none" or pool.radius <= 0:
         return data.copy()
-    if pool.kind == "mip":
-        return _mip(data, 2 ** int(round(pool.radius)))
+    if pool.kind == "mip":  # a tile's mean; its variance: that of its sum over its area squared
+        block = 2 ** int(round(pool.radius))
+        pooled = _mip(data, block)
+        return pooled if power == 1 else pooled / _tile_sizes(data.shape[:2], block)
     kernel = _kernel(pool)
     # C order for the painting's reshape (the column pass leaves a transposed layout).
-    return np.ascontiguousarray(_scatter(_scatter(data, kernel, 0, wrap), kernel, 1, wrap))
+    return np.ascontiguousarray(
+        _scatter(_scatter(data, kernel, 0, wrap, power), kernel, 1, wrap, power)
+    )
 
 
 def _kernel(pool: Pool) -> np.ndarray:
@@ -80,20 +94,6 @@ def _kernel(pool: Pool) -> np.ndarray:
     else:
         kernel = np.ones(2 * int(round(pool.radius)) + 1)
     return kernel / kernel.sum()
-
-
-def pool_variance(variance: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
-    """The variance of :func:`pool_field`'s output for texels with independent errors of the
-    given ``variance`` (H, W, C): the same linear map with its weights squared."""
-    data = np.asarray(variance, np.float64)
-    if pool.kind == "none" or pool.radius <= 0:
-        return data.copy()
-    if pool.kind == "mip":  # a tile's mean: the variance of its sum over its area squared
-        block = 2 ** int(round(pool.radius))
-        return _mip(data, block) / _tile_sizes(data.shape[:2], block)
-    kernel = _kernel(pool)
-    squared = _scatter(_scatter(data, kernel, 0, wrap, 2), kernel, 1, wrap, 2)
-    return np.ascontiguousarray(squared)
 
 
 def _tile_sizes(size: tuple[int, int], block: int) -> np.ndarray:
