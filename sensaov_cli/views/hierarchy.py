@@ -209,25 +209,23 @@ class _Table:
                 row, score_se=error.score_se, signed_se=error.signed_se, significant=significant
             )
         if cut.by == "key":  # without batches, a repaired parameter has its own seeds' error
-            return _with_repair_error(buf, self.objective, row, cut.method, cut.weight)
+            return self.with_repair_error(row)
         return row
 
-
-def _with_repair_error(
-    buf: SensitivityBuffer, objective: str, row: RankRow, method: Aggregate, weight: Weight
-) -> RankRow:
-    repaired = repair_error(buf, objective, row.name, row.signed, weight)
-    if repaired is None:
-        return row
-    repair, theta = buf.repairs[row.name], _theta(buf, row.name, weight)
-    score_se = {
-        "sum": repaired.signed_se,
-        "l2": repair.norm_error(objective, theta),
-        "rms": repair.norm_error(objective, theta) / math.sqrt(max(theta.size, 1)),
-    }[method]
-    return replace(
-        row, score_se=score_se, signed_se=repaired.signed_se, significant=repaired.significant
-    )
+    def with_repair_error(self, row: RankRow) -> RankRow:
+        objective, weight = self.objective, self.cut.weight
+        repaired = repair_error(self.buf, objective, row.name, row.signed, weight)
+        if repaired is None:
+            return row
+        repair, theta = self.buf.repairs[row.name], _theta(self.buf, row.name, weight)
+        score_se = {
+            "sum": repaired.signed_se,
+            "l2": repair.norm_error(objective, theta),
+            "rms": repair.norm_error(objective, theta) / math.sqrt(max(theta.size, 1)),
+        }[self.cut.method]
+        return replace(
+            row, score_se=score_se, signed_se=repaired.signed_se, significant=repaired.significant
+        )
 
 
 @dataclass(frozen=True)
