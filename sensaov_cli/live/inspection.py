@@ -20,16 +20,10 @@ import numpy as np
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.queries import combine, key_stats, rank
 from sensaov_cli.outputs.previews import BACKGROUND, diverging_rgb
-from sensaov_cli.views.channels import ChannelValues
+from sensaov_cli.views.channels import ChannelValues, painted_values
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, clipped_share, robust_scale
-from sensaov_cli.views.encoding import (
-    Encoding,
-    Scale,
-    choose_scale,
-    encode_image,
-    signed_object_values,
-)
+from sensaov_cli.views.encoding import Encoding, Scale, choose_scale, encode_image
 from sensaov_cli.views.texels import TexelField, texel_passes, texture_footprint
 from sensaov_cli.views.trusted import weakest_trust
 from sensaov_cli.views.uncertainty import Uncertainty
@@ -135,12 +129,7 @@ def paint_view(
     is the job's display scale of the channel under ``look.sign`` (``look.scale`` "shared")."""
     encoding = look.encoding(values)
     names = visibility.objects
-    per_object = signed_object_values(
-        dict(zip(names, values.magnitudes, strict=True)),
-        dict(zip(names, values.signed_sums, strict=True)),
-        encoding.sign,
-    )
-    painted = visibility.paint(np.array([per_object[name] for name in names]))
+    per_object, painted = painted_values(values, visibility, encoding.sign)
     if look.scale == "view":
         scale, rule = view_own_scale(encoding, painted), "p95 of |v| over this view's pixels"
     else:  # one scale whatever the camera sees: the colours of project's pictures (Fig. 6)

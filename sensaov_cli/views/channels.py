@@ -1,24 +1,19 @@
 """Channels of a view: queries over the buffer, one value per object, painted per pixel (§3).
 
-Everything here is camera-independent except :func:`paint_pass`: per-object values are computed
-once from the buffer and painted into any number of inspection cameras' visibility passes, which
-is the whole point of storing the buffer (no new differentiation per view). The encoded image is
-what the EXR stores; its encoding scale is camera-independent, so farm tasks that each render one
-camera agree. How a picture of it saturates is :mod:`.display_scale`'s business; painting only
-lists the objects with a value that this camera does not see (an environment map, a point light,
-anything off-frame), so a legend can name them.
+Per-object values are computed once from the buffer (camera-independent, so farm tasks that each
+render one camera agree) and painted into any number of cameras' visibility passes by
+:func:`paint_pass`, with no new differentiation per view.
 
-Under ``untrusted: apart`` (the default, :mod:`.trusted`) each selection becomes two passes:
-``<pass>`` adds up the parameters the tool stands behind and ``<pass>_untrusted`` the rest, so a
-biased gradient never paints a headline layer; the second exists only when the selection holds
-such a parameter. Both belong to one scale group, ``<objective>/<channel>``.
+Under ``untrusted: apart`` (the default, :mod:`.trusted`) each selection becomes ``<pass>``, the
+parameters the tool stands behind, and, when the selection holds others, ``<pass>_untrusted``,
+so a biased gradient never paints a headline layer. Both share the scale group
+``<objective>/<channel>``.
 """
 
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass, field, replace
-from typing import cast
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,9 +30,10 @@ from sensaov_cli.views.encoding import (
     signed_object_values,
 )
 from sensaov_cli.views.trusted import untrusted_keys, zero_valued
-from sensaov_cli.vocabulary import Aggregate, Untrusted, Weight
+from sensaov_cli.vocabulary import Untrusted
 
 UNTRUSTED_PASS = "_untrusted"  # the suffix of a selection's untrusted part
+LeftOut = dict[str, tuple[str, ...]]  # object -> its keys in the untrusted pass
 
 
 @dataclass(frozen=True)
@@ -53,8 +49,7 @@ class ChannelValues:
     signed_sums: np.ndarray  # (n_objects,) Σ c per object: the direction of a group's effect
     unverified: tuple[str, ...]  # selected keys whose gradient is not verified
     part: str = "all"  # "trusted" / "untrusted" under untrusted: apart
-    # object -> its keys in the untrusted pass (on both parts: left out of one, held by the other)
-    left_out: dict[str, tuple[str, ...]] | None = None
+    left_out: LeftOut | None = None  # on both parts: left out of one, held by the other
     zero_valued: dict[str, float] | None = None  # key -> raw Σ ∂M/∂θ, θ = 0 (weight value)
     estimators: dict[str, str] = field(default_factory=dict)  # key -> what computed its gradient
 
@@ -91,22 +86,39 @@ def _parts(
 ) -> list[ChannelValues]:
     """One pass (``include``), or the trusted pass and, if any, the untrusted one (``apart``)."""
     hidden = zero_valued(buf, objective, keys) if channel.weight == "value" else {}
-    zeros = {key: z.raw_signed for key, z in hidden.items()}
+
+    def values(
+        name: str, where: str, chosen: tuple[str, ...], part: str, left_out: LeftOut | None
+    ) -> ChannelValues:
+        weight = channel.weight
+        magnitude = per_object(buf, objective, method=channel.aggregate, weight=weight, keys=chosen)
+        signed = per_object(buf, objective, method="sum", weight=weight, keys=chosen)
+        return ChannelValues(
+            objective,
+            name,
+            channel,
+            where,
+            chosen,
+            np.array([magnitude[o] for o in buf.objects], np.float64),
+            np.array([signed[o] for o in buf.objects], np.float64),
+            untrusted_keys(buf, chosen),  # no_gradient adds exactly 0: no "!" for right numbers
+            part,
+            left_out,
+            {key: z.raw_signed for key, z in hidden.items() if key in chosen},
+            {k: buf.param(k).estimator for k in chosen},
+        )
+
     if untrusted == "include":
-        return [_values(buf, objective, channel, pass_name, selection, keys, "all", zeros)]
+        return [values(pass_name, selection, keys, "all", None)]
     apart = untrusted_keys(buf, keys)
     trusted = tuple(k for k in keys if k not in apart)
-    left_out = {o: tuple(k for k in apart if o in buf.param(k).owners) for o in buf.objects}
-    passes = [
-        replace(
-            _values(buf, objective, channel, pass_name, selection, trusted, "trusted", zeros),
-            left_out={o: ks for o, ks in left_out.items() if ks},
-        )
-    ]
+    # object -> its untrusted keys: left out of the trusted pass, held by the untrusted one
+    owned = {o: tuple(k for k in apart if o in buf.param(k).owners) for o in buf.objects}
+    left_out = {o: ks for o, ks in owned.items() if ks}
+    passes = [values(pass_name, selection, trusted, "trusted", left_out)]
     if apart:
         name, where = pass_name + UNTRUSTED_PASS, f"{selection};untrusted"
-        part = _values(buf, objective, channel, name, where, apart, "untrusted", zeros)
-        passes.append(replace(part, left_out=passes[0].left_out))  # what it holds, by object
+        passes.append(values(name, where, apart, "untrusted", left_out))
     return passes
 
 
@@ -141,34 +153,6 @@ def _selections(
     ]
 
 
-def _values(
-    buf: SensitivityBuffer,
-    objective: str,
-    channel: ChannelSpec,
-    pass_name: str,
-    selection: str,
-    keys: tuple[str, ...],
-    part: str,
-    zeros: dict[str, float],
-) -> ChannelValues:
-    method, weight = cast(Aggregate, channel.aggregate), cast(Weight, channel.weight)
-    magnitude = per_object(buf, objective, method=method, weight=weight, keys=keys)
-    signed = per_object(buf, objective, method="sum", weight=weight, keys=keys)
-    return ChannelValues(
-        objective,
-        pass_name,
-        channel,
-        selection,
-        keys,
-        np.array([magnitude[name] for name in buf.objects], np.float64),
-        np.array([signed[name] for name in buf.objects], np.float64),
-        untrusted_keys(buf, keys),  # no_gradient adds exactly 0: no "!" for numbers that are right
-        part,
-        zero_valued={key: raw for key, raw in zeros.items() if key in keys},
-        estimators={k: buf.param(k).estimator for k in keys},
-    )
-
-
 @dataclass(frozen=True)
 class PaintedPass:
     encoding: Encoding
@@ -177,16 +161,23 @@ class PaintedPass:
     invisible: tuple[str, ...]  # objects with a non-zero value that this camera does not see
 
 
-def paint_pass(values: ChannelValues, visibility: VisibilityPass) -> PaintedPass:
-    """One pass painted into one camera: per-object values through the coverage, encoded."""
-    encoding = Encoding.from_channel(values.spec)
+def painted_values(
+    values: ChannelValues, visibility: VisibilityPass, sign: str
+) -> tuple[dict[str, float], np.ndarray]:
+    """Each object's value under ``sign``, and the (H, W) image they paint into this camera."""
     names = visibility.objects
     per_object = signed_object_values(
         dict(zip(names, values.magnitudes, strict=True)),
         dict(zip(names, values.signed_sums, strict=True)),
-        encoding.sign,
+        sign,
     )
-    painted = visibility.paint(np.array([per_object[name] for name in names]))
+    return per_object, visibility.paint(np.array([per_object[name] for name in names]))
+
+
+def paint_pass(values: ChannelValues, visibility: VisibilityPass) -> PaintedPass:
+    """One pass painted into one camera: per-object values through the coverage, encoded."""
+    encoding = Encoding.from_channel(values.spec)
+    per_object, painted = painted_values(values, visibility, encoding.sign)
     scale = choose_scale(encoding, per_object, painted if encoding.normalize == "channel" else None)
     data = encode_image(painted, encoding, scale.threshold, scale.scale)
     seen = set(visibility.visible_objects)

@@ -3,21 +3,16 @@
 Every picture of a layer (PNG previews, contact sheets, the report, the EXR's display layers)
 maps a signed value v to a colour on a diverging map that saturates at ±s. The scale s is chosen
 once per *scale group*, by default one (objective, channel) pair across every camera of the job
-(Fig. 6: "all three share one colour scale"), so the same object gets the same colour in every
-view and a channel's passes (the types of a ``type`` channel, the top objects of a ``transport``
-channel) compare with each other. The rule, recorded with every picture and layer:
+(Fig. 6: "all three share one colour scale"), so an object gets the same colour in every view
+and a channel's passes compare with each other. The rule, recorded with every picture and layer:
 
     s = the p-th percentile (default 95) of |v| over the pixels the group paints (v ≠ 0)
         in every camera, each camera weighted equally whatever its resolution.
 
-Pixels with v = 0 (what a layer does not paint, what a camera does not see: a light outside the
-frame, an environment map) never count, so a scale is never set by what no camera shows; a
-percentile, not the maximum, so it is never set by a few pixels. Pixels above s saturate at the
-map's ends (still their sign's darkest colour, never hidden) and their share is recorded. A
-layer left apart for its untrusted gradients follows its group's scale; it sets the scale only
-when the group paints nothing else. :func:`shared_channel_scale` gives the scale of one
-(objective, channel) from the buffer and the cameras' visibility alone: ``sensaov view`` and
-``sensaov project`` compute the same number. Reasoning and figures: docs/encoding.md.
+Pixels with v = 0 (not painted, not seen) never count; a percentile, not the maximum, so a few
+pixels never set it. Pixels above s saturate at the map's ends and their share is recorded. A
+layer left apart for its untrusted gradients follows its group's scale, setting it only when
+the group paints nothing else. Reasoning and figures: docs/encoding.md.
 """
 
 from __future__ import annotations
@@ -86,30 +81,19 @@ def robust_scale(
     *,
     percentile: float = DEFAULT_PERCENTILE,
     scope: str = "shared",
+    fixed: float | None = None,
 ) -> DisplayScale:
-    """The scale of a group from its signed pixels per camera (``camera -> images``)."""
+    """The scale of a group from its signed pixels per camera (``camera -> images``), or the
+    ``fixed`` one that what the layer means sets (1 = an even spread), with what it clips."""
     active = [m for m in (_painted(images) for images in pixels.values()) if m.size]
-    value = _weighted_percentile(active, percentile) if active else 0.0
-    return _clipping(value, scope, float(percentile), pixels, active)
-
-
-def fixed_scale(value: float, pixels: Mapping[str, Sequence[np.ndarray]]) -> DisplayScale:
-    """A scale set by what the layer means (e.g. 1 = an even spread), with what it clips."""
-    active = [m for m in (_painted(images) for images in pixels.values()) if m.size]
-    return _clipping(float(value), "fixed", 100.0, pixels, active)
-
-
-def _clipping(
-    value: float,
-    scope: str,
-    percentile: float,
-    pixels: Mapping[str, Sequence[np.ndarray]],
-    active: Sequence[np.ndarray],
-) -> DisplayScale:
-    """The scale ``value`` with the share of the ``active`` cameras' pixels it clips."""
+    if fixed is not None:
+        value, scope, percentile = float(fixed), "fixed", 100.0
+    else:
+        value = _weighted_percentile(active, percentile) if active else 0.0
     clipped = [float(np.count_nonzero(m > value)) / m.size for m in active]
     share = float(np.mean(clipped)) if clipped else 0.0
-    return DisplayScale(value, scope, percentile, tuple(pixels), sum(m.size for m in active), share)
+    painted = sum(m.size for m in active)
+    return DisplayScale(value, scope, float(percentile), tuple(pixels), painted, share)
 
 
 def clipped_share(images: Sequence[np.ndarray], value: float) -> float:
@@ -130,13 +114,9 @@ def group_scales(
     scope: str = "shared",
     fixed: Mapping[str, float] | None = None,
 ) -> dict[tuple[str, str], DisplayScale]:
-    """The scale of every (camera, group) from ``camera -> [(group, role, signed pixels)]``.
-
-    Under ``shared`` every camera of a group gets the one scale of all cameras together;
-    under ``tile`` each camera its own. A group in ``fixed`` gets that value everywhere. The
-    ``reference`` layers of a group set its scale; its ``follower`` layers (untrusted parts)
-    only when the group has no reference pixel at all.
-    """
+    """The scale of every (camera, group) from ``camera -> [(group, role, signed pixels)]``:
+    under ``shared`` the one scale of all cameras together, under ``tile`` each camera's own;
+    a group in ``fixed`` gets that value everywhere."""
     groups = {group for entries in layers.values() for group, _, _ in entries}
     scales: dict[tuple[str, str], DisplayScale] = {}
     for group in sorted(groups):
@@ -155,12 +135,9 @@ def group_scales(
         ]
         for camera in cameras:
             scope_pixels = chosen if scope == "shared" else {camera: chosen[camera]}
-            if fixed and group in fixed:
-                scales[(camera, group)] = fixed_scale(fixed[group], scope_pixels)
-            else:
-                scales[(camera, group)] = robust_scale(
-                    scope_pixels, percentile=percentile, scope=scope
-                )
+            scales[(camera, group)] = robust_scale(
+                scope_pixels, percentile=percentile, scope=scope, fixed=(fixed or {}).get(group)
+            )
     return scales
 
 
@@ -174,8 +151,8 @@ def shared_channel_scale(
     percentile: float = DEFAULT_PERCENTILE,
 ) -> DisplayScale:
     """The job's shared display scale of one (objective, channel) of kind object, type or
-    select, from the buffer and every camera's visibility pass (``camera -> pass``): the number
-    ``sensaov project`` records as ``display_scale`` on each of that channel's layers."""
+    select, from the buffer and every camera's visibility pass alone: the ``display_scale``
+    ``sensaov project`` records on that channel's layers, which ``sensaov view`` shows."""
     passes = [v for v in channel_values(buf, (channel,), untrusted=untrusted)
               if v.objective == objective]  # fmt: skip
     layers = {
@@ -195,13 +172,9 @@ def shared_channel_scale(
 
 def _painted(images: Sequence[np.ndarray]) -> np.ndarray:
     """|v| of every non-zero pixel of ``images``, flattened, float64."""
-    if not images:
-        return np.zeros(0)
-    parts = []
-    for image in images:
-        magnitude = _magnitude(image).ravel()
-        parts.append(magnitude[magnitude > 0].astype(np.float64))  # only the painted widened
-    return np.concatenate(parts)
+    magnitudes = (_magnitude(image).ravel() for image in images)
+    parts = [m[m > 0].astype(np.float64) for m in magnitudes]  # only the painted widened
+    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def _magnitude(image: np.ndarray) -> np.ndarray:

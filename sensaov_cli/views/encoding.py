@@ -1,19 +1,11 @@
 """Encoding: per-object sensitivities turned into the values a channel stores (§3, "Encoding").
 
-A channel's pixels are painted from one scalar per object (the query's score). Encoding decides
-what that scalar shows and on what scale, in three steps that run in this order:
-
-1. sign (:func:`signed_object_values`), per object, before painting: keep a direction or not;
-2. tone map (:func:`tonemap_values`), per pixel: linear, or log-compressed around a threshold;
-3. normalisation (:func:`encode_image`), per pixel: divide by a scale chosen by
-   :func:`choose_scale`: 1, this image's peak, or one peak for the channel across all cameras.
-
-``weight`` and ``aggregate`` are applied by the query (:mod:`.queries`) and only recorded here.
-Two channels are comparable only if their encodings match (§3), so :meth:`Encoding.describe`
-is written with every channel, together with the :class:`Scale` it was encoded with.
-The defaults are the EXR data defaults: linear (``tonemap=none``) and un-normalised
-(``normalize=none``), so a stored pixel is the object's score itself.
-Formulas and reasoning: ``docs/encoding.md``.
+Three steps, in this order: the sign (:func:`signed_object_values`), per object before
+painting; the tone map (:func:`tonemap_values`), per pixel; the normalisation
+(:func:`encode_image`) by the scale :func:`choose_scale` picks. ``weight`` and ``aggregate``
+are applied by the query and only recorded here. Two channels are comparable only if their
+encodings match (§3), so every channel records its :class:`Encoding` and :class:`Scale`. The
+defaults (linear, un-normalised) store the object's score itself. Formulas: docs/encoding.md.
 """
 
 from __future__ import annotations
@@ -100,15 +92,10 @@ class Scale:
 def signed_object_values(
     magnitudes: Mapping[str, float], signed_sums: Mapping[str, float], sign: str
 ) -> dict[str, float]:
-    """The value painted for each object: its magnitude, with or without a direction.
-
-    ``magnitudes`` are the objects' scores under the channel's aggregate and ``signed_sums``
-    their Σ c (``aggregate="sum"``) under the same weight. An ℓ2 or RMS score carries no
-    sign; ``"signed"`` gives it the sign of Σ θ·∂M/∂θ, the direction in which scaling the
-    whole group by 1 + ε moves M. For ``aggregate="sum"`` pass the sums as both arguments:
-    the value is then the signed sum itself. ``"magnitude"`` drops the sign. A group whose
-    sum is exactly zero (its contributions cancel) keeps its magnitude, shown positive:
-    hiding a large magnitude would mislead more than an arbitrary sign.
+    """The value painted for each object: its score (``magnitudes``) with the sign of its Σ c
+    (``signed_sums``: the direction in which scaling the whole group by 1 + ε moves M), or
+    without (``"magnitude"``). A group whose sum is exactly zero keeps its magnitude, shown
+    positive: hiding a large magnitude would mislead more than an arbitrary sign.
     """
     _check_choice("sign", sign, SIGNS)
     if set(magnitudes) != set(signed_sums):
@@ -134,7 +121,6 @@ def tonemap_values(x: np.ndarray, mode: str, threshold: float) -> np.ndarray:
 
 
 def _tonemap64(values: np.ndarray, mode: str, threshold: float) -> np.ndarray:
-    _check_choice("tonemap", mode, TONEMAPS)
     if mode == "none":
         return values
     if not (math.isfinite(threshold) and threshold > 0):
@@ -147,14 +133,11 @@ def _tonemap64(values: np.ndarray, mode: str, threshold: float) -> np.ndarray:
 def choose_scale(
     encoding: Encoding, object_values: Mapping[str, float], painted: np.ndarray | None = None
 ) -> Scale:
-    """The threshold and scale to encode a channel with.
+    """The threshold and scale to encode a channel with, both set by the peak |value| of the
+    objects' values (``normalize`` none and shared) or of the ``painted`` image (channel).
 
-    The peak |value| of the normalisation's scope sets both: the threshold is
-    ``THRESHOLD_FRACTION`` × peak and, when normalising, the scale is the peak's tone-mapped
-    value. The scope is the objects' values for ``normalize`` none and shared, and the
-    ``painted`` image for channel. Shared scales never look at an image: a painted pixel is a
-    coverage-weighted mean of object values, so it cannot exceed their peak, and a camera
-    rendered in its own process (a farm task) gets the very same scale as every other.
+    Shared scales never look at an image: a painted pixel is a coverage-weighted mean of object
+    values, so it cannot exceed their peak, and a farm task's camera gets the same scale.
     """
     objects = np.array(list(object_values.values()), dtype=np.float64)
     _check_finite("object values", objects)

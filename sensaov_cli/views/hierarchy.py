@@ -1,26 +1,15 @@
 """Rankings of the hierarchy (numpy only): ``rank``'s summary, and one cut (``rank --by``).
 
-The summary (``sensaov rank``, ``run``) gives per objective the top parameters and objects
-and every type's score. Every parameter carries its trust label (docs/verification.md);
-objects and types carry the weakest label among their parameters. Objects and types add up
-only the parameters the tool stands behind (``untrusted: apart``, :mod:`.trusted`); each
-objective lists the rest apart, by object and by type, with every key's label. Parameters
-whose value is exactly 0 are listed with their raw gradient, and flagged where they are ranked.
-A parameter whose gradient is identically zero (label ``no_gradient``) is not a result: it is
-listed apart with its reason and left out of every score, and an object or type made only of
-such parameters is left out of its ranking. :mod:`sensaov_cli.outputs.tables` writes its text
-and its JSON document from the same :class:`Summary`, so both always say the same thing.
+The summary gives per objective the top parameters and objects and every type's score; a
+ranking at one cut (key, object or type) gives one table per objective (columns:
+docs/rankings.md). Objects and types add up the trusted parameters only (:mod:`.trusted`) and
+rank the untrusted rest apart; ``no_gradient`` parameters are listed apart, never scored, and a
+group made only of them is not ranked; zero-valued parameters are flagged with their raw
+gradient. :mod:`sensaov_cli.outputs.tables` writes text, JSON and CSV from these types.
 
-A ranking at one cut (key, object or type) gives one table per objective whose every row
-carries what a reader needs to judge it: the score (the chosen aggregate), the signed sum Σc
-beside it, its sign, the row's share of the total response, the parameter's value (key rows),
-the trust label and, when cameras are given, the cameras that do not see it (off-frame). The
-columns are documented in docs/rankings.md. Object and type rankings rank the untrusted rest of
-each group apart, one ``left_out`` row per object or type that has any, under the same columns.
-
-The share is taken of Σc² over every ranked parameter, whatever ``--aggregate`` says: Σc² adds
-up over disjoint groups, so the shares of keys and of types each sum to 1, while an l2 or a
-signed sum would not (object shares may sum past 1: a shared parameter counts for each owner).
+A row's share is of Σc² over every ranked parameter, whatever ``--aggregate`` says: Σc² adds
+up over disjoint groups, so the shares of keys and of types each sum to 1 (object shares may
+sum past 1: a shared parameter counts for each owner).
 """
 
 from __future__ import annotations
@@ -42,18 +31,12 @@ from sensaov_cli.views.trusted import (
     weakest_trust,
     zero_valued,
 )
-from sensaov_cli.views.uncertainty import GroupError, Significance, Uncertainty
+from sensaov_cli.views.uncertainty import Significance, Uncertainty
 from sensaov_cli.vocabulary import ESTIMATORS, Aggregate, Cut, Grouping, Trust, Untrusted, Weight
 
 SUMMARY_FORMAT = "sensaov-summary"
-# 2: trust labels, the "no_gradient" list, ranked counts; 3: objects and types of trusted
-# parameters only ("untrusted", "left_out"), "zero_valued", and "zero_value" on parameters;
-# each parameter's estimator, and a repaired one's own standard error
 SUMMARY_VERSION = 3
 RANKING_FORMAT = "sensaov-ranking"
-# 2: standard errors, significance and stability; 3: Student-t significance, untrusted
-# parameters ranked apart (left_out), zero-valued parameters flagged, part and raw_signed,
-# each row's estimator
 RANKING_VERSION = 3
 # The grouping each cut reads: a key row is one parameter.
 GROUPING_OF: dict[Cut, Grouping] = {"key": "param", "object": "object", "type": "type"}
@@ -115,11 +98,8 @@ def rankings(
 ) -> tuple[Ranking, ...]:
     """The ranking of every objective (or of ``objectives``) at the cut ``by``.
 
-    With ``untrusted="apart"`` object and type rows add up trusted parameters only and the
-    untrusted rest of each group becomes a row of ``left_out``. ``visible`` maps a camera name
-    to the objects it sees; each row then lists the cameras that see none of its objects (for
-    a key: none of its owners; a key with no owner is off-frame everywhere).
-    Types have no place in a frame, so ``by="type"`` refuses cameras.
+    ``visible`` maps a camera to the objects it sees; each row then lists the cameras that see
+    none of its objects (a key: of its owners; a key with no owner is off-frame everywhere).
     """
     check_cut(by, cameras=visible is not None)
     names = [o.name for o in buf.objectives] if objectives is None else list(objectives)
@@ -156,58 +136,96 @@ def _ranking(
     top: int | None,
 ) -> Ranking:
     stats = key_stats(buf, objective, flowing, weight=cut.weight)
-    total_sq = math.fsum(s.sum_sq for s in stats.values())
     split = split_groups(buf, grouped, cut.untrusted)
     hidden = zero_valued(buf, objective, list(flowing)) if cut.weight == "value" else {}
     noise = Uncertainty.of(buf, objective, cut.method, cut.weight)
-    part = "all" if cut.untrusted == "include" else "trusted"
-
-    def rows(groups: Mapping[str, Sequence[str]], part: str, limit: int | None) -> list[RankRow]:
-        ordered = rank(scores(stats, groups, cut.method))
-        made = [
-            _row(buf, i, name, score, groups[name], stats, total_sq, cut, hidden, part)
-            for i, (name, score) in enumerate(ordered if limit is None else ordered[:limit], 1)
-        ]
-        if noise is not None:
-            made = [_with_errors(row, noise.error(groups[row.name], row.score)) for row in made]
-        elif cut.by == "key":  # without batches, a repaired parameter has its own seeds' error
-            made = [_with_repair_error(buf, objective, r, cut.method, cut.weight) for r in made]
-        return made
-
+    total_sq = math.fsum(s.sum_sq for s in stats.values())
+    table = _Table(buf, objective, cut, stats, total_sq, hidden, noise)
     stable = None if noise is None else noise.stability(rank(scores(stats, split.kept)), split.kept)
     return Ranking(
         objective=objective,
         objective_value=buf.objective(objective).value,
         by=cut.by,
-        rows=tuple(rows(split.kept, part, top)),
+        rows=table.rows(split.kept, "all" if cut.untrusted == "include" else "trusted", top),
         ranked=len(split.kept),
         total_signed=math.fsum(s.total for s in stats.values()),
         no_gradient=tuple(p for p in buf.params if p.trust == "no_gradient"),
         batches=None if noise is None else noise.batches,
         stability=None if stable is None else stable[0],
         stability_top=None if stable is None else stable[1],
-        left_out=tuple(rows(split.left_out, "untrusted", None)),
+        left_out=table.rows(split.left_out, "untrusted", None),
         untrusted=cut.untrusted,
         significance=None if noise is None else noise.significance,
         zero_valued=tuple(hidden.values()),
     )
 
 
-def _with_repair_error(
-    buf: SensitivityBuffer, objective: str, row: RankRow, method: Aggregate, weight: Weight
-) -> RankRow:
-    repaired = repair_error(buf, objective, row.name, row.signed, weight)
-    if repaired is None:
+@dataclass(frozen=True)
+class _Table:
+    """What every row of one objective's ranking is read from."""
+
+    buf: SensitivityBuffer
+    objective: str
+    cut: _Cut
+    stats: Mapping[str, KeyStats]
+    total_sq: float  # Σc² over every ranked parameter: what shares are of
+    hidden: Mapping[str, ZeroValued]
+    noise: Uncertainty | None
+
+    def rows(
+        self, groups: Mapping[str, Sequence[str]], part: str, limit: int | None
+    ) -> tuple[RankRow, ...]:
+        ordered = rank(scores(self.stats, groups, self.cut.method))[:limit]
+        return tuple(
+            self.row(i, name, s, groups[name], part) for i, (name, s) in enumerate(ordered, 1)
+        )
+
+    def row(self, index: int, name: str, score: float, keys: Sequence[str], part: str) -> RankRow:
+        buf, cut = self.buf, self.cut
+        group = [self.stats[k] for k in keys]
+        signed = math.fsum(s.total for s in group)
+        share = math.fsum(s.sum_sq for s in group) / self.total_sq if self.total_sq else 0.0
+        objects = buf.param(name).owners if cut.by == "key" else (name,)
+        zero = [self.hidden[k] for k in keys if k in self.hidden]
+        row = RankRow(
+            rank=index,
+            name=name,
+            score=score,
+            signed=signed,
+            share=share,
+            sign="+" if signed > 0 else "-" if signed < 0 else "0",
+            value=_mean_value(buf, name) if cut.by == "key" else None,
+            trust=weakest_trust(buf, keys),
+            off_frame=None if cut.visible is None else off_frame(objects, cut.visible),
+            part=part,
+            zero_value=bool(zero),
+            raw_signed=zero[0].raw_signed if cut.by == "key" and zero else None,
+            estimator=estimators(buf, keys),
+        )
+        if self.noise is not None:
+            error = self.noise.error(keys, score)
+            significant = error.significant(signed)
+            return replace(
+                row, score_se=error.score_se, signed_se=error.signed_se, significant=significant
+            )
+        if cut.by == "key":  # without batches, a repaired parameter has its own seeds' error
+            return self.with_repair_error(row)
         return row
-    repair, theta = buf.repairs[row.name], _theta(buf, row.name, weight)
-    score_se = {
-        "sum": repaired.signed_se,
-        "l2": repair.norm_error(objective, theta),
-        "rms": repair.norm_error(objective, theta) / math.sqrt(max(theta.size, 1)),
-    }[method]
-    return replace(
-        row, score_se=score_se, signed_se=repaired.signed_se, significant=repaired.significant
-    )
+
+    def with_repair_error(self, row: RankRow) -> RankRow:
+        objective, weight = self.objective, self.cut.weight
+        repaired = repair_error(self.buf, objective, row.name, row.signed, weight)
+        if repaired is None:
+            return row
+        repair, theta = self.buf.repairs[row.name], _theta(self.buf, row.name, weight)
+        score_se = {
+            "sum": repaired.signed_se,
+            "l2": repair.norm_error(objective, theta),
+            "rms": repair.norm_error(objective, theta) / math.sqrt(max(theta.size, 1)),
+        }[self.cut.method]
+        return replace(
+            row, score_se=score_se, signed_se=repaired.signed_se, significant=repaired.significant
+        )
 
 
 @dataclass(frozen=True)
@@ -233,49 +251,6 @@ def repair_error(
 def _theta(buf: SensitivityBuffer, key: str, weight: Weight) -> np.ndarray:
     """What a parameter's gradient is weighted by: its value, or ones."""
     return buf.value(key) if weight == "value" else np.ones(buf.param(key).shape)
-
-
-def _with_errors(row: RankRow, error: GroupError) -> RankRow:
-    return replace(
-        row,
-        score_se=error.score_se,
-        signed_se=error.signed_se,
-        significant=error.significant(row.signed),
-    )
-
-
-def _row(
-    buf: SensitivityBuffer,
-    index: int,
-    name: str,
-    score: float,
-    keys: Sequence[str],
-    stats: Mapping[str, KeyStats],
-    total_sq: float,
-    cut: _Cut,
-    hidden: Mapping[str, ZeroValued],
-    part: str,
-) -> RankRow:
-    group = [stats[k] for k in keys]
-    signed = math.fsum(s.total for s in group)
-    share = math.fsum(s.sum_sq for s in group) / total_sq if total_sq else 0.0
-    objects = buf.param(name).owners if cut.by == "key" else (name,)
-    zero = [hidden[k] for k in keys if k in hidden]
-    return RankRow(
-        rank=index,
-        name=name,
-        score=score,
-        signed=signed,
-        share=share,
-        sign="+" if signed > 0 else "-" if signed < 0 else "0",
-        value=_mean_value(buf, name) if cut.by == "key" else None,
-        trust=weakest_trust(buf, keys),
-        off_frame=None if cut.visible is None else off_frame(objects, cut.visible),
-        part=part,
-        zero_value=bool(zero),
-        raw_signed=zero[0].raw_signed if cut.by == "key" and zero else None,
-        estimator=estimators(buf, keys),
-    )
 
 
 def estimators(buf: SensitivityBuffer, keys: Sequence[str]) -> str:
@@ -398,6 +373,25 @@ def _objective_summary(
     hidden = zero_valued(buf, objective.name, list(ranked["param"])) if weight == "value" else {}
     objects = split_groups(buf, ranked["object"], untrusted)
     types = split_groups(buf, ranked["type"], untrusted)
+
+    def scored(grouped: Mapping[str, Sequence[str]], top: int | None) -> tuple[RankedGroup, ...]:
+        sums = scores(stats, grouped, "sum")
+        sum_rank = {name: i for i, (name, _) in enumerate(rank(sums), 1)}
+        return tuple(
+            RankedGroup(name, score, sums[name], sum_rank[name], weakest_trust(buf, grouped[name]),
+                        any(k in hidden for k in grouped[name]))
+            for name, score in rank(scores(stats, grouped, method), top)
+        )  # fmt: skip
+
+    def left_out(grouped: Mapping[str, Sequence[str]]) -> tuple[LeftOut, ...]:
+        """The untrusted part of each group, largest first, with each key and its label."""
+        sums = scores(stats, grouped, "sum")
+        return tuple(
+            LeftOut(name, score, sums[name], weakest_trust(buf, grouped[name]),
+                    tuple((k, buf.param(k).trust) for k in grouped[name]))
+            for name, score in rank(scores(stats, grouped, method))
+        )  # fmt: skip
+
     parameters = tuple(
         RankedParameter(
             buf.param(key),
@@ -413,44 +407,10 @@ def _objective_summary(
         untrusted,
         len(objects.kept),
         parameters,
-        _ranked_groups(buf, stats, objects.kept, method, top, hidden),
-        _ranked_groups(buf, stats, types.kept, method, None, hidden),
-        _left_out(buf, stats, objects.left_out, method),
-        _left_out(buf, stats, types.left_out, method),
+        scored(objects.kept, top),
+        scored(types.kept, None),
+        left_out(objects.left_out),
+        left_out(types.left_out),
         tuple(hidden.values()),
         tuple(p for p in buf.params if p.trust == "no_gradient"),
     )
-
-
-def _ranked_groups(
-    buf: SensitivityBuffer,
-    stats: Mapping[str, KeyStats],
-    grouped: Mapping[str, Sequence[str]],
-    method: Aggregate,
-    top: int | None,
-    hidden: Mapping[str, ZeroValued],
-) -> tuple[RankedGroup, ...]:
-    # The signed sum beside every score, with its own rank: a texture's l2 is about
-    # 1/sqrt(texels) of its sum, so l2 and sum can rank one group far apart (docs/encoding.md).
-    sums = scores(stats, grouped, "sum")
-    sum_rank = {name: i for i, (name, _) in enumerate(rank(sums), 1)}
-    return tuple(
-        RankedGroup(name, score, sums[name], sum_rank[name], weakest_trust(buf, grouped[name]),
-                    any(k in hidden for k in grouped[name]))
-        for name, score in rank(scores(stats, grouped, method), top)
-    )  # fmt: skip
-
-
-def _left_out(
-    buf: SensitivityBuffer,
-    stats: Mapping[str, KeyStats],
-    grouped: Mapping[str, Sequence[str]],
-    method: Aggregate,
-) -> tuple[LeftOut, ...]:
-    """The untrusted part of each group, largest first, with each key and its label."""
-    sums = scores(stats, grouped, "sum")
-    return tuple(
-        LeftOut(name, score, sums[name], weakest_trust(buf, grouped[name]),
-                tuple((k, buf.param(k).trust) for k in grouped[name]))
-        for name, score in rank(scores(stats, grouped, method))
-    )  # fmt: skip

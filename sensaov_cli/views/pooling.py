@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-POOL_KINDS = ("gaussian", "box", "mip", "none")
+from sensaov_cli.vocabulary import PoolKind
+
 # The default pools over about this many expected gradient samples per texel (see default_pool).
 TARGET_SAMPLES = 64.0
 MAX_RADIUS_FRACTION = 1 / 8  # never blur over more than an eighth of the texture by default
@@ -22,7 +23,7 @@ MAX_RADIUS_FRACTION = 1 / 8  # never blur over more than an eighth of the textur
 
 @dataclass(frozen=True)
 class Pool:
-    kind: str  # gaussian (radius = sigma), box (half-width), mip (log2 of the block), none
+    kind: PoolKind  # gaussian (radius = sigma), box (half-width), mip (log2 of the block), none
     radius: float
     chosen_by: str  # "job" or the rule that picked it
 
@@ -46,30 +47,43 @@ def default_pool(spp: int, pixels: int, size: tuple[int, int]) -> Pool:
 
 def white_noise_factor(pool: Pool) -> float:
     """How much pooling divides the standard deviation of independent per-texel noise away
-    from edges: sqrt(Σ w²) of the 2-D kernel. Texel noise is correlated (a bilinear lookup
-    spreads each gradient sample over four texels), so the measured reduction is smaller:
-    docs/texels.md gives it."""
+    from edges: sqrt(Σ w²) of the 2-D kernel, which is separable, so Σ w² of one axis. Texel
+    noise is correlated (a bilinear lookup spreads each gradient sample over four texels), so
+    the measured reduction is smaller: docs/texels.md gives it."""
     if pool.kind == "none" or pool.radius <= 0:
         return 1.0
     if pool.kind == "mip":
         return 1.0 / 2 ** int(round(pool.radius))
     impulse = np.zeros((1, 8 * int(math.ceil(3 * pool.radius)) + 9, 1))
     impulse[0, impulse.shape[1] // 2, 0] = 1.0
-    row = pool_field(np.repeat(impulse, 1, axis=0), Pool(pool.kind, pool.radius, ""), "repeat")
-    one_axis = float(np.sum(row[0, :, 0] ** 2))  # pooling a 1-row field spreads along x only
-    return math.sqrt(one_axis * one_axis)
+    row = pool_field(impulse, pool, "repeat")  # a 1-row field spreads along x only
+    return float(np.sum(row[0, :, 0] ** 2))
 
 
 def pool_field(field: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
     """``field`` (H, W, C) pooled; float64, same shape, same sum (to rounding)."""
-    data = np.asarray(field, np.float64)
+    return _pool(field, pool, wrap, 1)
+
+
+def pool_variance(variance: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
+    """The variance of :func:`pool_field`'s output for texels with independent errors of the
+    given ``variance`` (H, W, C): the same linear map with its weights squared."""
+    return _pool(variance, pool, wrap, 2)
+
+
+def _pool(values: np.ndarray, pool: Pool, wrap: str, power: int) -> np.ndarray:
+    data = np.asarray(values, np.float64)
     if pool.kind == "none" or pool.radius <= 0:
         return data.copy()
-    if pool.kind == "mip":
-        return _mip(data, 2 ** int(round(pool.radius)))
+    if pool.kind == "mip":  # a tile's mean; its variance: that of its sum over its area squared
+        block = 2 ** int(round(pool.radius))
+        pooled = _mip(data, block)
+        return pooled if power == 1 else pooled / _tile_sizes(data.shape[:2], block)
     kernel = _kernel(pool)
     # C order for the painting's reshape (the column pass leaves a transposed layout).
-    return np.ascontiguousarray(_scatter(_scatter(data, kernel, 0, wrap), kernel, 1, wrap))
+    return np.ascontiguousarray(
+        _scatter(_scatter(data, kernel, 0, wrap, power), kernel, 1, wrap, power)
+    )
 
 
 def _kernel(pool: Pool) -> np.ndarray:
@@ -77,25 +91,9 @@ def _kernel(pool: Pool) -> np.ndarray:
     if pool.kind == "gaussian":
         half = max(1, int(math.ceil(3 * pool.radius)))
         kernel = np.exp(-0.5 * (np.arange(-half, half + 1) / pool.radius) ** 2)
-    elif pool.kind == "box":
-        kernel = np.ones(2 * int(round(pool.radius)) + 1)
     else:
-        raise ValueError(f"unknown pool kind {pool.kind!r}; use one of {POOL_KINDS}")
+        kernel = np.ones(2 * int(round(pool.radius)) + 1)
     return kernel / kernel.sum()
-
-
-def pool_variance(variance: np.ndarray, pool: Pool, wrap: str) -> np.ndarray:
-    """The variance of :func:`pool_field`'s output for texels with independent errors of the
-    given ``variance`` (H, W, C): the same linear map with its weights squared."""
-    data = np.asarray(variance, np.float64)
-    if pool.kind == "none" or pool.radius <= 0:
-        return data.copy()
-    if pool.kind == "mip":  # a tile's mean: the variance of its sum over its area squared
-        block = 2 ** int(round(pool.radius))
-        return _mip(data, block) / _tile_sizes(data.shape[:2], block)
-    kernel = _kernel(pool)
-    squared = _scatter(_scatter(data, kernel, 0, wrap, 2), kernel, 1, wrap, 2)
-    return np.ascontiguousarray(squared)
 
 
 def _tile_sizes(size: tuple[int, int], block: int) -> np.ndarray:
@@ -106,9 +104,8 @@ def _tile_sizes(size: tuple[int, int], block: int) -> np.ndarray:
     return (rows[:, None] * cols[None, :])[..., None].astype(np.float64)
 
 
-# Kernels up to this many taps are summed tap by tap; longer ones (the default pool of a large
-# texture seen by few samples has hundreds of taps) by FFT, whose cost does not grow with the
-# kernel; near this many taps the two cost about the same.
+# Kernels up to this many taps are summed tap by tap, longer ones (hundreds, for a large texture
+# seen by few samples) by FFT, whose cost does not grow with the kernel.
 DIRECT_TAPS = 25
 
 
@@ -152,9 +149,9 @@ def _scatter_direct(moved: np.ndarray, weights: np.ndarray, circular: bool) -> n
 
 
 def _scatter_fourier(moved: np.ndarray, weights: np.ndarray, circular: bool) -> np.ndarray:
-    """:func:`_scatter_direct` by FFT along the first axis: the same sums to rounding (1e-16
-    of a column's largest value), with texels that no source reaches set to exactly 0, as the
-    tap-by-tap sums leave them (``seen_empty_after_pool`` counts those)."""
+    """:func:`_scatter_direct` by FFT along the first axis: the same sums to rounding, with
+    texels that no source reaches set to exactly 0 as the tap-by-tap sums leave them
+    (``seen_empty_after_pool`` counts those)."""
     n, half = moved.shape[0], len(weights) // 2
     if circular:
         length = n

@@ -2,19 +2,15 @@
 
 Ring 0 is the objective, a full disc. With the order ``object,type`` ring 1 holds the objects,
 ring 2 each object's parameter types and ring 3 the parameters (keys); ``type,object`` swaps
-rings 1 and 2. Every wedge is a group of keys scored with the chosen aggregate, and the
-siblings under one parent split the parent's angle in proportion to their scores' magnitudes:
-with l2 (or rms) a parent's score is not the sum of its children's, so "proportional" holds
-among siblings, which is what a reader compares. Angles are fractions of a turn, clockwise
-from the top, and numpy-free of drawing: :mod:`sensaov_cli.outputs.sunburst_drawing` draws them.
+rings 1 and 2. Siblings split their parent's angle in proportion to their scores' magnitudes
+(with l2 or rms a parent's score is not the sum of its children's: "proportional" holds among
+siblings, which is what a reader compares). Angles are fractions of a turn, clockwise from the
+top; :mod:`sensaov_cli.outputs.sunburst_drawing` draws them.
 
-As in the headline views (:mod:`.trusted`), a ring-1 group (an object, or a type) holds only the
-parameters the tool stands behind; the rest of it gets a sibling wedge of its own, named
-``"<name> (untrusted)"`` and hatched (``untrusted: include`` mixes them in instead).
-
-As in the rankings, only parameters a gradient flows to are drawn (``no_gradient`` ones are
-listed apart), a parameter shared by several objects sits under each of its owners, one that
-no object owns sits under :data:`SCENE_WIDE`, and a group that scores exactly 0 gets no wedge.
+A ring-1 group holds the trusted parameters only (:mod:`.trusted`); the rest of it gets a
+hatched sibling ``"<name> (untrusted)"``. As in the rankings, only parameters a gradient flows
+to are drawn, a shared parameter sits under each owner, one no object owns under
+:data:`SCENE_WIDE`, and a group that scores exactly 0 gets no wedge.
 """
 
 from __future__ import annotations
@@ -23,7 +19,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
-from sensaov_cli.buffer.model import SensitivityBuffer
+from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, combine, key_stats, rank
 from sensaov_cli.views.trusted import (
     ZeroValued,
@@ -102,25 +98,21 @@ def panels(
     )
 
 
-def _owners(buf: SensitivityBuffer, key: str) -> tuple[str, ...]:
-    return buf.param(key).owners or (SCENE_WIDE,)
+def _level(names: Callable[[ParamRecord], tuple[str, ...]]) -> Level:
+    """Keys grouped by ``names`` of their records, groups in order of first appearance."""
+
+    def group(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
+        found = dict.fromkeys(n for k in keys for n in names(buf.param(k)))
+        return {n: tuple(k for k in keys if n in names(buf.param(k))) for n in found}
+
+    return group
 
 
-def _by_object(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
-    owners = dict.fromkeys(o for k in keys for o in _owners(buf, k))
-    return {o: tuple(k for k in keys if o in _owners(buf, k)) for o in owners}
-
-
-def _by_type(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
-    types = dict.fromkeys(buf.param(k).type for k in keys)
-    return {t: tuple(k for k in keys if buf.param(k).type == t) for t in types}
-
-
-def _by_key(buf: SensitivityBuffer, keys: Sequence[str]) -> dict[str, tuple[str, ...]]:
-    return {k: (k,) for k in keys}
-
-
-_LEVELS: dict[str, Level] = {"object": _by_object, "type": _by_type}
+_LEVELS: dict[str, Level] = {
+    "object": _level(lambda p: p.owners or (SCENE_WIDE,)),
+    "type": _level(lambda p: (p.type,)),
+    "key": _level(lambda p: (p.key,)),
+}
 
 
 def _apart(level: Level, mode: Untrusted) -> Level:
@@ -150,7 +142,7 @@ def sunburst_wedges(
     rings = _Rings(buf, key_stats(buf, objective, keys, weight=weight), method,
                    Uncertainty.of(buf, objective, method, weight))  # fmt: skip
     first, second = order.split(",")
-    levels = [_apart(_LEVELS[first], untrusted), _LEVELS[second], _by_key]
+    levels = [_apart(_LEVELS[first], untrusted), _LEVELS[second], _LEVELS["key"]]
     centre = rings.wedge(keys, 0, (), 0.0, 1.0)
     wedges = [centre]
     _children(rings, centre, keys, levels, wedges)

@@ -1,31 +1,21 @@
 """Texels: a texture's field of contributions, pooled and painted where each camera shows it.
 
-The lookup follows Mitsuba 3.9's ``bitmap`` (checked against Mitsuba in tests/test_texels.py).
-A bitmap's value at a hit is Σ w_t(uv) θ_t over the texels t its filter touches, so the
-gradient of that texel flows back with the same weights: painting a texel field through the
-same weights puts each texel's sensitivity exactly where the texture shows it (§3 "Binding").
-``uv`` is first mapped by the affine ``to_uv``; row = v·H, column = u·W; ``bilinear`` blends
-the four texels whose centres surround ``uv·size - 0.5``, ``nearest`` takes the texel
-containing ``uv·size``; integer texel indices outside the texture are wrapped by ``repeat``
-(modulo), ``mirror`` (reflected with period 2·size) or ``clamp`` (to the edge texel).
+The lookup follows Mitsuba 3.9's ``bitmap`` (checked against Mitsuba in tests/test_texels.py):
+a hit reads Σ w_t(uv) θ_t, so each texel's gradient flows back with the same weights, and
+painting a texel field through them puts its sensitivity where the texture shows (§3
+"Binding"). ``uv`` is first mapped by the affine ``to_uv``; row = v·H, column = u·W;
+``bilinear`` blends the four texels whose centres surround ``uv·size - 0.5``, ``nearest``
+takes the texel containing ``uv·size``; indices outside are wrapped by ``repeat`` (modulo),
+``mirror`` (period 2·size) or ``clamp`` (edge texel).
 
-A texel field (per texture and objective, §3, §6) is camera-independent, like every channel's
-per-object values: computed once from the buffer, then painted into any camera through its hit
-UVs. A texel's contribution is ``c = θ·∂M/∂θ`` (``weight: value``) or ``∂M/∂θ`` (``raw``), per
-colour component, so the unpooled field sums exactly to the parameter's signed sum in the
-buffer; pooling (:mod:`.pooling`) keeps that sum. ``units: uv_area`` divides by a texel's UV
-area (1/(H·W)): a density that reads the same whatever the texture's resolution.
-
-Painted into one camera, a field gives Fig. 4's three panels:
-
-- ``object``: every owner of the texture painted with its object value Σ c over all its
-  parameters (the vertical cut of §3): the scale a whole material lives on.
-- ``texel``: the pooled texel field read at each sample's hit UV with the texture's own
-  filter, wrap and ``to_uv``, averaged with the coverage like every other channel; encoded with
-  the channel's sign, tone map and normalisation on its own scale (the texel peak).
-- ``joint``: the same field as each texel's share of its object's value, per unit UV area
-  (``c·H·W / V_object``): 1 everywhere means the object's whole value spread evenly over the
-  texture, so the panel sits on the object panel's scale (the paper's ``normalize: joint``).
+A texel field (per texture and objective, §3, §6) is camera-independent: c = θ·∂M/∂θ
+(``weight: value``) or ∂M/∂θ (``raw``) per component, so it sums to the parameter's signed sum
+in the buffer, which pooling (:mod:`.pooling`) keeps. ``units: uv_area`` divides by a texel's
+UV area (1/(H·W)): a density independent of the texture's resolution. Painted into one camera
+it gives Fig. 4's three panels: ``object`` (each owner's Σ c over all its parameters),
+``texel`` (the pooled field at each hit UV, encoded as the channel asks on the texel peak's
+scale) and ``joint`` (each texel's share of its object's value per unit UV area, c·H·W / V:
+1 everywhere is the object's value spread evenly, the paper's ``normalize: joint``).
 """
 
 from __future__ import annotations
@@ -89,13 +79,11 @@ def wrap_index(index: np.ndarray, size: int, mode: str) -> np.ndarray:
 def texel_weights(
     uv: np.ndarray, size: tuple[int, int], sampling: TextureSampling
 ) -> tuple[np.ndarray, np.ndarray]:
-    """For N hit UVs, the flat texel indices (N, k) and weights (N, k) the lookup reads.
-
-    k = 4 for bilinear, 1 for nearest; the weights of each hit sum to 1.
-    """
+    """For N hit UVs, the flat texel indices and weights the lookup reads: (N, 4) bilinear,
+    (N, 1) nearest; each hit's weights sum to 1."""
     col, row, fx, fy = _cells(uv, size, sampling)
-    cells = _nearest_index if fx is None else _corner_index
-    return cells(col, row, size, sampling.wrap), _corner_weights(fx, fy, len(col))
+    index = _texel_index(col, row, size, sampling.wrap, corners=fx is not None)
+    return index, _corner_weights(fx, fy, len(col))
 
 
 def _cells(
@@ -119,28 +107,23 @@ def _cells(
     return x0.astype(np.int64), y0.astype(np.int64), x - x0, y - y0
 
 
-def _corner_index(col: np.ndarray, row: np.ndarray, size: tuple[int, int], wrap: str) -> np.ndarray:
-    """(N, 4) flat texel indices of the bilinear cells at (``col``, ``row``), wrapped as
-    Mitsuba wraps: corners (r0,c0), (r0,c1), (r1,c0), (r1,c1)."""
+def _texel_index(
+    col: np.ndarray, row: np.ndarray, size: tuple[int, int], wrap: str, *, corners: bool
+) -> np.ndarray:
+    """Flat indices of the cells at (``col``, ``row``), wrapped: (N, 1) the texels themselves,
+    or (N, 4) the bilinear ``corners`` (r0,c0), (r0,c1), (r1,c0), (r1,c1)."""
     height, width = size
-    c0, c1 = wrap_index(col, width, wrap), wrap_index(col + 1, width, wrap)
-    r0, r1 = wrap_index(row, height, wrap) * width, wrap_index(row + 1, height, wrap) * width
+    c0, r0 = wrap_index(col, width, wrap), wrap_index(row, height, wrap) * width
+    if not corners:
+        return (r0 + c0)[:, None]
+    c1, r1 = wrap_index(col + 1, width, wrap), wrap_index(row + 1, height, wrap) * width
     index = np.empty((len(col), 4), np.int64)
     index[:, 0], index[:, 1], index[:, 2], index[:, 3] = r0 + c0, r0 + c1, r1 + c0, r1 + c1
     return index
 
 
-def _nearest_index(
-    col: np.ndarray, row: np.ndarray, size: tuple[int, int], wrap: str
-) -> np.ndarray:
-    """(N, 1) flat indices of the texels at (``col``, ``row``), wrapped."""
-    height, width = size
-    return (wrap_index(row, height, wrap) * width + wrap_index(col, width, wrap))[:, None]
-
-
 def _corner_weights(fx: np.ndarray | None, fy: np.ndarray | None, count: int) -> np.ndarray:
-    """(N, k) lookup weights: 1 for nearest, the four bilinear products in ``_corner_index``'s
-    order otherwise."""
+    """(N, k) lookup weights: 1 for nearest, else the bilinear products in corner order."""
     if fx is None or fy is None:
         return np.ones((count, 1))
     gx, gy = 1 - fx, 1 - fy
@@ -160,8 +143,7 @@ def lookup(texels: np.ndarray, uv: np.ndarray, sampling: TextureSampling) -> np.
 @dataclass(frozen=True)
 class Footprint:
     """How one camera sees one texture: per (pixel, texel, owner) the lookup weight summed over
-    the pixel's samples, divided by spp. Built once per texture and camera; every panel and
-    objective then paints with a gather and a bincount over these pairs, not over samples."""
+    the pixel's samples, divided by spp; every panel and objective paints from it."""
 
     size: tuple[int, int]  # (height, width) of the image
     texels: int  # H x W of the texture
@@ -209,21 +191,17 @@ def footprint(
     col, row, fx, fy = _cells(sample_uv.reshape(-1, 2)[hits], size, sampling)
     owner = position[objects[hits]]
     pixel = hits // spp
-    # Merge runs of samples of a pixel that read the same texels with the same owner (the
-    # common case: a pixel is smaller than a texel), summing their corner weights. Samples
-    # come in pixel order, so a run never spans two pixels; no sort is needed, and texels that
-    # repeat after others stay a second entry (paint sums entries: the same result). Runs are
-    # found on the cell before wrapping, which fixes every corner, so texel indices are
-    # computed per run, not per sample; neighbouring runs whose cells wrap onto the
-    # same texels (a seam, UVs past a clamped edge) are then joined, so the entries and their
-    # float32 sums are those of merging on the texels themselves.
+    # Merge runs of a pixel's samples that read the same texels with the same owner, summing
+    # their corner weights (samples come in pixel order: no sort; a texel that repeats after
+    # others stays a second entry, which paint sums alike). Runs are found on the unwrapped
+    # cell, so texel indices are computed per run; neighbouring runs whose cells wrap onto the
+    # same texels are then joined, so the float32 sums are those of merging on the texels.
     head = np.zeros(hits.size, dtype=bool)
     head[0] = True
     for part in (pixel, row, col, owner):
         head[1:] |= part[1:] != part[:-1]
     runs = np.flatnonzero(head)
-    cells = _nearest_index if fx is None else _corner_index
-    index = cells(col[runs], row[runs], size, sampling.wrap)
+    index = _texel_index(col[runs], row[runs], size, sampling.wrap, corners=fx is not None)
     same = np.all(index[1:] == index[:-1], axis=1)
     same &= (pixel[runs[1:]] == pixel[runs[:-1]]) & (owner[runs[1:]] == owner[runs[:-1]])
     first = np.concatenate(([True], ~same))
@@ -242,8 +220,8 @@ def footprint(
 
 
 def _owned(objects: np.ndarray, owners: np.ndarray, position: np.ndarray) -> np.ndarray:
-    """Which samples hit one of ``owners``: a comparison per owner for a few (a texture is
-    usually on one or two objects: faster than the gather), else through ``position``."""
+    """Which samples hit one of ``owners``: a comparison per owner for a few (faster than the
+    gather), else through ``position``."""
     if 0 < len(owners) <= 4 and int(owners.min()) >= 0:
         mask = objects == owners[0]
         for owner in owners[1:]:
@@ -269,13 +247,11 @@ class TexelField:
     signed_sum: float  # the buffer's Σ c for this parameter (what both fields sum to)
     object_values: Mapping[str, float]  # Σ c over all parameters of each owner (Fig. 4, left)
     notes: tuple[str, ...]
-    # Standard errors (buffers with statistics): of each texel's c, and of the pooled field
-    # for independent texel errors (docs/texels.md, "Standard errors"); None without.
+    # Standard errors of each texel's c and of the pooled field for independent texel errors
+    # (docs/texels.md, "Standard errors"); None without batch statistics.
     stderr: np.ndarray | None = None
     stderr_pooled: np.ndarray | None = None
 
-    # Cached: each camera's panels state these, and on a large texture each is a pass over
-    # millions of values.
     @functools.cached_property
     def pooled_sum(self) -> float:
         """The pooled field's exact sum, in the buffer's units (it conserves ``signed_sum``)."""
@@ -341,60 +317,45 @@ def texel_fields(
 ) -> list[TexelField]:
     """Every (objective, texture) field a texel channel asks for."""
     keys = texture_keys(buf, channel, index)
-    spp = int(buf.provenance.get("spp", 1))
     width, height = buf.provenance.get("resolution", [1, 1])
+    samples = int(buf.provenance.get("spp", 1)) * width * height
     fields = []
-    for objective in buf.objectives:
-        values = per_object(buf, objective.name, method="sum", weight=channel.weight)
+    for objective in (o.name for o in buf.objectives):
+        values = per_object(buf, objective, method="sum", weight=channel.weight)
         for key in keys:
             sampling = samplings.get(key, TextureSampling(note="no lookup settings: defaults"))
+            record = buf.param(key)
+            raw = buf.grad(objective, key).astype(np.float64)
+            if channel.weight == "value":
+                raw = raw * buf.value(key)
+            pool = default_pool(1, samples, (raw.shape[0], raw.shape[1]))
+            if channel.pool is not None:  # the job's kind, and its radius or the default one
+                radius = pool.radius if channel.pool.radius is None else channel.pool.radius
+                pool = Pool(channel.pool.kind, radius, "job")
+            factor = raw.shape[0] * raw.shape[1] if channel.units == "uv_area" else 1
+            stderr = stderr_pooled = None
+            if buf.statistics is not None:
+                stderr = buf.statistics.stderr[objective][key].astype(np.float64)
+                if channel.weight == "value":
+                    stderr = stderr * np.abs(buf.value(key))
+                stderr_pooled = np.sqrt(pool_variance(stderr**2, pool, sampling.wrap)) * factor
             fields.append(
-                _field(buf, objective.name, channel, key, sampling, values, spp * width * height)
+                TexelField(
+                    objective,
+                    channel,
+                    record,
+                    sampling,
+                    raw,
+                    pool_field(raw, pool, sampling.wrap) * factor,
+                    pool,
+                    math.fsum(raw.ravel()),
+                    {name: float(values[name]) for name in record.owners},
+                    _notes(record, sampling),
+                    stderr,
+                    stderr_pooled,
+                )
             )
     return fields
-
-
-def _field(
-    buf: SensitivityBuffer,
-    objective: str,
-    channel: ChannelSpec,
-    key: str,
-    sampling: TextureSampling,
-    object_values: Mapping[str, float],
-    samples: int,
-) -> TexelField:
-    record = buf.param(key)
-    raw = buf.grad(objective, key).astype(np.float64)
-    if channel.weight == "value":
-        raw = raw * buf.value(key)
-    size = (raw.shape[0], raw.shape[1])
-    pool = default_pool(1, samples, size)
-    if channel.pool is not None:  # the job's kind, and its radius or the default one
-        radius = pool.radius if channel.pool.radius is None else channel.pool.radius
-        pool = Pool(channel.pool.kind, radius, "job")
-    factor = raw.shape[0] * raw.shape[1] if channel.units == "uv_area" else 1
-    pooled = pool_field(raw, pool, sampling.wrap) * factor
-    owners = {name: float(object_values[name]) for name in record.owners}
-    stderr = stderr_pooled = None
-    if buf.statistics is not None:
-        stderr = buf.statistics.stderr[objective][key].astype(np.float64)
-        if channel.weight == "value":
-            stderr = stderr * np.abs(buf.value(key))
-        stderr_pooled = np.sqrt(pool_variance(stderr**2, pool, sampling.wrap)) * factor
-    return TexelField(
-        objective,
-        channel,
-        record,
-        sampling,
-        raw,
-        pooled,
-        pool,
-        math.fsum(raw.ravel()),
-        owners,
-        _notes(record, sampling),
-        stderr,
-        stderr_pooled,
-    )
 
 
 def _notes(record: ParamRecord, sampling: TextureSampling) -> tuple[str, ...]:
@@ -446,17 +407,15 @@ def texture_footprint(tf: TexelField, visibility: VisibilityPass) -> Footprint:
 
 def texel_passes(tf: TexelField, visibility: VisibilityPass, seen_by: Footprint) -> list[TexelPass]:
     """The three panels of ``tf`` in this camera, with what each one means in its metadata."""
-    names = owners_in(tf, visibility)
-    is_owner = np.array([1.0 if o in names else 0.0 for o in visibility.objects])
     seen = seen_by.seen(tf.raw.shape[:2])
     notes = list(tf.notes)
     if not seen.any():
         notes.append("no sample of this camera sees this texture (painted 0)")
     common = _common_metadata(tf, seen, notes)
     return [
-        _object_panel(tf, visibility, is_owner, common),
+        _object_panel(tf, visibility, common),
         _texel_panel(tf, seen_by, common),
-        _joint_panel(tf, seen_by, names, common),
+        _joint_panel(tf, seen_by, owners_in(tf, visibility), common),
     ]
 
 
@@ -468,12 +427,8 @@ def _common_metadata(tf: TexelField, seen: np.ndarray, notes: list[str]) -> dict
         "owners": ", ".join(tf.record.owners),
         "lookup": tf.sampling.describe(),
         "pool": tf.pool.describe(),
-        # Seed-to-seed noise σ is divided by this for independent texel noise; texel noise is
-        # correlated, so the measured reduction is smaller (docs/texels.md).
         "pool_white_noise_factor": repr(white_noise_factor(tf.pool)),
         "units": tf.channel.units,
-        # Pooled / unpooled standard error (median over texels), from the buffer's batches;
-        # "none" for a buffer without statistics (render.batches: 1, no shards).
         "stderr_reduction": "none" if tf.stderr_reduction is None else repr(tf.stderr_reduction),
         "signed_sum": repr(tf.signed_sum),
         "pooled_sum": repr(tf.pooled_sum),
@@ -495,21 +450,37 @@ def _as_layer_data(painted: np.ndarray) -> np.ndarray:
     return painted.sum(axis=2) if painted.shape[2] != 1 else painted[..., 0]
 
 
-def _object_panel(
-    tf: TexelField, visibility: VisibilityPass, is_owner: np.ndarray, common: dict[str, str]
+def _pass(
+    tf: TexelField,
+    common: dict[str, str],
+    panel: str,
+    data: np.ndarray,
+    scale: Scale,
+    meaning: str,
+    encoding: str,
+    panel_scale: str,
 ) -> TexelPass:
-    values = np.array([tf.object_values.get(name, 0.0) for name in visibility.objects])
-    painted = visibility.paint(values * is_owner)
-    peak = max((abs(v) for v in tf.object_values.values()), default=0.0)
+    """A panel's pass, its metadata in the order the layer records it."""
     meta = {
         **common,
-        "panel": "object",
-        "meaning": "Σ θ·∂M/∂θ over all parameters of each owner (weight as the channel)",
-        "encoding": "linear;signed",
-        "scale": Scale(0.0, 1.0).describe(),
-        "panel_scale": repr(peak),
+        "panel": panel,
+        "meaning": meaning,
+        "encoding": encoding,
+        "scale": scale.describe(),
+        "panel_scale": panel_scale,
     }
-    return TexelPass(_name(tf, "object"), "object", painted, Scale(0.0, 1.0), meta)
+    name = f"{tf.channel.name}_{texture_token(tf.record.key)}_{panel}"
+    return TexelPass(name, panel, data, scale, meta)
+
+
+def _object_panel(tf: TexelField, visibility: VisibilityPass, common: dict[str, str]) -> TexelPass:
+    # object_values holds the owners only: every other object paints 0
+    values = np.array([tf.object_values.get(name, 0.0) for name in visibility.objects])
+    peak = max((abs(v) for v in tf.object_values.values()), default=0.0)
+    meaning = "Σ θ·∂M/∂θ over all parameters of each owner (weight as the channel)"
+    painted = visibility.paint(values)
+    unscaled = Scale(0.0, 1.0)
+    return _pass(tf, common, "object", painted, unscaled, meaning, "linear;signed", repr(peak))
 
 
 def _texel_panel(tf: TexelField, seen_by: Footprint, common: dict[str, str]) -> TexelPass:
@@ -520,15 +491,8 @@ def _texel_panel(tf: TexelField, seen_by: Footprint, common: dict[str, str]) -> 
     scale = choose_scale(encoding, {"texel_peak": peak}, painted)
     data = encode_image(_as_layer_data(painted), encoding, scale.threshold, scale.scale)
     unit = "per unit UV area" if tf.channel.units == "uv_area" else "per texel"
-    meta = {
-        **common,
-        "panel": "texel",
-        "meaning": f"pooled θ·∂M/∂θ {unit} read at each hit UV (weight as the channel)",
-        "encoding": encoding.describe(),
-        "scale": scale.describe(),
-        "panel_scale": repr(peak),
-    }
-    return TexelPass(_name(tf, "texel"), "texel", data, scale, meta)
+    meaning = f"pooled θ·∂M/∂θ {unit} read at each hit UV (weight as the channel)"
+    return _pass(tf, common, "texel", data, scale, meaning, encoding.describe(), repr(peak))
 
 
 def _joint_panel(
@@ -539,21 +503,10 @@ def _joint_panel(
     inverse = [1.0 / tf.object_values[n] if tf.object_values[n] else 0.0 for n in names]
     painted = seen_by.paint(share, np.array(inverse))
     zero = [name for name, value in tf.object_values.items() if not value]
-    meta = {
-        **common,
-        "panel": "joint",
-        "meaning": "each texel's share of its object's value per unit UV area: Σ_rgb c·H·W / V",
-        "encoding": "linear;signed;normalize=joint",
-        "scale": Scale(0.0, 1.0).describe(),
-        "panel_scale": "1.0 (the object's whole value spread evenly over the texture)",
-    }
     if zero:
-        meta["notes"] = " | ".join(
-            filter(None, [meta["notes"], f"object value 0 for {', '.join(zero)}: painted 0"])
-        )
-    data = _as_layer_data(painted)
-    return TexelPass(_name(tf, "joint"), "joint", data, Scale(0.0, 1.0), meta)
-
-
-def _name(tf: TexelField, panel: str) -> str:
-    return f"{tf.channel.name}_{texture_token(tf.record.key)}_{panel}"
+        note = f"object value 0 for {', '.join(zero)}: painted 0"
+        common = {**common, "notes": " | ".join(filter(None, [common["notes"], note]))}
+    meaning = "each texel's share of its object's value per unit UV area: Σ_rgb c·H·W / V"
+    spread = "1.0 (the object's whole value spread evenly over the texture)"
+    data, encoding = _as_layer_data(painted), "linear;signed;normalize=joint"
+    return _pass(tf, common, "joint", data, Scale(0.0, 1.0), meaning, encoding, spread)

@@ -1,17 +1,14 @@
 """Forward channels and the transport view (§4, §7), computed from the buffer and its sidecar.
 
 A forward channel is J·v: the image's derivative along a pushed group S with direction v_S.
-The transport layer of S for an objective paints where that influence lands at the objective
-camera: T_p = Σ_c (∂M/∂I)_{p,c} · (J v_S)_{p,c}. Its sum over pixels equals ⟨g, v_S⟩ from the
-buffer when both passes ran at the same seed (forward/reverse duality), so every layer carries
-its own check: the residual |Σ_p T_p − ⟨g, v_S⟩| / |⟨g, v_S⟩| against
-:func:`~sensaov_cli.buffer.forward_sidecar.duality_tolerance` (1e-4, more where the buffer's float32
-sums over many samples round more).
+The transport layer of S paints where that influence lands at the objective camera:
+T_p = Σ_c (∂M/∂I)_{p,c} · (J v_S)_{p,c}, whose sum over pixels equals ⟨g, v_S⟩ from the buffer
+(forward/reverse duality at one seed), so every layer carries its residual against
+:func:`~sensaov_cli.buffer.forward_sidecar.duality_tolerance`.
 
-Two entries that push the same parameters at the same seed (a forward entry ``green.*`` and a
-transport channel's top object ``right_wall``, which owns it) are one pass: their layers would be
-bit-identical under two names, so each pass of each objective gives one layer, named after the
-first entry that asked for it, with the other names as ``aliases``.
+Entries that push the same parameters at the same seed are one pass: each pass of each
+objective gives one layer, named after the first entry that asked for it, the others as
+``aliases``.
 """
 
 from __future__ import annotations
@@ -19,7 +16,7 @@ from __future__ import annotations
 import difflib
 import fnmatch
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -123,9 +120,8 @@ def top_objects(buffer: SensitivityBuffer, objective: str, k: int, weight: str) 
 
 
 def unverified_keys(buffer: SensitivityBuffer, keys: Sequence[str]) -> tuple[str, ...]:
-    """As channels mark them: a parameter with no gradient flowing through it adds exactly 0.
-    A repaired one is marked too: the buffer's number is right, the forward pass's is the
-    reverse mode's twin, known wrong (docs/verification.md, "Repairs")."""
+    """As channels mark them (no_gradient adds exactly 0), and repaired ones too: the forward
+    pass is the reverse mode's twin, known wrong (docs/verification.md, "Repairs")."""
     return tuple(
         k
         for k in keys
@@ -165,7 +161,7 @@ def forward_views(buffer: SensitivityBuffer, data: ForwardData) -> list[ForwardV
                 p.failure,
                 layer.source,
                 aliases,
-            )  # fmt: skip
+            )
         )
     return views
 
@@ -173,14 +169,14 @@ def forward_views(buffer: SensitivityBuffer, data: ForwardData) -> list[ForwardV
 def transport_views(buffer: SensitivityBuffer, data: ForwardData) -> list[TransportView]:
     """Every transport layer whose forward pass exists, with its duality residual."""
     return [
-        replace(transport_view(buffer, data, layer), aliases=aliases)
+        transport_view(buffer, data, layer, aliases)
         for layer, aliases in merged_layers(data, "transport")
         if data.passes[layer.pass_index].image is not None
     ]
 
 
 def transport_view(
-    buffer: SensitivityBuffer, data: ForwardData, layer: ForwardLayer
+    buffer: SensitivityBuffer, data: ForwardData, layer: ForwardLayer, aliases: tuple[str, ...]
 ) -> TransportView:
     assert layer.objective is not None
     p = data.passes[layer.pass_index]
@@ -195,6 +191,7 @@ def transport_view(
     return TransportView(
         layer.objective, layer.name, per_pixel.astype(np.float32), p.keys, p.direction, p.seed,
         forward_sum, reverse, residual, tolerance, unverified_keys(buffer, p.keys), layer.source,
+        aliases,
     )  # fmt: skip
 
 

@@ -1,18 +1,13 @@
 """Which parameters the headline views add up: those the tool stands behind; the rest apart.
 
-An object's or a type's score in a headline view (the ``objects`` and ``types`` layers, the
-ranked objects and types, the sunburst's rings) is a sum over its parameters. A parameter whose
-gradient is not ``verified`` (``unverified``, ``biased``, ``suspect``) is a number the tool
-cannot stand behind, so by default (``untrusted: apart``) it is left out of its group and shown
-apart: its own layer, its own rows, its own hatched wedge, named per object. A parameter with
-``no_gradient`` adds exactly 0 and stays in. ``untrusted: include`` mixes everything in, with a
-mark, as before. The rule is documented in docs/encoding.md ("Trusted numbers"). A group shows
-the weakest label among its parameters; the rankings group only the parameters a gradient
-flows to.
+A headline view (the ``objects`` and ``types`` layers, ranked objects and types, the sunburst's
+rings) sums a group's parameters. One whose gradient is not ``verified`` is a number the tool
+cannot stand behind, so under ``untrusted: apart`` (the default) it is left out of its group and
+shown apart (its own layer, rows, hatched wedge); ``no_gradient`` adds exactly 0 and stays in;
+``untrusted: include`` mixes everything in, with a mark (docs/encoding.md, "Trusted numbers").
 
-The same views weight each gradient by its value (θ·∂M/∂θ), so a parameter whose value is
-exactly 0 scores 0 whatever its gradient: :func:`zero_valued` finds them, so every view can
-flag them with their raw gradient instead of ranking them as parameters that do not matter.
+Value weighting (θ·∂M/∂θ) scores a parameter valued exactly 0 as 0 whatever its gradient:
+:func:`zero_valued` finds them, so views flag them with their raw gradient instead.
 """
 
 from __future__ import annotations
@@ -76,12 +71,8 @@ class SplitGroups:
 def split_groups(
     buf: SensitivityBuffer, grouped: Mapping[str, Sequence[str]], mode: Untrusted
 ) -> SplitGroups:
-    """``grouped`` split by trust under ``mode`` (``apart`` or ``include``).
-
-    Under ``apart`` a group keeps its trusted keys; a group left with none (every parameter of
-    it is untrusted) is dropped from ``kept``, while a group that never had a key (an object
-    with nothing selected) keeps its empty row. Under ``include`` nothing is left out.
-    """
+    """``grouped`` split by trust under ``mode``: under ``apart`` a group left with no trusted
+    key is dropped from ``kept``, while one that never had a key keeps its empty row."""
     if mode == "include":
         return SplitGroups({name: tuple(keys) for name, keys in grouped.items()}, {})
     kept: dict[str, tuple[str, ...]] = {}

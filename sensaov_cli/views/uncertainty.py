@@ -18,7 +18,6 @@ import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.statistics import (
-    COLUMNS,
     PROJ_RAW,
     PROJ_VALUE,
     SIGNIFICANCE_LEVEL,
@@ -84,11 +83,7 @@ class Uncertainty:
 
     def batch_values(self, keys: Sequence[str], score: float) -> tuple[np.ndarray, np.ndarray]:
         """Per batch, the group's score and signed sum (their spp-weighted means: the group's)."""
-        rows = (
-            self.sums[[self.index[k] for k in keys]]
-            if keys
-            else np.zeros((0, self.batches, len(COLUMNS)))
-        )
+        rows = self.sums[[self.index[k] for k in keys]]  # (0, k, C) for no key: sums of 0
         value = self.weight == "value"
         signed = rows[:, :, SUM_VALUE if value else SUM_RAW].sum(axis=0)
         if self.method == "sum":
