@@ -2,32 +2,14 @@
 
 sensaov rewrites the scene before Mitsuba sees it, so the rewrite has to see what Mitsuba
 would: the reference is ``src/core/parser.cpp`` (``parse_xml_node``, ``substitute_parameters``,
-``parse_file_impl``), and what 3.9.1 was measured to do. What is done:
-
-- ``<include>`` is replaced by the included file's objects (a ``<scene>`` root) or by its root
-  object (any other root, under the include's ``name``). The file is found next to the including
-  file first, then in the folders of the files that include that one and the ``<path>``
-  folders declared so far; cycles are refused (Mitsuba would only stop at its depth limit,
-  which is kept: 15).
-- ``$name`` substitution runs on every attribute in document order, as
-  ``substitute_parameters`` does: one table is shared by the main file and every file it
-  includes, job arguments first, ``<default>`` adds a name only if it is absent (so defaults
-  leak out of included files), plain substring replacement longest name first, ``\\$`` escapes
-  a dollar. A ``$`` left over is an error at its file and line, and so is a job argument the
-  scene never uses (Mitsuba refuses both).
-- ``<path>`` adds a search folder; ``<alias>`` is resolved into the ``<ref>``s that use it.
-- Plugin file names (meshes, bitmaps, envmaps) are resolved the way Mitsuba resolves them at
-  instantiation: against the main file's folder and the main file's ``<path>`` folders, never
-  an included file's folder. A ``<spectrum filename>`` is resolved when it is read, with the
-  folders of the files that include its file (measured: not its own file's folder). Found
-  names are made absolute, so a scene loaded from a string resolves them the same.
-- Files of a format version below 2.0 get Mitsuba's upgrade (``transform_upgrade``), per
-  object by the version of the file it was read from, before the files are merged into one
-  text with a single version: property names camelCase -> snake_case,
-  ``diffuse.diffuse_reflectance`` -> ``reflectance``, ``uoffset``/``voffset``/``uscale``/
-  ``vscale`` -> a ``to_uv`` transform. What else 3.9.1 lacks of 0.5/0.6 is upgraded or
-  refused (legacy.py). Missing files, unknown elements and plugins, unsupported old
-  properties are gathered and reported together (``Refusals``, source.py).
+``parse_file_impl``), and what 3.9.1 was measured to do. Includes, ``$name`` arguments,
+``<path>`` and ``<alias>`` are expanded; plugin file names are resolved as Mitsuba resolves
+them at instantiation (against the main file's folder and its ``<path>`` folders, never an
+included file's folder) and made absolute, so a scene loaded from a string resolves them the
+same. Files of a format version below 2.0 get Mitsuba's upgrade (``transform_upgrade``), per
+object by the version of the file it was read from, and what else 3.9.1 lacks of 0.5/0.6 is
+upgraded or refused (legacy.py). Missing files, unknown elements and plugins, unsupported old
+properties are gathered and reported together (``Refusals``, source.py).
 """
 
 from __future__ import annotations
@@ -166,12 +148,17 @@ class _Expansion:
             )
             parent.remove(element)
             return
-        handler = _DIRECTIVES.get(element.tag)
-        if handler is not None:
+        if element.tag in ("include", "default", "path", "alias"):
             index = list(parent).index(element)
             parent.remove(element)
-            for offset, replacement in enumerate(handler(self, element, context, at_root)):
-                parent.insert(index + offset, replacement)
+            if element.tag == "include":
+                parent[index:index] = self._include(element, context)
+            elif element.tag == "default":
+                self._default(element)
+            elif element.tag == "path":
+                self._path(element, context, at_root)
+            else:
+                self._alias(element)
             return
         if is_object(element):
             self._register(element)
@@ -202,7 +189,10 @@ class _Expansion:
             self.files.append(resolved)
             element.set("filename", str(resolved))
 
-    def _include(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+    def _include(self, element: ET.Element, context: _Context) -> list[ET.Element]:
+        """The file is looked for next to the including file, then in the folders of the files
+        that include that one and the ``<path>`` folders so far; a cycle is refused (Mitsuba
+        would only stop at its depth limit, which is kept)."""
         name = _required(element, "filename")
         folders = context.here()
         try:
@@ -221,14 +211,13 @@ class _Expansion:
             root.set("name", element.get("name", ""))
         return [root]
 
-    def _default(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+    def _default(self, element: ET.Element) -> None:
         name = _required(element, "name")
         if not name:
             raise SceneError("<default>: name must be non-empty", where=where(element))
         self.parameters.default(name, _required(element, "value"), where(element))
-        return []
 
-    def _path(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+    def _path(self, element: ET.Element, context: _Context, at_root: bool) -> None:
         if not at_root:
             raise SceneError("<path> can only be a child of the root element", where=where(element))
         value = _required(element, "value")
@@ -236,9 +225,8 @@ class _Expansion:
         if not _exists(folder, where(element)):
             raise SceneError(f'<path>: folder "{shorten(value)}" not found', where=where(element))
         context.resolver.insert(0, folder)
-        return []
 
-    def _alias(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+    def _alias(self, element: ET.Element) -> None:
         source, alias = _required(element, "id"), _required(element, "as")
         if alias in self.ids:
             raise SceneError(f'alias destination id "{alias}" already exists', where=where(element))
@@ -250,18 +238,10 @@ class _Expansion:
             )
         self.aliases[alias] = self.aliases.get(source, source)
         self.ids[alias] = where(element)
-        return []
 
 
 _TAG_HINTS = {
     "shapegroup": 'write <shape type="shapegroup" id="..."> (the 0.6 <shapegroup> tag is gone)',
-}
-
-_DIRECTIVES = {
-    "include": _Expansion._include,
-    "default": _Expansion._default,
-    "path": _Expansion._path,
-    "alias": _Expansion._alias,
 }
 
 
@@ -362,7 +342,12 @@ class _Parameter:
 
 
 class Parameters:
-    """Mitsuba's SortedParameters: one table for the main file and all its includes."""
+    """Mitsuba's SortedParameters: one table for the main file and all its includes.
+
+    Job arguments come first; a ``<default>`` adds a name only where it is absent (so defaults
+    leak out of included files); substitution is plain substring replacement, longest name
+    first, on every attribute in document order; ``\\$`` escapes a dollar.
+    """
 
     def __init__(self, scene_args: Mapping[str, object]) -> None:
         # Mitsuba turns every keyword argument into text with Python's str().

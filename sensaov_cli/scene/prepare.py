@@ -233,11 +233,7 @@ def _cameras(
     if resolution is not None:
         set_film_size(root, sensor, resolution)
     check_film_size(root, sensor, "objective camera")
-    key = "inspection camera {!r}: sensor"
-    return sensor, {
-        cam.name: add_inspection_sensor(root, cam, sensor, path, key.format(cam.name))
-        for cam in inspection
-    }
+    return sensor, {cam.name: add_inspection_sensor(root, cam, sensor, path) for cam in inspection}
 
 
 def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: Path) -> str:
@@ -297,9 +293,8 @@ def _bitmap_options(root: ET.Element) -> dict[str, tuple[str, str, str]]:
         )
         name = Path(filename).name
         if name in options and options[name][:2] != found:
-            first = options[name]
             note = f"{name} is used with several filter/wrap settings; the first is shown"
-            options[name] = (first[0], first[1], note)
+            options[name] = (*options[name][:2], note)
         else:
             options.setdefault(name, (*found, ""))
     return options

@@ -59,12 +59,13 @@ def choose_sensor(
 
 
 def add_inspection_sensor(
-    root: ET.Element, camera: CameraSpec, objective: ET.Element, path: Path, where: str
+    root: ET.Element, camera: CameraSpec, objective: ET.Element, path: Path
 ) -> str:
     """A sensor of its own for each inspection camera, so resolution overrides stay local."""
     if camera.look_at is not None:
         source = _add_look_at_sensor(root, camera, objective)
     else:
+        where = f"inspection camera {camera.name!r}: sensor"
         chosen = objective if camera.objective else choose_sensor(root, camera, path, where)
         source = detached_copy(chosen)
         root.append(source)
