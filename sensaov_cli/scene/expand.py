@@ -24,15 +24,13 @@ from pathlib import Path
 from sensaov_cli.errors import SceneError
 from sensaov_cli.limits import regular_file
 from sensaov_cli.scene.declared_sizes import check_declared_size
-from sensaov_cli.scene.legacy import refuse_unknown_plugins, srgb_element, upgrade_object
+from sensaov_cli.scene.legacy import refuse_unknown_plugins, srgb_element, upgrade_legacy
 from sensaov_cli.scene.source import (
     OBJECT_TAGS,
     Change,
     Refusals,
     is_object,
-    new_element,
     read_xml,
-    source_file,
     user_attributes,
     where,
 )
@@ -406,66 +404,3 @@ def _refuse_unresolved(value: str, origin: str) -> None:
             hint=f"set it in the job (scene_args: {{{name_text}: ...}}) "
             f'or give the scene a <default name="{name_text}" value="..."/>',
         )
-
-
-# --- Mitsuba's upgrade of files older than format 2.0 ---------------------------------
-
-_UV_NAMES = ("uoffset", "voffset", "uscale", "vscale")
-
-
-def upgrade_legacy(
-    root: ET.Element, legacy_files: set[str], changes: list[Change], refusals: Refusals
-) -> None:
-    """Upgrade every object read from one of ``legacy_files`` (paths as read): Mitsuba's own
-    renaming, then what 3.9.1 lacks of 0.5/0.6 (legacy.py), listed in ``changes``."""
-    if not legacy_files:
-        return
-    for element in list(root.iter()):
-        if is_object(element) and source_file(element) in legacy_files:
-            _upgrade(element)
-            upgrade_object(element, changes, refusals)
-
-
-def snake_case(name: str) -> str:
-    """Mitsuba's camel_to_underscore_case, character for character."""
-    out: list[str] = []
-    i = 0
-    while i < len(name):
-        if i > 0 and name[i - 1].islower() and name[i].isupper():
-            out.append("_" + name[i].lower())
-            while i + 1 < len(name) and name[i + 1].isupper():
-                i += 1
-                out.append(name[i].lower())
-        else:
-            out.append(name[i])
-        i += 1
-    return "".join(out)
-
-
-def _upgrade(element: ET.Element) -> None:
-    # A child's name is a property of this object, so this object's file version decides.
-    for child in element:
-        if child.get("name"):
-            child.set("name", snake_case(child.get("name", "")))
-    if element.tag == "bsdf" and element.get("type") == "diffuse":
-        for child in element:
-            if child.get("name") == "diffuse_reflectance":
-                child.set("name", "reflectance")
-    _uv_transform(element)
-
-
-def _uv_transform(element: ET.Element) -> None:
-    found = {c.get("name"): c for c in element if c.get("name") in _UV_NAMES}
-    if not found:
-        return
-    for child in found.values():
-        element.remove(child)
-    first = next(iter(found.values()))
-    values = {name: child.get("value", "") for name, child in found.items()}
-    transform = new_element("transform", {"name": "to_uv"}, like=first)
-    # Mitsuba builds scale(s) * translate(o): the translation applies first, as written here.
-    offset = {axis: values[n] for axis, n in (("x", "uoffset"), ("y", "voffset")) if n in values}
-    scale = {axis: values[n] for axis, n in (("x", "uscale"), ("y", "vscale")) if n in values}
-    transform.append(new_element("translate", offset, like=first))
-    transform.append(new_element("scale", scale, like=first))
-    element.append(transform)

@@ -2,24 +2,12 @@
 
 sensaov replaces the scene's integrator by a path-replay one (``prb``, or ``prbvolpath`` where
 the scene renders participating media), because Mitsuba's ``path`` needs memory that grows with
-spp under AD. The replay renders what the scene renders:
-
-- an integrator that only wraps another (``moment``, ``stokes``, an ``aov`` with a nested
-  integrator, Mitsuba 0.5's ``adaptive``, ``irrcache``, ``multichannel``) is unwrapped: its
-  image is the nested one's;
-- the depth is the scene's (its ``max_depth``, or the plugin's default) unless the job sets
-  ``render.max_depth``; ``direct`` is one bounce (depth 2), which is what prb renders there;
-- the scene's ``hide_emitters`` and ``rr_depth`` are kept;
-- path-space estimators of the same light transport that Mitsuba 3 does not have (0.5's
-  ``guided_path``, ``bdpt``, ``pssmlt``, ``photonmapper``, …) become the path tracer with the
-  scene's depth, with media where the scene has them;
-- an integrator that renders something else (``depth``, ``aov`` alone, 0.5's ``ao``) is
-  replaced all the same, and said to render another image.
-
-Every change is returned as a :class:`Change`; one that alters the image (another depth, other
-light transport) says so. Where the job changes the depth, the plan carries the replay at the
-scene's own depth, so that the effect can be measured by rendering both at one seed
-(``render/adjoint.py``, ``depth_effect``).
+spp under AD. The replay renders what the scene renders: a wrapper is unwrapped, the depth is
+the scene's (``direct`` is prb at depth 2) unless the job sets ``render.max_depth``, and
+``hide_emitters`` and ``rr_depth`` are kept. An integrator that renders something else
+(``depth``, ``aov`` alone, 0.5's ``ao``) is replaced all the same, and said to alter the image.
+Where the job changes the depth, the plan carries the replay at the scene's own depth, so that
+the effect can be measured by rendering both at one seed (``render/adjoint.py``).
 """
 
 from __future__ import annotations
@@ -57,8 +45,9 @@ class IntegratorPlan:
     max_depth: int  # what the replay renders; -1 unbounded
     scene_max_depth: int  # what the scene renders; -1 unbounded
     same_transport: bool  # the replay renders the scene's light transport
-    scene_image: dict[str, object] | None  # where the job changes the depth: the replay at the
-    # scene's depth, as a Mitsuba dict
+    scene_image: (
+        dict[str, object] | None
+    )  # the replay at the scene's depth, where the job changes it
     changes: tuple[Change, ...]
 
 
@@ -69,7 +58,7 @@ def plan_integrator(root: ET.Element, job_max_depth: int | None) -> IntegratorPl
     changes: list[Change] = []
     user = _unwrapped(written, changes)
     kind = user.get("type", "path") if user is not None else "path"
-    has_media = _media_in_image(root)
+    has_media = next(root.iter("medium"), None) is not None
     scene_depth = _scene_depth(user, kind)
     depth = scene_depth if job_max_depth is None else job_max_depth
     replay = "prbvolpath" if kind in _VOLUMETRIC or (kind in _LEGACY and has_media) else "prb"
@@ -140,10 +129,6 @@ def _scene_image(replay: str, scene_depth: int, user: ET.Element | None) -> dict
         elif text is not None and text.strip().isdigit():
             plugin[name] = int(text)
     return plugin
-
-
-def _media_in_image(root: ET.Element) -> bool:
-    return any(True for _ in root.iter("medium"))
 
 
 def _refuse_camera_in_medium(root: ET.Element) -> None:

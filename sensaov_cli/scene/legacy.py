@@ -14,7 +14,7 @@ import re
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 
-from sensaov_cli.scene.source import MITSUBA, Change, Refusals, new_element, where
+from sensaov_cli.scene.source import MITSUBA, Change, Refusals, is_object, new_element, where
 
 # (tag, 0.5 type) -> (3.9.1 type, why, alters the image)
 _RENAMED_PLUGINS = {
@@ -50,10 +50,60 @@ _IOR_OWNERS = ("dielectric", "thindielectric", "roughdielectric", "plastic", "ro
 _DISTRIBUTIONS = {"phong": "beckmann", "as": "ggx"}
 _SUN_APERTURE = 0.5358  # degrees: Mitsuba 3's default sun_aperture, 0.5's sunRadiusScale 1
 _SRGB_LIKE = ("-1", "2.2")  # gamma values that are the sRGB curve 3.9.1 applies by default
+_UV_NAMES = ("uoffset", "voffset", "uscale", "vscale")
 
 
-def upgrade_object(element: ET.Element, changes: list[Change], refusals: Refusals) -> None:
-    """Upgrade one object read from a 0.5/0.6 file (properties already snake_case)."""
+def upgrade_legacy(
+    root: ET.Element, legacy_files: set[str], changes: list[Change], refusals: Refusals
+) -> None:
+    """Upgrade every object read from one of ``legacy_files`` (paths as read): Mitsuba's own
+    renaming first, then what 3.9.1 lacks of 0.5/0.6, listed in ``changes``."""
+    for element in list(root.iter()):
+        if is_object(element) and where(element).rpartition(":")[0] in legacy_files:
+            _mitsuba_upgrade(element)
+            _upgrade_object(element, changes, refusals)
+
+
+def _mitsuba_upgrade(element: ET.Element) -> None:
+    # A child's name is a property of this object, so this object's file version decides.
+    diffuse = element.tag == "bsdf" and element.get("type") == "diffuse"
+    for child in element:
+        if child.get("name"):
+            child.set("name", snake_case(child.get("name", "")))
+        if diffuse and child.get("name") == "diffuse_reflectance":
+            child.set("name", "reflectance")
+    found = {c.get("name"): c for c in element if c.get("name") in _UV_NAMES}
+    if not found:
+        return
+    for child in found.values():
+        element.remove(child)
+    first = next(iter(found.values()))
+    transform = new_element("transform", {"name": "to_uv"}, like=first)
+    # Mitsuba builds scale(s) * translate(o): the translation applies first, as written here.
+    for tag, names in (("translate", ("uoffset", "voffset")), ("scale", ("uscale", "vscale"))):
+        axes = zip("xy", names, strict=True)
+        values = {axis: found[name].get("value", "") for axis, name in axes if name in found}
+        transform.append(new_element(tag, values, like=first))
+    element.append(transform)
+
+
+def snake_case(name: str) -> str:
+    """Mitsuba's camel_to_underscore_case, character for character."""
+    out: list[str] = []
+    i = 0
+    while i < len(name):
+        if i > 0 and name[i - 1].islower() and name[i].isupper():
+            out.append("_" + name[i].lower())
+            while i + 1 < len(name) and name[i + 1].isupper():
+                i += 1
+                out.append(name[i].lower())
+        else:
+            out.append(name[i])
+        i += 1
+    return "".join(out)
+
+
+def _upgrade_object(element: ET.Element, changes: list[Change], refusals: Refusals) -> None:
     _rename_plugin(element, changes)
     kind = element.get("type", "")
     for name in _DROPPED.get(kind, ()):
