@@ -1,11 +1,10 @@
 """Mitsuba 0.5/0.6 constructs that Mitsuba 3.9.1 does not read: upgraded, or refused, listed.
 
-Mitsuba 3 upgrades old files only by renaming camelCase properties (expand.py). Scenes
-exported for 0.5/0.6 (Bitterli's interiors, say) also use plugins and properties that 3.9.1
-refuses; each is upgraded here where Mitsuba 3 has a counterpart, with a :class:`Change` naming
-the file and line, or refused where it has none, gathered so that one pass reports them all.
-Which properties 3.9.1 refuses was measured by loading each plugin with each 0.5 property
-(tests/test_legacy.py repeats it). A change that can alter the image says so.
+Mitsuba 3 upgrades old files only by renaming camelCase properties. Scenes exported for 0.5/0.6
+(Bitterli's interiors, say) also use plugins and properties that 3.9.1 refuses; each is
+upgraded where Mitsuba 3 has a counterpart, with a :class:`Change` at its file and line, or
+refused where it has none. Which properties 3.9.1 refuses was measured by loading each plugin
+with each 0.5 property (tests/test_legacy.py repeats it).
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ from pathlib import Path
 from sensaov_cli.errors import SceneError
 from sensaov_cli.job.spec import CameraSpec
 from sensaov_cli.scene.naming import child_value, objects_by_id
+from sensaov_cli.scene.sharing import replace_ref
 from sensaov_cli.scene.source import detached_copy, where
 
 OBJECTIVE_SENSOR_ID = "sensaov_objective"
@@ -95,11 +96,7 @@ def own_film(root: ET.Element, sensor: ET.Element) -> ET.Element:
         return ET.SubElement(sensor, "film", {"type": "hdrfilm"})
     ref = next(c for c in sensor if c.tag == "ref" and c.get("id") == shared.get("id"))
     film = detached_copy(shared)
-    film.attrib.pop("name", None)
-    if ref.get("name"):
-        film.set("name", ref.get("name", ""))
-    sensor.insert(list(sensor).index(ref), film)
-    sensor.remove(ref)
+    replace_ref(sensor, ref, film)
     return film
 
 
