@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import math
 import os
 import re
 import xml.etree.ElementTree as ET
@@ -316,9 +315,7 @@ def _refuse_non_finite_numbers(root: ET.Element) -> None:
     Mitsuba reads ``nan`` and ``inf`` (and ``1e39``, infinite as float32) wherever a number
     goes, and loads the scene; the run would then fail at the first objective, blaming it.
     """
-    for element in root.iter():
-        if element.tag not in _VALUE_TAGS:
-            continue
+    for element in (e for e in root.iter() if e.tag in _VALUE_TAGS):
         for attribute, text in user_attributes(element):
             if attribute in _NOT_NUMBERS:
                 continue
@@ -339,4 +336,4 @@ def _not_finite(token: str) -> bool:
         value = float(token)
     except ValueError:
         return False  # not a number at all: Mitsuba says so itself
-    return not math.isfinite(value) or abs(value) > FLOAT32_MAX
+    return not abs(value) <= FLOAT32_MAX  # NaN too

@@ -35,19 +35,10 @@ _MITSUBA_LOCATION = re.compile(
 MAX_XML_BYTES = 256 << 20  # far above any scene file; /dev/zero or a disk image is refused
 _LONG_QUOTED = re.compile(r'"([^"]{61,})"')  # a long value Mitsuba echoes, shown shortened
 _MITSUBA_SOURCE_TAG = re.compile(r"\[[\w.]+:\d+\]\s*")  # "[parser.cpp:451] "
-_ATTRIBUTE_ESCAPES = str.maketrans(
-    {
-        "&": "&amp;",
-        "<": "&lt;",
-        '"': "&quot;",
-        "\n": "&#10;",
-        "\r": "&#13;",
-        "\t": "&#9;",
-        # Mitsuba substitutes parameters again on the text it is given: a literal "$" left by the
-        # expansion (the user wrote "\$") must reach it escaped.
-        "$": "\\$",
-    }
-)
+_XML_ESCAPES = {"&": "&amp;", "<": "&lt;", '"': "&quot;"} | {c: f"&#{ord(c)};" for c in "\n\r\t"}
+# Mitsuba substitutes parameters again on the text it is given: a literal "$" left by the
+# expansion (the user wrote "\$") must reach it escaped.
+_ATTRIBUTE_ESCAPES = str.maketrans({**_XML_ESCAPES, "$": "\\$"})
 
 
 def is_object(element: ET.Element) -> bool:
