@@ -37,7 +37,7 @@ from sensaov_cli.scene.source import (
 
 MAX_INCLUDE_DEPTH = 15  # Mitsuba's ParserConfig.max_include_depth
 # Every tag Mitsuba 3.9.1's parser knows (interpret_tag); any other is "an unsupported XML
-# element" to it, the 0.6 <shapegroup> included. Objects are scene_source.OBJECT_TAGS.
+# element" to it, the 0.6 <shapegroup> included.
 _KNOWN_TAGS = OBJECT_TAGS | frozenset(
     "boolean integer float string point vector rgb spectrum transform"
     " translate rotate scale lookat matrix ref include alias default path".split()
@@ -136,8 +136,7 @@ class _Expansion:
     ) -> None:
         self._attributes(element)
         if element.tag == "srgb" and str(context.path) in self.legacy:
-            change = srgb_element(element, self.refusals)
-            self.changes += [change] if change is not None else []
+            srgb_element(element, self.changes, self.refusals)
         if element.tag not in _KNOWN_TAGS:
             self.refusals.add(
                 f"<{element.tag}> is not an element Mitsuba 3 reads",
@@ -335,8 +334,7 @@ class _Parameter:
     key: str  # "$name"
     value: str
     origin: str
-    used: bool  # Mitsuba's flag: a job argument never used is an error, a default never is
-    substituted: bool = False
+    substituted: bool = False  # a job argument never substituted is an error, a default never
 
 
 class Parameters:
@@ -349,13 +347,13 @@ class Parameters:
 
     def __init__(self, scene_args: Mapping[str, object]) -> None:
         # Mitsuba turns every keyword argument into text with Python's str().
-        given = [_Parameter(f"${k}", str(v), "job", False) for k, v in scene_args.items()]
+        given = [_Parameter(f"${k}", str(v), "job") for k, v in scene_args.items()]
         self.table = sorted(given, key=lambda p: -len(p.key))
 
     def default(self, name: str, value: str, origin: str) -> None:
         if any(p.key == f"${name}" for p in self.table):
             return  # job arguments and earlier defaults win
-        new = _Parameter(f"${name}", value, origin, True)
+        new = _Parameter(f"${name}", value, origin)
         shorter = (i for i, p in enumerate(self.table) if len(new.key) > len(p.key))
         self.table.insert(next(shorter, len(self.table)), new)  # longest names first
 
@@ -367,7 +365,7 @@ class Parameters:
                     pos += len(param.key)
                 else:
                     value = value[:pos] + param.value + value[pos + len(param.key) :]
-                    param.used = param.substituted = True
+                    param.substituted = True
                     pos += len(param.value)
                 pos = value.find(param.key, pos)
         _refuse_unresolved(value, origin)
@@ -378,9 +376,9 @@ class Parameters:
         return {p.key[1:]: SceneArgument(p.value, p.origin) for p in self.table if p.substituted}
 
     def refuse_unused(self, path: Path) -> None:
-        unused = [p.key[1:] for p in self.table if p.origin == "job" and not p.used]
+        unused = [p.key[1:] for p in self.table if p.origin == "job" and not p.substituted]
         if unused:
-            known = sorted(p.key[1:] for p in self.table if p.used)
+            known = sorted(p.key[1:] for p in self.table if p.key[1:] not in unused)
             raise SceneError(
                 f"scene argument {unused[0]!r} is not used by the scene",
                 where=str(path),

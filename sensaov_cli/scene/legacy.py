@@ -321,7 +321,7 @@ _RULES: dict[str, tuple[Callable[[ET.Element, list[Change]], None], ...]] = {
 }
 
 
-def srgb_element(element: ET.Element, refusals: Refusals) -> Change | None:
+def srgb_element(element: ET.Element, changes: list[Change], refusals: Refusals) -> None:
     """A 0.5 ``<srgb>`` colour (gamma-encoded, or #rrggbb) as the linear ``<rgb>`` of 3.9.1."""
     text = element.get("value", "").strip()
     try:
@@ -331,12 +331,12 @@ def srgb_element(element: ET.Element, refusals: Refusals) -> Change | None:
             encoded = [float(part) for part in re.split(r"[,\s]+", text) if part]
     except ValueError:
         refusals.add(f"<srgb> value {text[:60]!r} is not a colour", where(element))
-        return None
+        return
     linear = [c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4 for c in encoded]
     element.tag = "rgb"
     element.set("value", ", ".join(f"{c:.6g}" for c in linear))
     why = f"{MITSUBA} has no <srgb>: the colour is decoded to the linear RGB <rgb> takes"
-    return Change(f"<srgb> {text} -> <rgb> {element.get('value')}", why, where(element))
+    changes.append(Change(f"<srgb> {text} -> <rgb> {element.get('value')}", why, where(element)))
 
 
 # Every plugin Mitsuba 3.9.1 has, by tag (its plugins folder, and the Python integrators);
