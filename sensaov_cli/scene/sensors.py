@@ -140,26 +140,17 @@ def _child_object(root: ET.Element, sensor: ET.Element, tag: str) -> ET.Element 
     return next((target for target in refs if target is not None and target.tag == tag), None)
 
 
-def _vector(values: tuple[float, float, float]) -> str:
-    return ", ".join(repr(float(v)) for v in values)
-
-
 def _add_look_at_sensor(
     root: ET.Element, camera: CameraSpec, template: ET.Element | None
 ) -> ET.Element:
-    assert camera.look_at is not None
+    look_at = camera.look_at
+    assert look_at is not None
     sensor = ET.SubElement(root, "sensor", {"type": "perspective", "id": OBJECTIVE_SENSOR_ID})
     ET.SubElement(sensor, "float", {"name": "fov", "value": repr(float(camera.fov))})
     transform = ET.SubElement(sensor, "transform", {"name": "to_world"})
-    ET.SubElement(
-        transform,
-        "lookat",
-        {
-            "origin": _vector(camera.look_at.origin),
-            "target": _vector(camera.look_at.target),
-            "up": _vector(camera.look_at.up),
-        },
-    )
+    points = {"origin": look_at.origin, "target": look_at.target, "up": look_at.up}
+    lookat = {key: ", ".join(repr(float(v)) for v in xyz) for key, xyz in points.items()}
+    ET.SubElement(transform, "lookat", lookat)
     film = _child_object(root, template, "film") if template is not None else None
     if film is not None:
         sensor.append(detached_copy(film))
