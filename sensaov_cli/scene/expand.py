@@ -347,15 +347,14 @@ class Parameters:
 
     def __init__(self, scene_args: Mapping[str, object]) -> None:
         # Mitsuba turns every keyword argument into text with Python's str().
-        given = [_Parameter(f"${k}", str(v), "job") for k, v in scene_args.items()]
-        self.table = sorted(given, key=lambda p: -len(p.key))
+        self.table = [_Parameter(f"${k}", str(v), "job") for k, v in scene_args.items()]
+        self.table.sort(key=lambda p: -len(p.key))
 
     def default(self, name: str, value: str, origin: str) -> None:
         if any(p.key == f"${name}" for p in self.table):
             return  # job arguments and earlier defaults win
-        new = _Parameter(f"${name}", value, origin)
-        shorter = (i for i, p in enumerate(self.table) if len(new.key) > len(p.key))
-        self.table.insert(next(shorter, len(self.table)), new)  # longest names first
+        self.table.append(_Parameter(f"${name}", value, origin))
+        self.table.sort(key=lambda p: -len(p.key))  # longest names first (a stable sort)
 
     def substitute(self, value: str, origin: str) -> str:
         for param in self.table:

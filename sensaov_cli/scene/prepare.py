@@ -142,9 +142,7 @@ def prepare_xml(
     changes += [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
     integration = plan_integrator(root, max_depth)
     changes += integration.changes
-    bitmaps, converted = _bitmaps_as_float(root)
-    changes += [SceneChange(f"bitmap {Path(f).name} loaded as float", _EIGHT_BIT, where(t))
-                for t, f in converted]  # fmt: skip
+    bitmaps = _bitmaps_as_float(root, changes)
     groups = split_shapegroups(root) if shared == "split" else {}  # before the BSDFs
     materials = naming.materials(root)  # before splitting: copies keep the user's name
     textures = place_textures(root, copies=shared == "split")
@@ -257,12 +255,10 @@ def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: P
 # --- bitmaps: loaded as float; their lookup settings, which the plugin's binding hides ---
 
 
-def _bitmaps_as_float(
-    root: ET.Element,
-) -> tuple[tuple[str, ...], list[tuple[ET.Element, str]]]:
-    """Load every bitmap texture as float: every bitmap's file name, as written, and each
-    texture that had no ``format`` (it would have loaded as integers) with its file name."""
-    files, converted = [], []
+def _bitmaps_as_float(root: ET.Element, changes: list[SceneChange]) -> tuple[str, ...]:
+    """Load every bitmap texture that has no ``format`` (it would load as integers) as float;
+    returns every bitmap's file name, as written."""
+    files = []
     for texture in root.iter("texture"):
         if texture.get("type") != "bitmap":
             continue
@@ -270,9 +266,12 @@ def _bitmaps_as_float(
         if filename is not None:
             files.append(filename)
         if naming.child_value(texture, "format") is None:
-            converted.append((texture, filename or "(no file)"))
             ET.SubElement(texture, "string", {"name": "format", "value": "variant"})
-    return tuple(files), converted
+            name = Path(filename or "(no file)").name
+            changes.append(
+                SceneChange(f"bitmap {name} loaded as float", _EIGHT_BIT, where(texture))
+            )
+    return tuple(files)
 
 
 def _bitmap_options(root: ET.Element) -> dict[str, tuple[str, str, str]]:
