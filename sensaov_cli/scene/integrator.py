@@ -23,9 +23,8 @@ from sensaov_cli.scene.source import Change, where
 _WRAPPERS = frozenset({"moment", "stokes", "aov", "adaptive", "irrcache", "multichannel"})
 _VOLUMETRIC = frozenset({"volpath", "volpathmis", "prbvolpath", "volpath_simple"})
 # The same light transport as a path tracer, in Mitsuba 3.9.1 (default depth: -1, or prb's 6).
-_SAME = {"path": -1, "ptracer": -1, "volpath": -1, "volpathmis": -1}
-_SAME |= {name: 6 for name in ("prb", "prb_basic", "prb_projective", "direct_projective")}
-_SAME |= {"prbvolpath": 6}
+_SAME = {"path": -1, "ptracer": -1, "volpath": -1, "volpathmis": -1, "prbvolpath": 6}
+_SAME |= dict.fromkeys(("prb", "prb_basic", "prb_projective", "direct_projective"), 6)
 # Mitsuba 0.5/0.6 estimators of full light transport with no counterpart in Mitsuba 3; all but
 # path and direct render media where the scene has them.
 _LEGACY = frozenset(
@@ -45,9 +44,8 @@ class IntegratorPlan:
     max_depth: int  # what the replay renders; -1 unbounded
     scene_max_depth: int  # what the scene renders; -1 unbounded
     same_transport: bool  # the replay renders the scene's light transport
-    scene_image: (
-        dict[str, object] | None
-    )  # the replay at the scene's depth, where the job changes it
+    scene_image: dict[str, object] | None  # where the job changes the depth: the replay at the
+    # scene's own depth, as a Mitsuba dict
     changes: tuple[Change, ...]
 
 
