@@ -70,16 +70,6 @@ class PreparedScene:
     changes: tuple[SceneChange, ...]  # what was rewritten and why
 
     @property
-    def scene_integrator(self) -> str:
-        """The integrator type the scene renders with (a wrapper's nested one)."""
-        return self.integration.scene_kind
-
-    @property
-    def integrator(self) -> str:
-        """The replay integrator that differentiates it: prb, or prbvolpath for media."""
-        return self.integration.replay
-
-    @property
     def replaced_integrator(self) -> str | None:
         """The scene's integrator when it renders other light transport than the replay."""
         return None if self.integration.same_transport else self.integration.scene_kind
