@@ -43,12 +43,8 @@ def objects_by_id(root: ET.Element) -> dict[str, ET.Element]:
 
 def refs_to(element: ET.Element, tag: str, ids: dict[str, ET.Element]) -> list[ET.Element]:
     """The objects of kind ``tag`` that ``element`` uses directly, inline or by ``<ref>``."""
-    found = []
-    for child in element:
-        target = ids.get(child.get("id", "")) if child.tag == "ref" else child
-        if target is not None and target.tag == tag:
-            found.append(target)
-    return found
+    targets = (ids.get(c.get("id", "")) if c.tag == "ref" else c for c in element)
+    return [target for target in targets if target is not None and target.tag == tag]
 
 
 def name_objects(root: ET.Element) -> dict[str, ET.Element]:
@@ -165,18 +161,13 @@ def materials(root: ET.Element) -> dict[str, str]:
     found: dict[str, str] = {}
     for shape in root.iter("shape"):
         if shape.get("type") not in ("instance", "shapegroup"):
-            found[shape.get("id", "")] = _material(shape, ids)
+            bsdfs = refs_to(shape, "bsdf", ids)
+            unnamed = f"{shape.get('id', 'shape')}_bsdf"  # an inline BSDF without an id
+            found[shape.get("id", "")] = (bsdfs[0].get("id") or unnamed) if bsdfs else "default"
     for instance, group in instances(root).items():
         members = [found.get(m.get("id", ""), "default") for m in ids[group] if m.tag == "shape"]
         found[instance] = "+".join(dict.fromkeys(members)) or "default"
     return found
-
-
-def _material(shape: ET.Element, ids: dict[str, ET.Element]) -> str:
-    bsdfs = refs_to(shape, "bsdf", ids)
-    if not bsdfs:
-        return "default"
-    return bsdfs[0].get("id") or f"{shape.get('id', 'shape')}_bsdf"
 
 
 # --- objects used in several places (after expansion: every <alias> resolved) ---
