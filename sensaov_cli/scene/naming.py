@@ -276,13 +276,10 @@ def split_shapegroups(root: ET.Element) -> dict[str, tuple[str, ...]]:
     Returns group id -> the instances that received a copy. A group with an object inside it
     that something outside refs is left shared (a copy could not keep that ref).
     """
-    groups = {
-        g.get("id", ""): g
-        for g in root.findall("shape")
-        if g.get("type") == "shapegroup" and g.get("id")
-    }
+    shapes = root.findall("shape")
+    groups = {g.get("id", ""): g for g in shapes if g.get("type") == "shapegroup" and g.get("id")}
     uses: dict[str, list[tuple[ET.Element, ET.Element]]] = {}
-    for instance in root.findall("shape"):
+    for instance in shapes:
         for ref in instance.findall("ref") if instance.get("type") == "instance" else ():
             if ref.get("id") in groups and instance.get("id"):
                 uses.setdefault(ref.get("id", ""), []).append((instance, ref))
@@ -294,8 +291,7 @@ def split_shapegroups(root: ET.Element) -> dict[str, tuple[str, ...]]:
             continue
         position = list(root).index(group)
         for offset, (instance, ref) in enumerate(pairs):
-            suffix = instance.get("id", "")
-            copy = _group_copy(group, suffix, taken)
+            copy = _group_copy(group, instance.get("id", ""), taken)
             root.insert(position + offset, copy)
             ref.set("id", copy.get("id", ""))
         root.remove(group)
@@ -305,7 +301,6 @@ def split_shapegroups(root: ET.Element) -> dict[str, tuple[str, ...]]:
 
 def _refd_from_outside(root: ET.Element, group: ET.Element) -> bool:
     inner = {el.get("id") for el in group.iter() if el is not group and el.get("id")}
-    inner.discard(None)
     inside = set(group.iter())
     return any(ref.get("id") in inner for ref in root.iter("ref") if ref not in inside)
 
