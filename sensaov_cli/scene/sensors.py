@@ -4,8 +4,7 @@ Every id in one Mitsuba scene must be unique, films, samplers and filters includ
 sensor copied for an inspection camera (or a film copied for a look-at camera) loses the ids
 of the objects it carried (its ``<ref>``s keep theirs). A film shared between sensors by
 ``<ref>`` is copied into a sensor before that sensor's film is resized, so resizing one camera
-never resizes another. A film sensaov resizes loses its crop window, so its image has the size
-asked for.
+never resizes another.
 """
 
 from __future__ import annotations
@@ -87,15 +86,13 @@ def sample_count(root: ET.Element, sensor: ET.Element) -> int | None:
 
 def own_film(root: ET.Element, sensor: ET.Element) -> ET.Element:
     """The sensor's film as an element of its own (a ``<ref>``'d film is copied in)."""
-    film = sensor.find("film")
-    if film is not None:
-        return film
-    shared = _child_object(root, sensor, "film")
-    if shared is None:
+    film = _child_object(root, sensor, "film")
+    if film is None:
         return ET.SubElement(sensor, "film", {"type": "hdrfilm"})
-    ref = next(c for c in sensor if c.tag == "ref" and c.get("id") == shared.get("id"))
-    film = detached_copy(shared)
-    replace_ref(sensor, ref, film)
+    if sensor.find("film") is None:  # shared by <ref>
+        ref = next(c for c in sensor if c.tag == "ref" and c.get("id") == film.get("id"))
+        film = detached_copy(film)
+        replace_ref(sensor, ref, film)
     return film
 
 
