@@ -1,16 +1,11 @@
 """A user's scene prepared for differentiation: expanded once, rewritten, fingerprinted.
 
-The user's files are never modified: the scene is expanded as Mitsuba's parser reads it
-(expand.py), rewritten, and the text handed to ``mitsuba.load_string``. What the rewrite
-changes, and why, is listed in ``PreparedScene.changes``. Bitmap textures, nested ones too,
-load as float (``format = variant``) so their texels receive gradients; envmaps load their
-images as float already. A top-level texture used through ``<ref>`` is written where it is
-used, since Mitsuba keys a top-level bitmap by memory address and a nested one by the path of
-its user (``floor_mat.reflectance.data``).
-
-The job's ``render.resolution`` overrides the scene's film size (often ``$res``); the scene's
-sampler ``sample_count`` (often ``$spp``) is reported for a job that leaves spp unset. A scene
-argument is never rewritten: to change what the scene itself says, set the argument.
+The user's files are never modified: the scene is expanded as Mitsuba's parser reads it,
+rewritten, and the text handed to ``mitsuba.load_string``; what the rewrite changes, and why,
+is listed in ``PreparedScene.changes``. A top-level texture used through ``<ref>`` is written
+where it is used, since Mitsuba keys a top-level bitmap by memory address and a nested one by
+the path of its user (``floor_mat.reflectance.data``). A scene argument is never rewritten: to
+change what the scene itself says (its film size, often ``$res``), set the argument.
 """
 
 from __future__ import annotations
@@ -245,8 +240,8 @@ def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: P
 
 
 def _bitmaps_as_float(root: ET.Element, changes: list[SceneChange]) -> tuple[str, ...]:
-    """Load every bitmap texture that has no ``format`` (it would load as integers) as float;
-    returns every bitmap's file name, as written."""
+    """Load every bitmap texture that has no ``format`` as float, so its texels receive
+    gradients (envmaps load theirs as float already); returns every bitmap's file name."""
     files = []
     for texture in root.iter("texture"):
         if texture.get("type") != "bitmap":
