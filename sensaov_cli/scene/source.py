@@ -50,16 +50,11 @@ def read_xml(path: Path) -> ET.Element:
     """Parse ``path``; every element remembers the line its start tag is on."""
     data = read_regular(path, "scene file", cap=MAX_XML_BYTES, error=SceneError)
     parser = expat.ParserCreate(_fallback_encoding(data))
-    stack: list[ET.Element] = []
-    found: list[ET.Element] = []
+    stack = [ET.Element("document")]  # the document holds the root element
 
     def start(tag: str, attrs: dict[str, str]) -> None:
-        element = ET.Element(tag, attrs)
+        element = ET.SubElement(stack[-1], tag, attrs)
         element.set(_WHERE, f"{path}:{parser.CurrentLineNumber}")
-        if stack:
-            stack[-1].append(element)
-        else:
-            found.append(element)
         stack.append(element)
 
     parser.StartElementHandler = start
@@ -69,7 +64,7 @@ def read_xml(path: Path) -> ET.Element:
     except expat.ExpatError as exc:
         message = f"malformed XML: {expat.ErrorString(exc.code)}"
         raise SceneError(message, where=f"{path}:{exc.lineno}") from exc
-    return found[0]
+    return stack[0][0]
 
 
 def _fallback_encoding(data: bytes) -> str | None:
@@ -97,10 +92,10 @@ def user_attributes(element: ET.Element) -> list[tuple[str, str]]:
     return [(key, value) for key, value in element.attrib.items() if key != _WHERE]
 
 
-def new_element(tag: str, attrib: dict[str, str], like: ET.Element | None = None) -> ET.Element:
+def new_element(tag: str, attrib: dict[str, str], like: ET.Element) -> ET.Element:
     """An element sensaov writes; ``like`` lends it the user's line it stands for."""
     element = ET.Element(tag, attrib)
-    if like is not None and like.get(_WHERE):
+    if like.get(_WHERE):
         element.set(_WHERE, where(like))
     return element
 
