@@ -46,14 +46,15 @@ class IntegratorPlan:
     same_transport: bool  # the replay renders the scene's light transport
     scene_image: dict[str, object] | None  # where the job changes the depth: the replay at the
     # scene's own depth, as a Mitsuba dict
-    changes: tuple[Change, ...]
 
 
-def plan_integrator(root: ET.Element, job_max_depth: int | None) -> IntegratorPlan:
-    """Put the replay integrator in place of the scene's; returns what was done and why."""
+def plan_integrator(
+    root: ET.Element, job_max_depth: int | None, changes: list[Change]
+) -> IntegratorPlan:
+    """Put the replay integrator in place of the scene's; what was done and why is appended to
+    ``changes``."""
     found = root.findall("integrator")
     written = found[0] if found else None
-    changes: list[Change] = []
     user = _unwrapped(written, changes)
     kind = user.get("type", "path") if user is not None else "path"
     has_media = next(root.iter("medium"), None) is not None
@@ -67,8 +68,9 @@ def plan_integrator(root: ET.Element, job_max_depth: int | None) -> IntegratorPl
     root.insert(0, _replay_element(replay, depth, user))
     if replay == "prbvolpath":
         _refuse_camera_in_medium(root)
-    changes.append(_replacement(kind, replay, depth, scene_depth, job_max_depth, same, written))
-    return IntegratorPlan(kind, replay, depth, scene_depth, same, own, tuple(changes))
+    plan = IntegratorPlan(kind, replay, depth, scene_depth, same, own)
+    changes.append(_replacement(plan, job_max_depth, written))
+    return plan
 
 
 def _unwrapped(written: ET.Element | None, changes: list[Change]) -> ET.Element | None:
@@ -146,27 +148,18 @@ def _refuse_camera_in_medium(root: ET.Element) -> None:
                 )
 
 
-def _replacement(
-    kind: str,
-    replay: str,
-    depth: int,
-    scene_depth: int,
-    job_depth: int | None,
-    same: bool,
-    written: ET.Element | None,
-) -> Change:
+def _replacement(plan: IntegratorPlan, job_depth: int | None, written: ET.Element | None) -> Change:
+    kind, depth, scene_depth = plan.scene_kind, plan.max_depth, plan.scene_max_depth
     shown = "unbounded" if depth == UNBOUNDED else str(depth)
     source = "the scene's" if job_depth is None else "the job's render.max_depth"
     why = "path replay differentiates in constant memory"
     if kind in _LEGACY:
         why += f"; Mitsuba 3 has no '{kind}': the path tracer renders the same light transport"
-    altered = not same or depth != scene_depth
     if depth != scene_depth:
         old = "unbounded" if scene_depth == UNBOUNDED else str(scene_depth)
         why += f"; the scene renders paths of depth {old}: M is measured on another image"
-    if not same:
+    if not plan.same_transport:
         why += f"; '{kind}' renders other light transport, so M is measured on another image"
-    where_ = where(written) if written is not None else ""
-    return Change(
-        f"integrator {kind!r} -> {replay!r} (max_depth {shown}, {source})", why, where_, altered
-    )
+    what = f"integrator {kind!r} -> {plan.replay!r} (max_depth {shown}, {source})"
+    altered = not plan.same_transport or depth != scene_depth
+    return Change(what, why, where(written) if written is not None else "", altered)

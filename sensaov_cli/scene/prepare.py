@@ -125,8 +125,7 @@ def prepare_xml(
     _refuse_non_finite_numbers(root)
     changes = list(expanded.changes)  # old formats upgraded, each with its line
     changes += [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
-    integration = plan_integrator(root, max_depth)
-    changes += integration.changes
+    integration = plan_integrator(root, max_depth, changes)
     bitmaps = _bitmaps_as_float(root, changes)
     groups = split_shapegroups(root) if shared == "split" else {}  # before the BSDFs
     materials = naming.materials(root)  # before splitting: copies keep the user's name
