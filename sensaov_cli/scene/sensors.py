@@ -46,11 +46,9 @@ def choose_sensor(
             where=str(path),
             hint="add one, or give objective_camera a look_at",
         )
-    if camera.sensor is None:
-        return sensors[0]
-    for sensor in sensors:
-        if sensor.get("id") == camera.sensor:
-            return sensor
+    chosen = next((s for s in sensors if camera.sensor in (None, s.get("id"))), None)
+    if chosen is not None:
+        return chosen  # the first sensor where the camera names none
     raise SceneError(
         f"no sensor with id {camera.sensor!r} in {path.name}",
         where=where,
