@@ -2,10 +2,9 @@
 
 A 6 kB PNG may declare 40000x40000 pixels, a PLY header four billion vertices: Mitsuba
 allocates them all and the process dies without a word (SIGSEGV, std::bad_alloc). So before
-Mitsuba loads a scene, every image it will read (the formats of Mitsuba's ``Bitmap``: PNG,
-JPEG, OpenEXR, Radiance RGBE, PFM, PPM, BMP, TGA) and every PLY mesh is measured from its first
-bytes and checked against the memory budget; a binary PLY that declares more than the file
-holds is refused outright.
+Mitsuba loads a scene, every image it will read (in the formats of Mitsuba's ``Bitmap``) and
+every PLY mesh is measured from its first bytes and checked against the memory budget; a
+binary PLY that declares more than the file holds is refused outright.
 """
 
 from __future__ import annotations

@@ -107,14 +107,11 @@ def split_shared_bsdfs(root: ET.Element) -> dict[str, tuple[str, ...]]:
 
 
 def split_shapegroups(root: ET.Element) -> dict[str, tuple[str, ...]]:
-    """Give each instance of a shapegroup used by several instances a copy of its own.
-
-    Instances share their shapegroup's parameters, so without copies each instance would get
-    the whole group's gradient. A copy of group ``g`` for instance ``i`` is ``g_i`` and its
-    member ``m`` is ``m_i``; the instance's ``<ref>`` names the copy and the group goes.
-    Returns group id -> the instances that received a copy. A group with an object inside it
-    that something outside refs is left shared (a copy could not keep that ref).
-    """
+    """Give each instance of a shapegroup used by several instances a copy of its own (``g_i``
+    for group ``g`` and instance ``i``): instances share their shapegroup's parameters, so each
+    would get the whole group's gradient. A group with an object inside it that something
+    outside refs is left shared (a copy could not keep that ref). Returns group id -> the
+    instances that received a copy."""
     shapes = root.findall("shape")
     groups = {g.get("id", ""): g for g in shapes if g.get("type") == "shapegroup" and g.get("id")}
     uses: dict[str, list[tuple[ET.Element, ET.Element]]] = {}
