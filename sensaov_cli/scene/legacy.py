@@ -112,8 +112,8 @@ def _upgrade_object(element: ET.Element, changes: list[Change], refusals: Refusa
     for name in _UNSUPPORTED.get(kind, ()):
         for child in _named(element, name):
             refusals.add(f"{kind} property {name!r} has no counterpart in {MITSUBA}", where(child))
-    for rule in _RULES.get(kind, ()):
-        rule(element, changes)
+    if kind in _RULES:
+        _RULES[kind](element, changes)
 
 
 _NO_EFFECT = f"{MITSUBA} has no such property; it makes no difference to the image rendered"
@@ -306,18 +306,15 @@ def _envmap(element: ET.Element, changes: list[Change]) -> None:
         changes.append(Change(f"envmap gamma {value} dropped", why, where(child), not linear))
 
 
-_RULES: dict[str, tuple[Callable[[ET.Element, list[Change]], None], ...]] = {
-    "bitmap": (_bitmap,),
-    "envmap": (_envmap,),
-    **dict.fromkeys(_IOR_OWNERS, (_ior_names,)),
-    "conductor": (_conductor,),
-    "roughconductor": (_conductor,),
-    "sunsky": (_sunsky,),
-    "obj": (_mesh,),
-    "ply": (_mesh,),
-    "serialized": (_mesh,),
-    "homogeneous": (_homogeneous,),
-    "heterogeneous": (_heterogeneous,),
+_RULES: dict[str, Callable[[ET.Element, list[Change]], None]] = {
+    "bitmap": _bitmap,
+    "envmap": _envmap,
+    **dict.fromkeys(_IOR_OWNERS, _ior_names),
+    **dict.fromkeys(("conductor", "roughconductor"), _conductor),
+    "sunsky": _sunsky,
+    **dict.fromkeys(("obj", "ply", "serialized"), _mesh),
+    "homogeneous": _homogeneous,
+    "heterogeneous": _heterogeneous,
 }
 
 
