@@ -52,7 +52,7 @@ def test_a_moment_wrapped_volpath_keeps_its_media_and_depth(tmp_path: Path) -> N
         '<integer name="max_depth" value="9"/></integrator></integrator>',
     )
     assert replay(scene) == {"type": "prbvolpath", "max_depth": "9"}
-    assert scene.scene_integrator == "volpath" and scene.replaced_integrator is None
+    assert scene.integration.scene_kind == "volpath" and scene.replaced_integrator is None
     assert any("'moment' unwrapped" in c.what for c in scene.changes)
     assert not scene.image_changes
 

@@ -74,7 +74,7 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
     ownership = ownership_of(mi, scene, prepared.instances)
     params = mi.traverse(scene)
     sources = {Path(name).name: prepared.path.parent / name for name in prepared.bitmap_files}
-    media = None if prepared.integrator == "prbvolpath" else prepared.scene_integrator
+    media = None if prepared.integration.replay == "prbvolpath" else prepared.integration.scene_kind
     selection = select(mi, parameters, params, ownership, sources, media)
     size = sensor.film().crop_size()
     return LoadedScene(

@@ -2,11 +2,9 @@
 
 A 6 kB PNG may declare 40000x40000 pixels, a PLY header four billion vertices: Mitsuba
 allocates them all and the process dies without a word (SIGSEGV, std::bad_alloc). So before
-Mitsuba loads a scene, every image it will read (the formats of Mitsuba's ``Bitmap``: PNG,
-JPEG, OpenEXR, Radiance RGBE, PFM, PPM, BMP, TGA) and every PLY mesh is measured from its first
-bytes and checked against the memory budget (:func:`check_declared_size`); a binary PLY that
-declares more than the file holds is refused outright. A file in none of these formats is left
-to Mitsuba, which says what it thinks of it.
+Mitsuba loads a scene, every image it will read (in the formats of Mitsuba's ``Bitmap``) and
+every PLY mesh is measured from its first bytes and checked against the memory budget; a
+binary PLY that declares more than the file holds is refused outright.
 """
 
 from __future__ import annotations
@@ -27,13 +25,23 @@ Size = tuple[int, int, int]  # width, height, channels
 
 def check_declared_size(path: Path, where: str) -> None:
     """Refuse an image or a mesh whose declared size, once loaded, is over the memory budget."""
-    head = _head(path, where)
+    try:
+        with open(path, "rb") as stream:
+            head = stream.read(HEAD_BYTES)
+    except OSError as exc:
+        raise SceneError(f"cannot read {path}: {exc.strerror or exc}", where=where) from None
     if head.startswith(b"ply"):
         _check_ply(path, head, where)
         return
-    size = declared_size(path, where, head)
+    # TGA has no signature: Mitsuba knows it by its extension, and so does this.
+    tga = path.suffix.lower() == ".tga"
+    reader = _tga if tga else next((r for magic, r in _READERS if head.startswith(magic)), None)
+    try:
+        size = None if reader is None else reader(head)
+    except (struct.error, ValueError, IndexError):
+        return  # a damaged header: Mitsuba's own reader will say so
     if size is None:
-        return
+        return  # another format: Mitsuba says what it thinks of it
     width, height, channels = size
     check_memory(
         width * height * channels * 4 * TEXTURE_COPIES,
@@ -41,26 +49,6 @@ def check_declared_size(path: Path, where: str) -> None:
         where=where,
         hint="check the image, or make it smaller",
     )
-
-
-def declared_size(path: Path, where: str, head: bytes | None = None) -> Size | None:
-    """An image's (width, height, channels) from its header, or None for another format."""
-    head = _head(path, where) if head is None else head
-    # TGA has no signature: Mitsuba knows it by its extension, and so does this.
-    tga = path.suffix.lower() == ".tga"
-    reader = _tga if tga else next((r for magic, r in _READERS if head.startswith(magic)), None)
-    try:
-        return None if reader is None else reader(head)
-    except (struct.error, ValueError, IndexError):
-        return None  # a damaged header: Mitsuba's own reader will say so
-
-
-def _head(path: Path, where: str) -> bytes:
-    try:
-        with open(path, "rb") as stream:
-            return stream.read(HEAD_BYTES)
-    except OSError as exc:
-        raise SceneError(f"cannot read {path}: {exc.strerror or exc}", where=where) from None
 
 
 # Bytes of each PLY scalar type; a list counts as its length and three entries (a triangle).

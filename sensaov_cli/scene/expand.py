@@ -2,32 +2,14 @@
 
 sensaov rewrites the scene before Mitsuba sees it, so the rewrite has to see what Mitsuba
 would: the reference is ``src/core/parser.cpp`` (``parse_xml_node``, ``substitute_parameters``,
-``parse_file_impl``), and what 3.9.1 was measured to do. What is done:
-
-- ``<include>`` is replaced by the included file's objects (a ``<scene>`` root) or by its root
-  object (any other root, under the include's ``name``). The file is found next to the including
-  file first, then in the folders of the files that include that one and the ``<path>``
-  folders declared so far; cycles are refused (Mitsuba would only stop at its depth limit,
-  which is kept: 15).
-- ``$name`` substitution runs on every attribute in document order, as
-  ``substitute_parameters`` does: one table is shared by the main file and every file it
-  includes, job arguments first, ``<default>`` adds a name only if it is absent (so defaults
-  leak out of included files), plain substring replacement longest name first, ``\\$`` escapes
-  a dollar. A ``$`` left over is an error at its file and line, and so is a job argument the
-  scene never uses (Mitsuba refuses both).
-- ``<path>`` adds a search folder; ``<alias>`` is resolved into the ``<ref>``s that use it.
-- Plugin file names (meshes, bitmaps, envmaps) are resolved the way Mitsuba resolves them at
-  instantiation: against the main file's folder and the main file's ``<path>`` folders, never
-  an included file's folder. A ``<spectrum filename>`` is resolved when it is read, with the
-  folders of the files that include its file (measured: not its own file's folder). Found
-  names are made absolute, so a scene loaded from a string resolves them the same.
-- Files of a format version below 2.0 get Mitsuba's upgrade (``transform_upgrade``), per
-  object by the version of the file it was read from, before the files are merged into one
-  text with a single version: property names camelCase -> snake_case,
-  ``diffuse.diffuse_reflectance`` -> ``reflectance``, ``uoffset``/``voffset``/``uscale``/
-  ``vscale`` -> a ``to_uv`` transform. What else 3.9.1 lacks of 0.5/0.6 is upgraded or
-  refused (legacy.py). Missing files, unknown elements and plugins, unsupported old
-  properties are gathered and reported together (``Refusals``, source.py).
+``parse_file_impl``), and what 3.9.1 was measured to do. Includes, ``$name`` arguments,
+``<path>`` and ``<alias>`` are expanded; plugin file names are resolved as Mitsuba resolves
+them at instantiation (against the main file's folder and its ``<path>`` folders, never an
+included file's folder) and made absolute, so a scene loaded from a string resolves them the
+same. Files of a format version below 2.0 get Mitsuba's upgrade (``transform_upgrade``), per
+object by the version of the file it was read from, and what else 3.9.1 lacks of 0.5/0.6 is
+upgraded or refused (legacy.py). Missing files, unknown elements and plugins, unsupported old
+properties are gathered and reported together (``Refusals``, source.py).
 """
 
 from __future__ import annotations
@@ -42,22 +24,20 @@ from pathlib import Path
 from sensaov_cli.errors import SceneError
 from sensaov_cli.limits import regular_file
 from sensaov_cli.scene.declared_sizes import check_declared_size
-from sensaov_cli.scene.legacy import refuse_unknown_plugins, srgb_element, upgrade_object
+from sensaov_cli.scene.legacy import refuse_unknown_plugins, srgb_element, upgrade_legacy
 from sensaov_cli.scene.source import (
     OBJECT_TAGS,
     Change,
     Refusals,
     is_object,
-    new_element,
     read_xml,
-    source_file,
     user_attributes,
     where,
 )
 
 MAX_INCLUDE_DEPTH = 15  # Mitsuba's ParserConfig.max_include_depth
 # Every tag Mitsuba 3.9.1's parser knows (interpret_tag); any other is "an unsupported XML
-# element" to it, the 0.6 <shapegroup> included. Objects are scene_source.OBJECT_TAGS.
+# element" to it, the 0.6 <shapegroup> included.
 _KNOWN_TAGS = OBJECT_TAGS | frozenset(
     "boolean integer float string point vector rgb spectrum transform"
     " translate rotate scale lookat matrix ref include alias default path".split()
@@ -156,8 +136,7 @@ class _Expansion:
     ) -> None:
         self._attributes(element)
         if element.tag == "srgb" and str(context.path) in self.legacy:
-            change = srgb_element(element, self.refusals)
-            self.changes += [change] if change is not None else []
+            srgb_element(element, self.changes, self.refusals)
         if element.tag not in _KNOWN_TAGS:
             self.refusals.add(
                 f"<{element.tag}> is not an element Mitsuba 3 reads",
@@ -166,12 +145,17 @@ class _Expansion:
             )
             parent.remove(element)
             return
-        handler = _DIRECTIVES.get(element.tag)
-        if handler is not None:
+        if element.tag in ("include", "default", "path", "alias"):
             index = list(parent).index(element)
             parent.remove(element)
-            for offset, replacement in enumerate(handler(self, element, context, at_root)):
-                parent.insert(index + offset, replacement)
+            if element.tag == "include":
+                parent[index:index] = self._include(element, context)
+            elif element.tag == "default":
+                self._default(element)
+            elif element.tag == "path":
+                self._path(element, context, at_root)
+            else:
+                self._alias(element)
             return
         if is_object(element):
             self._register(element)
@@ -202,7 +186,10 @@ class _Expansion:
             self.files.append(resolved)
             element.set("filename", str(resolved))
 
-    def _include(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+    def _include(self, element: ET.Element, context: _Context) -> list[ET.Element]:
+        """The file is looked for next to the including file, then in the folders of the files
+        that include that one and the ``<path>`` folders so far; a cycle is refused (Mitsuba
+        would only stop at its depth limit, which is kept)."""
         name = _required(element, "filename")
         folders = context.here()
         try:
@@ -221,14 +208,13 @@ class _Expansion:
             root.set("name", element.get("name", ""))
         return [root]
 
-    def _default(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+    def _default(self, element: ET.Element) -> None:
         name = _required(element, "name")
         if not name:
             raise SceneError("<default>: name must be non-empty", where=where(element))
         self.parameters.default(name, _required(element, "value"), where(element))
-        return []
 
-    def _path(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+    def _path(self, element: ET.Element, context: _Context, at_root: bool) -> None:
         if not at_root:
             raise SceneError("<path> can only be a child of the root element", where=where(element))
         value = _required(element, "value")
@@ -236,9 +222,8 @@ class _Expansion:
         if not _exists(folder, where(element)):
             raise SceneError(f'<path>: folder "{shorten(value)}" not found', where=where(element))
         context.resolver.insert(0, folder)
-        return []
 
-    def _alias(self, element: ET.Element, context: _Context, at_root: bool) -> list[ET.Element]:
+    def _alias(self, element: ET.Element) -> None:
         source, alias = _required(element, "id"), _required(element, "as")
         if alias in self.ids:
             raise SceneError(f'alias destination id "{alias}" already exists', where=where(element))
@@ -250,18 +235,10 @@ class _Expansion:
             )
         self.aliases[alias] = self.aliases.get(source, source)
         self.ids[alias] = where(element)
-        return []
 
 
 _TAG_HINTS = {
     "shapegroup": 'write <shape type="shapegroup" id="..."> (the 0.6 <shapegroup> tag is gone)',
-}
-
-_DIRECTIVES = {
-    "include": _Expansion._include,
-    "default": _Expansion._default,
-    "path": _Expansion._path,
-    "alias": _Expansion._alias,
 }
 
 
@@ -357,24 +334,27 @@ class _Parameter:
     key: str  # "$name"
     value: str
     origin: str
-    used: bool  # Mitsuba's flag: a job argument never used is an error, a default never is
-    substituted: bool = False
+    substituted: bool = False  # a job argument never substituted is an error, a default never
 
 
 class Parameters:
-    """Mitsuba's SortedParameters: one table for the main file and all its includes."""
+    """Mitsuba's SortedParameters: one table for the main file and all its includes.
+
+    Job arguments come first; a ``<default>`` adds a name only where it is absent (so defaults
+    leak out of included files); substitution is plain substring replacement, longest name
+    first, on every attribute in document order; ``\\$`` escapes a dollar.
+    """
 
     def __init__(self, scene_args: Mapping[str, object]) -> None:
         # Mitsuba turns every keyword argument into text with Python's str().
-        given = [_Parameter(f"${k}", str(v), "job", False) for k, v in scene_args.items()]
-        self.table = sorted(given, key=lambda p: -len(p.key))
+        self.table = [_Parameter(f"${k}", str(v), "job") for k, v in scene_args.items()]
+        self.table.sort(key=lambda p: -len(p.key))
 
     def default(self, name: str, value: str, origin: str) -> None:
         if any(p.key == f"${name}" for p in self.table):
             return  # job arguments and earlier defaults win
-        new = _Parameter(f"${name}", value, origin, True)
-        shorter = (i for i, p in enumerate(self.table) if len(new.key) > len(p.key))
-        self.table.insert(next(shorter, len(self.table)), new)  # longest names first
+        self.table.append(_Parameter(f"${name}", value, origin))
+        self.table.sort(key=lambda p: -len(p.key))  # longest names first (a stable sort)
 
     def substitute(self, value: str, origin: str) -> str:
         for param in self.table:
@@ -384,7 +364,7 @@ class Parameters:
                     pos += len(param.key)
                 else:
                     value = value[:pos] + param.value + value[pos + len(param.key) :]
-                    param.used = param.substituted = True
+                    param.substituted = True
                     pos += len(param.value)
                 pos = value.find(param.key, pos)
         _refuse_unresolved(value, origin)
@@ -395,9 +375,9 @@ class Parameters:
         return {p.key[1:]: SceneArgument(p.value, p.origin) for p in self.table if p.substituted}
 
     def refuse_unused(self, path: Path) -> None:
-        unused = [p.key[1:] for p in self.table if p.origin == "job" and not p.used]
+        unused = [p.key[1:] for p in self.table if p.origin == "job" and not p.substituted]
         if unused:
-            known = sorted(p.key[1:] for p in self.table if p.used)
+            known = sorted(p.key[1:] for p in self.table if p.key[1:] not in unused)
             raise SceneError(
                 f"scene argument {unused[0]!r} is not used by the scene",
                 where=str(path),
@@ -421,66 +401,3 @@ def _refuse_unresolved(value: str, origin: str) -> None:
             hint=f"set it in the job (scene_args: {{{name_text}: ...}}) "
             f'or give the scene a <default name="{name_text}" value="..."/>',
         )
-
-
-# --- Mitsuba's upgrade of files older than format 2.0 ---------------------------------
-
-_UV_NAMES = ("uoffset", "voffset", "uscale", "vscale")
-
-
-def upgrade_legacy(
-    root: ET.Element, legacy_files: set[str], changes: list[Change], refusals: Refusals
-) -> None:
-    """Upgrade every object read from one of ``legacy_files`` (paths as read): Mitsuba's own
-    renaming, then what 3.9.1 lacks of 0.5/0.6 (legacy.py), listed in ``changes``."""
-    if not legacy_files:
-        return
-    for element in list(root.iter()):
-        if is_object(element) and source_file(element) in legacy_files:
-            _upgrade(element)
-            upgrade_object(element, changes, refusals)
-
-
-def snake_case(name: str) -> str:
-    """Mitsuba's camel_to_underscore_case, character for character."""
-    out: list[str] = []
-    i = 0
-    while i < len(name):
-        if i > 0 and name[i - 1].islower() and name[i].isupper():
-            out.append("_" + name[i].lower())
-            while i + 1 < len(name) and name[i + 1].isupper():
-                i += 1
-                out.append(name[i].lower())
-        else:
-            out.append(name[i])
-        i += 1
-    return "".join(out)
-
-
-def _upgrade(element: ET.Element) -> None:
-    # A child's name is a property of this object, so this object's file version decides.
-    for child in element:
-        if child.get("name"):
-            child.set("name", snake_case(child.get("name", "")))
-    if element.tag == "bsdf" and element.get("type") == "diffuse":
-        for child in element:
-            if child.get("name") == "diffuse_reflectance":
-                child.set("name", "reflectance")
-    _uv_transform(element)
-
-
-def _uv_transform(element: ET.Element) -> None:
-    found = {c.get("name"): c for c in element if c.get("name") in _UV_NAMES}
-    if not found:
-        return
-    for child in found.values():
-        element.remove(child)
-    first = next(iter(found.values()))
-    values = {name: child.get("value", "") for name, child in found.items()}
-    transform = new_element("transform", {"name": "to_uv"}, like=first)
-    # Mitsuba builds scale(s) * translate(o): the translation applies first, as written here.
-    offset = {axis: values[n] for axis, n in (("x", "uoffset"), ("y", "voffset")) if n in values}
-    scale = {axis: values[n] for axis, n in (("x", "uscale"), ("y", "vscale")) if n in values}
-    transform.append(new_element("translate", offset, like=first))
-    transform.append(new_element("scale", scale, like=first))
-    element.append(transform)

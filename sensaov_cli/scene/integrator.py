@@ -2,24 +2,12 @@
 
 sensaov replaces the scene's integrator by a path-replay one (``prb``, or ``prbvolpath`` where
 the scene renders participating media), because Mitsuba's ``path`` needs memory that grows with
-spp under AD. The replay renders what the scene renders:
-
-- an integrator that only wraps another (``moment``, ``stokes``, an ``aov`` with a nested
-  integrator, Mitsuba 0.5's ``adaptive``, ``irrcache``, ``multichannel``) is unwrapped: its
-  image is the nested one's;
-- the depth is the scene's (its ``max_depth``, or the plugin's default) unless the job sets
-  ``render.max_depth``; ``direct`` is one bounce (depth 2), which is what prb renders there;
-- the scene's ``hide_emitters`` and ``rr_depth`` are kept;
-- path-space estimators of the same light transport that Mitsuba 3 does not have (0.5's
-  ``guided_path``, ``bdpt``, ``pssmlt``, ``photonmapper``, …) become the path tracer with the
-  scene's depth, with media where the scene has them;
-- an integrator that renders something else (``depth``, ``aov`` alone, 0.5's ``ao``) is
-  replaced all the same, and said to render another image.
-
-Every change is returned as a :class:`Change`; one that alters the image (another depth, other
-light transport) says so. Where the job changes the depth, the plan carries the replay at the
-scene's own depth, so that the effect can be measured by rendering both at one seed
-(``render/adjoint.py``, ``depth_effect``).
+spp under AD. The replay renders what the scene renders: a wrapper is unwrapped, the depth is
+the scene's (``direct`` is prb at depth 2) unless the job sets ``render.max_depth``, and
+``hide_emitters`` and ``rr_depth`` are kept. An integrator that renders something else
+(``depth``, ``aov`` alone, 0.5's ``ao``) is replaced all the same, and said to alter the image.
+Where the job changes the depth, the plan carries the replay at the scene's own depth, so that
+the effect can be measured by rendering both at one seed (``render/adjoint.py``).
 """
 
 from __future__ import annotations
@@ -35,9 +23,8 @@ from sensaov_cli.scene.source import Change, where
 _WRAPPERS = frozenset({"moment", "stokes", "aov", "adaptive", "irrcache", "multichannel"})
 _VOLUMETRIC = frozenset({"volpath", "volpathmis", "prbvolpath", "volpath_simple"})
 # The same light transport as a path tracer, in Mitsuba 3.9.1 (default depth: -1, or prb's 6).
-_SAME = {"path": -1, "ptracer": -1, "volpath": -1, "volpathmis": -1}
-_SAME |= {name: 6 for name in ("prb", "prb_basic", "prb_projective", "direct_projective")}
-_SAME |= {"prbvolpath": 6}
+_SAME = {"path": -1, "ptracer": -1, "volpath": -1, "volpathmis": -1, "prbvolpath": 6}
+_SAME |= dict.fromkeys(("prb", "prb_basic", "prb_projective", "direct_projective"), 6)
 # Mitsuba 0.5/0.6 estimators of full light transport with no counterpart in Mitsuba 3; all but
 # path and direct render media where the scene has them.
 _LEGACY = frozenset(
@@ -58,18 +45,19 @@ class IntegratorPlan:
     scene_max_depth: int  # what the scene renders; -1 unbounded
     same_transport: bool  # the replay renders the scene's light transport
     scene_image: dict[str, object] | None  # where the job changes the depth: the replay at the
-    # scene's depth, as a Mitsuba dict
-    changes: tuple[Change, ...]
+    # scene's own depth, as a Mitsuba dict
 
 
-def plan_integrator(root: ET.Element, job_max_depth: int | None) -> IntegratorPlan:
-    """Put the replay integrator in place of the scene's; returns what was done and why."""
+def plan_integrator(
+    root: ET.Element, job_max_depth: int | None, changes: list[Change]
+) -> IntegratorPlan:
+    """Put the replay integrator in place of the scene's; what was done and why is appended to
+    ``changes``."""
     found = root.findall("integrator")
     written = found[0] if found else None
-    changes: list[Change] = []
     user = _unwrapped(written, changes)
     kind = user.get("type", "path") if user is not None else "path"
-    has_media = _media_in_image(root)
+    has_media = next(root.iter("medium"), None) is not None
     scene_depth = _scene_depth(user, kind)
     depth = scene_depth if job_max_depth is None else job_max_depth
     replay = "prbvolpath" if kind in _VOLUMETRIC or (kind in _LEGACY and has_media) else "prb"
@@ -80,8 +68,9 @@ def plan_integrator(root: ET.Element, job_max_depth: int | None) -> IntegratorPl
     root.insert(0, _replay_element(replay, depth, user))
     if replay == "prbvolpath":
         _refuse_camera_in_medium(root)
-    changes.append(_replacement(kind, replay, depth, scene_depth, job_max_depth, same, written))
-    return IntegratorPlan(kind, replay, depth, scene_depth, same, own, tuple(changes))
+    plan = IntegratorPlan(kind, replay, depth, scene_depth, same, own)
+    changes.append(_replacement(plan, job_max_depth, written))
+    return plan
 
 
 def _unwrapped(written: ET.Element | None, changes: list[Change]) -> ET.Element | None:
@@ -142,10 +131,6 @@ def _scene_image(replay: str, scene_depth: int, user: ET.Element | None) -> dict
     return plugin
 
 
-def _media_in_image(root: ET.Element) -> bool:
-    return any(True for _ in root.iter("medium"))
-
-
 def _refuse_camera_in_medium(root: ET.Element) -> None:
     """prbvolpath cannot start paths inside a medium (Mitsuba 3.9.1: "TODO: support sensors
     inside media"): a camera in fog would render without its fog."""
@@ -163,27 +148,18 @@ def _refuse_camera_in_medium(root: ET.Element) -> None:
                 )
 
 
-def _replacement(
-    kind: str,
-    replay: str,
-    depth: int,
-    scene_depth: int,
-    job_depth: int | None,
-    same: bool,
-    written: ET.Element | None,
-) -> Change:
+def _replacement(plan: IntegratorPlan, job_depth: int | None, written: ET.Element | None) -> Change:
+    kind, depth, scene_depth = plan.scene_kind, plan.max_depth, plan.scene_max_depth
     shown = "unbounded" if depth == UNBOUNDED else str(depth)
     source = "the scene's" if job_depth is None else "the job's render.max_depth"
     why = "path replay differentiates in constant memory"
     if kind in _LEGACY:
         why += f"; Mitsuba 3 has no '{kind}': the path tracer renders the same light transport"
-    altered = not same or depth != scene_depth
     if depth != scene_depth:
         old = "unbounded" if scene_depth == UNBOUNDED else str(scene_depth)
         why += f"; the scene renders paths of depth {old}: M is measured on another image"
-    if not same:
+    if not plan.same_transport:
         why += f"; '{kind}' renders other light transport, so M is measured on another image"
-    where_ = where(written) if written is not None else ""
-    return Change(
-        f"integrator {kind!r} -> {replay!r} (max_depth {shown}, {source})", why, where_, altered
-    )
+    what = f"integrator {kind!r} -> {plan.replay!r} (max_depth {shown}, {source})"
+    altered = not plan.same_transport or depth != scene_depth
+    return Change(what, why, where(written) if written is not None else "", altered)

@@ -1,11 +1,10 @@
 """Mitsuba 0.5/0.6 constructs that Mitsuba 3.9.1 does not read: upgraded, or refused, listed.
 
-Mitsuba 3 upgrades old files only by renaming camelCase properties (expand.py). Scenes
-exported for 0.5/0.6 (Bitterli's interiors, say) also use plugins and properties that 3.9.1
-refuses; each is upgraded here where Mitsuba 3 has a counterpart, with a :class:`Change` naming
-the file and line, or refused where it has none, gathered so that one pass reports them all.
-Which properties 3.9.1 refuses was measured by loading each plugin with each 0.5 property
-(tests/test_legacy.py repeats it). A change that can alter the image says so.
+Mitsuba 3 upgrades old files only by renaming camelCase properties. Scenes exported for 0.5/0.6
+(Bitterli's interiors, say) also use plugins and properties that 3.9.1 refuses; each is
+upgraded where Mitsuba 3 has a counterpart, with a :class:`Change` at its file and line, or
+refused where it has none. Which properties 3.9.1 refuses was measured by loading each plugin
+with each 0.5 property (tests/test_legacy.py repeats it).
 """
 
 from __future__ import annotations
@@ -14,7 +13,7 @@ import re
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 
-from sensaov_cli.scene.source import MITSUBA, Change, Refusals, new_element, where
+from sensaov_cli.scene.source import MITSUBA, Change, Refusals, is_object, new_element, where
 
 # (tag, 0.5 type) -> (3.9.1 type, why, alters the image)
 _RENAMED_PLUGINS = {
@@ -50,10 +49,60 @@ _IOR_OWNERS = ("dielectric", "thindielectric", "roughdielectric", "plastic", "ro
 _DISTRIBUTIONS = {"phong": "beckmann", "as": "ggx"}
 _SUN_APERTURE = 0.5358  # degrees: Mitsuba 3's default sun_aperture, 0.5's sunRadiusScale 1
 _SRGB_LIKE = ("-1", "2.2")  # gamma values that are the sRGB curve 3.9.1 applies by default
+_UV_NAMES = ("uoffset", "voffset", "uscale", "vscale")
 
 
-def upgrade_object(element: ET.Element, changes: list[Change], refusals: Refusals) -> None:
-    """Upgrade one object read from a 0.5/0.6 file (properties already snake_case)."""
+def upgrade_legacy(
+    root: ET.Element, legacy_files: set[str], changes: list[Change], refusals: Refusals
+) -> None:
+    """Upgrade every object read from one of ``legacy_files`` (paths as read): Mitsuba's own
+    renaming first, then what 3.9.1 lacks of 0.5/0.6, listed in ``changes``."""
+    for element in list(root.iter()):
+        if is_object(element) and where(element).rpartition(":")[0] in legacy_files:
+            _mitsuba_upgrade(element)
+            _upgrade_object(element, changes, refusals)
+
+
+def _mitsuba_upgrade(element: ET.Element) -> None:
+    # A child's name is a property of this object, so this object's file version decides.
+    diffuse = element.tag == "bsdf" and element.get("type") == "diffuse"
+    for child in element:
+        if child.get("name"):
+            child.set("name", snake_case(child.get("name", "")))
+        if diffuse and child.get("name") == "diffuse_reflectance":
+            child.set("name", "reflectance")
+    found = {c.get("name"): c for c in element if c.get("name") in _UV_NAMES}
+    if not found:
+        return
+    for child in found.values():
+        element.remove(child)
+    first = next(iter(found.values()))
+    transform = new_element("transform", {"name": "to_uv"}, like=first)
+    # Mitsuba builds scale(s) * translate(o): the translation applies first, as written here.
+    for tag, names in (("translate", ("uoffset", "voffset")), ("scale", ("uscale", "vscale"))):
+        axes = zip("xy", names, strict=True)
+        values = {axis: found[name].get("value", "") for axis, name in axes if name in found}
+        transform.append(new_element(tag, values, like=first))
+    element.append(transform)
+
+
+def snake_case(name: str) -> str:
+    """Mitsuba's camel_to_underscore_case, character for character."""
+    out: list[str] = []
+    i = 0
+    while i < len(name):
+        if i > 0 and name[i - 1].islower() and name[i].isupper():
+            out.append("_" + name[i].lower())
+            while i + 1 < len(name) and name[i + 1].isupper():
+                i += 1
+                out.append(name[i].lower())
+        else:
+            out.append(name[i])
+        i += 1
+    return "".join(out)
+
+
+def _upgrade_object(element: ET.Element, changes: list[Change], refusals: Refusals) -> None:
     _rename_plugin(element, changes)
     kind = element.get("type", "")
     for name in _DROPPED.get(kind, ()):
@@ -63,8 +112,8 @@ def upgrade_object(element: ET.Element, changes: list[Change], refusals: Refusal
     for name in _UNSUPPORTED.get(kind, ()):
         for child in _named(element, name):
             refusals.add(f"{kind} property {name!r} has no counterpart in {MITSUBA}", where(child))
-    for rule in _RULES.get(kind, ()):
-        rule(element, changes)
+    if kind in _RULES:
+        _RULES[kind](element, changes)
 
 
 _NO_EFFECT = f"{MITSUBA} has no such property; it makes no difference to the image rendered"
@@ -257,22 +306,19 @@ def _envmap(element: ET.Element, changes: list[Change]) -> None:
         changes.append(Change(f"envmap gamma {value} dropped", why, where(child), not linear))
 
 
-_RULES: dict[str, tuple[Callable[[ET.Element, list[Change]], None], ...]] = {
-    "bitmap": (_bitmap,),
-    "envmap": (_envmap,),
-    **dict.fromkeys(_IOR_OWNERS, (_ior_names,)),
-    "conductor": (_conductor,),
-    "roughconductor": (_conductor,),
-    "sunsky": (_sunsky,),
-    "obj": (_mesh,),
-    "ply": (_mesh,),
-    "serialized": (_mesh,),
-    "homogeneous": (_homogeneous,),
-    "heterogeneous": (_heterogeneous,),
+_RULES: dict[str, Callable[[ET.Element, list[Change]], None]] = {
+    "bitmap": _bitmap,
+    "envmap": _envmap,
+    **dict.fromkeys(_IOR_OWNERS, _ior_names),
+    **dict.fromkeys(("conductor", "roughconductor"), _conductor),
+    "sunsky": _sunsky,
+    **dict.fromkeys(("obj", "ply", "serialized"), _mesh),
+    "homogeneous": _homogeneous,
+    "heterogeneous": _heterogeneous,
 }
 
 
-def srgb_element(element: ET.Element, refusals: Refusals) -> Change | None:
+def srgb_element(element: ET.Element, changes: list[Change], refusals: Refusals) -> None:
     """A 0.5 ``<srgb>`` colour (gamma-encoded, or #rrggbb) as the linear ``<rgb>`` of 3.9.1."""
     text = element.get("value", "").strip()
     try:
@@ -282,12 +328,12 @@ def srgb_element(element: ET.Element, refusals: Refusals) -> Change | None:
             encoded = [float(part) for part in re.split(r"[,\s]+", text) if part]
     except ValueError:
         refusals.add(f"<srgb> value {text[:60]!r} is not a colour", where(element))
-        return None
+        return
     linear = [c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4 for c in encoded]
     element.tag = "rgb"
     element.set("value", ", ".join(f"{c:.6g}" for c in linear))
     why = f"{MITSUBA} has no <srgb>: the colour is decoded to the linear RGB <rgb> takes"
-    return Change(f"<srgb> {text} -> <rgb> {element.get('value')}", why, where(element))
+    changes.append(Change(f"<srgb> {text} -> <rgb> {element.get('value')}", why, where(element)))
 
 
 # Every plugin Mitsuba 3.9.1 has, by tag (its plugins folder, and the Python integrators);

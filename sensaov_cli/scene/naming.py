@@ -1,16 +1,11 @@
 """Names for the objects a scene leaves unnamed, and what the scene says about its objects.
 
 Mitsuba keys an object without an id by its memory address (``object_<pointer>``), new on
-every run, so every unnamed object gets an id before loading. The id comes from what the scene
-says about the object, so people recognise it: a mesh's file stem (``blob`` for
-``meshes/blob.ply``; a ``serialized`` sub-mesh adds its ``shape_index``; a generic, numbered
-stem adds the id of its material: ``Mesh262_Walls`` for ``models/Mesh262.obj`` using
-``Walls``), the id of the area emitter it carries (the id moves to the shape: the shape is
-the object sensaov reports, and the user named it), ``<type>_light`` for a shape carrying an
-unnamed area emitter, the BSDF it refs (``white_rectangle``), an instance's shapegroup and
-index (``pot_group_2``), an emitter's type (``point_light``). A name already taken gets a
-suffix (``_1``, ``_2``, …), so it never clashes with an id the user wrote. Names depend only
-on the scene text, so two loads of one scene agree.
+every run, so every unnamed object gets an id before loading, from what the scene says about
+it so that people recognise it (``blob`` for ``meshes/blob.ply``, ``Mesh262_Walls`` for a
+numbered mesh using ``Walls``, ``white_rectangle``, ``pot_group_2``, ``point_light``). A name
+already taken gets a suffix (``_1``, ``_2``, …), so it never clashes with an id the user
+wrote. Names depend only on the scene text, so two loads of one scene agree.
 """
 
 from __future__ import annotations
@@ -45,12 +40,8 @@ def objects_by_id(root: ET.Element) -> dict[str, ET.Element]:
 
 def refs_to(element: ET.Element, tag: str, ids: dict[str, ET.Element]) -> list[ET.Element]:
     """The objects of kind ``tag`` that ``element`` uses directly, inline or by ``<ref>``."""
-    found = []
-    for child in element:
-        target = ids.get(child.get("id", "")) if child.tag == "ref" else child
-        if target is not None and target.tag == tag:
-            found.append(target)
-    return found
+    targets = (ids.get(c.get("id", "")) if c.tag == "ref" else c for c in element)
+    return [target for target in targets if target is not None and target.tag == tag]
 
 
 def name_objects(root: ET.Element) -> dict[str, ET.Element]:
@@ -107,23 +98,19 @@ def _base_name(element: ET.Element, ids: dict[str, ET.Element]) -> str:
         return f"{kind}_{element.tag}"
     filename = child_value(element, "filename")
     bsdfs = refs_to(element, "bsdf", ids)
+    bsdf_id = bsdfs[0].get("id", "") if bsdfs else ""
+    # "floor_mat" -> "floor": the material word adds nothing to an object's name.
+    material = _MATERIAL_SUFFIX.sub("", bsdf_id) or bsdf_id
     if kind in _MESH_TYPES and filename:
         stem = PurePath(filename).stem
         index = child_value(element, "shape_index")
         stem = f"{stem}_{index}" if kind == "serialized" and index else stem
-        if _GENERIC_STEM.fullmatch(stem) and bsdfs and bsdfs[0].get("id"):
-            return f"{stem}_{_material_word(bsdfs[0].get('id', ''))}"  # Mesh262_Walls
+        if _GENERIC_STEM.fullmatch(stem) and material:
+            return f"{stem}_{material}"  # Mesh262_Walls
         return stem
     if any(child.tag == "emitter" for child in element):  # an area light is written inline
         return f"{kind}_light"
-    if bsdfs and bsdfs[0].get("id"):
-        return f"{_material_word(bsdfs[0].get('id', ''))}_{kind}"
-    return kind
-
-
-def _material_word(bsdf_id: str) -> str:
-    """ "floor_mat" -> "floor": the material word adds nothing to an object's name."""
-    return _MATERIAL_SUFFIX.sub("", bsdf_id) or bsdf_id
+    return f"{material}_{kind}" if material else kind
 
 
 def _sanitize(name: str) -> str:
@@ -171,15 +158,10 @@ def materials(root: ET.Element) -> dict[str, str]:
     found: dict[str, str] = {}
     for shape in root.iter("shape"):
         if shape.get("type") not in ("instance", "shapegroup"):
-            found[shape.get("id", "")] = _material(shape, ids)
+            bsdfs = refs_to(shape, "bsdf", ids)
+            unnamed = f"{shape.get('id', 'shape')}_bsdf"  # an inline BSDF without an id
+            found[shape.get("id", "")] = (bsdfs[0].get("id") or unnamed) if bsdfs else "default"
     for instance, group in instances(root).items():
         members = [found.get(m.get("id", ""), "default") for m in ids[group] if m.tag == "shape"]
         found[instance] = "+".join(dict.fromkeys(members)) or "default"
     return found
-
-
-def _material(shape: ET.Element, ids: dict[str, ET.Element]) -> str:
-    bsdfs = refs_to(shape, "bsdf", ids)
-    if not bsdfs:
-        return "default"
-    return bsdfs[0].get("id") or f"{shape.get('id', 'shape')}_bsdf"

@@ -1,43 +1,17 @@
 """A user's scene prepared for differentiation: expanded once, rewritten, fingerprinted.
 
-The user's files are never modified. The scene is expanded as Mitsuba's parser reads it
-(expand.py: includes, ``$name`` arguments, ``<path>``, aliases, file names made absolute),
-then rewritten, and the text is handed to ``mitsuba.load_string``. Every command prepares its
-scene once, here, and passes the :class:`PreparedScene` down. What the rewrite changes, and
-why, is listed in ``PreparedScene.changes``:
-
-- the integrator (integrator.py); bitmap textures, nested ones too, load as float
-  (``format = variant``) so their texels receive gradients (8-bit textures load as
-  non-differentiable integers by default); envmaps load their images as float already and
-  take no ``format``;
-- unnamed objects get stable ids people recognise (naming.py); Mitsuba would key them by
-  memory address;
-- a top-level texture used through ``<ref>`` is written where it is used: Mitsuba keys a
-  top-level bitmap by memory address (its id is lost when the plugin expands), a nested one by
-  the path of its user (``floor_mat.reflectance.data``). With ``shared: split`` each use gets
-  its own copy (its own parameters, like split BSDFs); with ``keep`` the texture moves into its
-  first user and the other uses keep referring to it;
-- with ``shared: split``, a BSDF used by several shapes is copied into each of them, so each
-  object gets its own gradient (the copies' gradients sum to the shared one); a shapegroup
-  used by several instances is copied for each instance first (sharing.py);
-- the objective camera is chosen, added (inline ``look_at``) or resized, and each inspection
-  camera gets a sensor of its own (sensors.py);
-- every number of a value element is checked finite (as float32) at its file and line.
-
-Scene arguments and the job's render settings: ``scene_args`` fill the scene's ``$name``s as
-``mitsuba.load_file(path, **scene_args)`` would, and the values used are recorded
-(``PreparedScene.scene_args``). sensaov renders with the job's ``render.spp`` and, when given,
-``render.resolution``; the scene's own film size (often ``$res``) is used when the job leaves
-the resolution unset, and its sampler's ``sample_count`` (often ``$spp``) is reported as
-``PreparedScene.sample_count`` for a job that leaves spp unset. A scene argument is never
-rewritten: to change what the scene itself says, set the argument.
+The user's files are never modified: the scene is expanded as Mitsuba's parser reads it,
+rewritten, and the text handed to ``mitsuba.load_string``; what the rewrite changes, and why,
+is listed in ``PreparedScene.changes``. A top-level texture used through ``<ref>`` is written
+where it is used, since Mitsuba keys a top-level bitmap by memory address and a nested one by
+the path of its user (``floor_mat.reflectance.data``). A scene argument is never rewritten: to
+change what the scene itself says (its film size, often ``$res``), set the argument.
 """
 
 from __future__ import annotations
 
 import copy
 import hashlib
-import math
 import os
 import re
 import xml.etree.ElementTree as ET
@@ -48,7 +22,7 @@ from pathlib import Path
 from sensaov_cli.errors import SceneError, SpecError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.scene import naming
-from sensaov_cli.scene.expand import ExpandedScene, SceneArgument, expand_scene
+from sensaov_cli.scene.expand import SceneArgument, expand_scene
 from sensaov_cli.scene.integrator import IntegratorPlan, plan_integrator
 from sensaov_cli.scene.sensors import (
     add_inspection_sensor,
@@ -92,16 +66,6 @@ class PreparedScene:
     changes: tuple[SceneChange, ...]  # what was rewritten and why
 
     @property
-    def scene_integrator(self) -> str:
-        """The integrator type the scene renders with (a wrapper's nested one)."""
-        return self.integration.scene_kind
-
-    @property
-    def integrator(self) -> str:
-        """The replay integrator that differentiates it: prb, or prbvolpath for media."""
-        return self.integration.replay
-
-    @property
     def replaced_integrator(self) -> str | None:
         """The scene's integrator when it renders other light transport than the replay."""
         return None if self.integration.same_transport else self.integration.scene_kind
@@ -127,20 +91,15 @@ def prepare_scene(job: JobSpec, cameras: tuple[CameraSpec, ...] = ()) -> Prepare
     Every camera the job names is checked here, those not in ``cameras`` too, so ``validate``
     and ``run`` refuse a camera the scene lacks (or a film too large) before anything renders.
     """
-    expanded = expand_scene(job.scene, job.scene_args)
-    named = naming.name_objects(expanded.root)
-    _check_camera_ids(job, sensor_ids(expanded.root))
-    others = tuple(c for c in job.inspection_cameras if c not in cameras)
-    return _rewrite(
+    return prepare_xml(
         job.scene,
-        expanded,
-        named,
         max_depth=job.render.max_depth,
         camera=job.objective_camera,
         resolution=job.render.resolution,
         shared=job.parameters.shared,
         inspection=cameras,
-        checked=others,
+        scene_args=job.scene_args,
+        job=job,
     )
 
 
@@ -152,55 +111,33 @@ def prepare_xml(
     resolution: tuple[int, int] | None,
     shared: str,
     inspection: tuple[CameraSpec, ...] = (),
-    scene_args: Mapping[str, str] | None = None,
+    scene_args: Mapping[str, object] | None = None,
+    job: JobSpec | None = None,
 ) -> PreparedScene:
-    """A scene file prepared with explicit settings (``prepare_scene`` reads them from a job)."""
+    """A scene file prepared with explicit settings; ``job``, where given, has its cameras
+    checked against the scene, with the job's keys named."""
     expanded = expand_scene(path, scene_args or {})
-    named = naming.name_objects(expanded.root)
-    return _rewrite(
-        path,
-        expanded,
-        named,
-        max_depth=max_depth,
-        camera=camera,
-        resolution=resolution,
-        shared=shared,
-        inspection=inspection,
-        checked=(),
-    )
-
-
-def _rewrite(
-    path: Path,
-    expanded: ExpandedScene,
-    named: dict[str, ET.Element],
-    *,
-    max_depth: int | None,
-    camera: CameraSpec,
-    resolution: tuple[int, int] | None,
-    shared: str,
-    inspection: tuple[CameraSpec, ...],
-    checked: tuple[CameraSpec, ...],
-) -> PreparedScene:
     root = expanded.root
-    _refuse_non_finite_numbers(root)
+    named = naming.name_objects(root)
     own_sensors = sensor_ids(root)
+    if job is not None:
+        _check_camera_ids(job, own_sensors)
+    _refuse_non_finite_numbers(root)
     changes = list(expanded.changes)  # old formats upgraded, each with its line
     changes += [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
-    integration = plan_integrator(root, max_depth)
-    changes += integration.changes
-    bitmaps, converted = _bitmaps_as_float(root)
-    changes += [SceneChange(f"bitmap {Path(f).name} loaded as float", _EIGHT_BIT, where(t))
-                for t, f in converted]  # fmt: skip
+    integration = plan_integrator(root, max_depth, changes)
+    bitmaps = _bitmaps_as_float(root, changes)
     groups = split_shapegroups(root) if shared == "split" else {}  # before the BSDFs
     materials = naming.materials(root)  # before splitting: copies keep the user's name
     textures = place_textures(root, copies=shared == "split")
     split = split_shared_bsdfs(root) if shared == "split" else {}
     changes += _sharing_changes(groups, textures, split, shared)
     sensor, inspection_ids = _cameras(root, path, camera, resolution, inspection)
-    if checked:  # cameras this command does not load: placed on a copy, to refuse them early
-        _cameras(copy.deepcopy(root), path, camera, resolution, checked)
+    others = () if job is None else tuple(c for c in job.inspection_cameras if c not in inspection)
+    if others:  # cameras this command does not load: placed on a copy, to refuse them early
+        _cameras(copy.deepcopy(root), path, camera, resolution, others)
     text, line_sources = write_xml(root)
+    job_args = {name: a.value for name, a in expanded.arguments.items() if a.origin == "job"}
     return PreparedScene(
         path=path,
         text=text,
@@ -220,7 +157,7 @@ def _rewrite(
         search_path=expanded.search_path,
         line_sources=line_sources,
         integration=integration,
-        fingerprint=_fingerprint(expanded.files, _job_arguments(expanded), path.parent),
+        fingerprint=_fingerprint(expanded.files, job_args, path.parent),
         changes=tuple(changes),
     )
 
@@ -244,11 +181,6 @@ def _sharing_changes(
     changes += [SceneChange(f"bsdf {b!r} copied into {', '.join(s)}", own, "")
                 for b, s in split.items()]  # fmt: skip
     return changes
-
-
-def _job_arguments(expanded: ExpandedScene) -> dict[str, str]:
-    """The arguments the job gave (all used: expansion refuses an unused one)."""
-    return {name: arg.value for name, arg in expanded.arguments.items() if arg.origin == "job"}
 
 
 def _check_camera_ids(job: JobSpec, ids: tuple[str, ...]) -> None:
@@ -282,18 +214,14 @@ def _cameras(
     if resolution is not None:
         set_film_size(root, sensor, resolution)
     check_film_size(root, sensor, "objective camera")
-    key = "inspection camera {!r}: sensor"
-    return sensor, {
-        cam.name: add_inspection_sensor(root, cam, sensor, path, key.format(cam.name))
-        for cam in inspection
-    }
+    return sensor, {cam.name: add_inspection_sensor(root, cam, sensor, path) for cam in inspection}
 
 
 def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: Path) -> str:
     """sha256 over every file the scene reads (the scene, its includes, meshes, textures,
     envmaps, spectra) and the scene arguments, so an edit to any of them counts."""
     digest = hashlib.sha256()
-    for name, value in sorted((str(k), str(v)) for k, v in scene_args.items()):
+    for name, value in sorted(scene_args.items()):
         digest.update(f"arg\0{name}\0{value}\0".encode())
     for file in files:
         # Names relative to the scene folder: moving the whole project keeps the fingerprint.
@@ -311,12 +239,10 @@ def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: P
 # --- bitmaps: loaded as float; their lookup settings, which the plugin's binding hides ---
 
 
-def _bitmaps_as_float(
-    root: ET.Element,
-) -> tuple[tuple[str, ...], list[tuple[ET.Element, str]]]:
-    """Load every bitmap texture as float: every bitmap's file name, as written, and each
-    texture that had no ``format`` (it would have loaded as integers) with its file name."""
-    files, converted = [], []
+def _bitmaps_as_float(root: ET.Element, changes: list[SceneChange]) -> tuple[str, ...]:
+    """Load every bitmap texture that has no ``format`` as float, so its texels receive
+    gradients (envmaps load theirs as float already); returns every bitmap's file name."""
+    files = []
     for texture in root.iter("texture"):
         if texture.get("type") != "bitmap":
             continue
@@ -324,9 +250,12 @@ def _bitmaps_as_float(
         if filename is not None:
             files.append(filename)
         if naming.child_value(texture, "format") is None:
-            converted.append((texture, filename or "(no file)"))
             ET.SubElement(texture, "string", {"name": "format", "value": "variant"})
-    return tuple(files), converted
+            name = Path(filename or "(no file)").name
+            changes.append(
+                SceneChange(f"bitmap {name} loaded as float", _EIGHT_BIT, where(texture))
+            )
+    return tuple(files)
 
 
 def _bitmap_options(root: ET.Element) -> dict[str, tuple[str, str, str]]:
@@ -346,9 +275,8 @@ def _bitmap_options(root: ET.Element) -> dict[str, tuple[str, str, str]]:
         )
         name = Path(filename).name
         if name in options and options[name][:2] != found:
-            first = options[name]
             note = f"{name} is used with several filter/wrap settings; the first is shown"
-            options[name] = (first[0], first[1], note)
+            options[name] = (*options[name][:2], note)
         else:
             options.setdefault(name, (*found, ""))
     return options
@@ -370,9 +298,7 @@ def _refuse_non_finite_numbers(root: ET.Element) -> None:
     Mitsuba reads ``nan`` and ``inf`` (and ``1e39``, infinite as float32) wherever a number
     goes, and loads the scene; the run would then fail at the first objective, blaming it.
     """
-    for element in root.iter():
-        if element.tag not in _VALUE_TAGS:
-            continue
+    for element in (e for e in root.iter() if e.tag in _VALUE_TAGS):
         for attribute, text in user_attributes(element):
             if attribute in _NOT_NUMBERS:
                 continue
@@ -393,4 +319,4 @@ def _not_finite(token: str) -> bool:
         value = float(token)
     except ValueError:
         return False  # not a number at all: Mitsuba says so itself
-    return not math.isfinite(value) or abs(value) > FLOAT32_MAX
+    return not abs(value) <= FLOAT32_MAX  # NaN too

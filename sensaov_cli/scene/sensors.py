@@ -4,8 +4,7 @@ Every id in one Mitsuba scene must be unique, films, samplers and filters includ
 sensor copied for an inspection camera (or a film copied for a look-at camera) loses the ids
 of the objects it carried (its ``<ref>``s keep theirs). A film shared between sensors by
 ``<ref>`` is copied into a sensor before that sensor's film is resized, so resizing one camera
-never resizes another. A film sensaov resizes loses its crop window, so its image has the size
-asked for.
+never resizes another.
 """
 
 from __future__ import annotations
@@ -16,6 +15,7 @@ from pathlib import Path
 from sensaov_cli.errors import SceneError
 from sensaov_cli.job.spec import CameraSpec
 from sensaov_cli.scene.naming import child_value, objects_by_id
+from sensaov_cli.scene.sharing import replace_ref
 from sensaov_cli.scene.source import detached_copy, where
 
 OBJECTIVE_SENSOR_ID = "sensaov_objective"
@@ -46,11 +46,9 @@ def choose_sensor(
             where=str(path),
             hint="add one, or give objective_camera a look_at",
         )
-    if camera.sensor is None:
-        return sensors[0]
-    for sensor in sensors:
-        if sensor.get("id") == camera.sensor:
-            return sensor
+    chosen = next((s for s in sensors if camera.sensor in (None, s.get("id"))), None)
+    if chosen is not None:
+        return chosen  # the first sensor where the camera names none
     raise SceneError(
         f"no sensor with id {camera.sensor!r} in {path.name}",
         where=where,
@@ -59,12 +57,13 @@ def choose_sensor(
 
 
 def add_inspection_sensor(
-    root: ET.Element, camera: CameraSpec, objective: ET.Element, path: Path, where: str
+    root: ET.Element, camera: CameraSpec, objective: ET.Element, path: Path
 ) -> str:
     """A sensor of its own for each inspection camera, so resolution overrides stay local."""
     if camera.look_at is not None:
         source = _add_look_at_sensor(root, camera, objective)
     else:
+        where = f"inspection camera {camera.name!r}: sensor"
         chosen = objective if camera.objective else choose_sensor(root, camera, path, where)
         source = detached_copy(chosen)
         root.append(source)
@@ -86,19 +85,13 @@ def sample_count(root: ET.Element, sensor: ET.Element) -> int | None:
 
 def own_film(root: ET.Element, sensor: ET.Element) -> ET.Element:
     """The sensor's film as an element of its own (a ``<ref>``'d film is copied in)."""
-    film = sensor.find("film")
-    if film is not None:
-        return film
-    shared = _child_object(root, sensor, "film")
-    if shared is None:
+    film = _child_object(root, sensor, "film")
+    if film is None:
         return ET.SubElement(sensor, "film", {"type": "hdrfilm"})
-    ref = next(c for c in sensor if c.tag == "ref" and c.get("id") == shared.get("id"))
-    film = detached_copy(shared)
-    film.attrib.pop("name", None)
-    if ref.get("name"):
-        film.set("name", ref.get("name", ""))
-    sensor.insert(list(sensor).index(ref), film)
-    sensor.remove(ref)
+    if sensor.find("film") is None:  # shared by <ref>
+        ref = next(c for c in sensor if c.tag == "ref" and c.get("id") == film.get("id"))
+        film = detached_copy(film)
+        replace_ref(sensor, ref, film)
     return film
 
 
@@ -142,26 +135,17 @@ def _child_object(root: ET.Element, sensor: ET.Element, tag: str) -> ET.Element 
     return next((target for target in refs if target is not None and target.tag == tag), None)
 
 
-def _vector(values: tuple[float, float, float]) -> str:
-    return ", ".join(repr(float(v)) for v in values)
-
-
 def _add_look_at_sensor(
     root: ET.Element, camera: CameraSpec, template: ET.Element | None
 ) -> ET.Element:
-    assert camera.look_at is not None
+    look_at = camera.look_at
+    assert look_at is not None
     sensor = ET.SubElement(root, "sensor", {"type": "perspective", "id": OBJECTIVE_SENSOR_ID})
     ET.SubElement(sensor, "float", {"name": "fov", "value": repr(float(camera.fov))})
     transform = ET.SubElement(sensor, "transform", {"name": "to_world"})
-    ET.SubElement(
-        transform,
-        "lookat",
-        {
-            "origin": _vector(camera.look_at.origin),
-            "target": _vector(camera.look_at.target),
-            "up": _vector(camera.look_at.up),
-        },
-    )
+    points = {"origin": look_at.origin, "target": look_at.target, "up": look_at.up}
+    lookat = {key: ", ".join(repr(float(v)) for v in xyz) for key, xyz in points.items()}
+    ET.SubElement(transform, "lookat", lookat)
     film = _child_object(root, template, "film") if template is not None else None
     if film is not None:
         sensor.append(detached_copy(film))

@@ -107,21 +107,15 @@ def split_shared_bsdfs(root: ET.Element) -> dict[str, tuple[str, ...]]:
 
 
 def split_shapegroups(root: ET.Element) -> dict[str, tuple[str, ...]]:
-    """Give each instance of a shapegroup used by several instances a copy of its own.
-
-    Instances share their shapegroup's parameters, so without copies each instance would get
-    the whole group's gradient. A copy of group ``g`` for instance ``i`` is ``g_i`` and its
-    member ``m`` is ``m_i``; the instance's ``<ref>`` names the copy and the group goes.
-    Returns group id -> the instances that received a copy. A group with an object inside it
-    that something outside refs is left shared (a copy could not keep that ref).
-    """
-    groups = {
-        g.get("id", ""): g
-        for g in root.findall("shape")
-        if g.get("type") == "shapegroup" and g.get("id")
-    }
+    """Give each instance of a shapegroup used by several instances a copy of its own (``g_i``
+    for group ``g`` and instance ``i``): instances share their shapegroup's parameters, so each
+    would get the whole group's gradient. A group with an object inside it that something
+    outside refs is left shared (a copy could not keep that ref). Returns group id -> the
+    instances that received a copy."""
+    shapes = root.findall("shape")
+    groups = {g.get("id", ""): g for g in shapes if g.get("type") == "shapegroup" and g.get("id")}
     uses: dict[str, list[tuple[ET.Element, ET.Element]]] = {}
-    for instance in root.findall("shape"):
+    for instance in shapes:
         for ref in instance.findall("ref") if instance.get("type") == "instance" else ():
             if ref.get("id") in groups and instance.get("id"):
                 uses.setdefault(ref.get("id", ""), []).append((instance, ref))
@@ -133,8 +127,7 @@ def split_shapegroups(root: ET.Element) -> dict[str, tuple[str, ...]]:
             continue
         position = list(root).index(group)
         for offset, (instance, ref) in enumerate(pairs):
-            suffix = instance.get("id", "")
-            copy = _group_copy(group, suffix, taken)
+            copy = _group_copy(group, instance.get("id", ""), taken)
             root.insert(position + offset, copy)
             ref.set("id", copy.get("id", ""))
         root.remove(group)
@@ -144,7 +137,6 @@ def split_shapegroups(root: ET.Element) -> dict[str, tuple[str, ...]]:
 
 def _refd_from_outside(root: ET.Element, group: ET.Element) -> bool:
     inner = {el.get("id") for el in group.iter() if el is not group and el.get("id")}
-    inner.discard(None)
     inside = set(group.iter())
     return any(ref.get("id") in inner for ref in root.iter("ref") if ref not in inside)
 

@@ -3,14 +3,9 @@ back from Mitsuba.
 
 Elements read here carry their origin (``file:line``) in a private attribute that survives
 ``copy.deepcopy`` (split BSDFs, inlined textures, sensor copies keep pointing at the user's
-line) and is never written out. :func:`write_xml` puts every element on a line of its own and
-returns, per line of the text Mitsuba reads, the user's ``file:line`` it came from, so that a
-load error Mitsuba reports as ``string (line L, col C)`` can be told at the user's file.
-
-What preparing a scene changes in it (a :class:`Change`, listed by ``sensaov params`` and in a
-buffer's provenance) and what it finds Mitsuba would refuse (:class:`Refusals`, gathered over
-the whole scene: every missing file, every unsupported plugin or property, reported together
-so that a user fixes them in one round, before Mitsuba starts) are told at those lines too.
+line) and is never written out. The changes preparing a scene makes (:class:`Change`) and what
+Mitsuba would refuse (:class:`Refusals`, gathered over the whole scene so that a user fixes
+everything in one round, before Mitsuba starts) are told at those lines too.
 """
 
 from __future__ import annotations
@@ -40,19 +35,10 @@ _MITSUBA_LOCATION = re.compile(
 MAX_XML_BYTES = 256 << 20  # far above any scene file; /dev/zero or a disk image is refused
 _LONG_QUOTED = re.compile(r'"([^"]{61,})"')  # a long value Mitsuba echoes, shown shortened
 _MITSUBA_SOURCE_TAG = re.compile(r"\[[\w.]+:\d+\]\s*")  # "[parser.cpp:451] "
-_ATTRIBUTE_ESCAPES = str.maketrans(
-    {
-        "&": "&amp;",
-        "<": "&lt;",
-        '"': "&quot;",
-        "\n": "&#10;",
-        "\r": "&#13;",
-        "\t": "&#9;",
-        # Mitsuba substitutes parameters again on the text it is given: a literal "$" left by the
-        # expansion (the user wrote "\$") must reach it escaped.
-        "$": "\\$",
-    }
-)
+_XML_ESCAPES = {"&": "&amp;", "<": "&lt;", '"': "&quot;"} | {c: f"&#{ord(c)};" for c in "\n\r\t"}
+# Mitsuba substitutes parameters again on the text it is given: a literal "$" left by the
+# expansion (the user wrote "\$") must reach it escaped.
+_ATTRIBUTE_ESCAPES = str.maketrans({**_XML_ESCAPES, "$": "\\$"})
 
 
 def is_object(element: ET.Element) -> bool:
@@ -64,16 +50,11 @@ def read_xml(path: Path) -> ET.Element:
     """Parse ``path``; every element remembers the line its start tag is on."""
     data = read_regular(path, "scene file", cap=MAX_XML_BYTES, error=SceneError)
     parser = expat.ParserCreate(_fallback_encoding(data))
-    stack: list[ET.Element] = []
-    found: list[ET.Element] = []
+    stack = [ET.Element("document")]  # the document holds the root element
 
     def start(tag: str, attrs: dict[str, str]) -> None:
-        element = ET.Element(tag, attrs)
+        element = ET.SubElement(stack[-1], tag, attrs)
         element.set(_WHERE, f"{path}:{parser.CurrentLineNumber}")
-        if stack:
-            stack[-1].append(element)
-        else:
-            found.append(element)
         stack.append(element)
 
     parser.StartElementHandler = start
@@ -83,7 +64,7 @@ def read_xml(path: Path) -> ET.Element:
     except expat.ExpatError as exc:
         message = f"malformed XML: {expat.ErrorString(exc.code)}"
         raise SceneError(message, where=f"{path}:{exc.lineno}") from exc
-    return found[0]
+    return stack[0][0]
 
 
 def _fallback_encoding(data: bytes) -> str | None:
@@ -111,14 +92,10 @@ def user_attributes(element: ET.Element) -> list[tuple[str, str]]:
     return [(key, value) for key, value in element.attrib.items() if key != _WHERE]
 
 
-def source_file(element: ET.Element) -> str:
-    return where(element).rpartition(":")[0]
-
-
-def new_element(tag: str, attrib: dict[str, str], like: ET.Element | None = None) -> ET.Element:
+def new_element(tag: str, attrib: dict[str, str], like: ET.Element) -> ET.Element:
     """An element sensaov writes; ``like`` lends it the user's line it stands for."""
     element = ET.Element(tag, attrib)
-    if like is not None and like.get(_WHERE):
+    if like.get(_WHERE):
         element.set(_WHERE, where(like))
     return element
 
@@ -134,7 +111,9 @@ def detached_copy(element: ET.Element) -> ET.Element:
 
 
 def write_xml(root: ET.Element) -> tuple[str, tuple[str | None, ...]]:
-    """The scene text, and for each of its lines the user's ``file:line`` (None: added)."""
+    """The scene text, every element on a line of its own, and for each line the user's
+    ``file:line`` (None: added), so that a load error Mitsuba reports as ``string (line L, col
+    C)`` can be told at the user's file."""
     lines: list[str] = []
     sources: list[str | None] = []
     _write(root, 0, lines, sources)
@@ -142,7 +121,9 @@ def write_xml(root: ET.Element) -> tuple[str, tuple[str | None, ...]]:
 
 
 def _write(element: ET.Element, depth: int, lines: list[str], sources: list[str | None]) -> None:
-    attributes = "".join(f' {key}="{_escape(value)}"' for key, value in user_attributes(element))
+    attributes = "".join(
+        f' {key}="{value.translate(_ATTRIBUTE_ESCAPES)}"' for key, value in user_attributes(element)
+    )
     pad = "  " * depth
     children = list(element)
     sources.append(element.get(_WHERE))
@@ -154,10 +135,6 @@ def _write(element: ET.Element, depth: int, lines: list[str], sources: list[str 
         _write(child, depth + 1, lines, sources)
     lines.append(f"{pad}</{element.tag}>")
     sources.append(element.get(_WHERE))
-
-
-def _escape(value: str) -> str:
-    return value.translate(_ATTRIBUTE_ESCAPES)
 
 
 def locate_load_error(message: str, sources: tuple[str | None, ...]) -> tuple[str, str | None]:
