@@ -71,12 +71,16 @@ def sensaov(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[
     As the executable (``cli.console``) does: ``main``, its exit code (0 for none), sensaov's
     scratch folders removed. Both standard descriptors go to files for the call, so what
     Python prints and what Mitsuba or LLVM write to descriptor 1 or 2 arrive in one stream each,
-    in order; warnings print as in a fresh interpreter. The process's own state is put back
-    after: signal handlers, working folder, ``sys.path`` and the modules a Python objective
-    imported from a folder it added there (the next job may name another module alike).
+    in order; warnings print as in a fresh interpreter. The ledger of replaced outputs starts
+    empty, as a process's does (the one line names what this command replaced, and a bad input
+    found before any write keeps exit 2). The process's own state is put back after: signal
+    handlers, working folder, ``sys.path`` and the modules a Python objective imported from a
+    folder it added there (the next job may name another module alike).
     """
+    from sensaov_cli.outputs import atomic
     from sensaov_cli.outputs.atomic import remove_temporaries
 
+    atomic._replaced.clear()
     with ExitStack() as stack:
         out, err = (stack.enter_context(tempfile.TemporaryFile()) for _ in range(2))
         with _process_state(cwd), _standard_streams(out, err):
