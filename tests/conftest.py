@@ -140,15 +140,15 @@ def _standard_streams(out: IO[bytes], err: IO[bytes]) -> Iterator[None]:
     saved = [os.dup(descriptor) for descriptor in (1, 2)]
     os.dup2(out.fileno(), 1)
     os.dup2(err.fileno(), 2)
-    sys.stdout = open(1, "w", encoding="utf-8", closefd=False)  # noqa: SIM115
-    sys.stderr = open(2, "w", encoding="utf-8", errors="backslashreplace", closefd=False)  # noqa: SIM115
+    sys.stdout = open(1, "w", encoding="utf-8", closefd=False)
+    sys.stderr = open(2, "w", encoding="utf-8", errors="backslashreplace", closefd=False)
     sys.stderr.reconfigure(line_buffering=True)
     try:
         yield
     finally:
         for stream in (sys.stdout, sys.stderr):
             try:
-                stream.flush()
+                stream.close()  # flushed; the descriptor stays open (closefd=False)
             except (OSError, ValueError):
                 pass
         sys.stdout, sys.stderr = streams
