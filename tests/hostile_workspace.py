@@ -15,8 +15,6 @@ import json
 import os
 import shutil
 import struct
-import subprocess
-import sys
 import zipfile
 import zlib
 from collections.abc import Callable
@@ -26,7 +24,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .conftest import ROOT, SCENES
+from .conftest import SCENES
+from .conftest import sensaov as run_command
 
 SHARD = "shards/buffer.shard-{}-of-2.npz"
 SHARD_PRIMAL = "shards/primal.shard-{}-of-2.exr"
@@ -61,13 +60,7 @@ class Hostile:
 
 
 def sensaov(folder: Path, *args: str) -> None:
-    done = subprocess.run(
-        [sys.executable, "-m", "sensaov_cli", *args],
-        cwd=folder,
-        capture_output=True,
-        text=True,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
+    done = run_command(*args, cwd=folder)
     assert done.returncode == 0, done.stderr
 
 

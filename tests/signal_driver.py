@@ -6,6 +6,9 @@ POINT is where the signal is sent from:
   stage:PREFIX  a timer started when a progress stage whose name starts with PREFIX begins
                 (load_s, primal_s, backward_, view_) fires after DELAY seconds, from another
                 thread, so the signal lands in the middle of the stage's work (a kernel);
+                should the work be over sooner, the first output file the command then begins
+                is held until the signal has come (sent from there): the signal always lands
+                before anything is written, however fast the machine;
   write:N       inside the N-th output file's writer (counting from 1), after it wrote a part;
   rename        just before the first rename of a set of outputs (signals are held there);
   written       just after the first set of outputs was renamed into place (the command is
@@ -49,17 +52,32 @@ def send() -> None:
 
 
 def patch_stage(prefix: str) -> None:
-    original = Progress.stage
+    original, write = Progress.stage, atomic._written_temporary
+    timer: list[threading.Timer] = []  # started by the first matching stage only
+    sent = threading.Lock()
+
+    def send_once() -> None:
+        if sent.acquire(blocking=False):
+            send()
 
     @contextmanager
     def stage(self: Progress, name: str, label: str) -> Iterator[None]:
-        if name.startswith(prefix) and not STAMP.exists():
-            STAMP.write_text("")  # once: the first matching stage only
-            threading.Timer(DELAY, send).start()
+        if name.startswith(prefix) and not timer:
+            timer.append(threading.Timer(DELAY, send_once))
+            timer[0].start()
         with original(self, name, label):
             yield
 
+    def held(path: Path, writer: Callable[[Path], None]) -> Path:
+        if timer:
+            timer[0].cancel()
+            send_once()
+            while not interrupts.requested():  # the handler runs (and raises) in this wait
+                time.sleep(0.001)
+        return write(path, writer)
+
     Progress.stage = stage  # type: ignore[method-assign]
+    atomic._written_temporary = held  # type: ignore[assignment]
 
 
 def patch_write(n: int) -> None:

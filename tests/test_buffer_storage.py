@@ -22,7 +22,7 @@ from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import BufferFormatError
 from sensaov_cli.pipeline.rank import rank_by_cut
 from tests.bad_buffers import write_buffer
-from tests.conftest import sensaov
+from tests.conftest import sensaov_process
 
 OBJECTIVES = ("luma", "centre")
 
@@ -160,7 +160,7 @@ def test_100000_members_are_refused_in_one_short_line_within_a_second(tmp_path: 
         for i in range(100_000):
             zf.writestr(f"extra_{i:06d}.npy", entry)
     started = time.perf_counter()
-    result = sensaov("rank", str(path))
+    result = sensaov_process("rank", str(path))
     assert time.perf_counter() - started < 1.0 + _startup()
     (line,) = result.stderr.splitlines()
     assert f"{total} members, more than the 50000 a buffer may hold" in line and len(line) < 300
@@ -169,7 +169,7 @@ def test_100000_members_are_refused_in_one_short_line_within_a_second(tmp_path: 
 def _startup() -> float:
     """The command line's own start-up, measured here (not the reading being tested)."""
     started = time.perf_counter()
-    sensaov("--help")
+    sensaov_process("--help")
     return time.perf_counter() - started
 
 

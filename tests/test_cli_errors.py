@@ -1,23 +1,22 @@
 """A malformed job on the command line: exit code 2, one line on stderr, nothing written.
 
-The same table as test_spec's, run through ``python -m sensaov_cli`` as a user would, so the
-whole path from job file to terminal is covered: no traceback, no half-made output directory.
+The same table as test_spec's, run through the command line (``main``, as the executable runs
+it), so the whole path from job file to stderr is covered: no traceback, no half-made output
+directory.
 """
 
 from __future__ import annotations
 
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from sensaov_cli.errors import EXIT_BAD_INPUT
 
+from .conftest import sensaov
 from .spec_cases import CASE_PARAMS, CASES, SpecCase, expected_where, write_fixture
 
-REPO = Path(__file__).resolve().parents[1]
 VALIDATE_CASES = [
     pytest.param(case, id=case.id)
     for case in CASES
@@ -33,16 +32,7 @@ VALIDATE_CASES = [
 
 
 def run_cli(command: str, job: Path, cwd: Path) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
-    return subprocess.run(
-        [sys.executable, "-m", "sensaov_cli", command, str(job)],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    return sensaov(command, str(job), cwd=cwd)
 
 
 def listing(root: Path) -> set[str]:
