@@ -26,8 +26,9 @@ from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import image_like_backward, render_primal
 from sensaov_cli.render.forward import adjoint_images, forward_image
-from sensaov_cli.render.loading import LoadedScene, assign
+from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective
+from sensaov_cli.render.verify.fdcheck import difference
 from sensaov_cli.vocabulary import Trust
 
 # Same-seed central differences with ε = 1e-2 · max(1, |θ|): their curvature error is
@@ -147,7 +148,12 @@ def _row(
     forward = _weighted(adjoint, pushed.image) if pushed.image is not None else float("nan")
     central = None
     if asked and "discontinuous" not in info.flags:
-        central = _weighted(adjoint, _image_difference(loaded, info, v, spp, seed))
+
+        def image_at(side_seed: int) -> np.ndarray:
+            image = image_like_backward(loaded, loaded.routes[info.key], spp, side_seed)
+            return np.array(image, np.float32).astype(np.float64)
+
+        central = _weighted(adjoint, difference(loaded, info, v, FD_STEP, (seed, seed), image_at))
     record = buffer.param(info.key)
     # A repaired parameter's reverse mode is the one known wrong: its central difference may
     # disagree with forward mode without failing the check.
@@ -159,20 +165,3 @@ def _row(
 
 def _weighted(adjoint: np.ndarray, image: np.ndarray) -> float:
     return float((adjoint.astype(np.float64) * image.astype(np.float64)).sum())
-
-
-def _image_difference(
-    loaded: LoadedScene, info: ParamRecord, v: np.ndarray, spp: int, seed: int
-) -> np.ndarray:
-    """(I(θ + εv) − I(θ − εv)) / 2ε, both sides with the backward pass's samples at ``seed``."""
-    theta = np.array(loaded.params[info.key], dtype=np.float32).reshape(info.shape)
-    eps = FD_STEP * max(1.0, float(np.abs(theta).max()))
-    sides = []
-    try:
-        for sign in (1, -1):
-            assign(loaded, info.key, theta + sign * eps * v)
-            image = image_like_backward(loaded, loaded.routes[info.key], spp, seed)
-            sides.append(np.array(image, np.float32).astype(np.float64))
-    finally:
-        assign(loaded, info.key, theta)
-    return (sides[0] - sides[1]) / (2 * eps)
