@@ -1,9 +1,6 @@
 """Which scene parameters enter the sensitivity buffer, what slot each fills, who owns it.
 
-Owners are found by node identity (never by key strings: key names depend on declaration
-order); a parameter's type is the slot it fills, whatever its storage (the paper's horizontal
-cut). What leaves is the buffer's own :class:`~sensaov_cli.buffer.model.ParamRecord` for each
-selected parameter, and the reason for each one left out.
+A parameter's type is the slot it fills, whatever its storage (the paper's horizontal cut).
 """
 
 from __future__ import annotations
@@ -30,8 +27,6 @@ from sensaov_cli.render.verify.trust import (
 )
 from sensaov_cli.vocabulary import Trust
 
-# The slot a parameter fills, whatever its storage ("white.reflectance.value" and
-# "wall.bsdf.reflectance.data" are both reflectance): the paper's horizontal cut.
 TYPE_ALIASES = {
     "alpha": "roughness",
     "nested_texture": "bump",  # a bumpmap's height map
@@ -114,12 +109,9 @@ class Ownership:
 
 
 def ownership_of(mi: ModuleType, scene: Any, instances: Mapping[str, str]) -> Ownership:
-    """Every object (shape, instance, or emitter not attached to a shape) and the nodes it owns.
-
-    An instance owns its shapegroup's shapes, BSDFs and textures (``instances`` maps instance
-    ids to shapegroup ids, from the XML: Mitsuba exposes no link), so a BSDF used only inside
-    a shapegroup belongs to every instance of it.
-    """
+    """Every object (shape, instance, or emitter not attached to a shape) and the nodes it owns;
+    an instance owns its shapegroup's nodes (``instances``: instance id -> shapegroup id, from
+    the XML: Mitsuba exposes no link)."""
     groups = _shapegroups(mi, scene)
     owned: dict[str, list[Any]] = {}
     for index, shape in enumerate(scene.shapes()):
@@ -161,8 +153,7 @@ def select(
 ) -> Selection:
     """The selected records, the parameters left out and why, the bitmap behind each texture
     and the integrator each is differentiated by. ``media``: None where the scene's integrator
-    renders media, else that integrator (its media are not in the image, so their parameters
-    are left out)."""
+    renders media, else that integrator (whose media parameters are left out)."""
     selected, excluded, textures, routes, composition = [], [], {}, {}, {}
     children = _bsdf_children(mi, params.hierarchy)
     for key in params.keys():
@@ -304,12 +295,8 @@ def _composition(
 def _slot_and_holder(
     mi: ModuleType, parts: list[str], node: Any, hierarchy: Any
 ) -> tuple[str, Any]:
-    """The slot a parameter fills in the plugin that is not a texture (or volume), and that plugin.
-
-    A texture's parameters take the slot of the outermost texture: in
-    ``glaze.roughness.color0.value`` the uniform ``color0`` sits in a checkerboard that fills
-    the BSDF's ``roughness``, so its type is roughness, whatever the nesting.
-    """
+    """The slot a parameter fills in the plugin that is not a texture (or volume), and that
+    plugin: in ``glaze.roughness.color0.value`` the type is roughness, whatever the nesting."""
     levels, holder = _above_textures(mi, node, hierarchy)
     if levels == 0 or len(parts) <= levels:
         return parts[-1], node
@@ -322,8 +309,8 @@ def _in_medium(mi: ModuleType, node: Any, hierarchy: Any) -> bool:
 
 
 def _above_textures(mi: ModuleType, node: Any, hierarchy: Any) -> tuple[int, Any]:
-    """The texture levels above ``node`` (a medium's albedo is a volume) and the node they end
-    in: the plugin they fill a slot of, or the outermost texture when none holds it."""
+    """The texture (or volume) levels above ``node`` and the plugin they fill a slot of, or the
+    outermost texture when none holds it."""
     levels, holder = 0, node
     while isinstance(holder, mi.Texture | mi.Volume):
         levels += 1
@@ -346,8 +333,8 @@ def _plugin_name(node: Any) -> str:
 
 
 def _texture_source(mi: ModuleType, node: Any, sources: dict[str, Path]) -> TextureSource:
-    """The file behind a bitmap texture, and whether it was stored as 8-bit integers."""
-    # A bitmap texture prints the base name of its file; the XML pass knows the full paths.
+    """The file behind a bitmap texture (it prints only its base name), and whether it was
+    stored as 8-bit integers."""
     match = re.search(r'name = "([^"]*)"', str(node))
     path = sources.get(match.group(1)) if match else None
     if path is None or not path.is_file():
