@@ -1,13 +1,10 @@
 """A free inspection camera for ``sensaov view``: primary visibility from any viewpoint, fast.
 
-Dr.Jit compiles one kernel per distinct trace and bakes literal constants into it (MITSUBA-NOTES):
-a camera built from Python floats, or a film size or spp written as Python ints, would compile
-a new kernel on every move of the mouse. Here every
-number that changes between views (the camera's frame and field of view, the image size, spp,
-the seed) enters the trace as an opaque Dr.Jit variable, so every view after the first reuses
-the compiled kernel (``tests/test_view.py`` checks the kernel history). Rays follow Mitsuba's
+Dr.Jit bakes literal constants into its kernels (MITSUBA-NOTES): every number that changes
+between views (frame, field of view, image size, spp, seed) enters the trace as an opaque
+variable, so every view after the first reuses the compiled kernel. Rays follow Mitsuba's
 ``perspective`` sensor with ``fov_axis`` x, so a viewpoint saved as a job's ``look_at`` camera
-renders the same picture in ``sensaov project``. No gradient is ever computed here.
+renders the same picture in ``sensaov project``.
 """
 
 from __future__ import annotations
@@ -143,22 +140,18 @@ def _frame(pose: Pose, width: int, height: int) -> Frame:
     left /= np.linalg.norm(left)
     up = np.cross(forward, left)
     tan_x = math.tan(math.radians(pose.fov) / 2.0)
+    right = (-left).tolist()
     return Frame(
-        origin.tolist(),
-        forward.tolist(),
-        (-left).tolist(),
-        up.tolist(),
-        tan_x,
-        tan_x * height / width,
+        origin.tolist(), forward.tolist(), right, up.tolist(), tan_x, tan_x * height / width
     )
 
 
 def sensor_pose(mi: ModuleType, sensor: Any, bounds: tuple[Vec3, Vec3]) -> Pose:
     """A scene sensor's pose as ``look_at``: origin, a target in front of it, up, x field of view.
 
-    The target is the point along the view axis nearest the centre of the scene's bounds (a
-    camera orbits around it); a sensor that is not a pinhole (orthographic, thin lens) or
-    whose frame is mirrored is shown as the nearest pinhole, and the pose says so.
+    The target is the point along the view axis nearest the centre of the scene's bounds; a
+    sensor that is not a pinhole or whose frame is mirrored is shown as the nearest pinhole,
+    and the pose says so.
     """
     params = mi.traverse(sensor)
     matrix = np.array(params["to_world"].matrix.numpy(), np.float64).reshape(-1, 4, 4)[0]
