@@ -305,24 +305,15 @@ def run_adjoint(
 ) -> AdjointResult:
     """Every batch's primal and backward passes, their mean, its statistics and self-checks."""
     plan = batch_plan(spp, seed, batches)
+    spps = [n for n, _ in plan]
     results = []
     with reproducible(loaded, deterministic) as exact:
         for index, (batch_spp, batch_seed) in enumerate(plan):
-            labels = (f"batch {index + 1}/{len(plan)}: ", f"_batch{index + 1}")
-            results.append(
-                _run_passes(
-                    loaded,
-                    objectives,
-                    spp=batch_spp,
-                    seed=batch_seed,
-                    progress=progress,
-                    labels=labels if len(plan) > 1 else ("", ""),
-                )  # fmt: skip
-            )
-    keys = [info.key for info in loaded.selected]
-    spps = [n for n, _ in plan]
+            labels = (f"batch {index + 1}/{batches}: ", f"_batch{index + 1}")
+            labels = labels if batches > 1 else ("", "")
+            results.append(_run_passes(loaded, objectives, batch_spp, batch_seed, progress, labels))
     grads, objective_values, statistics = combine_batches(
-        keys,
+        [info.key for info in loaded.selected],
         results[0].values,
         [r.grads for r in results],
         [r.objective_values for r in results],
@@ -330,40 +321,29 @@ def run_adjoint(
         [s for _, s in plan],
         "batches",
     )
-    image = (
-        results[0].image if len(results) == 1 else weighted_mean([r.image for r in results], spps)
-    )
-    result = replace(
-        results[0], image=image, grads=grads, objective_values=objective_values,
-        statistics=statistics, spp=sum(spps),
-    )  # fmt: skip
-    checked = self_check(
-        loaded, objectives, result.image, result.values, result.grads,
-        result.objective_values, result.spp,
-    )  # fmt: skip
+    image = results[0].image if batches == 1 else weighted_mean([r.image for r in results], spps)
+    values = results[0].values
+    checked = self_check(loaded, objectives, image, values, grads, objective_values, sum(spps))
+    integrators = {name: sorted(keys) for name, keys in integrator_plan(loaded).items()}
+    provenance = {
+        "gradient_integrators": integrators,
+        "self_checks": checked.figures(),
+        "batches": [{"spp": n, "seed": s} for n, s in plan],
+    }
     return replace(
-        result,
-        deterministic=exact,
-        params=checked.params,
-        checks=checked,
-        provenance={
-            "gradient_integrators": {
-                name: sorted(keys) for name, keys in integrator_plan(loaded).items()
-            },
-            "self_checks": checked.figures(),
-            "batches": [{"spp": n, "seed": s} for n, s in plan],
-        },
-    )
+        results[0], image=image, grads=grads, objective_values=objective_values,
+        statistics=statistics, spp=sum(spps), deterministic=exact, params=checked.params,
+        checks=checked, provenance=provenance,
+    )  # fmt: skip
 
 
 def _run_passes(
     loaded: LoadedScene,
     objectives: list[Objective],
-    *,
     spp: int,
     seed: int,
     progress: Progress,
-    labels: tuple[str, str] = ("", ""),
+    labels: tuple[str, str],
 ) -> AdjointResult:
     """One batch: a primal, then each objective's backward passes (``labels``: the batch's
     prefix in progress lines and suffix in timing names)."""
