@@ -129,9 +129,7 @@ def _import_mitsuba(variant: str) -> ModuleType:
 
 
 def library_versions(mi: ModuleType) -> dict[str, str]:
-    """The versions of the Mitsuba and Dr.Jit that are loaded, for provenance: read from the
-    modules themselves, which is what ran, rather than from the installed packages' metadata
-    (the same strings for a normal install; tests/test_run.py compares them)."""
+    """The versions of the Mitsuba and Dr.Jit that are loaded (what ran), for provenance."""
     import drjit as dr
 
     drjit_version = dr.__version__  # type: ignore[attr-defined]  # set at import, not in stubs

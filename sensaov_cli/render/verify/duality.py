@@ -28,14 +28,12 @@ from sensaov_cli.render.adjoint import image_like_backward, render_primal
 from sensaov_cli.render.forward import adjoint_images, forward_image
 from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective
-from sensaov_cli.render.verify.fdcheck import difference
+from sensaov_cli.render.verify.fdcheck import STEP, difference
 from sensaov_cli.vocabulary import Trust
 
-# Same-seed central differences with ε = 1e-2 · max(1, |θ|): their curvature error is
-# O(ε²) and float32 cancellation O(1e-7/ε); 1e-3 measured on smooth parameters (MITSUBA-NOTES),
-# 2 % leaves room for a path that crosses a light's edge between the two sides.
+# Same-seed central differences (fdcheck.STEP): 2 % leaves room for a path that crosses a
+# light's edge between the two sides.
 FD_TOLERANCE = 0.02
-FD_STEP = 1e-2
 _TINY = 1e-30
 
 
@@ -90,10 +88,10 @@ def top_keys(buffer: SensitivityBuffer, objective: str, k: int) -> list[str]:
 def directions(info: ParamRecord, count: int, seed: int) -> list[tuple[str, np.ndarray]]:
     """Ones, then ``count`` Gaussian directions (seeded: the same every run)."""
     rng = np.random.default_rng(seed)
-    found = [("ones", np.ones(info.shape, np.float32))]
-    for n in range(count):
-        found.append((f"random {n + 1}", rng.standard_normal(info.shape).astype(np.float32)))
-    return found
+    randoms = [rng.standard_normal(info.shape).astype(np.float32) for _ in range(count)]
+    return [("ones", np.ones(info.shape, np.float32))] + [
+        (f"random {n + 1}", v) for n, v in enumerate(randoms)
+    ]
 
 
 def check_duality(
@@ -153,7 +151,7 @@ def _row(
             image = image_like_backward(loaded, loaded.routes[info.key], spp, side_seed)
             return np.array(image, np.float32).astype(np.float64)
 
-        central = _weighted(adjoint, difference(loaded, info, v, FD_STEP, (seed, seed), image_at))
+        central = _weighted(adjoint, difference(loaded, info, v, STEP, (seed, seed), image_at))
     record = buffer.param(info.key)
     # A repaired parameter's reverse mode is the one known wrong: its central difference may
     # disagree with forward mode without failing the check.
