@@ -51,29 +51,22 @@ SPECTRAL_COEFFICIENTS_NOTE = (
     "in spectral variants Mitsuba stores this colour as spectral-upsampling coefficients, so "
     "its scores are not a proportional change of the colour; use an RGB variant for colours"
 )
-# Mitsuba class names of the common plugins -> the plugin names users write in XML.
+# Mitsuba class names -> the plugin names users write in XML, where not the lowercased name.
 PLUGIN_NAMES = {
     "SmoothDiffuse": "diffuse",
     "SmoothPlastic": "plastic",
     "SmoothDielectric": "dielectric",
     "SmoothConductor": "conductor",
-    "ThinDielectric": "thindielectric",
-    "BlendBSDF": "blendbsdf",
     "MaskBSDF": "mask",
-    "Principled": "principled",
     "AreaLight": "area",
     "PointLight": "point",
     "SpotLight": "spot",
     "ConstantBackgroundEmitter": "constant",
     "EnvironmentMapEmitter": "envmap",
     "DirectionalEmitter": "directional",
-    "DirectionalArea": "directionalarea",
-    "Projector": "projector",
     "SunskyEmitter": "sunsky",
     "TimedSunskyEmitter": "timed_sunsky",
     "TwoSidedBRDF": "twosided",
-    "BumpMap": "bumpmap",
-    "NormalMap": "normalmap",
     "PolarizedPlastic": "pplastic",
     "HomogeneousMedium": "homogeneous",
     "HeterogeneousMedium": "heterogeneous",

@@ -234,24 +234,6 @@ def repair(
     )
 
 
-class _Objectives:
-    """M of every objective at the current parameters, per (seed, spp); base renders cached."""
-
-    def __init__(self, loaded: LoadedScene, objectives: Sequence[Objective], spp: int):
-        self.loaded, self.objectives, self.spp = loaded, objectives, spp
-        self.base: dict[int, np.ndarray] = {}
-
-    def __call__(self, seed: int) -> np.ndarray:
-        interrupts.check()  # between renders: a stop is acted on within one render
-        image = render_primal(self.loaded, self.spp, seed)
-        return np.array([value_and_adjoint(self.loaded.mi, o, image)[0] for o in self.objectives])
-
-    def at_base(self, seed: int) -> np.ndarray:
-        if seed not in self.base:
-            self.base[seed] = self(seed)
-        return self.base[seed]
-
-
 def _differences(
     loaded: LoadedScene,
     objectives: Sequence[Objective],
@@ -264,7 +246,14 @@ def _differences(
     started = time.perf_counter()
     shape = result.values[target.key].shape
     theta = result.values[target.key].astype(np.float32).ravel()
-    measure = _Objectives(loaded, objectives, chosen.spp)
+
+    def measure(seed: int) -> np.ndarray:
+        """M of every objective at the current parameters."""
+        interrupts.check()  # between renders: a stop is acted on within one render
+        image = render_primal(loaded, chosen.spp, seed)
+        return np.array([value_and_adjoint(loaded.mi, o, image)[0] for o in objectives])
+
+    base: dict[int, np.ndarray] = {}  # M at θ, shared by every one-sided component
     rows = np.zeros((len(chosen.seeds), target.components, len(objectives)))
     try:
         away = dict(target.one_sided)  # component -> the sign of h, away from its bound
@@ -278,8 +267,10 @@ def _differences(
                 sides.append(np.array([measure(seed) for seed in chosen.seeds]))
             if c in away:
                 assign(loaded, target.key, theta.reshape(shape))
-                base = np.array([measure.at_base(seed) for seed in chosen.seeds])
-                rows[:, c] = (4 * sides[0] - sides[1] - 3 * base) / (2 * h)
+                for seed in chosen.seeds:
+                    base[seed] = base[seed] if seed in base else measure(seed)
+                at_base = np.array([base[seed] for seed in chosen.seeds])
+                rows[:, c] = (4 * sides[0] - sides[1] - 3 * at_base) / (2 * h)
             else:
                 rows[:, c] = (sides[0] - sides[1]) / (2 * h)
     finally:
