@@ -220,10 +220,9 @@ def path_integrator(loaded: LoadedScene) -> Any:
     """Mitsuba's ``path`` (``volpath`` beside ``prbvolpath``) with the depth, Russian roulette
     and emitter visibility of the scene's replay integrator, so both see the same image."""
     max_depth = int(getattr(loaded.integrator, "max_depth", 6))
-    volumetric = type(loaded.integrator).__name__ == "PRBVolpathIntegrator"
     return loaded.mi.load_dict(
         {
-            "type": "volpath" if volumetric else "path",
+            "type": "volpath" if loaded.integrator_type == "prbvolpath" else "path",
             "max_depth": -1 if max_depth >= 0xFFFFFFFF else max_depth,  # prb's "infinite"
             "rr_depth": int(getattr(loaded.integrator, "rr_depth", 5)),
             "hide_emitters": bool(getattr(loaded.integrator, "hide_emitters", False)),
@@ -397,16 +396,13 @@ def depth_effect(
 ) -> list[ImageEffect]:
     """M of each objective on the replay's image and on the image at the scene's depth
     (``scene_image``: the Mitsuba dict of the scene's own integrator)."""
-    spp = EFFECT_SPP
     scene_integrator = loaded.mi.load_dict(scene_image)
-    ours = render_primal(loaded, spp, seed)
-    theirs = render_primal(loaded, spp, seed, scene_integrator)
+    ours = render_primal(loaded, EFFECT_SPP, seed)
+    theirs = render_primal(loaded, EFFECT_SPP, seed, scene_integrator)
+
+    def value(objective: Objective, image: Any) -> float:
+        return value_and_adjoint(loaded.mi, objective, image)[0]
+
     return [
-        ImageEffect(
-            objective.spec.name,
-            value_and_adjoint(loaded.mi, objective, ours)[0],
-            value_and_adjoint(loaded.mi, objective, theirs)[0],
-            spp,
-        )
-        for objective in objectives
+        ImageEffect(o.spec.name, value(o, ours), value(o, theirs), EFFECT_SPP) for o in objectives
     ]
