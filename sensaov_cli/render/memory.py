@@ -59,9 +59,8 @@ def check_view(
 
 
 def check_job(job: JobSpec, sizes: Mapping[str, tuple[int, int]] | None = None) -> None:
-    """Every setting of ``job`` whose film size is known: the objective camera's passes (at
-    ``render.resolution``) and each inspection camera (its own resolution, or ``sizes``, the
-    films the loaded scene gives them)."""
+    """Every setting of ``job`` whose film size is known (``sizes``: the loaded scene's films of
+    the inspection cameras)."""
     where = str(job.path)
     if job.render.resolution is not None:
         width, height = job.render.resolution

@@ -105,7 +105,11 @@ def ownership_of(mi: ModuleType, scene: Any, instances: Mapping[str, str]) -> Ow
     """Every object (shape, instance, or emitter not attached to a shape) and the nodes it owns;
     an instance owns its shapegroup's nodes (``instances``: instance id -> shapegroup id, from
     the XML: Mitsuba exposes no link)."""
-    groups = _shapegroups(mi, scene)
+    groups = {  # shapegroups are no shapes of the scene, only parents in its graph
+        node.id(): node
+        for node in mi.traverse(scene).hierarchy
+        if isinstance(node, mi.Shape) and node.class_name() == "ShapeGroupPlugin"
+    }
     owned: dict[str, list[Any]] = {}
     for index, shape in enumerate(scene.shapes()):
         nodes = list(mi.traverse(shape).hierarchy)
@@ -124,16 +128,6 @@ def ownership_of(mi: ModuleType, scene: Any, instances: Mapping[str, str]) -> Ow
     return Ownership(
         tuple(sorted(owned)), {key: tuple(sorted(v)) for key, v in owners.items()}, alive
     )
-
-
-def _shapegroups(mi: ModuleType, scene: Any) -> dict[str, Any]:
-    """Shapegroup nodes by id (they are not shapes of the scene, only parents in its graph)."""
-    hierarchy = mi.traverse(scene).hierarchy
-    return {
-        node.id(): node
-        for node in hierarchy
-        if isinstance(node, mi.Shape) and node.class_name() == "ShapeGroupPlugin"
-    }
 
 
 def select(

@@ -147,12 +147,9 @@ def _frame(pose: Pose, width: int, height: int) -> Frame:
 
 
 def sensor_pose(mi: ModuleType, sensor: Any, bounds: tuple[Vec3, Vec3]) -> Pose:
-    """A scene sensor's pose as ``look_at``: origin, a target in front of it, up, x field of view.
-
-    The target is the point along the view axis nearest the centre of the scene's bounds; a
-    sensor that is not a pinhole or whose frame is mirrored is shown as the nearest pinhole,
-    and the pose says so.
-    """
+    """A scene sensor's pose as ``look_at``: origin, the point along the view axis nearest the
+    centre of ``bounds``, up, x field of view; a sensor that is not a pinhole or is mirrored is
+    shown as the nearest pinhole, and the pose says so."""
     params = mi.traverse(sensor)
     matrix = np.array(params["to_world"].matrix.numpy(), np.float64).reshape(-1, 4, 4)[0]
     origin, axes = matrix[:3, 3], matrix[:3, :3]

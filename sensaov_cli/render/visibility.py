@@ -37,9 +37,8 @@ def film_positions(
     samples: tuple[int, int] | None = None,
 ) -> Any:
     """Film positions in [0, 1)^2 for every (pixel, sample), row-major, samples innermost:
-    stratified on a ceil(sqrt(spp))^2 grid inside each pixel, jittered by PCG32 (in Dr.Jit, so
-    millions of samples never round-trip through numpy). ``samples``: only the [first, end)
-    range of the flat sample index, with the values the whole film would give them."""
+    stratified on a ceil(sqrt(spp))^2 grid inside each pixel, jittered by PCG32. ``samples``:
+    only the [first, end) range of the flat sample index, as the whole film gives them."""
     import drjit as dr
 
     first, end = samples or (0, width * height * spp)
@@ -148,8 +147,7 @@ def object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) 
         registry = int(np.array(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape)))[0])
         pairs[registry] = names.get(shape.id() or f"shape_{number}", BACKGROUND)
     table = np.full(max(pairs, default=0) + 1, BACKGROUND, np.int32)
-    for registry, index in pairs.items():
-        table[registry] = index
+    table[list(pairs)] = list(pairs.values())
     return table
 
 
@@ -185,9 +183,8 @@ class TextureProbe:
 def texture_probes(
     mi: ModuleType, params: Any, keys: tuple[str, ...], options: dict[str, tuple[str, str, str]]
 ) -> dict[str, TextureProbe]:
-    """Per texture ``data`` key, its probe. ``to_uv`` is a traversed parameter; ``filter_type``
-    and ``wrap_mode`` are not exposed by the plugin's Python binding, so they are read from the
-    prepared scene (``options``: ``PreparedScene.bitmap_options``) and confirmed by probing."""
+    """Per texture ``data`` key, its probe; ``filter_type`` and ``wrap_mode`` are not exposed by
+    the plugin's binding: ``options`` (``PreparedScene.bitmap_options``) has them."""
     import drjit as dr
 
     rng = np.random.default_rng(PROBE_SEED)

@@ -106,8 +106,7 @@ def check_duality(
     central: bool = True,
 ) -> list[DualityCheck]:
     """One row per (objective, key, direction), each a progress line; ``central``: also the
-    central difference of the image (two renders a row; the quick check's one-seed rows
-    already compare reverse mode with same-seed differences)."""
+    central difference of the image (two renders a row)."""
     progress = progress or Progress(quiet=True)
     spp = int(buffer.provenance["spp"])
     primal = np.array(render_primal(loaded, spp, int(buffer.provenance["primal_seed"])))

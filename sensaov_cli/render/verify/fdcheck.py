@@ -167,9 +167,8 @@ def check_parameter_independent(
     fd_spp: int,
     seeds: list[int],
 ) -> GradientCheck:
-    """Differences of independent renders at ``fd_spp`` (step INDEPENDENT_STEP · max(1, |θ|)):
-    the reference where θ changes which lobe or direction is sampled, so that the same seed
-    does not give the same paths on both sides."""
+    """Differences of independent renders at ``fd_spp``: the reference where θ changes which
+    paths are sampled."""
 
     def independent(seed: int) -> float:
         sides = (1000 + 2 * seed, 1001 + 2 * seed)
