@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.job.spec import LookAt
-from sensaov_cli.render.visibility import object_index, object_of_registry_id, visibility_pass
-from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass
+from sensaov_cli.render.visibility import hits, object_index, object_of_registry_id, visibility_pass
+from sensaov_cli.views.coverage import VisibilityPass
 
 Vec3 = tuple[float, float, float]
 NEAR_CLIP = 0.01  # Mitsuba's perspective default, which a job's look_at camera gets
@@ -70,15 +70,7 @@ class ViewTracer:
 
         with dr.suspend_grad():
             ray = self._rays(pose, width, height, spp, seed)
-            si = self.scene.ray_intersect(ray)
-            index = object_index(self.mi, si, self._table)
-            if with_uv:  # one kernel for both: converting them apart would trace twice
-                dr.eval(index, si.uv)
-            samples = np.array(index, dtype=np.int32)
-            uv = np.stack([np.array(si.uv.x), np.array(si.uv.y)], axis=1) if with_uv else None
-        if uv is not None:
-            uv[samples == BACKGROUND] = 0.0
-            uv = uv.astype(np.float32)
+            samples, uv = hits(self.mi, self.scene, ray, self._table, with_uv)
         return visibility_pass(self.objects, samples, uv, width, height, spp)
 
     def hit(self, pose: Pose, width: int, height: int, x: int, y: int) -> Hit:

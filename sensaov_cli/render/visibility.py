@@ -81,16 +81,29 @@ def trace(
         position = film_positions(mi, width, height, spp, seed, samples=(first, end))
         with dr.suspend_grad():
             ray, _ = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5, 0.5))
-            si = scene.ray_intersect(ray)
-            index = object_index(mi, si, table)
-            if uv is not None:  # one kernel for both: converting them apart would trace twice
-                # selected in the kernel: a numpy mask over every sample costs more
-                hit_uv = dr.select(index != BACKGROUND, si.uv, mi.Point2f(0.0, 0.0))
-                dr.eval(index, hit_uv)
-            samples[first:end] = np.array(index, dtype=np.int32)
-            if uv is not None:
-                uv[first:end, 0], uv[first:end, 1] = np.array(hit_uv.x), np.array(hit_uv.y)
+            samples[first:end], hit_uv = hits(mi, scene, ray, table, with_uv)
+        if uv is not None and hit_uv is not None:
+            uv[first:end] = hit_uv
     return visibility_pass(objects, samples, uv, width, height, spp)
+
+
+def hits(
+    mi: ModuleType, scene: Any, ray: Any, table: Any, with_uv: bool
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Per ray, the index of the object hit (``table``: :func:`object_of_registry_id`) and,
+    ``with_uv``, the hit's UV (0 where nothing is hit)."""
+    import drjit as dr
+
+    with dr.suspend_grad():
+        si = scene.ray_intersect(ray)
+        index = object_index(mi, si, table)
+        if not with_uv:
+            return np.array(index, dtype=np.int32), None
+        # Selected in the kernel (a numpy mask over every sample costs more), and evaluated with
+        # the index in one kernel: converting them apart would trace twice.
+        uv = dr.select(index != BACKGROUND, si.uv, mi.Point2f(0.0, 0.0))
+        dr.eval(index, uv)
+        return np.array(index, dtype=np.int32), np.stack([np.array(uv.x), np.array(uv.y)], 1)
 
 
 def visibility_pass(
