@@ -19,11 +19,11 @@ from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
 from sensaov_cli.job.spec import ParameterSpec
 from sensaov_cli.render.verify.trust import (
     COMPOSITES,
-    WEAKEST_FIRST,
     Context,
     composite_status,
     gradient_integrator,
     verification_status,
+    weakest,
 )
 from sensaov_cli.vocabulary import Trust
 
@@ -223,7 +223,7 @@ def _describe(
     own: tuple[Trust, str] = (
         ("verified", "") if plugin in COMPOSITES else verification_status(plugin, ptype)
     )
-    trust, note = _weakest(own, composite_status(contexts))
+    trust, note = weakest(own, composite_status(contexts))
     shape = value_shape(np.asarray(params[key]))
     if is_texture_node and "spectral" in mi.variant() and shape[-1:] == (3,):
         trust, note = "unverified", SPECTRAL_COEFFICIENTS_NOTE
@@ -242,13 +242,6 @@ def _describe(
         estimator="reverse-path" if gradient_integrator(plugin, contexts) == "path" else "reverse",
     )
     return record, contexts
-
-
-def _weakest(*statuses: tuple[Trust, str]) -> tuple[Trust, str]:
-    """The weakest label of ``statuses`` and the notes of all that are not verified."""
-    trust = min((t for t, _ in statuses), key=WEAKEST_FIRST.index)
-    notes = [note for t, note in statuses if t != "verified" and note]
-    return trust, "; ".join(dict.fromkeys(notes))
 
 
 def _bsdf_children(mi: ModuleType, hierarchy: Any) -> dict[int, list[Any]]:

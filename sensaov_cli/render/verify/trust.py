@@ -178,21 +178,23 @@ _PATH_CONTEXTS = frozenset(
 
 def composite_status(contexts: tuple[Context, ...]) -> tuple[Trust, str]:
     """The weakest label of ``contexts`` (composites above a parameter), and their notes."""
-    trusts: list[Trust] = ["verified"]
-    notes = []
-    for context in contexts:
-        entry = COMPOSITE_TABLE.get(context)
-        if entry is None:
-            composite, role, children = context
-            entry = Entry(
-                "unverified",
-                f"{role} of a {composite} over {children} children: not verified against "
-                "finite differences",
-            )
-        trusts.append(entry.trust)
-        if entry.note:
-            notes.append(entry.note)
-    return min(trusts, key=WEAKEST_FIRST.index), "; ".join(dict.fromkeys(notes))
+    statuses: list[tuple[Trust, str]] = [("verified", "")]
+    for composite, role, children in contexts:
+        unknown: tuple[Trust, str] = (
+            "unverified",
+            f"{role} of a {composite} over {children} children: not verified against "
+            "finite differences",
+        )
+        entry = COMPOSITE_TABLE.get((composite, role, children))
+        statuses.append((entry.trust, entry.note) if entry else unknown)
+    return weakest(*statuses)
+
+
+def weakest(*statuses: tuple[Trust, str]) -> tuple[Trust, str]:
+    """The weakest label of ``statuses`` and the notes of all that are not verified."""
+    trust = min((t for t, _ in statuses), key=WEAKEST_FIRST.index)
+    notes = [note for t, note in statuses if t != "verified" and note]
+    return trust, "; ".join(dict.fromkeys(notes))
 
 
 # --- repairs: where the reverse-mode gradient is known wrong, finite differences instead ------
