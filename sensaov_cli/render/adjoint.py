@@ -37,10 +37,6 @@ SAMPLES_PER_SUBPASS = 1 << 19
 SMALL = 4096  # components up to which a gradient is summed over sub-passes in float64
 
 
-def gradient_seed(primal_seed: int, objective_index: int) -> int:
-    return (primal_seed + SEED_STRIDE * (objective_index + 1)) % 2**31
-
-
 @dataclass(frozen=True)
 class AdjointResult:
     image: np.ndarray  # the primal at the objective camera, (H, W, C) float32
@@ -232,7 +228,7 @@ def path_integrator(loaded: LoadedScene) -> Any:
 
 def chunk_seed(seed: int, index: int) -> int:
     """The seed of a pass's ``index``-th chunk; the first is ``seed``. Later ones are hashed: a
-    stride would give chunk j of a primal the seed of objective j's backward pass."""
+    stride would give chunk j of a primal the seed of objective j's backward pass (SEED_STRIDE)."""
     return seed if index == 0 else derived_seed(seed, "chunk", index)
 
 
@@ -357,7 +353,7 @@ def _run_passes(
     for objective in objectives:
         name = objective.spec.name
         value, adjoint_image = value_and_adjoint(loaded.mi, objective, image)
-        grad_seeds[name] = gradient_seed(seed, objective.index)
+        grad_seeds[name] = (seed + SEED_STRIDE * (objective.index + 1)) % 2**31
         grads[name] = {}
         for integrator, keys in integrator_plan(loaded).items():
             path = "" if integrator == "prb" else "_path"

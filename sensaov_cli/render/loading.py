@@ -59,7 +59,8 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
             scene = mi.load_string(prepared.text, optimize=False)
     except Exception as exc:  # Mitsuba raises plain RuntimeError with a long message
         message, where = prepared.locate(str(exc))
-        culprit = _file_named(message, prepared.files[1:])
+        named = (f for f in prepared.files[1:] if f'"{f.name}"' in message or f'"{f}"' in message)
+        culprit = next(named, None)  # a file Mitsuba's message names in quotes
         if culprit is not None:  # a mesh's or an image's own fault: that file is where
             raise SceneError(f"{message} (used at {where})", where=str(culprit)) from exc
         raise SceneError(message, where=where or str(prepared.path)) from exc
@@ -88,11 +89,6 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
         inspection_sensors={name: sensors[sid] for name, sid in prepared.inspection_ids.items()},
         prepared=prepared,
     )
-
-
-def _file_named(message: str, files: tuple[Path, ...]) -> Path | None:
-    """The file (a PLY, an image) Mitsuba's message names in quotes, if it is one of ``files``."""
-    return next((f for f in files if f'"{f.name}"' in message or f'"{f}"' in message), None)
 
 
 def refuse_non_finite(loaded: LoadedScene) -> None:

@@ -87,8 +87,7 @@ class ViewTracer:
             index = int(np.array(object_index(mi, si, self._table))[0])
             if not bool(np.array(si.is_valid())[0]):
                 return Hit(index, None, None)
-            position = tuple(float(np.array(c)[0]) for c in si.p)
-            return Hit(index, (position[0], position[1], position[2]), float(np.array(si.t)[0]))
+            return Hit(index, _vec(np.array(si.p)), float(np.array(si.t)[0]))
 
     def _rays(self, pose: Pose, width: int, height: int, spp: int, seed: int) -> Any:
         import drjit as dr

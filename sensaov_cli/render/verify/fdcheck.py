@@ -151,11 +151,12 @@ def check_parameter(
     loaded: LoadedScene, objective: Objective, info: ParamRecord, *, spp: int, seeds: list[int]
 ) -> GradientCheck:
     """Same-seed central differences, ε = STEP · max(1, |θ|)."""
-
-    def same_seed(seed: int) -> float:
-        return central_difference(loaded, objective, info, STEP, spp, (seed, seed))
-
-    return _over_seeds(loaded, objective, info, spp, seeds, same_seed)
+    v = direction(info)
+    adjoints, differences = [], []
+    for seed in seeds:
+        adjoints.append(adjoint_along(loaded, objective, info, v, spp, seed))
+        differences.append(central_difference(loaded, objective, info, STEP, spp, (seed, seed)))
+    return judge(info, np.array(adjoints), np.array(differences))
 
 
 def check_parameter_independent(
@@ -169,27 +170,14 @@ def check_parameter_independent(
 ) -> GradientCheck:
     """Differences of independent renders at ``fd_spp``: the reference where θ changes which
     paths are sampled."""
-
-    def independent(seed: int) -> float:
-        sides = (1000 + 2 * seed, 1001 + 2 * seed)
-        return central_difference(loaded, objective, info, INDEPENDENT_STEP, fd_spp, sides)
-
-    return _over_seeds(loaded, objective, info, spp, seeds, independent)
-
-
-def _over_seeds(
-    loaded: LoadedScene,
-    objective: Objective,
-    info: ParamRecord,
-    spp: int,
-    seeds: list[int],
-    difference_at: Callable[[int], float],
-) -> GradientCheck:
     v = direction(info)
     adjoints, differences = [], []
     for seed in seeds:
         adjoints.append(adjoint_along(loaded, objective, info, v, spp, seed))
-        differences.append(difference_at(seed))
+        sides = (1000 + 2 * seed, 1001 + 2 * seed)
+        differences.append(
+            central_difference(loaded, objective, info, INDEPENDENT_STEP, fd_spp, sides)
+        )
     return judge(info, np.array(adjoints), np.array(differences))
 
 
