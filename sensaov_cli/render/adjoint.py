@@ -1,21 +1,11 @@
 """One primal render at the objective camera, then the backward passes of each objective (§2).
 
-prb's ``render_backward`` takes the image-space adjoint dM/dI directly, so each objective costs
-one backward propagation and the primal is rendered once, without AD. The gradient seed differs
-from the primal seed so that, for objectives that are non-linear in the image, the adjoint's
-noise is independent of the primal's (an unbiased product of two estimates).
+prb's ``render_backward`` takes the image-space adjoint dM/dI directly: one backward pass per
+objective, one primal without AD. The gradient seed differs from the primal seed so that, for
+objectives non-linear in the image, the adjoint's noise is independent of the primal's.
 
-prb cannot differentiate smooth (delta) BSDF lobes: their parameters take a second backward
-pass of Mitsuba's ``path`` integrator (``loaded.routes``, from ``trust.gradient_integrator``:
-smooth BSDFs and composites with a smooth lobe), with gradients enabled
-on those parameters only, its samples split into chunks that bound its memory. After the
-passes, :mod:`~sensaov_cli.render.verify.selfcheck` labels what the gradients themselves show to be
-wrong (docs/verification.md).
-
-A pass differentiates gradient-enabled leaves of the selected parameters. A Mitsuba scene only
-takes a new leaf through ``params.update()``, which re-derives the state of every object that
-holds one (a rough plastic's tables, a bitmap's texture) at a cost comparable to a small pass:
-so a backward pass reuses the previous one's leaves when it differentiates the same keys.
+prb cannot differentiate smooth (delta) BSDF lobes: their parameters (``loaded.routes``) take a
+second backward pass of Mitsuba's ``path`` integrator, in chunks that bound its memory.
 """
 
 from __future__ import annotations
@@ -37,22 +27,14 @@ from sensaov_cli.render.objectives import Objective, value_and_adjoint
 from sensaov_cli.render.verify.selfcheck import SelfCheck, self_check
 
 SEED_STRIDE = 0x9E3779B1  # golden-ratio stride: distinct, reproducible seeds per objective
-# Mitsuba's path integrator differentiates by recording the whole render in the AD graph, whose
-# memory grows with the samples of a pass (docs/verification.md): passes of at most this many
-# samples (pixels x spp) bound it, for a little more time.
+# path records the whole render in the AD graph: passes of at most this many samples (pixels x
+# spp) bound its memory.
 PATH_SAMPLES_PER_PASS = 1 << 18
-# A stop (a farm's SIGTERM, Ctrl-C) can only be acted on between kernel launches: every primal
-# and prb pass is split into sub-passes of at most this many samples (pixels x spp; at least
-# 1 spp), with a check between them; small parameters' gradients are summed over sub-passes in
-# float64 (Dr.Jit's float32 atomics sum within one), which also shrinks the forward/reverse
-# duality residuals. Each sub-pass costs a kernel launch: this size keeps the wait for a stop
-# short (docs/exit-codes.md) for a few per cent of the time (bench/).
+# A stop (SIGTERM, Ctrl-C) is only acted on between kernel launches: primal and prb passes run
+# in sub-passes of at most this many samples, with a check between them; small parameters'
+# gradients are summed over sub-passes in float64 (Dr.Jit's float32 atomics sum within one).
 SAMPLES_PER_SUBPASS = 1 << 19
 SMALL = 4096  # components up to which a gradient is summed over sub-passes in float64
-
-
-def gradient_seed(primal_seed: int, objective_index: int) -> int:
-    return (primal_seed + SEED_STRIDE * (objective_index + 1)) % 2**31
 
 
 @dataclass(frozen=True)
@@ -80,11 +62,8 @@ def render_primal(
     loaded: LoadedScene, spp: int, seed: int, integrator: Any = None, sensor: Any = None
 ) -> Any:
     """The image at ``seed`` through ``integrator`` (default: the scene's prb) at ``sensor``
-    (default: the objective camera), without AD.
-
-    Rendered in sub-passes (:func:`subpasses`), each weighted by its share of ``spp``; one
-    sub-pass (every small render) is exactly the single render at ``seed``.
-    """
+    (default: the objective camera), without AD, in sub-passes weighted by their share of spp
+    (one sub-pass is exactly the single render at ``seed``)."""
     import drjit as dr
 
     integrator = loaded.integrator if integrator is None else integrator
@@ -101,10 +80,10 @@ def render_primal(
     return image
 
 
-def subpasses(pixels: int, spp: int) -> Iterator[tuple[int, int]]:
-    """(index, spp) of each sub-pass, at most SAMPLES_PER_SUBPASS samples each (read at call
-    time); a pending stop is raised (as KeyboardInterrupt) before every sub-pass after the first."""
-    for index, chunk in enumerate(sample_chunks(pixels, spp, SAMPLES_PER_SUBPASS)):
+def subpasses(pixels: int, spp: int, limit: int | None = None) -> Iterator[tuple[int, int]]:
+    """(index, spp) of each sub-pass of at most ``limit`` samples (default SAMPLES_PER_SUBPASS,
+    read at call time); a pending stop is raised before every sub-pass after the first."""
+    for index, chunk in enumerate(sample_chunks(pixels, spp, limit or SAMPLES_PER_SUBPASS)):
         if index:
             interrupts.check()
         yield index, chunk
@@ -143,13 +122,10 @@ def backward_pass(
 
 def enable_gradients(loaded: LoadedScene, keys: set[str] | None = None) -> None:
     """Give every selected parameter a fresh leaf of its own (``loaded.leaves``); gradients on
-    ``keys`` (default all).
+    ``keys`` (default all), the others detached.
 
     The gradient is read from our leaf, never from ``params[key]``: an envmap's update replaces
-    the tensor that ``params[key]`` refers to by a copy with its halo columns filled in, and the
-    gradient of that copy reads 0 (Mitsuba 3.9.1, docs/verification.md). The other parameters
-    hold the leaf itself. Leaves not in ``keys`` are detached, so a pass differentiates nothing
-    else (prb raises if only delta-lobe parameters carry gradients; path's memory grows with them).
+    the tensor ``params[key]`` refers to by a copy whose gradient reads 0 (Mitsuba 3.9.1).
     """
     import drjit as dr
 
@@ -167,13 +143,9 @@ def enable_gradients(loaded: LoadedScene, keys: set[str] | None = None) -> None:
 
 
 def pass_leaves(loaded: LoadedScene, keys: set[str]) -> None:
-    """Leaves for a backward pass over ``keys`` in ``loaded.leaves``, their gradients zero.
-
-    Those of the previous backward pass when it had the same keys (every prb pass of a run but
-    the first), which skips the update; they give the same bits (tests/test_gradients.py).
-    Anything else that writes the scene's parameters (:func:`enable_gradients`,
-    ``loading.assign``) drops them.
-    """
+    """Leaves for a backward pass over ``keys`` in ``loaded.leaves``, their gradients zero:
+    the previous pass's when it had the same keys, which skips ``params.update()`` (it re-derives
+    a rough plastic's tables, a bitmap's texture: as costly as a small pass)."""
     import drjit as dr
 
     wanted = frozenset(keys)
@@ -185,23 +157,18 @@ def pass_leaves(loaded: LoadedScene, keys: set[str]) -> None:
     loaded.held_keys = wanted
 
 
-# What prb and path raise when no gradient-enabled parameter reaches the image (a spot light's
-# unused texture, a parameter Mitsuba does not differentiate): no gradient flows, which is a
-# finding for the self-checks (zeros), not an error; in forward mode J·v is 0.
+# What prb and path raise when no gradient-enabled parameter reaches the image: no gradient
+# flows, a finding for the self-checks (zeros), not an error; in forward mode J·v is 0.
 _NOTHING_ATTACHED = ("not attached to the AD graph", "does not depend on the input variable")
 
 
-def nothing_attached(exc: Exception) -> bool:
-    """Whether Mitsuba raised ``exc`` because no gradient-enabled parameter reaches the image."""
-    return any(message in str(exc) for message in _NOTHING_ATTACHED)
-
-
 @contextmanager
-def _nothing_attached_is_zero() -> Iterator[None]:
+def nothing_attached_is_zero() -> Iterator[None]:
+    """Swallow Mitsuba's error when no gradient-enabled parameter reaches the image."""
     try:
         yield
     except Exception as exc:  # Mitsuba raises plain exceptions; anything else propagates
-        if not nothing_attached(exc):
+        if not any(message in str(exc) for message in _NOTHING_ATTACHED):
             raise
 
 
@@ -209,8 +176,7 @@ def _prb_backward(
     loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int, keys: set[str]
 ) -> dict[str, np.ndarray]:
     """prb's backward pass over the leaves of ``keys`` in the primal's sub-passes (same seeds,
-    same shares of spp); each sub-pass's gradient is read, added in float64 and cleared before
-    the next."""
+    same shares of spp)."""
     import drjit as dr
 
     width, height = loaded.resolution
@@ -219,15 +185,14 @@ def _prb_backward(
     chunks = sample_chunks(width * height, spp, SAMPLES_PER_SUBPASS)
     for index, chunk in subpasses(width * height, spp):
         grad_in = adjoint_image if chunk == spp else adjoint_image * (chunk / spp)
-        with _nothing_attached_is_zero():
+        with nothing_attached_is_zero():
             loaded.integrator.render_backward(
                 loaded.scene, loaded.params, grad_in=grad_in, sensor=loaded.sensor,
                 seed=chunk_seed(seed, index), spp=chunk,
             )  # fmt: skip
         last = index + 1 == len(chunks)
-        # Small parameters (a colour, a roughness) gather every sample of the image into a few
-        # float32 sums: those are read and added in float64 after each sub-pass. A texture's
-        # texels gather few samples each; they keep accumulating in Dr.Jit and are read once.
+        # Small parameters gather every sample into a few float32 sums: read and added in
+        # float64 after each sub-pass. A texture's texels gather few samples each: read once.
         small = {k: leaf for k, leaf in leaves.items() if last or dr.width(leaf) <= SMALL}
         grads = [dr.grad(leaf) for leaf in small.values()]
         dr.eval(*grads)  # one launch for all of them
@@ -247,19 +212,13 @@ def sample_chunks(pixels: int, spp: int, limit: int) -> list[int]:
     return [spp // count + (1 if i < spp % count else 0) for i in range(count)]
 
 
-def path_chunks(pixels: int, spp: int) -> list[int]:
-    """spp split into passes of at most PATH_SAMPLES_PER_PASS samples (at least 1 spp each)."""
-    return sample_chunks(pixels, spp, PATH_SAMPLES_PER_PASS)
-
-
 def path_integrator(loaded: LoadedScene) -> Any:
     """Mitsuba's ``path`` (``volpath`` beside ``prbvolpath``) with the depth, Russian roulette
     and emitter visibility of the scene's replay integrator, so both see the same image."""
     max_depth = int(getattr(loaded.integrator, "max_depth", 6))
-    volumetric = type(loaded.integrator).__name__ == "PRBVolpathIntegrator"
     return loaded.mi.load_dict(
         {
-            "type": "volpath" if volumetric else "path",
+            "type": "volpath" if loaded.integrator_type == "prbvolpath" else "path",
             "max_depth": -1 if max_depth >= 0xFFFFFFFF else max_depth,  # prb's "infinite"
             "rr_depth": int(getattr(loaded.integrator, "rr_depth", 5)),
             "hide_emitters": bool(getattr(loaded.integrator, "hide_emitters", False)),
@@ -268,11 +227,8 @@ def path_integrator(loaded: LoadedScene) -> Any:
 
 
 def chunk_seed(seed: int, index: int) -> int:
-    """The seed of a pass's ``index``-th chunk; the first is ``seed``, as a primal at ``seed``.
-
-    Later ones are hashed, not strided: a stride would give chunk ``j`` of a primal the seed of
-    objective ``j``'s backward pass, correlating the two (the bias gradient_seed avoids).
-    """
+    """The seed of a pass's ``index``-th chunk; the first is ``seed``. Later ones are hashed: a
+    stride would give chunk j of a primal the seed of objective j's backward pass (SEED_STRIDE)."""
     return seed if index == 0 else derived_seed(seed, "chunk", index)
 
 
@@ -286,10 +242,8 @@ def _path_backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int)
     """Accumulate path's gradients chunk by chunk; each chunk's share is its fraction of spp."""
     width, height = loaded.resolution
     path = path_integrator(loaded)
-    for index, chunk in enumerate(path_chunks(width * height, spp)):
-        if index:
-            interrupts.check()
-        with _nothing_attached_is_zero():
+    for index, chunk in subpasses(width * height, spp, PATH_SAMPLES_PER_PASS):
+        with nothing_attached_is_zero():
             path.render_backward(
                 loaded.scene, loaded.params, grad_in=adjoint_image * (chunk / spp),
                 sensor=loaded.sensor, seed=chunk_seed(seed, index), spp=chunk,
@@ -303,7 +257,7 @@ def image_like_backward(loaded: LoadedScene, route: str, spp: int, seed: int) ->
         return render_primal(loaded, spp, seed)
     path = path_integrator(loaded)
     width, height = loaded.resolution
-    chunks = path_chunks(width * height, spp)
+    chunks = sample_chunks(width * height, spp, PATH_SAMPLES_PER_PASS)
     return sum(
         render_primal(loaded, chunk, chunk_seed(seed, index), path) * (chunk / spp)
         for index, chunk in enumerate(chunks)
@@ -312,11 +266,8 @@ def image_like_backward(loaded: LoadedScene, route: str, spp: int, seed: int) ->
 
 @contextmanager
 def reproducible(loaded: LoadedScene, enabled: bool) -> Iterator[bool]:
-    """Run the block on one CPU thread when ``enabled``; yields whether results are bit-exact.
-
-    Gradients of parameters are accumulated with atomic adds, whose order (and so the float32
-    rounding) varies between threads. One thread fixes the order. CUDA has no such switch.
-    """
+    """Run the block on one CPU thread when ``enabled``; yields whether results are bit-exact
+    (atomic adds' order, and so their rounding, varies between threads; CUDA has no switch)."""
     import drjit as dr
 
     if not enabled or not loaded.variant.startswith("llvm"):
@@ -332,10 +283,7 @@ def reproducible(loaded: LoadedScene, enabled: bool) -> Iterator[bool]:
 
 def batch_plan(spp: int, seed: int, batches: int) -> list[tuple[int, int]]:
     """(spp, primal seed) of each of ``batches`` independent batches; batch 0 has ``seed``.
-
-    Shard i of n (``sensaov run --shard i/n``) is batch i-1 of this plan, so a merge of n
-    shards is the same estimate as one run with ``render.batches: n``.
-    """
+    Shard i of n is batch i-1, so a merge of n shards equals a run with ``render.batches: n``."""
     sizes = [spp // batches + (1 if i < spp % batches else 0) for i in range(batches)]
     return [(n, seed if i == 0 else derived_seed(seed, "batch", i)) for i, n in enumerate(sizes)]
 
@@ -352,24 +300,15 @@ def run_adjoint(
 ) -> AdjointResult:
     """Every batch's primal and backward passes, their mean, its statistics and self-checks."""
     plan = batch_plan(spp, seed, batches)
+    spps = [n for n, _ in plan]
     results = []
     with reproducible(loaded, deterministic) as exact:
         for index, (batch_spp, batch_seed) in enumerate(plan):
-            labels = (f"batch {index + 1}/{len(plan)}: ", f"_batch{index + 1}")
-            results.append(
-                _run_passes(
-                    loaded,
-                    objectives,
-                    spp=batch_spp,
-                    seed=batch_seed,
-                    progress=progress,
-                    labels=labels if len(plan) > 1 else ("", ""),
-                )  # fmt: skip
-            )
-    keys = [info.key for info in loaded.selected]
-    spps = [n for n, _ in plan]
+            labels = (f"batch {index + 1}/{batches}: ", f"_batch{index + 1}")
+            labels = labels if batches > 1 else ("", "")
+            results.append(_run_passes(loaded, objectives, batch_spp, batch_seed, progress, labels))
     grads, objective_values, statistics = combine_batches(
-        keys,
+        [info.key for info in loaded.selected],
         results[0].values,
         [r.grads for r in results],
         [r.objective_values for r in results],
@@ -377,40 +316,29 @@ def run_adjoint(
         [s for _, s in plan],
         "batches",
     )
-    image = (
-        results[0].image if len(results) == 1 else weighted_mean([r.image for r in results], spps)
-    )
-    result = replace(
-        results[0], image=image, grads=grads, objective_values=objective_values,
-        statistics=statistics, spp=sum(spps),
-    )  # fmt: skip
-    checked = self_check(
-        loaded, objectives, result.image, result.values, result.grads,
-        result.objective_values, result.spp,
-    )  # fmt: skip
+    image = results[0].image if batches == 1 else weighted_mean([r.image for r in results], spps)
+    values = results[0].values
+    checked = self_check(loaded, objectives, image, values, grads, objective_values, sum(spps))
+    integrators = {name: sorted(keys) for name, keys in integrator_plan(loaded).items()}
+    provenance = {
+        "gradient_integrators": integrators,
+        "self_checks": checked.figures(),
+        "batches": [{"spp": n, "seed": s} for n, s in plan],
+    }
     return replace(
-        result,
-        deterministic=exact,
-        params=checked.params,
-        checks=checked,
-        provenance={
-            "gradient_integrators": {
-                name: sorted(keys) for name, keys in integrator_plan(loaded).items()
-            },
-            "self_checks": checked.figures(),
-            "batches": [{"spp": n, "seed": s} for n, s in plan],
-        },
-    )
+        results[0], image=image, grads=grads, objective_values=objective_values,
+        statistics=statistics, spp=sum(spps), deterministic=exact, params=checked.params,
+        checks=checked, provenance=provenance,
+    )  # fmt: skip
 
 
 def _run_passes(
     loaded: LoadedScene,
     objectives: list[Objective],
-    *,
     spp: int,
     seed: int,
     progress: Progress,
-    labels: tuple[str, str] = ("", ""),
+    labels: tuple[str, str],
 ) -> AdjointResult:
     """One batch: a primal, then each objective's backward passes (``labels``: the batch's
     prefix in progress lines and suffix in timing names)."""
@@ -425,7 +353,7 @@ def _run_passes(
     for objective in objectives:
         name = objective.spec.name
         value, adjoint_image = value_and_adjoint(loaded.mi, objective, image)
-        grad_seeds[name] = gradient_seed(seed, objective.index)
+        grad_seeds[name] = (seed + SEED_STRIDE * (objective.index + 1)) % 2**31
         grads[name] = {}
         for integrator, keys in integrator_plan(loaded).items():
             path = "" if integrator == "prb" else "_path"
@@ -442,11 +370,7 @@ def _run_passes(
 
 
 # --- what the job's max_depth changes: the replay's image against the scene's own ------------
-#
-# Where the job's ``render.max_depth`` differs from the depth the scene renders, M is measured
-# on another image than the user's scene shows. Both are rendered at a few samples per pixel and
-# one seed, the replay as it will run and the same integrator at the scene's depth, so that the
-# warning says by how much (common random numbers: the difference is far less noisy than either).
+# Both at one seed (common random numbers: the difference is far less noisy than either).
 
 EFFECT_SPP = 8  # samples per pixel of the two renders: cheap beside a run's own passes
 
@@ -468,16 +392,13 @@ def depth_effect(
 ) -> list[ImageEffect]:
     """M of each objective on the replay's image and on the image at the scene's depth
     (``scene_image``: the Mitsuba dict of the scene's own integrator)."""
-    spp = EFFECT_SPP
     scene_integrator = loaded.mi.load_dict(scene_image)
-    ours = render_primal(loaded, spp, seed)
-    theirs = render_primal(loaded, spp, seed, scene_integrator)
+    ours = render_primal(loaded, EFFECT_SPP, seed)
+    theirs = render_primal(loaded, EFFECT_SPP, seed, scene_integrator)
+
+    def value(objective: Objective, image: Any) -> float:
+        return value_and_adjoint(loaded.mi, objective, image)[0]
+
     return [
-        ImageEffect(
-            objective.spec.name,
-            value_and_adjoint(loaded.mi, objective, ours)[0],
-            value_and_adjoint(loaded.mi, objective, theirs)[0],
-            spp,
-        )
-        for objective in objectives
+        ImageEffect(o.spec.name, value(o, ours), value(o, theirs), EFFECT_SPP) for o in objectives
     ]

@@ -1,11 +1,9 @@
 """Forward passes (§4): the image's derivative J·v along one pushed group of parameters.
 
-One pass per pushed group and seed. Gradients are enabled on the pushed parameters only (a
-gradient-enabled parameter elsewhere makes prb's ``render_forward`` raise, MITSUBA-NOTES
-"Forward mode"), their tangent set to v, and the image's tangent read back. Parameters prb cannot
-differentiate (delta lobes, ``trust.gradient_integrator``) go through Mitsuba's ``path``
-integrator in the same chunks and chunk seeds as :mod:`.adjoint`'s backward pass, so that at the
-same seed ⟨dM/dI, J·v⟩ equals the buffer's ⟨g, v⟩ (forward/reverse duality, docs/verification.md).
+Gradients are enabled on the pushed parameters only (any other makes prb's ``render_forward``
+raise, MITSUBA-NOTES "Forward mode"). Each integrator pushes its share in the chunks and chunk
+seeds of :mod:`.adjoint`'s backward pass, so that at the same seed ⟨dM/dI, J·v⟩ equals the
+buffer's ⟨g, v⟩ (forward/reverse duality, docs/verification.md).
 """
 
 from __future__ import annotations
@@ -16,13 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli import interrupts
 from sensaov_cli.render.adjoint import (
+    PATH_SAMPLES_PER_PASS,
     chunk_seed,
     enable_gradients,
     integrator_plan,
-    nothing_attached,
-    path_chunks,
+    nothing_attached_is_zero,
     path_integrator,
     reproducible,
     subpasses,
@@ -62,16 +59,12 @@ def forward_image(
     shape: tuple[int, ...],
     deterministic: bool = True,
 ) -> ForwardImage:
-    """J·v for v = ``direction`` (key -> array in the key's recorded shape), at ``seed``.
-
-    ``shape`` is the primal image's (H, W, C): the shape of J·v when nothing pushed reaches it.
-    """
+    """J·v for v = ``direction`` (key -> array in the key's recorded shape), at ``seed``;
+    ``shape``: the primal image's (H, W, C)."""
     import drjit as dr
 
     started = time.perf_counter()
-    plan = {
-        name: keys & set(direction) for name, keys in integrator_plan(loaded).items()
-    }  # fmt: skip
+    plan = {name: keys & set(direction) for name, keys in integrator_plan(loaded).items()}
     plan = {name: keys for name, keys in plan.items() if keys}
     total: np.ndarray | None = None
     try:
@@ -97,11 +90,8 @@ def _push(
     seed: int,
     shape: tuple[int, ...],
 ) -> np.ndarray:
-    """One integrator's share of J·v; leaves no gradient-enabled parameter behind.
-
-    prb's share is rendered in the backward pass's sub-passes (same seeds, same shares of spp,
-    :func:`.adjoint.subpasses`), v pushed afresh for each: duality holds pass by pass.
-    """
+    """One integrator's share of J·v, v pushed afresh for each of prb's sub-passes; leaves no
+    gradient-enabled parameter behind."""
     if name != "prb":
         _push_leaves(loaded, direction)
         try:
@@ -111,7 +101,7 @@ def _push(
         finally:
             enable_gradients(loaded, set())
     width, height = loaded.resolution
-    total = np.zeros(shape, np.float64)  # summed in float64 over sub-passes, as the backward
+    total = np.zeros(shape, np.float64)  # summed in float64, as the backward
     for index, chunk in subpasses(width * height, spp):
         _push_leaves(loaded, direction)
         try:
@@ -137,13 +127,12 @@ def _push_leaves(loaded: LoadedScene, direction: dict[str, np.ndarray]) -> None:
 
 
 def _prb_forward(loaded: LoadedScene, spp: int, seed: int, shape: tuple[int, ...]) -> np.ndarray:
-    try:
+    tangent = None
+    with nothing_attached_is_zero():
         tangent = loaded.integrator.render_forward(
             loaded.scene, loaded.params, sensor=loaded.sensor, seed=seed, spp=spp
         )
-    except Exception as exc:
-        if not nothing_attached(exc):
-            raise
+    if tangent is None:
         return np.zeros(shape, np.float32)
     return np.array(tangent, dtype=np.float32).reshape(shape)
 
@@ -151,29 +140,22 @@ def _prb_forward(loaded: LoadedScene, spp: int, seed: int, shape: tuple[int, ...
 def _path_forward(
     loaded: LoadedScene, tangents: dict[Any, Any], spp: int, seed: int, shape: tuple[int, ...]
 ) -> np.ndarray:
-    """Chunk by chunk as ``adjoint._path_backward``, through path's own ``render_forward``.
-
-    (Rendering with the AD graph and calling ``dr.forward_to`` by hand differs from the backward
-    pass at some seeds; Mitsuba's own ``render_forward`` matches it to float precision.)
-    """
+    """Chunk by chunk as ``adjoint._path_backward``, through path's own ``render_forward``
+    (``dr.forward_to`` by hand differs from the backward pass at some seeds)."""
     import drjit as dr
 
     width, height = loaded.resolution
     path = path_integrator(loaded)
     total = np.zeros(shape, np.float32)
-    for index, chunk in enumerate(path_chunks(width * height, spp)):
-        if index:
-            interrupts.check()
+    for index, chunk in subpasses(width * height, spp, PATH_SAMPLES_PER_PASS):
         for leaf, tangent in tangents.items():
             dr.set_grad(leaf, tangent)  # each chunk pushes v afresh
-        try:
+        part = None
+        with nothing_attached_is_zero():
             part = path.render_forward(
                 loaded.scene, loaded.params, sensor=loaded.sensor,
                 seed=chunk_seed(seed, index), spp=chunk,
             )  # fmt: skip
-        except Exception as exc:
-            if not nothing_attached(exc):
-                raise
-            continue
-        total += np.array(part, dtype=np.float32).reshape(shape) * np.float32(chunk / spp)
+        if part is not None:
+            total += np.array(part, dtype=np.float32).reshape(shape) * np.float32(chunk / spp)
     return total

@@ -1,9 +1,4 @@
-"""Load a prepared scene into Mitsuba and select the parameters the buffer stores.
-
-Mitsuba types stay inside the render stage; what leaves is the buffer's own
-:class:`~sensaov_cli.buffer.model.ParamRecord` for each selected parameter (plain data) next to
-the live scene objects the adjoint needs.
-"""
+"""Load a prepared scene into Mitsuba and select the parameters the buffer stores."""
 
 from __future__ import annotations
 
@@ -44,9 +39,8 @@ class LoadedScene:
     resolution: tuple[int, int]
     inspection_sensors: dict[str, Any]  # inspection camera name -> its own sensor
     prepared: PreparedScene  # what was loaded: the text, files, fingerprint, changes
-    # The gradient-enabled leaf the scene holds for each selected key (adjoint.enable_gradients)
-    # and the keys of the backward pass that made them (adjoint.pass_leaves), so that the next
-    # pass over the same keys skips ``params.update()``; None: a pass makes fresh ones.
+    # The gradient-enabled leaf the scene holds for each selected key, and the keys of the
+    # backward pass that made them (None: a pass makes fresh ones); adjoint.pass_leaves.
     leaves: dict[str, Any] = field(default_factory=dict)
     held_keys: frozenset[str] | None = None
 
@@ -65,7 +59,8 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
             scene = mi.load_string(prepared.text, optimize=False)
     except Exception as exc:  # Mitsuba raises plain RuntimeError with a long message
         message, where = prepared.locate(str(exc))
-        culprit = _file_named(message, prepared.files[1:])
+        named = (f for f in prepared.files[1:] if f'"{f.name}"' in message or f'"{f}"' in message)
+        culprit = next(named, None)  # a file Mitsuba's message names in quotes
         if culprit is not None:  # a mesh's or an image's own fault: that file is where
             raise SceneError(f"{message} (used at {where})", where=str(culprit)) from exc
         raise SceneError(message, where=where or str(prepared.path)) from exc
@@ -96,11 +91,6 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
     )
 
 
-def _file_named(message: str, files: tuple[Path, ...]) -> Path | None:
-    """The file (a PLY, an image) Mitsuba's message names in quotes, if it is one of ``files``."""
-    return next((f for f in files if f'"{f.name}"' in message or f'"{f}"' in message), None)
-
-
 def refuse_non_finite(loaded: LoadedScene) -> None:
     """A selected parameter holding NaN or an infinity (an EXR texture's texel, say) is bad
     input named by its key and file: the render would fail later, blaming the objective."""
@@ -111,25 +101,21 @@ def refuse_non_finite(loaded: LoadedScene) -> None:
             source = loaded.textures.get(info.key)
             raise SceneError(
                 f"parameter {info.key!r} holds {bad} NaN or infinite value(s) of {value.size}",
-                where=source.file
-                if source is not None and source.file
-                else str(loaded.prepared.path),
+                where=(source and source.file) or str(loaded.prepared.path),
                 hint="write finite values, or leave the parameter out of the selection",
             )
 
 
 def load_job_scene(job: JobSpec, cameras: tuple[CameraSpec, ...] = ()) -> LoadedScene:
-    """Prepare and load a job's scene in one call, for scripts, tests and benchmarks (commands
-    prepare first, check the prepared scene, then load it)."""
+    """Prepare and load a job's scene in one call, for scripts, tests and benchmarks."""
     prepared = prepare_scene(job, cameras)
     return load_scene(prepared, variant=job.variant, parameters=job.parameters)
 
 
 @contextmanager
 def _resolving_from(mi: ModuleType, folders: tuple[Path, ...]) -> Iterator[None]:
-    """Resolve names still relative in the prepared text against ``folders`` first (the main
-    file's ``<path>`` folders and its own folder, as load_file would), then restore the
-    process-wide resolver (tests and the bench load many scenes in one process)."""
+    """Resolve names still relative in the prepared text against ``folders`` first (as
+    load_file would), then restore the process-wide resolver."""
     resolver = mi.file_resolver()
     saved = [str(resolver[i]) for i in range(len(resolver))]
     for folder in reversed(folders):

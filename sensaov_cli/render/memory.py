@@ -1,12 +1,10 @@
 """What a render will allocate, estimated from its settings before anything is allocated.
 
-A ``vis_spp`` of a million, a 16384² film or a PNG that declares 40000x40000 pixels would
-crash the process (SIGSEGV, std::bad_alloc) or have the kernel kill it, with no message. So the
-settings that size memory are multiplied out here and checked against the memory budget
-(:func:`sensaov_cli.limits.check_memory`), and a setting over it is refused in one line that
-names it. The figures are upper bounds measured on this project's scenes (peak RSS, CPU
-backend, ``/usr/bin/time -f %M``), not exact accounting: they refuse what cannot work, and
-``SENSAOV_MEMORY_BUDGET`` moves the line. Pure arithmetic: no Mitsuba here.
+A setting too large (a ``vis_spp`` of a million, a 16384² film) would crash the process with no
+message: the settings that size memory are multiplied out and checked against the budget
+(:func:`sensaov_cli.limits.check_memory`, ``SENSAOV_MEMORY_BUDGET``), a setting over it refused
+in one line that names it. The figures are measured upper bounds (peak RSS, CPU backend), not
+exact accounting.
 """
 
 from __future__ import annotations
@@ -21,13 +19,11 @@ from sensaov_cli.limits import check_memory
 if TYPE_CHECKING:
     from sensaov_cli.render.loading import LoadedScene
 
-# Bytes per sample of one primal or backward sub-pass, film and wavefront together (measured,
-# rounded up); sub-passes hold at most SAMPLES_PER_SUBPASS samples, or one sample per pixel.
+# Bytes per sample of one primal or backward sub-pass, film and wavefront together.
 RENDER_BYTES_PER_SAMPLE = 128
 RENDER_BYTES_PER_PIXEL_AND_OBJECTIVE = 64  # the adjoint image dM/dI and its copies
 SUBPASS_SAMPLES = 1 << 19  # render/adjoint.py's SAMPLES_PER_SUBPASS
-# The visibility pass keeps one int32 object index per sample and sorts a copy; with texel
-# channels the samples' UVs and footprints too (measured, rounded up).
+# The visibility pass keeps an object index per sample and sorts a copy; texels add UVs.
 VISIBILITY_BYTES_PER_SAMPLE = 16
 TEXEL_BYTES_PER_SAMPLE = 48
 LAYER_BYTES_PER_PIXEL = 64  # each painted layer: float32 channels, its EXR copy, its preview
@@ -63,9 +59,8 @@ def check_view(
 
 
 def check_job(job: JobSpec, sizes: Mapping[str, tuple[int, int]] | None = None) -> None:
-    """Every setting of ``job`` whose film size is known: the objective camera's passes (at
-    ``render.resolution``) and each inspection camera (its own resolution, or ``sizes``, the
-    films the loaded scene gives them)."""
+    """Every setting of ``job`` whose film size is known (``sizes``: the loaded scene's films of
+    the inspection cameras)."""
     where = str(job.path)
     if job.render.resolution is not None:
         width, height = job.render.resolution
@@ -89,11 +84,8 @@ def check_job(job: JobSpec, sizes: Mapping[str, tuple[int, int]] | None = None) 
 
 def sensor_sizes(loaded: LoadedScene) -> dict[str, tuple[int, int]]:
     """Each inspection camera's film size, as the loaded scene has it."""
-    sizes = {}
-    for name, sensor in loaded.inspection_sensors.items():
-        size = sensor.film().crop_size()
-        sizes[name] = (int(size[0]), int(size[1]))
-    return sizes
+    films = {name: sensor.film().crop_size() for name, sensor in loaded.inspection_sensors.items()}
+    return {name: (int(size[0]), int(size[1])) for name, size in films.items()}
 
 
 def _stated_size(job: JobSpec, camera: CameraSpec) -> tuple[int, int] | None:

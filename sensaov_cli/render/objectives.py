@@ -1,8 +1,7 @@
 """Scalar objectives M(I) of the objective camera's image (paper §5).
 
-Objectives differ only in their image-space adjoint dM/dI. Each is written once, as a Dr.Jit
-function of the image tensor; value and adjoint come from differentiating that function on a
-detached leaf image, so built-in and user objectives go through the same door.
+Each is a Dr.Jit function of the image tensor; value and adjoint dM/dI come from
+differentiating it on a detached leaf image, so built-in and user objectives share one door.
 """
 
 from __future__ import annotations
@@ -40,10 +39,8 @@ class Objective:
 def build_objectives(
     mi: ModuleType, specs: tuple[ObjectiveSpec, ...], size: tuple[int, int], allow_python: bool
 ) -> list[Objective]:
-    """Turn the job's objective specs into functions of an image of ``size`` = (height, width).
-
-    Files (masks, targets) and user functions are checked here, before anything is rendered.
-    """
+    """The job's objectives as functions of an image of ``size`` = (height, width); files and
+    user functions are checked here, before anything is rendered."""
     return [
         Objective(spec, index, _function(mi, spec, index, size, allow_python))
         for index, spec in enumerate(specs)
@@ -136,7 +133,8 @@ def _region_mask(spec: ObjectiveSpec, size: tuple[int, int], where: str) -> np.n
     return mask
 
 
-def _read_image(path: Path | None, where: str) -> np.ndarray:
+def _read_image(path: Path | None, size: tuple[int, int], where: str) -> np.ndarray:
+    """The image at ``path`` as (H, W, C) float32, checked finite and of ``size``."""
     import OpenImageIO as oiio
 
     regular_file(Path(str(path)), "image", where=where, error=SpecError)  # a FIFO blocks OIIO
@@ -158,10 +156,6 @@ def _read_image(path: Path | None, where: str) -> np.ndarray:
         raise SpecError(
             f"{path} holds NaN or infinite pixels", where=where, hint="write finite values"
         )
-    return pixels
-
-
-def _check_size(pixels: np.ndarray, size: tuple[int, int], path: Path | None, where: str) -> None:
     if pixels.shape[:2] != size:
         raise SpecError(
             f"{path} is {pixels.shape[1]}x{pixels.shape[0]} "
@@ -169,11 +163,11 @@ def _check_size(pixels: np.ndarray, size: tuple[int, int], path: Path | None, wh
             where=where,
             hint="render.resolution must match the image's size",
         )
+    return pixels
 
 
 def _read_mask(path: Path | None, size: tuple[int, int], where: str) -> np.ndarray:
-    pixels = _read_image(path, where)
-    _check_size(pixels, size, path, where)
+    pixels = _read_image(path, size, where)
     if (pixels[..., 0] < 0).any():  # M would weigh some pixels negatively: not a mean any more
         raise SpecError(
             f"{path} holds negative weights (least {pixels[..., 0].min():g})",
@@ -184,8 +178,7 @@ def _read_mask(path: Path | None, size: tuple[int, int], where: str) -> np.ndarr
 
 
 def _read_rgb(path: Path | None, size: tuple[int, int], where: str) -> np.ndarray:
-    pixels = _read_image(path, where)
-    _check_size(pixels, size, path, where)
+    pixels = _read_image(path, size, where)
     if pixels.shape[2] < 3:  # a grey target compares against every colour channel
         pixels = np.repeat(pixels[..., :1], 3, axis=2)
     return np.ascontiguousarray(pixels[..., :3])

@@ -1,9 +1,8 @@
 """Bring up Dr.Jit and Mitsuba safely: the right libLLVM, then the right variant.
 
-Dr.Jit reads ``DRJIT_LIBLLVM_PATH`` once, at ``import drjit``. Left to itself it globs the
-system's libLLVM builds and may pick LLVM 15, which is accepted and then aborts the whole process
-on the first kernel (see MITSUBA-NOTES). So the path is chosen here, before the first import, and
-the loaded version is checked before anything is rendered.
+Dr.Jit reads ``DRJIT_LIBLLVM_PATH`` once, at ``import drjit``; left to itself it may pick LLVM
+15, which aborts the process on the first kernel (MITSUBA-NOTES). So the path is chosen before
+the first import, and the loaded version checked before anything is rendered.
 """
 
 from __future__ import annotations
@@ -72,7 +71,6 @@ def _check_llvm_loaded(dr: ModuleType) -> None:
             hint=LLVM_HINT,
         )
     if version[0] < MIN_LLVM_MAJOR:
-        # LLVM 15 loads and then aborts the process on the first kernel: refuse it here.
         raise EnvironmentProblem(
             f"Dr.Jit loaded LLVM {'.'.join(map(str, version))}, "
             f"but sensaov needs LLVM >= {MIN_LLVM_MAJOR}",
@@ -88,11 +86,8 @@ def cuda_available(dr: ModuleType) -> bool:
 
 
 def import_mitsuba(variant: str) -> ModuleType:
-    """Import Mitsuba with ``variant`` set (``auto`` picks CUDA when usable, else LLVM).
-
-    A KeyboardInterrupt raised inside the extensions' initialisation ends in ``std::terminate``
-    (an abort and a C++ message): signals are only recorded meanwhile, and acted on after.
-    """
+    """Import Mitsuba with ``variant`` set (``auto`` picks CUDA when usable, else LLVM); signals
+    are deferred meanwhile (a KeyboardInterrupt in the extensions' set-up aborts the process)."""
     with interrupts.deferred():
         return _import_mitsuba(variant)
 
@@ -129,9 +124,7 @@ def _import_mitsuba(variant: str) -> ModuleType:
 
 
 def library_versions(mi: ModuleType) -> dict[str, str]:
-    """The versions of the Mitsuba and Dr.Jit that are loaded, for provenance: read from the
-    modules themselves, which is what ran, rather than from the installed packages' metadata
-    (the same strings for a normal install; tests/test_run.py compares them)."""
+    """The versions of the Mitsuba and Dr.Jit that are loaded (what ran), for provenance."""
     import drjit as dr
 
     drjit_version = dr.__version__  # type: ignore[attr-defined]  # set at import, not in stubs

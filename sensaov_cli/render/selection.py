@@ -1,9 +1,6 @@
 """Which scene parameters enter the sensitivity buffer, what slot each fills, who owns it.
 
-Owners are found by node identity (never by key strings: key names depend on declaration
-order); a parameter's type is the slot it fills, whatever its storage (the paper's horizontal
-cut). What leaves is the buffer's own :class:`~sensaov_cli.buffer.model.ParamRecord` for each
-selected parameter, and the reason for each one left out.
+A parameter's type is the slot it fills, whatever its storage (the paper's horizontal cut).
 """
 
 from __future__ import annotations
@@ -22,16 +19,14 @@ from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
 from sensaov_cli.job.spec import ParameterSpec
 from sensaov_cli.render.verify.trust import (
     COMPOSITES,
-    WEAKEST_FIRST,
     Context,
     composite_status,
     gradient_integrator,
     verification_status,
+    weakest,
 )
 from sensaov_cli.vocabulary import Trust
 
-# The slot a parameter fills, whatever its storage ("white.reflectance.value" and
-# "wall.bsdf.reflectance.data" are both reflectance): the paper's horizontal cut.
 TYPE_ALIASES = {
     "alpha": "roughness",
     "nested_texture": "bump",  # a bumpmap's height map
@@ -56,29 +51,22 @@ SPECTRAL_COEFFICIENTS_NOTE = (
     "in spectral variants Mitsuba stores this colour as spectral-upsampling coefficients, so "
     "its scores are not a proportional change of the colour; use an RGB variant for colours"
 )
-# Mitsuba class names of the common plugins -> the plugin names users write in XML.
+# Mitsuba class names -> the plugin names users write in XML, where not the lowercased name.
 PLUGIN_NAMES = {
     "SmoothDiffuse": "diffuse",
     "SmoothPlastic": "plastic",
     "SmoothDielectric": "dielectric",
     "SmoothConductor": "conductor",
-    "ThinDielectric": "thindielectric",
-    "BlendBSDF": "blendbsdf",
     "MaskBSDF": "mask",
-    "Principled": "principled",
     "AreaLight": "area",
     "PointLight": "point",
     "SpotLight": "spot",
     "ConstantBackgroundEmitter": "constant",
     "EnvironmentMapEmitter": "envmap",
     "DirectionalEmitter": "directional",
-    "DirectionalArea": "directionalarea",
-    "Projector": "projector",
     "SunskyEmitter": "sunsky",
     "TimedSunskyEmitter": "timed_sunsky",
     "TwoSidedBRDF": "twosided",
-    "BumpMap": "bumpmap",
-    "NormalMap": "normalmap",
     "PolarizedPlastic": "pplastic",
     "HomogeneousMedium": "homogeneous",
     "HeterogeneousMedium": "heterogeneous",
@@ -114,13 +102,14 @@ class Ownership:
 
 
 def ownership_of(mi: ModuleType, scene: Any, instances: Mapping[str, str]) -> Ownership:
-    """Every object (shape, instance, or emitter not attached to a shape) and the nodes it owns.
-
-    An instance owns its shapegroup's shapes, BSDFs and textures (``instances`` maps instance
-    ids to shapegroup ids, from the XML: Mitsuba exposes no link), so a BSDF used only inside
-    a shapegroup belongs to every instance of it.
-    """
-    groups = _shapegroups(mi, scene)
+    """Every object (shape, instance, or emitter not attached to a shape) and the nodes it owns;
+    an instance owns its shapegroup's nodes (``instances``: instance id -> shapegroup id, from
+    the XML: Mitsuba exposes no link)."""
+    groups = {  # shapegroups are no shapes of the scene, only parents in its graph
+        node.id(): node
+        for node in mi.traverse(scene).hierarchy
+        if isinstance(node, mi.Shape) and node.class_name() == "ShapeGroupPlugin"
+    }
     owned: dict[str, list[Any]] = {}
     for index, shape in enumerate(scene.shapes()):
         nodes = list(mi.traverse(shape).hierarchy)
@@ -141,16 +130,6 @@ def ownership_of(mi: ModuleType, scene: Any, instances: Mapping[str, str]) -> Ow
     )
 
 
-def _shapegroups(mi: ModuleType, scene: Any) -> dict[str, Any]:
-    """Shapegroup nodes by id (they are not shapes of the scene, only parents in its graph)."""
-    hierarchy = mi.traverse(scene).hierarchy
-    return {
-        node.id(): node
-        for node in hierarchy
-        if isinstance(node, mi.Shape) and node.class_name() == "ShapeGroupPlugin"
-    }
-
-
 def select(
     mi: ModuleType,
     parameters: ParameterSpec,
@@ -161,8 +140,7 @@ def select(
 ) -> Selection:
     """The selected records, the parameters left out and why, the bitmap behind each texture
     and the integrator each is differentiated by. ``media``: None where the scene's integrator
-    renders media, else that integrator (its media are not in the image, so their parameters
-    are left out)."""
+    renders media, else that integrator (whose media parameters are left out)."""
     selected, excluded, textures, routes, composition = [], [], {}, {}, {}
     children = _bsdf_children(mi, params.hierarchy)
     for key in params.keys():
@@ -245,7 +223,7 @@ def _describe(
     own: tuple[Trust, str] = (
         ("verified", "") if plugin in COMPOSITES else verification_status(plugin, ptype)
     )
-    trust, note = _weakest(own, composite_status(contexts))
+    trust, note = weakest(own, composite_status(contexts))
     shape = value_shape(np.asarray(params[key]))
     if is_texture_node and "spectral" in mi.variant() and shape[-1:] == (3,):
         trust, note = "unverified", SPECTRAL_COEFFICIENTS_NOTE
@@ -264,13 +242,6 @@ def _describe(
         estimator="reverse-path" if gradient_integrator(plugin, contexts) == "path" else "reverse",
     )
     return record, contexts
-
-
-def _weakest(*statuses: tuple[Trust, str]) -> tuple[Trust, str]:
-    """The weakest label of ``statuses`` and the notes of all that are not verified."""
-    trust = min((t for t, _ in statuses), key=WEAKEST_FIRST.index)
-    notes = [note for t, note in statuses if t != "verified" and note]
-    return trust, "; ".join(dict.fromkeys(notes))
 
 
 def _bsdf_children(mi: ModuleType, hierarchy: Any) -> dict[int, list[Any]]:
@@ -304,12 +275,8 @@ def _composition(
 def _slot_and_holder(
     mi: ModuleType, parts: list[str], node: Any, hierarchy: Any
 ) -> tuple[str, Any]:
-    """The slot a parameter fills in the plugin that is not a texture (or volume), and that plugin.
-
-    A texture's parameters take the slot of the outermost texture: in
-    ``glaze.roughness.color0.value`` the uniform ``color0`` sits in a checkerboard that fills
-    the BSDF's ``roughness``, so its type is roughness, whatever the nesting.
-    """
+    """The slot a parameter fills in the plugin that is not a texture (or volume), and that
+    plugin: in ``glaze.roughness.color0.value`` the type is roughness, whatever the nesting."""
     levels, holder = _above_textures(mi, node, hierarchy)
     if levels == 0 or len(parts) <= levels:
         return parts[-1], node
@@ -322,8 +289,8 @@ def _in_medium(mi: ModuleType, node: Any, hierarchy: Any) -> bool:
 
 
 def _above_textures(mi: ModuleType, node: Any, hierarchy: Any) -> tuple[int, Any]:
-    """The texture levels above ``node`` (a medium's albedo is a volume) and the node they end
-    in: the plugin they fill a slot of, or the outermost texture when none holds it."""
+    """The texture (or volume) levels above ``node`` and the plugin they fill a slot of, or the
+    outermost texture when none holds it."""
     levels, holder = 0, node
     while isinstance(holder, mi.Texture | mi.Volume):
         levels += 1
@@ -346,8 +313,8 @@ def _plugin_name(node: Any) -> str:
 
 
 def _texture_source(mi: ModuleType, node: Any, sources: dict[str, Path]) -> TextureSource:
-    """The file behind a bitmap texture, and whether it was stored as 8-bit integers."""
-    # A bitmap texture prints the base name of its file; the XML pass knows the full paths.
+    """The file behind a bitmap texture (it prints only its base name), and whether it was
+    stored as 8-bit integers."""
     match = re.search(r'name = "([^"]*)"', str(node))
     path = sources.get(match.group(1)) if match else None
     if path is None or not path.is_file():

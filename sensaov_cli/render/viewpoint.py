@@ -1,13 +1,10 @@
 """A free inspection camera for ``sensaov view``: primary visibility from any viewpoint, fast.
 
-Dr.Jit compiles one kernel per distinct trace and bakes literal constants into it (MITSUBA-NOTES):
-a camera built from Python floats, or a film size or spp written as Python ints, would compile
-a new kernel on every move of the mouse. Here every
-number that changes between views (the camera's frame and field of view, the image size, spp,
-the seed) enters the trace as an opaque Dr.Jit variable, so every view after the first reuses
-the compiled kernel (``tests/test_view.py`` checks the kernel history). Rays follow Mitsuba's
+Dr.Jit bakes literal constants into its kernels (MITSUBA-NOTES): every number that changes
+between views (frame, field of view, image size, spp, seed) enters the trace as an opaque
+variable, so every view after the first reuses the compiled kernel. Rays follow Mitsuba's
 ``perspective`` sensor with ``fov_axis`` x, so a viewpoint saved as a job's ``look_at`` camera
-renders the same picture in ``sensaov project``. No gradient is ever computed here.
+renders the same picture in ``sensaov project``.
 """
 
 from __future__ import annotations
@@ -20,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli.job.spec import LookAt
-from sensaov_cli.render.visibility import object_index, object_of_registry_id, visibility_pass
-from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass
+from sensaov_cli.render.visibility import hits, object_index, object_of_registry_id, visibility_pass
+from sensaov_cli.views.coverage import VisibilityPass
 
 Vec3 = tuple[float, float, float]
 NEAR_CLIP = 0.01  # Mitsuba's perspective default, which a job's look_at camera gets
@@ -73,15 +70,7 @@ class ViewTracer:
 
         with dr.suspend_grad():
             ray = self._rays(pose, width, height, spp, seed)
-            si = self.scene.ray_intersect(ray)
-            index = object_index(self.mi, si, self._table)
-            if with_uv:  # one kernel for both: converting them apart would trace twice
-                dr.eval(index, si.uv)
-            samples = np.array(index, dtype=np.int32)
-            uv = np.stack([np.array(si.uv.x), np.array(si.uv.y)], axis=1) if with_uv else None
-        if uv is not None:
-            uv[samples == BACKGROUND] = 0.0
-            uv = uv.astype(np.float32)
+            samples, uv = hits(self.mi, self.scene, ray, self._table, with_uv)
         return visibility_pass(self.objects, samples, uv, width, height, spp)
 
     def hit(self, pose: Pose, width: int, height: int, x: int, y: int) -> Hit:
@@ -98,8 +87,7 @@ class ViewTracer:
             index = int(np.array(object_index(mi, si, self._table))[0])
             if not bool(np.array(si.is_valid())[0]):
                 return Hit(index, None, None)
-            position = tuple(float(np.array(c)[0]) for c in si.p)
-            return Hit(index, (position[0], position[1], position[2]), float(np.array(si.t)[0]))
+            return Hit(index, _vec(np.array(si.p)), float(np.array(si.t)[0]))
 
     def _rays(self, pose: Pose, width: int, height: int, spp: int, seed: int) -> Any:
         import drjit as dr
@@ -143,23 +131,16 @@ def _frame(pose: Pose, width: int, height: int) -> Frame:
     left /= np.linalg.norm(left)
     up = np.cross(forward, left)
     tan_x = math.tan(math.radians(pose.fov) / 2.0)
+    right = (-left).tolist()
     return Frame(
-        origin.tolist(),
-        forward.tolist(),
-        (-left).tolist(),
-        up.tolist(),
-        tan_x,
-        tan_x * height / width,
+        origin.tolist(), forward.tolist(), right, up.tolist(), tan_x, tan_x * height / width
     )
 
 
 def sensor_pose(mi: ModuleType, sensor: Any, bounds: tuple[Vec3, Vec3]) -> Pose:
-    """A scene sensor's pose as ``look_at``: origin, a target in front of it, up, x field of view.
-
-    The target is the point along the view axis nearest the centre of the scene's bounds (a
-    camera orbits around it); a sensor that is not a pinhole (orthographic, thin lens) or
-    whose frame is mirrored is shown as the nearest pinhole, and the pose says so.
-    """
+    """A scene sensor's pose as ``look_at``: origin, the point along the view axis nearest the
+    centre of ``bounds``, up, x field of view; a sensor that is not a pinhole or is mirrored is
+    shown as the nearest pinhole, and the pose says so."""
     params = mi.traverse(sensor)
     matrix = np.array(params["to_world"].matrix.numpy(), np.float64).reshape(-1, 4, 4)[0]
     origin, axes = matrix[:3, 3], matrix[:3, :3]

@@ -1,17 +1,9 @@
 """What an inspection camera's layers are painted from: primary visibility, texture lookups,
 the beauty pass.
 
-The primary-visibility pass: which object each camera sample sees (paper §3 "Binding"). Rays
-are traced per sample with gradients suspended, so this pass never differentiates. From the
-per-sample object ids come the ranked per-pixel coverages a Cryptomatte stores (box filter:
-the fraction of a pixel's samples that hit each object). The ``aov`` integrator's averaged
-``shape_index`` is no use here: it yields fractional ids at edges.
-
-A texel field is painted through the hit UVs and the same lookup Mitsuba's ``bitmap`` plugin
-performs, so the project stage needs the lookup's settings as plain data (:func:`texture_probes`).
-
-The beauty pass is a short full path trace (no gradients) so a compositor has the picture the
-sensitivities are painted over; its alpha is the visibility pass's coverage, so the two line up.
+The primary-visibility pass: which object each camera sample sees (paper §3 "Binding"), from
+which come the ranked per-pixel coverages a Cryptomatte stores (box filter). The ``aov``
+integrator's averaged ``shape_index`` is no use here: it yields fractional ids at edges.
 """
 
 from __future__ import annotations
@@ -30,8 +22,7 @@ from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.scene.prepare import DEFAULT_FILTER, DEFAULT_WRAP
 from sensaov_cli.views.coverage import BACKGROUND, VisibilityPass, histogram, ranked
 
-# A stop (SIGTERM, Ctrl-C) is acted on between kernel launches: the pass traces at most this
-# many samples per launch, so it stops within one chunk instead of after the whole view.
+# A stop (SIGTERM, Ctrl-C) is acted on between kernel launches of at most this many samples.
 SAMPLES_PER_CHUNK = 1 << 19
 PROBES, PROBE_SEED = 256, 9  # random UVs at which a texture's own lookup is read
 
@@ -46,9 +37,8 @@ def film_positions(
     samples: tuple[int, int] | None = None,
 ) -> Any:
     """Film positions in [0, 1)^2 for every (pixel, sample), row-major, samples innermost:
-    stratified on a ceil(sqrt(spp))^2 grid inside each pixel, jittered by PCG32 (in Dr.Jit, so
-    millions of samples never round-trip through numpy). ``samples``: only the [first, end)
-    range of the flat sample index, with the values the whole film would give them."""
+    stratified on a ceil(sqrt(spp))^2 grid inside each pixel, jittered by PCG32. ``samples``:
+    only the [first, end) range of the flat sample index, as the whole film gives them."""
     import drjit as dr
 
     first, end = samples or (0, width * height * spp)
@@ -78,20 +68,42 @@ def trace(
     with_uv: bool = False,
 ) -> VisibilityPass:
     """Trace ``spp`` primary rays per pixel of ``sensor``'s film (no gradients), in chunks of
-    at most SAMPLES_PER_CHUNK samples with a stop check between them.
+    at most SAMPLES_PER_CHUNK samples; only each sample's object index (and UV when
+    ``with_uv``, 0 where nothing is hit) leaves Dr.Jit."""
+    import drjit as dr
 
-    Only the object index of each sample leaves Dr.Jit (and the UVs when ``with_uv``).
-    """
     size = sensor.film().crop_size()
     width, height = int(size[0]), int(size[1])
     table = mi.Int32(object_of_registry_id(mi, scene, objects))
     samples = np.empty(width * height * spp, np.int32)
     uv = np.empty((samples.size, 2), np.float32) if with_uv else None
-    for span in sample_spans(samples.size, spp):
-        position = film_positions(mi, width, height, spp, seed, samples=span)
-        _trace_span(mi, scene, sensor, table, position, samples[span[0] : span[1]],
-                    None if uv is None else uv[span[0] : span[1]])  # fmt: skip
+    for first, end in sample_spans(samples.size, spp):
+        position = film_positions(mi, width, height, spp, seed, samples=(first, end))
+        with dr.suspend_grad():
+            ray, _ = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5, 0.5))
+            samples[first:end], hit_uv = hits(mi, scene, ray, table, with_uv)
+        if uv is not None and hit_uv is not None:
+            uv[first:end] = hit_uv
     return visibility_pass(objects, samples, uv, width, height, spp)
+
+
+def hits(
+    mi: ModuleType, scene: Any, ray: Any, table: Any, with_uv: bool
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Per ray, the index of the object hit (``table``: :func:`object_of_registry_id`) and,
+    ``with_uv``, the hit's UV (0 where nothing is hit)."""
+    import drjit as dr
+
+    with dr.suspend_grad():
+        si = scene.ray_intersect(ray)
+        index = object_index(mi, si, table)
+        if not with_uv:
+            return np.array(index, dtype=np.int32), None
+        # Selected in the kernel (a numpy mask over every sample costs more), and evaluated with
+        # the index in one kernel: converting them apart would trace twice.
+        uv = dr.select(index != BACKGROUND, si.uv, mi.Point2f(0.0, 0.0))
+        dr.eval(index, uv)
+        return np.array(index, dtype=np.int32), np.stack([np.array(uv.x), np.array(uv.y)], 1)
 
 
 def visibility_pass(
@@ -124,32 +136,6 @@ def sample_spans(count: int, spp: int) -> Iterator[tuple[int, int]]:
         yield first, min(first + step, count)
 
 
-def _trace_span(
-    mi: ModuleType,
-    scene: Any,
-    sensor: Any,
-    table: Any,
-    position: Any,
-    samples: np.ndarray,
-    uv: np.ndarray | None,
-) -> None:
-    """Trace the rays through ``position``; their object indices (and UVs) into the arrays."""
-    import drjit as dr
-
-    with dr.suspend_grad():
-        ray, _ = sensor.sample_ray(0.0, 0.5, position, mi.Point2f(0.5, 0.5))
-        si = scene.ray_intersect(ray)
-        index = object_index(mi, si, table)
-        if uv is not None:  # one kernel for both: converting them apart would trace twice
-            # 0 where nothing is hit, selected in the kernel: a numpy mask over every sample
-            # afterwards costs more than the select.
-            hit_uv = dr.select(index != BACKGROUND, si.uv, mi.Point2f(0.0, 0.0))
-            dr.eval(index, hit_uv)
-        samples[:] = np.array(index, dtype=np.int32)
-        if uv is not None:
-            uv[:, 0], uv[:, 1] = np.array(hit_uv.x), np.array(hit_uv.y)
-
-
 def object_index(mi: ModuleType, si: Any, table: Any) -> Any:
     """Per ray of ``si``, the index of the object hit (``table``: :func:`object_of_registry_id`),
     or BACKGROUND."""
@@ -174,17 +160,15 @@ def object_of_registry_id(mi: ModuleType, scene: Any, objects: tuple[str, ...]) 
         registry = int(np.array(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape)))[0])
         pairs[registry] = names.get(shape.id() or f"shape_{number}", BACKGROUND)
     table = np.full(max(pairs, default=0) + 1, BACKGROUND, np.int32)
-    for registry, index in pairs.items():
-        table[registry] = index
+    table[list(pairs)] = list(pairs.values())
     return table
 
 
 def render_beauty(
     loaded: LoadedScene, sensor: Any, visibility: VisibilityPass, spp: int, seed: int
 ) -> np.ndarray | None:
-    """A quick RGBA render at the inspection camera (alpha = visibility coverage); gradients off.
-
-    Rendered in the primal's sub-passes: a stop is acted on within one of them."""
+    """A quick RGBA render at the inspection camera (alpha = visibility coverage, so the two
+    line up); gradients off."""
     if spp <= 0:
         return None
     image = render_primal(loaded, spp, seed, sensor=sensor)
@@ -196,9 +180,9 @@ def render_beauty(
 
 @dataclass(frozen=True)
 class TextureProbe:
-    """What pins a bitmap texture's lookup down: the scene XML's settings, ``to_uv``, the
-    texels, and the texture's own values at PROBES random UVs, which the project stage matches
-    against every filter and wrap mode (a file used with several settings cannot fool that)."""
+    """What pins a bitmap texture's lookup down, so the project stage can repeat it: the scene
+    XML's settings, ``to_uv``, the texels, and the texture's own values at PROBES random UVs
+    (matched against every filter and wrap mode)."""
 
     filter: str
     wrap: str
@@ -212,9 +196,8 @@ class TextureProbe:
 def texture_probes(
     mi: ModuleType, params: Any, keys: tuple[str, ...], options: dict[str, tuple[str, str, str]]
 ) -> dict[str, TextureProbe]:
-    """Per texture ``data`` key, its probe. ``to_uv`` is a traversed parameter; ``filter_type``
-    and ``wrap_mode`` are not exposed by the plugin's Python binding, so they are read from the
-    prepared scene (``options``: ``PreparedScene.bitmap_options``) and confirmed by probing."""
+    """Per texture ``data`` key, its probe; ``filter_type`` and ``wrap_mode`` are not exposed by
+    the plugin's binding: ``options`` (``PreparedScene.bitmap_options``) has them."""
     import drjit as dr
 
     rng = np.random.default_rng(PROBE_SEED)

@@ -26,15 +26,14 @@ from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import image_like_backward, render_primal
 from sensaov_cli.render.forward import adjoint_images, forward_image
-from sensaov_cli.render.loading import LoadedScene, assign
+from sensaov_cli.render.loading import LoadedScene
 from sensaov_cli.render.objectives import Objective
+from sensaov_cli.render.verify.fdcheck import STEP, difference
 from sensaov_cli.vocabulary import Trust
 
-# Same-seed central differences with ε = 1e-2 · max(1, |θ|): their curvature error is
-# O(ε²) and float32 cancellation O(1e-7/ε); 1e-3 measured on smooth parameters (MITSUBA-NOTES),
-# 2 % leaves room for a path that crosses a light's edge between the two sides.
+# Same-seed central differences (fdcheck.STEP): 2 % leaves room for a path that crosses a
+# light's edge between the two sides.
 FD_TOLERANCE = 0.02
-FD_STEP = 1e-2
 _TINY = 1e-30
 
 
@@ -89,10 +88,10 @@ def top_keys(buffer: SensitivityBuffer, objective: str, k: int) -> list[str]:
 def directions(info: ParamRecord, count: int, seed: int) -> list[tuple[str, np.ndarray]]:
     """Ones, then ``count`` Gaussian directions (seeded: the same every run)."""
     rng = np.random.default_rng(seed)
-    found = [("ones", np.ones(info.shape, np.float32))]
-    for n in range(count):
-        found.append((f"random {n + 1}", rng.standard_normal(info.shape).astype(np.float32)))
-    return found
+    randoms = [rng.standard_normal(info.shape).astype(np.float32) for _ in range(count)]
+    return [("ones", np.ones(info.shape, np.float32))] + [
+        (f"random {n + 1}", v) for n, v in enumerate(randoms)
+    ]
 
 
 def check_duality(
@@ -107,8 +106,7 @@ def check_duality(
     central: bool = True,
 ) -> list[DualityCheck]:
     """One row per (objective, key, direction), each a progress line; ``central``: also the
-    central difference of the image (two renders a row; the quick check's one-seed rows
-    already compare reverse mode with same-seed differences)."""
+    central difference of the image (two renders a row)."""
     progress = progress or Progress(quiet=True)
     spp = int(buffer.provenance["spp"])
     primal = np.array(render_primal(loaded, spp, int(buffer.provenance["primal_seed"])))
@@ -147,7 +145,12 @@ def _row(
     forward = _weighted(adjoint, pushed.image) if pushed.image is not None else float("nan")
     central = None
     if asked and "discontinuous" not in info.flags:
-        central = _weighted(adjoint, _image_difference(loaded, info, v, spp, seed))
+
+        def image_at(side_seed: int) -> np.ndarray:
+            image = image_like_backward(loaded, loaded.routes[info.key], spp, side_seed)
+            return np.array(image, np.float32).astype(np.float64)
+
+        central = _weighted(adjoint, difference(loaded, info, v, STEP, (seed, seed), image_at))
     record = buffer.param(info.key)
     # A repaired parameter's reverse mode is the one known wrong: its central difference may
     # disagree with forward mode without failing the check.
@@ -159,20 +162,3 @@ def _row(
 
 def _weighted(adjoint: np.ndarray, image: np.ndarray) -> float:
     return float((adjoint.astype(np.float64) * image.astype(np.float64)).sum())
-
-
-def _image_difference(
-    loaded: LoadedScene, info: ParamRecord, v: np.ndarray, spp: int, seed: int
-) -> np.ndarray:
-    """(I(θ + εv) − I(θ − εv)) / 2ε, both sides with the backward pass's samples at ``seed``."""
-    theta = np.array(loaded.params[info.key], dtype=np.float32).reshape(info.shape)
-    eps = FD_STEP * max(1.0, float(np.abs(theta).max()))
-    sides = []
-    try:
-        for sign in (1, -1):
-            assign(loaded, info.key, theta + sign * eps * v)
-            image = image_like_backward(loaded, loaded.routes[info.key], spp, seed)
-            sides.append(np.array(image, np.float32).astype(np.float64))
-    finally:
-        assign(loaded, info.key, theta)
-    return (sides[0] - sides[1]) / (2 * eps)

@@ -1,37 +1,28 @@
 """Reverse-mode gradients against central finite differences: ``sensaov check``'s comparisons.
 
 A parameter is pushed along a direction v (all components; a central block of texels for
-textures). Per seed s, the adjoint's directional derivative <dM/dθ, v> at seed s is compared
-with (M(θ + εv) − M(θ − εv)) / 2ε rendered at the same seed s (common random numbers), through
-the integrator that computed the gradient (prb, or path for delta lobes: ``trust``). Over
-several seeds the mean difference and its standard error decide: agrees, disagrees, or
-inconclusive (noise too large to tell) (:func:`judge`). Parameters whose sampling depends on
-them (roughness, eta, the lobe weights of plastics) are only checkable on average:
-:func:`check_parameter_independent` renders the two sides with independent seeds at a higher
-sample count (the trust table's reference, ``scripts/trust_table.py``).
+textures); per seed, <dM/dθ, v> is compared with (M(θ + εv) − M(θ − εv)) / 2ε rendered at the
+same seed through the integrator that computed the gradient. ``sensaov check`` plans one
+parameter per kind (plugin, type, texture or not), or the ``--key`` ones (:func:`plan_audit`):
 
-``sensaov check`` plans one representative parameter per kind (plugin, type, texture or not),
-or the ``--key`` ones (:func:`plan_audit`):
+- **one seed** where the value does not steer sampling (``trust.SAME_SEED_EXACT``): the
+  difference reproduces the adjoint to float precision (SAME_SEED_TOLERANCE);
+- **several seeds** where it does (roughness, eta, lobe and blend weights): each seed's gap is
+  noise, so only its mean is judged (:func:`judge`);
+- kinds the trust table calls biased are repaired by ``sensaov run``: measured only when named
+  or with ``--full``.
 
-- **one seed** where the value does not steer sampling (``trust.SAME_SEED_EXACT``): at the
-  reverse pass's own seed the primal is a smooth function of θ and the adjoint its derivative,
-  so a central difference reproduces it to float precision (SAME_SEED_TOLERANCE,
-  Russian-roulette flips included), whatever the seed or spp;
-- **several seeds** where it does (roughness, eta, lobe and blend weights): each seed's adjoint
-  and difference are unbiased, so their gap is noise and only its mean is judged;
-- kinds the trust table knows to be biased are what ``sensaov run`` repairs: not measured
-  unless named with ``--key`` or asked for with ``--full`` (every kind over every seed).
-
-Per seed one primal and one backward pass per integrator give every chosen kind's adjoint;
-each kind then costs the two renders of its difference. Each step is a progress line.
+:func:`check_parameter_independent` differences independent renders at more samples: the trust
+table's reference where θ changes which paths are sampled (``scripts/trust_table.py``).
 """
 
 from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -46,10 +37,8 @@ from sensaov_cli.vocabulary import Trust
 
 RELATIVE_TOLERANCE = 0.05  # agreement of the means, relative to the finite difference
 NOISE_SIGMAS = 3.0  # a difference within 3 standard errors is consistent with noise
-# "disagrees" needs more: the standard error comes from few seeds (6 by default), so the gap
-# over it follows Student's t with seeds - 1 degrees of freedom, and a check runs one test per
-# parameter kind. The threshold is t's two-sided 99.9 % point: at 6 seeds 6.87, not 3 (with 3,
-# the demo's checks failed parameters that more seeds and samples then confirmed).
+# "disagrees" needs more: the gap over a standard error from few seeds follows Student's t with
+# seeds - 1 degrees of freedom, one test per kind: its two-sided 99.9 % point.
 _T_999 = {1: 636.6, 2: 31.6, 3: 12.9, 4: 8.61, 5: 6.87, 6: 5.96, 7: 5.41, 8: 5.04, 9: 4.78,
           10: 4.59, 11: 4.44, 12: 4.32, 15: 4.07, 20: 3.85, 30: 3.65}  # fmt: skip
 
@@ -61,8 +50,8 @@ def disagreement_sigmas(seeds: int) -> float:
 
 
 MAX_RELATIVE_NOISE = 0.25  # above this standard error (relative) a check is inconclusive
-# Step of independent-seed differences, relative to max(1, |θ|): their noise grows as 1/ε,
-# their curvature bias as ε² (a rough dielectric's eta, measured, is biased at 0.05, not 0.02).
+# Step of independent-seed differences, relative to max(1, |θ|): noise grows as 1/ε, curvature
+# bias as ε².
 INDEPENDENT_STEP = 0.02
 STEP = 1e-2  # of same-seed differences: ε = STEP · max(1, |θ|)
 SAME_SEED_TOLERANCE = 2e-3  # relative gap of one same-seed comparison (module docstring)
@@ -118,13 +107,26 @@ def adjoint_along(
     return float((grads[info.key] * v).sum())
 
 
-def objective_like_backward(
-    loaded: LoadedScene, objective: Objective, info: ParamRecord, spp: int, seed: int
-) -> float:
-    """M rendered with the samples the backward pass of ``info`` at ``seed`` uses."""
-    image = image_like_backward(loaded, loaded.routes[info.key], spp, seed)
-    value, _ = value_and_adjoint(loaded.mi, objective, image)
-    return value
+def difference(
+    loaded: LoadedScene,
+    info: ParamRecord,
+    v: np.ndarray,
+    step: float,
+    seeds: tuple[int, int],
+    measure: Callable[[int], Any],
+) -> Any:
+    """(f(θ + εv) − f(θ − εv)) / 2ε, ε = ``step`` · max(1, |θ|), each side ``measure``d at its
+    seed; θ is restored."""
+    theta = np.array(loaded.params[info.key], dtype=np.float32).reshape(info.shape)
+    eps = step * max(1.0, float(np.abs(theta).max()))
+    sides = []
+    try:
+        for seed, sign in zip(seeds, (1, -1), strict=True):
+            assign(loaded, info.key, theta + sign * eps * v)
+            sides.append(measure(seed))
+    finally:
+        assign(loaded, info.key, theta)
+    return (sides[0] - sides[1]) / (2 * eps)
 
 
 def central_difference(
@@ -135,19 +137,14 @@ def central_difference(
     spp: int,
     seeds: tuple[int, int],
 ) -> float:
-    """(M(θ + εv) − M(θ − εv)) / 2ε along v = :func:`direction`, ε = ``step`` · max(1, |θ|),
-    each side M rendered as the backward pass of ``info`` is, at its seed; θ is restored."""
-    theta = np.array(loaded.params[info.key], dtype=np.float32).reshape(info.shape)
-    v = direction(info)
-    eps = step * max(1.0, float(np.abs(theta).max()))
-    sides = []
-    try:
-        for seed, sign in zip(seeds, (1, -1), strict=True):
-            assign(loaded, info.key, theta + sign * eps * v)
-            sides.append(objective_like_backward(loaded, objective, info, spp, seed))
-    finally:
-        assign(loaded, info.key, theta)
-    return (sides[0] - sides[1]) / (2 * eps)
+    """The :func:`difference` of M along v = :func:`direction`, each side rendered as the
+    backward pass of ``info`` is."""
+
+    def measure(seed: int) -> float:
+        image = image_like_backward(loaded, loaded.routes[info.key], spp, seed)
+        return value_and_adjoint(loaded.mi, objective, image)[0]
+
+    return float(difference(loaded, info, direction(info), step, seeds, measure))
 
 
 def check_parameter(
@@ -171,9 +168,8 @@ def check_parameter_independent(
     fd_spp: int,
     seeds: list[int],
 ) -> GradientCheck:
-    """Differences of independent renders at ``fd_spp`` (step INDEPENDENT_STEP · max(1, |θ|)):
-    the reference where θ changes which lobe or direction is sampled, so that the same seed
-    does not give the same paths on both sides."""
+    """Differences of independent renders at ``fd_spp``: the reference where θ changes which
+    paths are sampled."""
     v = direction(info)
     adjoints, differences = [], []
     for seed in seeds:

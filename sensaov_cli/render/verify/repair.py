@@ -1,35 +1,13 @@
 """Repairs: where Mitsuba's reverse-mode gradient is known wrong, central differences instead.
 
-After a run's backward passes and self-checks, every parameter the plan below picks is
-differentiated again by finite differences with common random numbers: per seed s and
-component c, (M(θ + ε e_c; s) − M(θ − ε e_c; s)) / 2ε, both sides rendered with the same
-samples, so that the noise they share cancels; a component within a step of a bound (0 for a
-throughput weight, 0 or 1 for a blend weight) takes (−3 M(θ; s) + 4 M(θ + h e_c; s) −
-M(θ + 2h e_c; s)) / 2h, h = ±ε away from it. ε = step · max(1, |θ_c|), the step measured for
-the kind (trust.REPAIRS). The mean over seeds replaces the stored gradient; the
-seeds' spread is its standard error (buffer/repairs.py). With ``render.batches: k`` the seeds
-are dealt to the batches, so the buffer's batch statistics cover the repaired gradients too.
-
-The label a repaired parameter gets is the repair's, measured per kind (trust.REPAIRS):
-``verified`` where differences were measured to agree with independent ones, else
-``unverified``. A candidate left out (over budget, a texture) keeps its label, with the reason
-added to its note; a composite over a smooth lobe the table called verified becomes unverified.
-
-A parameter is a candidate when its reverse-mode gradient is known to be wrong: its kind is
-``biased`` in the trust table, or ``no_gradient`` there (thindielectric η); a self-check found it
-``suspect``, or found components exactly 0 in a throughput weight (Mitsuba's replay ends the path
-there); or it belongs to a composite BSDF over a smooth (delta) lobe that prb differentiates
-through ``eval()``, which omits that lobe. Textures are never repaired: a difference per texel
-would need two renders for each of thousands of texels.
-
-The cost is counted in samples. The run's own passes cost about ``pixels × spp × (1 + 2 P)``
-(a primal, and P backward passes of about two primals each) plus their fixed costs
-(RENDER_OVERHEAD, BACKWARD_OVERHEAD); ``repair.budget`` times that is
-what the differences may render. Each repaired component costs two renders per seed (a base
-render per seed is shared by the one-sided ones), each its samples plus RENDER_OVERHEAD; the
-renders' spp is what fits, at most the job's. When not even one sample per pixel fits, the
-parameters that matter least (the reverse mode's |θ·∂M/∂θ|, then |∂M/∂θ|) are left out,
-labelled as before and named.
+Per seed s and component c, (M(θ + ε e_c; s) − M(θ − ε e_c; s)) / 2ε with common random
+numbers; a component within a step of a bound (BOUNDS) takes the one-sided (−3 M(θ) + 4 M(θ + h)
+− M(θ + 2h)) / 2h, h = ±ε away from it; ε = step · max(1, |θ_c|) with the step measured per kind
+(trust.REPAIRS). The mean over seeds replaces the stored gradient, their spread is its standard
+error; with batches the seeds are dealt to them. The repaired label is the repair's own.
+Textures are never repaired (two renders per texel). The renders' spp is what fits in
+``repair.budget`` times the run's own cost; below 1 spp, the parameters that matter least
+(|θ·∂M/∂θ|, then |∂M/∂θ|) are left out and named. docs/verification.md "Repairs" has the rules.
 """
 
 from __future__ import annotations
@@ -58,17 +36,13 @@ from sensaov_cli.render.verify.trust import (
     repair_entry,
 )
 
-# A parameter with more components is not repaired by differences (two renders each).
-MAX_COMPONENTS = 16
-# What a render costs besides its samples, in samples: setting the parameter (Mitsuba
-# recomputes a roughplastic's tables) and tracing the integrator come to about as much as 2^15
-# samples on CPU cores; a backward pass costs about 2^19 besides its samples (measured, bench/).
+MAX_COMPONENTS = 16  # more are not repaired (two renders each)
+# What a render costs besides its samples, in samples: setting the parameter (a roughplastic's
+# tables) and tracing the integrator; a backward pass's (measured, bench/).
 RENDER_OVERHEAD = 1 << 15
 BACKWARD_OVERHEAD = 1 << 19
 TEXTURE_REASON = "a texture: finite differences would take two renders per texel"
-# Where a difference must not step past a bound: a throughput weight below 0 ends Mitsuba's
-# replayed path, a blend weight is clamped to [0, 1]. Components within a step of one are
-# differenced one-sided, away from it.
+# A throughput weight below 0 ends Mitsuba's replayed path, a blend weight is clamped to [0, 1].
 BOUNDS: dict[str, tuple[float | None, float | None]] = {
     **{kind: (0.0, None) for kind in THROUGHPUT_TYPES},
     "weight": (0.0, 1.0),
@@ -225,12 +199,9 @@ def repair(
 ) -> AdjointResult:
     """``result`` with every known-wrong gradient the budget allows computed again.
 
-    ``seed``, ``spp`` and ``batches`` are the whole job's (its primal seed, render.spp, and
-    render.batches or the shard count): the plan, its seeds and their spp are the job's, so
-    shard i renders exactly the seeds batch i-1 of a run with as many batches does, and their
-    merge is that run's buffer. ``shard``: this task's batch index (0-based), or None;
-    ``passes``: the whole job's backward passes per batch (default: this run's, which an
-    ``--objective`` task has fewer of). ``stages_after``: the progress stages that follow."""
+    ``seed``, ``spp``, ``batches`` and ``passes`` (backward passes per batch) are the whole
+    job's, so shard i (``shard``: its 0-based batch index) renders exactly the seeds of batch
+    i-1 of the whole run and their merge is that run's buffer."""
     zeros = result.checks.zero_components if result.checks is not None else {}
     reasons = candidates(loaded, result.params, zeros)
     count = max(settings.seeds, batches)  # with batches, at least one seed each
@@ -263,24 +234,6 @@ def repair(
     )
 
 
-class _Objectives:
-    """M of every objective at the current parameters, per (seed, spp); base renders cached."""
-
-    def __init__(self, loaded: LoadedScene, objectives: Sequence[Objective], spp: int):
-        self.loaded, self.objectives, self.spp = loaded, objectives, spp
-        self.base: dict[int, np.ndarray] = {}
-
-    def __call__(self, seed: int) -> np.ndarray:
-        interrupts.check()  # between renders: a stop is acted on within one render
-        image = render_primal(self.loaded, self.spp, seed)
-        return np.array([value_and_adjoint(self.loaded.mi, o, image)[0] for o in self.objectives])
-
-    def at_base(self, seed: int) -> np.ndarray:
-        if seed not in self.base:
-            self.base[seed] = self(seed)
-        return self.base[seed]
-
-
 def _differences(
     loaded: LoadedScene,
     objectives: Sequence[Objective],
@@ -288,12 +241,19 @@ def _differences(
     chosen: RepairPlan,
     target: Target,
 ) -> Repair:
-    """Every seed's estimate of every component, for every objective. Each side is set once
-    and rendered at every seed (setting a roughplastic recomputes its tables)."""
+    """Every seed's estimate of every component, for every objective; each side set once and
+    rendered at every seed."""
     started = time.perf_counter()
     shape = result.values[target.key].shape
     theta = result.values[target.key].astype(np.float32).ravel()
-    measure = _Objectives(loaded, objectives, chosen.spp)
+
+    def measure(seed: int) -> np.ndarray:
+        """M of every objective at the current parameters."""
+        interrupts.check()  # between renders: a stop is acted on within one render
+        image = render_primal(loaded, chosen.spp, seed)
+        return np.array([value_and_adjoint(loaded.mi, o, image)[0] for o in objectives])
+
+    base: dict[int, np.ndarray] = {}  # M at θ, shared by every one-sided component
     rows = np.zeros((len(chosen.seeds), target.components, len(objectives)))
     try:
         away = dict(target.one_sided)  # component -> the sign of h, away from its bound
@@ -307,8 +267,10 @@ def _differences(
                 sides.append(np.array([measure(seed) for seed in chosen.seeds]))
             if c in away:
                 assign(loaded, target.key, theta.reshape(shape))
-                base = np.array([measure.at_base(seed) for seed in chosen.seeds])
-                rows[:, c] = (4 * sides[0] - sides[1] - 3 * base) / (2 * h)
+                for seed in chosen.seeds:
+                    base[seed] = base[seed] if seed in base else measure(seed)
+                at_base = np.array([base[seed] for seed in chosen.seeds])
+                rows[:, c] = (4 * sides[0] - sides[1] - 3 * at_base) / (2 * h)
             else:
                 rows[:, c] = (sides[0] - sides[1]) / (2 * h)
     finally:

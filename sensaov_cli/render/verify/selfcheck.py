@@ -2,17 +2,12 @@
 
 They can only lower a parameter's trust label (docs/verification.md, "Run-time self-checks"):
 
-(a) **no gradient flows**: a gradient identically 0 for every objective is not a result. The
-    parameter is labelled ``no_gradient`` with the known reason when there is one, and views
-    list it apart instead of ranking it.
-(b) **zero components**: where a throughput weight (reflectance, specular, transmittance) is
-    exactly 0, Mitsuba's replay has no later vertex to differentiate, so ∂M/∂θ there is wrong
-    (15x too small, measured) while θ·∂M/∂θ = 0 is right whatever the gradient. A parameter
-    the table verifies becomes ``unverified``, with the components named in its note.
-(c) **emission identities**, for objectives linear in the image: an image is linear in each
-    emitter's radiance, so Σ θ·∂M/∂θ over an emitter's radiance-like parameters equals its
-    ``scale`` (or spot texture) term, and summed over all emitters equals M. A violation
-    beyond Monte Carlo error marks the parameters involved ``suspect``, with the figures.
+(a) **no gradient flows**: a gradient identically 0 for every objective is ``no_gradient``.
+(b) **zero components**: where a throughput weight is exactly 0, Mitsuba's replay has no later
+    vertex to differentiate, so ∂M/∂θ there is wrong (θ·∂M/∂θ = 0 is right): ``unverified``.
+(c) **emission identities**, for objectives linear in the image: Σ θ·∂M/∂θ over an emitter's
+    radiance-like parameters equals its ``scale`` (or spot texture) term, and summed over all
+    emitters equals M. A violation beyond Monte Carlo error marks the parameters ``suspect``.
 """
 
 from __future__ import annotations
@@ -31,24 +26,19 @@ from sensaov_cli.render.verify.trust import NO_FLOW_REASON, known_zero_reason
 
 LINEAR_OBJECTIVES = frozenset({"mean_luminance", "region_luminance"})
 THROUGHPUT_TYPES = frozenset({"reflectance", "specular", "transmittance"})
-# Same pass, same paths: an emitter's radiance and scale terms agree to 3e-5 (measured on
-# envmaps and textured spot lights); 1e-3 leaves room for float32 accumulation.
+# Same pass, same paths: an emitter's radiance and scale terms agree up to float32 accumulation.
 PAIR_TOLERANCE = 1e-3
-# M and its gradient-side estimate come from independent samples. Their relative gap times
-# sqrt(spp x effective pixel count) reached 12 at most over 8 scenes, 3 spp and 12 seeds
-# (docs/verification.md); the tolerance is 40 / sqrt(spp x pixels), never below 1 %.
+# M and its gradient-side estimate come from independent samples: the tolerance is
+# MC_CONSTANT / sqrt(spp x effective pixels), never below 1 % (docs/verification.md).
 MC_CONSTANT = 40.0
 MIN_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
 class EmitterTerms:
-    """An emitter's parameters that its emission is proportional to, in two independent groups.
-
-    ``radiance``: radiance, irradiance, intensity, envmap data (and textures in those slots);
-    ``scale``: an envmap's scale, a spot light's spatially varying texture. A group is None
-    when the emitter has none, or when one of its differentiable parameters is not selected.
-    """
+    """An emitter's parameters that its emission is proportional to, in two independent groups
+    (``scale``: an envmap's scale, a spot light's varying texture); None where it has none, or
+    one of its differentiable parameters is not selected."""
 
     name: str
     radiance: tuple[str, ...] | None

@@ -1,16 +1,12 @@
 """How far each kind of reverse-mode gradient can be trusted, as measured (docs/verification.md).
 
-A kind is a (plugin, type) pair, the way sensaov names a parameter's holder and slot. Its label
-comes from ``scripts/trust_table.py``, which compares sensaov's own gradients of a tiny scene
-per plugin with central finite differences (Mitsuba 3.9.1, Dr.Jit 1.5.0, llvm_ad_rgb); the
-table in docs/verification.md is that script's output, and tests/test_trust.py keeps the two
-in step. A kind missing from the table is "unverified". At run time the self-checks
-(:mod:`~sensaov_cli.render.verify.selfcheck`) can only lower a label, never raise it.
+A kind is a (plugin, type) pair: a parameter's holder and slot. Labels come from
+``scripts/trust_table.py`` (gradients of a tiny scene per plugin against central differences);
+docs/verification.md holds its output, and tests/test_trust.py keeps the two in step. A kind
+missing from the table is "unverified".
 
-prb differentiates a BSDF through ``bsdf.eval``, which is 0 for a delta lobe: the parameters of
-smooth conductors, dielectrics and plastics get 0 (plastic's diffuse reflectance a biased
-value). Their gradients come from Mitsuba's ``path`` instead, whose naive AD keeps the sampled
-lobe's weight attached (docs/verification.md has the cost).
+prb differentiates a BSDF through ``bsdf.eval``, which is 0 for a delta lobe: parameters of
+smooth BSDFs take their gradients from Mitsuba's ``path`` instead.
 """
 
 from __future__ import annotations
@@ -65,8 +61,7 @@ def _noisy(kind: str) -> Entry:
     return Entry("unverified", f"{kind} gradient: measured, too noisy to tell at 32x32/1024 spp")
 
 
-# (plugin, type) -> label. docs/verification.md "The trust table" is the measured evidence,
-# one row per parameter checked; the label of a kind is the weakest of its rows.
+# (plugin, type) -> label: the weakest of the kind's rows in docs/verification.md.
 TABLE: dict[tuple[str, str], Entry] = {
     ("area", "radiance"): VERIFIED,
     ("conductor", "eta"): VERIFIED,  # through path, like every parameter of a smooth BSDF
@@ -131,11 +126,9 @@ TABLE: dict[tuple[str, str], Entry] = {
 # --- composites: trust follows the whole path a gradient takes --------------------------------
 #
 # A parameter inside a composite BSDF (or of one) has a context per composite above it:
-# (composite, role, children). role is the composite's own slot ("weight", "opacity", "bump",
-# "normal") for its own parameters, "child" for those of the BSDFs inside it; children is
-# "smooth" where a child has a delta lobe, else "rough". Its label is the weakest of its own
-# kind's and of each context's (docs/verification.md, "Composites"; measured by
-# scripts/trust_table.py like the kinds above).
+# (composite, role, children): role is the composite's own slot for its own parameters, "child"
+# for those of the BSDFs inside it; children is "smooth" where a child has a delta lobe, else
+# "rough". Its label is the weakest of its kind's and each context's (docs/verification.md).
 Context = tuple[str, str, str]
 WEAKEST_FIRST: tuple[Trust, ...] = ("no_gradient", "biased", "suspect", "unverified", "verified")
 COMPOSITES = frozenset({"blendbsdf", "mask", "twosided", "bumpmap", "normalmap"})
@@ -174,10 +167,8 @@ COMPOSITE_TABLE: dict[Context, Entry] = {
     ("normalmap", "child", "rough"): VERIFIED,
     ("normalmap", "child", "smooth"): VERIFIED,
 }
-# Contexts whose parameters Mitsuba's path differentiates (measured), or none does well: prb
-# differentiates a composite through eval(), in which a delta lobe (a smooth child, a mask's
-# pass-through) is 0, so the blend of the two comes out wrong (a diffuse child's reflectance
-# 40 % too high beside a smooth conductor, a mask's opacity 37 %).
+# Contexts whose parameters path differentiates, or none does well: prb differentiates a
+# composite through eval(), in which a delta lobe (a smooth child, a mask's pass-through) is 0.
 _PATH_CONTEXTS = frozenset(
     {("blendbsdf", "weight", "smooth"), ("blendbsdf", "child", "smooth"),
      ("mask", "opacity", "rough"), ("mask", "opacity", "smooth"),
@@ -187,21 +178,23 @@ _PATH_CONTEXTS = frozenset(
 
 def composite_status(contexts: tuple[Context, ...]) -> tuple[Trust, str]:
     """The weakest label of ``contexts`` (composites above a parameter), and their notes."""
-    trusts: list[Trust] = ["verified"]
-    notes = []
-    for context in contexts:
-        entry = COMPOSITE_TABLE.get(context)
-        if entry is None:
-            composite, role, children = context
-            entry = Entry(
-                "unverified",
-                f"{role} of a {composite} over {children} children: not verified against "
-                "finite differences",
-            )
-        trusts.append(entry.trust)
-        if entry.note:
-            notes.append(entry.note)
-    return min(trusts, key=WEAKEST_FIRST.index), "; ".join(dict.fromkeys(notes))
+    statuses: list[tuple[Trust, str]] = [("verified", "")]
+    for composite, role, children in contexts:
+        unknown: tuple[Trust, str] = (
+            "unverified",
+            f"{role} of a {composite} over {children} children: not verified against "
+            "finite differences",
+        )
+        entry = COMPOSITE_TABLE.get((composite, role, children))
+        statuses.append((entry.trust, entry.note) if entry else unknown)
+    return weakest(*statuses)
+
+
+def weakest(*statuses: tuple[Trust, str]) -> tuple[Trust, str]:
+    """The weakest label of ``statuses`` and the notes of all that are not verified."""
+    trust = min((t for t, _ in statuses), key=WEAKEST_FIRST.index)
+    notes = [note for t, note in statuses if t != "verified" and note]
+    return trust, "; ".join(dict.fromkeys(notes))
 
 
 # --- repairs: where the reverse-mode gradient is known wrong, finite differences instead ------
@@ -223,8 +216,7 @@ class RepairEntry:
 
 REPAIR_STEP = 0.01  # the step of a kind not listed below
 # (plugin, type) -> the repair's label and step, measured against independent central
-# differences (docs/verification.md "Repairs", scripts/repair_table.py). A kind not listed is
-# still repaired where its gradient is known wrong, and labelled unverified.
+# differences (docs/verification.md "Repairs", scripts/repair_table.py).
 REPAIRS: dict[tuple[str, str], RepairEntry] = {
     ("blendbsdf", "weight"): RepairEntry("verified", 0.1),  # lobe flips: noise grows as 1/ε
     ("diffuse", "reflectance"): RepairEntry(  # components at 0: one-sided differences
@@ -251,10 +243,8 @@ def repair_entry(plugin: str, ptype: str) -> RepairEntry:
 # --- checks: which kinds one seed checks -----------------------------------------------------
 
 # (plugin, type, is_texture) of kinds whose value does not steer sampling: a difference at the
-# reverse pass's own seed reproduces its gradient to float precision (the trust table's
-# same-seed rows: relative error <= 1e-4), so `sensaov check` compares them at one seed. Others
-# (roughness, eta of rough or plastic BSDFs, lobe and blend weights, importance-sampled emitter
-# textures) are compared on average over seeds. A kind missing here is compared over seeds.
+# reverse pass's own seed reproduces its gradient to float precision, so `sensaov check`
+# compares them at one seed; the others over seeds.
 SAME_SEED_EXACT = frozenset(
     {("diffuse", "reflectance", False), ("diffuse", "reflectance", True),
      ("conductor", "eta", False), ("conductor", "k", False), ("conductor", "specular", False),
