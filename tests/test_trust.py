@@ -25,7 +25,7 @@ from sensaov_cli.render.verify.selfcheck import (
     PAIR_TOLERANCE,
     EmitterTerms,
     LinearObjective,
-    check,
+    check_gradients,
     tolerance,
 )
 from sensaov_cli.render.verify.trust import (
@@ -159,7 +159,9 @@ def run_check(
     arrays = {k: np.asarray(v, np.float32) for k, v in values.items()}
     gradients = {"m": {k: np.asarray(v, np.float32) for k, v in grads.items()}}
     linear = {"m": LinearObjective(m, effective_pixels=1e6)}
-    done = check(records, arrays, gradients, linear, emitters, 64, {k: "prb" for k in values})
+    done = check_gradients(
+        records, arrays, gradients, linear, emitters, 64, {k: "prb" for k in values}
+    )
     return {r.key: r for r in done.params}
 
 
@@ -185,7 +187,7 @@ def test_no_gradient_names_the_known_reason(
 ) -> None:
     zero = ParamRecord(key, ptype, ("o",), (1,), False, plugin, (), "verified", "")
     values, grads = {key: np.ones(1, np.float32)}, {"m": {key: np.zeros(1, np.float32)}}
-    done = check([zero], values, grads, {}, (), 16, {key: integrator})
+    done = check_gradients([zero], values, grads, {}, (), 16, {key: integrator})
     assert (done.params[0].trust, done.params[0].note) == ("no_gradient", reason)
 
 

@@ -15,7 +15,7 @@ from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
 from sensaov_cli.errors import SceneError
 from sensaov_cli.job.spec import CameraSpec, JobSpec, ParameterSpec
 from sensaov_cli.render.runtime import import_mitsuba
-from sensaov_cli.render.selection import ownership_of, select
+from sensaov_cli.render.selection import ownership_of, select_parameters
 from sensaov_cli.render.verify.trust import Context
 from sensaov_cli.scene import PreparedScene, prepare_scene
 
@@ -70,7 +70,7 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
     params = mi.traverse(scene)
     sources = {Path(name).name: prepared.path.parent / name for name in prepared.bitmap_files}
     media = None if prepared.integration.replay == "prbvolpath" else prepared.integration.scene_kind
-    selection = select(mi, parameters, params, ownership, sources, media)
+    selection = select_parameters(mi, parameters, params, ownership, sources, media)
     size = sensor.film().crop_size()
     return LoadedScene(
         mi=mi,

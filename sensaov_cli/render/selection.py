@@ -130,7 +130,7 @@ def ownership_of(mi: ModuleType, scene: Any, instances: Mapping[str, str]) -> Ow
     )
 
 
-def select(
+def select_parameters(
     mi: ModuleType,
     parameters: ParameterSpec,
     params: Any,

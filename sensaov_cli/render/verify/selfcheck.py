@@ -84,7 +84,7 @@ class SelfCheck:
         }
 
 
-def check(
+def check_gradients(
     records: Sequence[ParamRecord],
     values: Mapping[str, np.ndarray],
     grads: Mapping[str, Mapping[str, np.ndarray]],
@@ -225,7 +225,7 @@ def self_check(
         if o.spec.type in LINEAR_OBJECTIVES
     }
     emitters = emitter_terms(loaded)
-    return check(loaded.selected, values, grads, linear, emitters, spp, loaded.routes)
+    return check_gradients(loaded.selected, values, grads, linear, emitters, spp, loaded.routes)
 
 
 def _effective_pixels(loaded: LoadedScene, objective: Objective, image: np.ndarray) -> float:
