@@ -219,7 +219,6 @@ def _legend(
 
 
 def _wrap(text: str, width: int) -> list[str]:
-    """``text`` broken at spaces into lines at most ``width`` pixels wide."""
     lines: list[str] = []
     for word in text.split(" "):
         candidate = f"{lines[-1]} {word}" if lines else word
