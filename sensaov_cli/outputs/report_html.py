@@ -69,7 +69,6 @@ class Picture:
     caption: str
     png: bytes
     kind: str = ""  # "primal", "sunburst", "layer", "sheet", "fig4"
-    objective: str = ""
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ import unicodedata
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import asdict
 
-from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.views.hierarchy import (
     RANKING_FORMAT,
     RANKING_VERSION,
@@ -52,6 +52,11 @@ _MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": S
 _PROVENANCE_SHOWN = {"scene_path": "scene", "variant": "variant", "spp": "spp"}  # key: label
 _OWNERS_SHOWN = 3
 CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}  # what a score adds up
+# The columns of a row, in JSON, CSV and text order (CSV puts "objective" first).
+COLUMNS = (
+    "rank", "name", "score", "signed", "share", "sign", "value", "trust", "off_frame",
+    "score_se", "signed_se", "significant", "part", "zero_value", "raw_signed", "estimator",
+)  # fmt: skip
 
 
 def format_table(
@@ -319,17 +324,13 @@ def _legend(summary: ObjectiveSummary) -> list[str]:
     if any(trust_mark(g.trust) for g in groups):
         lines.append("    objects and types so marked include such a parameter")
     lines += zero_value_legend(summary.zero_valued)
-    lines += _no_gradient_lines(summary.no_gradient)
+    if summary.no_gradient:
+        lines.append(f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:")
+        lines += [
+            printable(f"      {p.key} ({', '.join(p.owners) or '-'}): {p.note}")
+            for p in summary.no_gradient
+        ]
     return lines
-
-
-def _no_gradient_lines(found: Sequence[ParamRecord]) -> list[str]:
-    if not found:
-        return []
-    lines = [f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:"]
-    return lines + [
-        printable(f"      {p.key} ({', '.join(p.owners) or '-'}): {p.note}") for p in found
-    ]
 
 
 def _indented(headers: list[str], rows: list[list[str]], numeric: set[int]) -> list[str]:
@@ -341,13 +342,6 @@ def _indented(headers: list[str], rows: list[list[str]], numeric: set[int]) -> l
 def se_text(se: float | None) -> str:
     """A standard error as the tables show it ("-": none measured)."""
     return "-" if se is None else f"{se:.1e}"
-
-
-# The columns of a row, in JSON, CSV and text order (CSV puts "objective" first).
-COLUMNS = (
-    "rank", "name", "score", "signed", "share", "sign", "value", "trust", "off_frame",
-    "score_se", "signed_se", "significant", "part", "zero_value", "raw_signed", "estimator",
-)  # fmt: skip
 
 
 def ranking_json(

@@ -197,7 +197,7 @@ def _preview(
                               hint=f"re-run '{remake}'") from error  # fmt: skip
     check_made_from(text, buf, str(path), remake=remake)
     check_made_by(text, job, str(path), remake=remake)
-    return Picture(_caption(entry), path.read_bytes(), kind=entry.kind, objective=entry.objective)
+    return Picture(_caption(entry), path.read_bytes(), kind=entry.kind)
 
 
 def _is_headline(job: JobSpec, entry: _Listed) -> bool:
