@@ -407,7 +407,6 @@ def _csv_cell(row: RankRow, column: str) -> object:
 
 
 def ranking_text(found: Sequence[Ranking], *, method: Aggregate, weight: Weight) -> str:
-    """The rankings as aligned tables, one per objective, with the marks' legend."""
     lines = [
         f"score: {method} of {CONTRIBUTION[weight]} over each row's components",
         "signed: their sum (> 0: increasing it raises M); share: of the total sum of squares",
