@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sensaov_cli.outputs.atomic import PROVENANCE_ATTRIBUTE
 from sensaov_cli.outputs.exr import read_exr, write_exr
-from sensaov_cli.outputs.provenance import PROVENANCE_ATTRIBUTE
 
 from .conftest import sensaov
 

@@ -22,7 +22,7 @@ from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBu
 from sensaov_cli.buffer.npz import Archive, read_buffer
 from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import BufferFormatError
-from sensaov_cli.outputs.rankings import ranking_csv, ranking_json, ranking_text
+from sensaov_cli.outputs.tables import ranking_csv, ranking_json, ranking_text
 from sensaov_cli.pipeline.rank import rank_by_cut, rank_summary, summary_of
 from sensaov_cli.views.hierarchy import rankings
 from tests.bad_buffers import write_buffer

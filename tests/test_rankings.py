@@ -19,8 +19,7 @@ from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.cli import main
 from sensaov_cli.errors import EXIT_BAD_INPUT
 from sensaov_cli.outputs.cryptomatte import metadata, rank_channels, seen_names
-from sensaov_cli.outputs.rankings import COLUMNS
-from sensaov_cli.outputs.tables import summary_text
+from sensaov_cli.outputs.tables import COLUMNS, summary_text
 from tests.bad_buffers import write_buffer
 
 from .conftest import sensaov
@@ -302,8 +301,7 @@ def test_zero_valued_parameters_are_flagged_with_their_raw_gradient() -> None:
     """θ = 0 gives a value-weighted score of 0 (issue 18, point 5): never 'does not matter'
     without a word, in rankings, the summary, channels and the sunburst."""
     from sensaov_cli.job.spec import ChannelSpec
-    from sensaov_cli.outputs.rankings import ranking_json, ranking_text
-    from sensaov_cli.outputs.tables import summary_json
+    from sensaov_cli.outputs.tables import ranking_json, ranking_text, summary_json
     from sensaov_cli.views.channels import channel_values
     from sensaov_cli.views.hierarchy import ranked_summary, rankings
     from sensaov_cli.views.sunburst_geometry import panels

@@ -40,9 +40,8 @@ from sensaov_cli.live.query import (
     single_values,
 )
 from sensaov_cli.live.session import REST_SPP, Pick, Picture, ViewSession
-from sensaov_cli.outputs.atomic import atomic_write, check_writable, refuse_unsafe_outputs
+from sensaov_cli.outputs.atomic import atomic_write, check_writable, made_by, refuse_unsafe_outputs
 from sensaov_cli.outputs.previews import RDBU
-from sensaov_cli.outputs.provenance import made_by
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.views.sunburst_geometry import Panel
 

@@ -1,4 +1,5 @@
-"""Output files, written safely: atomically, never over an input, under names that are safe.
+"""Output files, written safely: atomically, never over an input, under names that are safe;
+and how each was made (its provenance).
 
 Each file is written to a temporary beside it, checked (an empty write is an error; ``fsync``
 reports a full disk the page cache hid), then renamed over the old file. The stop signals are
@@ -6,6 +7,9 @@ held back while a temporary is created and while the renames run, so a stop neve
 unknown temporary and a set of files is replaced together. The ledger (:func:`replaced`) lets
 a failure or a stop name exactly which outputs are new. Names from scenes and buffers are data,
 never paths: a file name is built only from :func:`file_token`'s output.
+
+``sensaov run`` and ``sensaov project`` both start their provenance with :func:`made_by` and
+store it with :func:`provenance_attributes`, so every file reads the same way.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from __future__ import annotations
 import atexit
 import errno
 import hashlib
+import json
 import os
 import re
 import shutil
@@ -24,10 +29,11 @@ from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
-from sensaov_cli import interrupts
+from sensaov_cli import __version__, interrupts
 from sensaov_cli.errors import OutputError
 
 TEMPORARY_SUFFIX = ".partial"
+PROVENANCE_ATTRIBUTE = "sensaov/provenance"
 _HELD = set(interrupts.STOP_SIGNALS)
 _live: set[Path] = set()  # temporaries that exist right now (removed on any failure or stop)
 _replaced: list[Path] = []  # every output this process renamed into place, in order
@@ -38,13 +44,10 @@ _HASH_CHARS = 8
 
 
 def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
-    """One file; see :func:`atomic_write_all`."""
     atomic_write_all([(path, write)])
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """``data`` as the whole of one file, written atomically."""
-
     def write(tmp: Path) -> None:
         tmp.write_bytes(data)
 
@@ -84,7 +87,6 @@ def scratch_folder(purpose: str) -> Path:
 
 
 def replaced() -> tuple[Path, ...]:
-    """Every output this process has renamed into place so far (a new file or a new version)."""
     return tuple(_replaced)
 
 
@@ -122,7 +124,7 @@ def _written_temporary(path: Path, write: Callable[[Path], None]) -> Path:
 
 
 def _check_written(tmp: Path, path: Path) -> None:
-    """A writer that wrote nothing failed; ``fsync`` makes a full disk show here, not later."""
+    # A writer that wrote nothing failed; fsync makes a full disk show here, not later.
     if tmp.stat().st_size == 0:
         raise OSError(errno.EIO, "the writer produced an empty file")
     # mkstemp creates the file owner-only: a new output gets the permissions any new file
@@ -159,7 +161,6 @@ def _signals_held() -> Iterator[None]:
 
 
 def _mode_of(path: Path) -> int:
-    """A replaced file's own permissions, else those of any new file."""
     with suppress(OSError):
         info = os.stat(path)
         if stat.S_ISREG(info.st_mode):
@@ -319,3 +320,22 @@ def _is_safe(name: str) -> bool:
         and not name.startswith((".", "-"))
         and ".." not in name
     )
+
+
+def made_by(command: str) -> dict[str, str]:
+    """The fields every provenance record starts with: the tool, its version, the command."""
+    return {"tool": "sensaov", "tool_version": __version__, "command": command}
+
+
+def header_provenance(header: Mapping[str, Any]) -> dict[str, Any] | None:
+    """The provenance an EXR header carries, or None where it holds none sensaov wrote."""
+    try:
+        recorded = json.loads(header[PROVENANCE_ATTRIBUTE])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return recorded if isinstance(recorded, dict) else None
+
+
+def provenance_attributes(provenance: dict[str, Any]) -> dict[str, str]:
+    """The provenance as the EXR header attribute that carries it (sorted keys, stable text)."""
+    return {PROVENANCE_ATTRIBUTE: json.dumps(provenance, sort_keys=True)}

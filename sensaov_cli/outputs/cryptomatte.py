@@ -36,7 +36,6 @@ OBJECT_TYPE = "CryptoObject"
 
 
 def name_hash(name: str) -> int:
-    """MurmurHash3_x86_32 (seed 0) of the UTF-8 bytes of ``name``, as an unsigned 32-bit int."""
     return int(mmh3.hash(name.encode("utf-8"), seed=0, signed=False))
 
 
@@ -55,7 +54,6 @@ def uint32_to_float32(bits: int) -> np.float32:
 
 
 def id_float(name: str) -> np.float32:
-    """The Cryptomatte ID of ``name``: the float32 whose bits are :func:`id_bits`."""
     return uint32_to_float32(id_bits(name))
 
 

@@ -82,7 +82,7 @@ def _use_every_core(openexr: Any) -> None:
 
 
 def _os_error(message: str) -> OSError:
-    """OpenEXR's message ("... No space left on device.") as its OSError."""
+    # OpenEXR's message says "... No space left on device.": the errno is found by its text.
     for code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EROFS):
         if os.strerror(code) in message:
             return OSError(code, os.strerror(code))
@@ -160,7 +160,6 @@ def _library_quiet() -> Iterator[list[str]]:
 
 
 def _check_declared_size(window: object, listed: Sized, path: Path, what: str) -> None:
-    """The pixels a header declares, against the memory budget."""
     corners = np.asarray(window, dtype=np.int64).reshape(-1)
     if corners.size != 4:
         raise ExrReadError(f"the {what} has no data window", where=str(path))

@@ -217,21 +217,17 @@ def layer_metadata(layer: SensitivityLayer, name: str) -> dict[str, str]:
     if layer.duality_agrees is not None:
         entries["duality"] = "agrees" if layer.duality_agrees else DUALITY_FAILED
     if layer.display is not None:
-        entries.update(_display_metadata(layer.display))
+        scale = layer.display.scale
+        entries |= {
+            "display_scale": repr(scale.value),
+            "display_rule": scale.rule(),
+            "display_scope": scale.scope,
+            "display_cameras": json.dumps(list(scale.cameras)),
+            "display_clipped": repr(layer.display.clipped),  # of this camera's non-zero pixels
+            "display_clipped_all": repr(scale.clipped),  # every camera of the rule, equally
+        }
     prefix = f"sensaov/{cryptomatte.layer_key(name)}"
     return {f"{prefix}/{key}": value for key, value in entries.items()}
-
-
-def _display_metadata(display: Display) -> dict[str, str]:
-    scale = display.scale
-    return {
-        "display_scale": repr(scale.value),
-        "display_rule": scale.rule(),
-        "display_scope": scale.scope,
-        "display_cameras": json.dumps(list(scale.cameras)),
-        "display_clipped": repr(display.clipped),  # this camera's share of its non-zero pixels
-        "display_clipped_all": repr(scale.clipped),  # every camera of the rule, weighted equally
-    }
 
 
 def display_background(hit: np.ndarray) -> np.ndarray:

@@ -28,8 +28,6 @@ _SELECTED_KEYS = ("key", "type", "owners", "plugin", "shape", "is_texture", "fla
 
 @dataclass(frozen=True)
 class ParameterInventory:
-    """What ``sensaov params`` reports of a loaded scene, as plain data."""
-
     variant: str
     objects: tuple[str, ...]
     selected: tuple[ParamRecord, ...]

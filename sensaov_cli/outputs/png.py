@@ -41,7 +41,6 @@ def encode_png(
 
 
 def write_png(path: Path, rgb_uint8: np.ndarray, text: Mapping[str, str] | None = None) -> None:
-    """Encode (as :func:`encode_png`), then write atomically."""
     atomic_write_bytes(Path(path), encode_png(rgb_uint8, text))
 
 

@@ -21,22 +21,8 @@ from sensaov_cli.views.coverage import run_starts
 
 # ColorBrewer RdBu, 11 classes (Brewer 2002), from -scale (blue) to +scale (red); symmetric in
 # lightness, so |value| reads as darkness whatever the sign.
-RDBU = np.array(
-    [
-        (0x05, 0x30, 0x61),
-        (0x21, 0x66, 0xAC),
-        (0x43, 0x93, 0xC3),
-        (0x92, 0xC5, 0xDE),
-        (0xD1, 0xE5, 0xF0),
-        (0xF7, 0xF7, 0xF7),
-        (0xFD, 0xDB, 0xC7),
-        (0xF4, 0xA5, 0x82),
-        (0xD6, 0x60, 0x4D),
-        (0xB2, 0x18, 0x2B),
-        (0x67, 0x00, 0x1F),
-    ],
-    dtype=np.uint8,
-)
+_RDBU_HEX = "053061 2166ac 4393c3 92c5de d1e5f0 f7f7f7 fddbc7 f4a582 d6604d b2182b 67001f"
+RDBU = np.array([list(bytes.fromhex(code)) for code in _RDBU_HEX.split()], dtype=np.uint8)
 
 FONT = "DroidSans"
 FONT_SIZE = 14
@@ -219,7 +205,6 @@ def _legend(
 
 
 def _wrap(text: str, width: int) -> list[str]:
-    """``text`` broken at spaces into lines at most ``width`` pixels wide."""
     lines: list[str] = []
     for word in text.split(" "):
         candidate = f"{lines[-1]} {word}" if lines else word

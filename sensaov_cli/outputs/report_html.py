@@ -66,12 +66,9 @@ class Stamp:
 
 @dataclass(frozen=True)
 class Picture:
-    """One embedded image: the PNG's bytes and what it shows."""
-
     caption: str
     png: bytes
     kind: str = ""  # "primal", "sunburst", "layer", "sheet", "fig4"
-    objective: str = ""
 
 
 @dataclass(frozen=True)
@@ -95,8 +92,6 @@ class CameraSection:
 
 @dataclass(frozen=True)
 class ReportContent:
-    """Everything a report shows, as plain data."""
-
     title: str
     question: str
     stamp: Stamp
@@ -110,12 +105,10 @@ class ReportContent:
 
 
 def write_report(path: Path, content: ReportContent) -> None:
-    """Write the page to ``path`` atomically (UTF-8)."""
     atomic_write_bytes(path, report_html(content).encode("utf-8"))
 
 
 def report_html(content: ReportContent) -> str:
-    """The whole page as one string."""
     title = html.escape(content.title)
     stamp = content.stamp
     attrs = (
@@ -226,7 +219,6 @@ def _figure(picture: Picture) -> str:
 
 
 def _stamp_line(stamp: Stamp) -> str:
-    """Which buffer and job version a section was made from, in one small line."""
     text = (
         f"buffer id {stamp.buffer_id} · job version (run) {stamp.job_version} · "
         f"job hash {stamp.job_hash} · made {stamp.made} · samples {stamp.samples}"

@@ -20,11 +20,12 @@ from sensaov_cli.errors import MergeError, SensaovError
 from sensaov_cli.outputs.atomic import (
     atomic_write_all,
     check_writable,
+    made_by,
+    provenance_attributes,
     recorded_inputs,
     refuse_unsafe_outputs,
 )
 from sensaov_cli.outputs.exr import exr_writer, read_exr
-from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
 
 

@@ -24,7 +24,14 @@ from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.statistics import single_pass
 from sensaov_cli.errors import FingerprintMismatch, SensaovError, SpecError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
-from sensaov_cli.outputs.atomic import check_writable, refuse_unsafe_outputs
+from sensaov_cli.outputs.atomic import (
+    check_writable,
+    header_provenance,
+    made_by,
+    provenance_attributes,
+    refuse_unsafe_outputs,
+)
+from sensaov_cli.outputs.contact_sheets import safe_file_stem, write_fig4_sheet, write_texture_files
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.outputs.layered_exr import (
     CryptoLayer,
@@ -34,8 +41,6 @@ from sensaov_cli.outputs.layered_exr import (
     with_display,
     write_layered_exr,
 )
-from sensaov_cli.outputs.provenance import header_provenance, made_by, provenance_attributes
-from sensaov_cli.outputs.texture_files import safe_file_stem, write_fig4_sheet, write_texture_files
 from sensaov_cli.pipeline.consistency import check_buffer_of_job
 from sensaov_cli.pipeline.merge import primal_beside
 from sensaov_cli.pipeline.run import FORWARD_NAME

@@ -8,8 +8,13 @@ from pathlib import Path
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import QueryError
-from sensaov_cli.outputs.rankings import ranking_csv, ranking_json, ranking_text
-from sensaov_cli.outputs.tables import summary_json, summary_text
+from sensaov_cli.outputs.tables import (
+    ranking_csv,
+    ranking_json,
+    ranking_text,
+    summary_json,
+    summary_text,
+)
 from sensaov_cli.views.hierarchy import check_cut, ranked_summary, rankings
 from sensaov_cli.vocabulary import Aggregate, Cut, Untrusted, Weight
 

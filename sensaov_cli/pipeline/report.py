@@ -22,6 +22,7 @@ from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.outputs.atomic import (
     check_writable,
     file_token,
+    header_provenance,
     recorded_inputs,
     refuse_unsafe_outputs,
 )
@@ -29,7 +30,6 @@ from sensaov_cli.outputs.cryptomatte import seen_names
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.outputs.png import encode_png, read_png_text
 from sensaov_cli.outputs.previews import srgb_uint8
-from sensaov_cli.outputs.provenance import header_provenance
 from sensaov_cli.outputs.report_html import (
     CameraSection,
     ObjectiveSection,
@@ -197,7 +197,7 @@ def _preview(
                               hint=f"re-run '{remake}'") from error  # fmt: skip
     check_made_from(text, buf, str(path), remake=remake)
     check_made_by(text, job, str(path), remake=remake)
-    return Picture(_caption(entry), path.read_bytes(), kind=entry.kind, objective=entry.objective)
+    return Picture(_caption(entry), path.read_bytes(), kind=entry.kind)
 
 
 def _is_headline(job: JobSpec, entry: _Listed) -> bool:

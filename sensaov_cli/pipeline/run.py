@@ -35,9 +35,14 @@ from sensaov_cli.buffer.model import (
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer
 from sensaov_cli.errors import SensaovError, SpecError
 from sensaov_cli.job.spec import ChannelSpec, JobSpec
-from sensaov_cli.outputs.atomic import atomic_write_all, check_writable, refuse_unsafe_outputs
+from sensaov_cli.outputs.atomic import (
+    atomic_write_all,
+    check_writable,
+    made_by,
+    provenance_attributes,
+    refuse_unsafe_outputs,
+)
 from sensaov_cli.outputs.exr import exr_writer, image_channels, read_exr
-from sensaov_cli.outputs.provenance import made_by, provenance_attributes
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import (
     AdjointResult,

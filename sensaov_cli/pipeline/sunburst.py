@@ -5,8 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from sensaov_cli.buffer.npz import read_buffer
-from sensaov_cli.outputs.atomic import check_writable, recorded_inputs, refuse_unsafe_outputs
-from sensaov_cli.outputs.provenance import made_by
+from sensaov_cli.outputs.atomic import (
+    check_writable,
+    made_by,
+    recorded_inputs,
+    refuse_unsafe_outputs,
+)
 from sensaov_cli.outputs.sunburst_drawing import write_sunburst
 from sensaov_cli.views.sunburst_geometry import panels
 from sensaov_cli.vocabulary import Aggregate, Order, Untrusted, Weight
