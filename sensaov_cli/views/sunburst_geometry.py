@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, combine, key_stats, rank
+from sensaov_cli.views.hierarchy import Uncertainty
 from sensaov_cli.views.trusted import (
     ZeroValued,
     apart_name,
@@ -29,7 +30,6 @@ from sensaov_cli.views.trusted import (
     weakest_trust,
     zero_valued,
 )
-from sensaov_cli.views.uncertainty import Uncertainty
 from sensaov_cli.vocabulary import Aggregate, Order, Trust, Untrusted, Weight
 
 # The object ring's wedge for parameters no object owns (a sensor's, an integrator's): the
