@@ -45,7 +45,7 @@ from sensaov_cli.live.session import ViewSession, open_session, single_values, v
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.viewpoint import Pose, ViewTracer, sensor_pose
-from sensaov_cli.views.trusted import is_trusted
+from sensaov_cli.views.hierarchy import is_trusted
 
 from .conftest import ROOT, sensaov
 from .webdriver import Browser, browser_missing, free_port

@@ -22,8 +22,8 @@ from sensaov_cli.outputs.exr import exr_writer
 from sensaov_cli.outputs.png import write_png
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb
 from sensaov_cli.outputs.provenance import made_by, provenance_attributes
+from sensaov_cli.views.hierarchy import TRUSTED
 from sensaov_cli.views.texels import TexelField, TexelPass, white_noise_factor
-from sensaov_cli.views.trusted import TRUSTED
 
 FORMAT_NAME = "sensaov-texel-exr"
 FORMAT_VERSION = 1

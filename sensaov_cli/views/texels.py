@@ -34,8 +34,8 @@ from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import per_object
 from sensaov_cli.errors import SpecError
 from sensaov_cli.job.spec import ChannelSpec
+from sensaov_cli.views.channels import Encoding, Scale, choose_scale, encode_image
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.encoding import Encoding, Scale, choose_scale, encode_image
 from sensaov_cli.vocabulary import PoolKind
 
 FILTERS = ("bilinear", "nearest")
