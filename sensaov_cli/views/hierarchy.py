@@ -185,10 +185,6 @@ class Significance:
     dof: int  # batches - 1
     factor: float  # the t quantile: |Σc| > factor · SE is significant
 
-    @classmethod
-    def of(cls, batches: int) -> Significance:
-        return cls(SIGNIFICANCE_LEVEL, batches, batches - 1, interval_factor(batches))
-
 
 class Uncertainty:
     """One objective's batch table, read once; None from :meth:`of` without statistics."""
@@ -201,17 +197,16 @@ class Uncertainty:
         self.index = {key: i for i, key in enumerate(buf.keys)}
         self.counts = {p.key: math.prod(p.shape) for p in buf.params}  # no texel is read
         self.method, self.weight = method, weight
-        self.significance = Significance.of(len(self.spp))
+        batches = len(self.spp)
+        self.significance = Significance(
+            SIGNIFICANCE_LEVEL, batches, batches - 1, interval_factor(batches)
+        )
 
     @classmethod
     def of(
         cls, buf: SensitivityBuffer, objective: str, method: Aggregate, weight: Weight
     ) -> Uncertainty | None:
         return None if buf.statistics is None else cls(buf, objective, method, weight)
-
-    @property
-    def batches(self) -> int:
-        return len(self.spp)
 
     def batch_values(self, keys: Sequence[str], score: float) -> tuple[np.ndarray, np.ndarray]:
         """Per batch, the group's score and signed sum (their spp-weighted means: the group's)."""
@@ -223,7 +218,7 @@ class Uncertainty:
         count = sum(self.counts[k] for k in keys)
         l2 = score if self.method == "l2" else score * math.sqrt(count)
         projection = rows[:, :, PROJ_VALUE if value else PROJ_RAW].sum(axis=0)
-        scores = projection / l2 if l2 > 0 else np.zeros(self.batches)
+        scores = projection / l2 if l2 > 0 else np.zeros(len(self.spp))
         return (scores if self.method == "l2" else scores / math.sqrt(count)), signed
 
     def error(self, keys: Sequence[str], score: float) -> GroupError:
@@ -244,7 +239,8 @@ class Uncertainty:
             return None
         table = np.stack([self.batch_values(grouped[name], s)[0] for name, s in ordered])
         rng = np.random.default_rng(0)
-        picks = rng.integers(0, self.batches, size=(RESAMPLES, self.batches))
+        batches = len(self.spp)
+        picks = rng.integers(0, batches, size=(RESAMPLES, batches))
         weights = np.asarray(self.spp, dtype=np.float64)[picks]  # (R, k)
         means = np.einsum("rk,grk->rg", weights, table[:, picks]) / weights.sum(axis=1)[:, None]
         order = np.argsort(-np.abs(means), axis=1, kind="stable")[:, :top]
@@ -360,7 +356,7 @@ def _ranking(
         ranked=len(split.kept),
         total_signed=math.fsum(s.total for s in stats.values()),
         no_gradient=tuple(p for p in buf.params if p.trust == "no_gradient"),
-        batches=None if noise is None else noise.batches,
+        batches=None if noise is None else noise.significance.batches,
         stability=None if stable is None else stable[0],
         stability_top=None if stable is None else stable[1],
         left_out=table.rows(split.left_out, "untrusted", None),
