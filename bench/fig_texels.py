@@ -114,8 +114,7 @@ def _job(ws: Workspace, s: Settings, name: str, *, with_texels: bool) -> Path:
 
 def _noise_rows(ws: Workspace, spp: int, resolution: int) -> list[Row]:
     from sensaov_cli.job.spec import ChannelSpec
-    from sensaov_cli.views.pooling import seed_noise
-    from sensaov_cli.views.texels import texel_fields
+    from sensaov_cli.views.texels import seed_noise, texel_fields
 
     fields = []
     for seed in (0, 1):

@@ -14,8 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from sensaov_cli.buffer.npz import read_buffer
-from sensaov_cli.views.trusted import ranked_groups
-from sensaov_cli.views.uncertainty import Uncertainty
+from sensaov_cli.views.hierarchy import Uncertainty, ranked_groups
 
 
 def main(first: str, second: str) -> int:

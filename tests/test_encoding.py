@@ -10,7 +10,7 @@ import pytest
 from sensaov_cli.buffer.queries import KeyStats, combine
 from sensaov_cli.errors import EncodingError, NonFiniteError
 from sensaov_cli.job.spec import ChannelSpec
-from sensaov_cli.views.encoding import (
+from sensaov_cli.views.channels import (
     Encoding,
     Scale,
     choose_scale,

@@ -314,7 +314,7 @@ def test_standard_errors_are_calibrated(job_writer: Callable[..., Path]) -> None
 
 def test_pooled_variance_matches_monte_carlo() -> None:
     """pool_variance is pool_field's map with squared weights: check it on random fields."""
-    from sensaov_cli.views.pooling import Pool, pool_field, pool_variance
+    from sensaov_cli.views.texels import Pool, pool_field, pool_variance
 
     rng = np.random.default_rng(3)
     sigma = rng.random((9, 7, 3)) + 0.1

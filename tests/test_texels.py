@@ -8,8 +8,16 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-from sensaov_cli.views.pooling import Pool, default_pool, pool_field, seed_noise
-from sensaov_cli.views.texels import TextureSampling, footprint, lookup, texel_weights
+from sensaov_cli.views.texels import (
+    Pool,
+    TextureSampling,
+    default_pool,
+    footprint,
+    lookup,
+    pool_field,
+    seed_noise,
+    texel_weights,
+)
 
 
 def _rotation(degrees: float, scale: tuple[float, float], shift: tuple[float, float]) -> np.ndarray:
@@ -69,7 +77,7 @@ def test_long_kernels_pool_by_fft_as_tap_by_tap(
     """Kernels past DIRECT_TAPS are applied by FFT: the same field and variance to 1e-13 of
     the largest value, and exactly the same texels left at zero (nothing reaches them), on
     fields sparse, dense and empty, and kernels longer than the texture (wrapping over it)."""
-    from sensaov_cli.views import pooling
+    from sensaov_cli.views import texels as pooling
 
     rng = np.random.default_rng(5)
     pool = Pool(kind, radius, "job")

@@ -40,13 +40,12 @@ from sensaov_cli.errors import (
 )
 from sensaov_cli.job.load import load_job
 from sensaov_cli.job.spec import LookAt
-from sensaov_cli.live.query import single_values, view_request
 from sensaov_cli.live.server import ViewServer, copy_path
-from sensaov_cli.live.session import ViewSession, open_session
+from sensaov_cli.live.session import ViewSession, open_session, single_values, view_request
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.viewpoint import Pose, ViewTracer, sensor_pose
-from sensaov_cli.views.trusted import is_trusted
+from sensaov_cli.views.hierarchy import is_trusted
 
 from .conftest import ROOT, sensaov
 from .webdriver import Browser, browser_missing, free_port

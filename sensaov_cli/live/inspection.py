@@ -20,13 +20,18 @@ import numpy as np
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.queries import combine, key_stats, rank
 from sensaov_cli.outputs.previews import BACKGROUND, diverging_rgb
-from sensaov_cli.views.channels import ChannelValues, painted_values
+from sensaov_cli.views.channels import (
+    ChannelValues,
+    Encoding,
+    Scale,
+    choose_scale,
+    encode_image,
+    painted_values,
+)
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, clipped_share, robust_scale
-from sensaov_cli.views.encoding import Encoding, Scale, choose_scale, encode_image
+from sensaov_cli.views.hierarchy import Uncertainty, weakest_trust
 from sensaov_cli.views.texels import TexelField, texel_passes, texture_footprint
-from sensaov_cli.views.trusted import weakest_trust
-from sensaov_cli.views.uncertainty import Uncertainty
 from sensaov_cli.vocabulary import Weight
 
 SCALE_MODES = ("shared", "view")

@@ -30,16 +30,19 @@ from sensaov_cli.job.load import (
     load_job,
 )
 from sensaov_cli.job.spec import CameraSpec, JobSpec
-from sensaov_cli.live.query import (
+from sensaov_cli.live.session import (
     CAMERA_KEYS,
     PICK_KEYS,
+    REST_SPP,
     SUNBURST_KEYS,
     VIEW_KEYS,
+    Pick,
+    Picture,
     ViewRequest,
+    ViewSession,
     pick_request,
     single_values,
 )
-from sensaov_cli.live.session import REST_SPP, Pick, Picture, ViewSession
 from sensaov_cli.outputs.atomic import atomic_write, check_writable, made_by, refuse_unsafe_outputs
 from sensaov_cli.outputs.previews import RDBU
 from sensaov_cli.pipeline.run import FORWARD_NAME

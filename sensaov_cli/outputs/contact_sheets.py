@@ -40,9 +40,8 @@ from sensaov_cli.outputs.png import write_png
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, clipped_share, signed_pixels
-from sensaov_cli.views.pooling import white_noise_factor
-from sensaov_cli.views.texels import TexelField, TexelPass
-from sensaov_cli.views.trusted import TRUSTED
+from sensaov_cli.views.hierarchy import TRUSTED
+from sensaov_cli.views.texels import TexelField, TexelPass, white_noise_factor
 
 SHEET_COLUMNS = 4
 MIN_TILE_WIDTH = 192  # small views are enlarged (nearest neighbour) so labels stay readable

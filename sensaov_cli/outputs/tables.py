@@ -31,9 +31,9 @@ from sensaov_cli.views.hierarchy import (
     Ranking,
     RankRow,
     Summary,
+    ZeroValued,
     ranked_summary,
 )
-from sensaov_cli.views.trusted import ZeroValued
 from sensaov_cli.vocabulary import Aggregate, Untrusted, Weight
 
 # Marks in the mark column of a ranking, one per label that is not "verified"; a parameter

@@ -2,7 +2,7 @@
 
 The summary gives per objective the top parameters and objects and every type's score; a
 ranking at one cut (key, object or type) gives one table per objective (columns:
-docs/rankings.md). Objects and types add up the trusted parameters only (:mod:`.trusted`) and
+docs/rankings.md). Objects and types add up the trusted parameters only (see below) and
 rank the untrusted rest apart; ``no_gradient`` parameters are listed apart, never scored, and a
 group made only of them is not ranked; zero-valued parameters are flagged with their raw
 gradient. :mod:`sensaov_cli.outputs.tables` writes text, JSON and CSV from these types.
@@ -21,17 +21,19 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
-from sensaov_cli.buffer.queries import KeyStats, key_stats, rank, scores
-from sensaov_cli.buffer.statistics import mean_value
-from sensaov_cli.errors import QueryError
-from sensaov_cli.views.trusted import (
-    ZeroValued,
-    ranked_groups,
-    split_groups,
-    weakest_trust,
-    zero_valued,
+from sensaov_cli.buffer.queries import KeyStats, groups, key_stats, rank, scores
+from sensaov_cli.buffer.statistics import (
+    PROJ_RAW,
+    PROJ_VALUE,
+    SIGNIFICANCE_LEVEL,
+    SUM_RAW,
+    SUM_VALUE,
+    hidden_by_zero,
+    interval_factor,
+    mean_value,
+    pooled_stderr,
 )
-from sensaov_cli.views.uncertainty import Significance, Uncertainty
+from sensaov_cli.errors import QueryError
 from sensaov_cli.vocabulary import ESTIMATORS, Aggregate, Cut, Grouping, Trust, Untrusted, Weight
 
 SUMMARY_FORMAT = "sensaov-summary"
@@ -40,6 +42,210 @@ RANKING_FORMAT = "sensaov-ranking"
 RANKING_VERSION = 3
 # The grouping each cut reads: a key row is one parameter.
 GROUPING_OF: dict[Cut, Grouping] = {"key": "param", "object": "object", "type": "type"}
+
+
+# Trusted numbers (docs/encoding.md). A headline view (the ``objects`` and ``types`` layers,
+# ranked objects and types, the sunburst's rings) sums a group's parameters. One whose gradient
+# is not ``verified`` is a number the tool cannot stand behind, so under ``untrusted: apart``
+# (the default) it is left out of its group and shown apart (its own layer, rows, hatched
+# wedge); ``no_gradient`` adds exactly 0 and stays in; ``untrusted: include`` mixes everything
+# in, with a mark. Value weighting (θ·∂M/∂θ) scores a parameter valued exactly 0 as 0 whatever
+# its gradient: zero_valued finds them, so views flag them with their raw gradient instead.
+# Labels whose numbers a headline view adds up: verified, and no_gradient (exactly 0 anyway).
+TRUSTED: tuple[Trust, ...] = ("verified", "no_gradient")
+# A group shows the weakest label among its ranked parameters.
+_WEAKEST_FIRST: tuple[Trust, ...] = ("suspect", "biased", "unverified", "verified")
+_GROUPINGS: tuple[Grouping, ...] = ("param", "object", "type")
+# How the part left out of a group is named where one list holds both (sunburst wedges).
+APART_SUFFIX = " (untrusted)"
+
+
+def is_trusted(record: ParamRecord) -> bool:
+    return record.trust in TRUSTED
+
+
+def untrusted_keys(buf: SensitivityBuffer, keys: Sequence[str]) -> tuple[str, ...]:
+    """The keys among ``keys`` whose gradient the tool does not stand behind."""
+    return tuple(k for k in keys if not is_trusted(buf.param(k)))
+
+
+def weakest_trust(buf: SensitivityBuffer, keys: Sequence[str]) -> Trust:
+    """The label a group of ``keys`` shows: the weakest among its parameters'."""
+    labels = {buf.param(k).trust for k in keys}
+    return next((label for label in _WEAKEST_FIRST if label in labels), "verified")
+
+
+def ranked_groups(buf: SensitivityBuffer) -> dict[Grouping, dict[str, tuple[str, ...]]]:
+    """Groups by parameter, object and type over the parameters a gradient flows to; a group
+    that had parameters and lost them all to ``no_gradient`` is dropped."""
+    flowing = [p.key for p in buf.params if p.trust != "no_gradient"]
+    ranked: dict[Grouping, dict[str, tuple[str, ...]]] = {}
+    for by in _GROUPINGS:
+        every = groups(buf, None, by)
+        if len(flowing) == len(buf.params):  # nothing lost: the groups are every group
+            ranked[by] = every
+            continue
+        kept = groups(buf, flowing, by)
+        ranked[by] = {name: keys for name, keys in kept.items() if keys or not every[name]}
+    return ranked
+
+
+@dataclass(frozen=True)
+class SplitGroups:
+    """Groups (objects or types) split by trust: what a headline view adds up, and the rest."""
+
+    kept: dict[str, tuple[str, ...]]  # name -> keys a headline score adds up
+    left_out: dict[str, tuple[str, ...]]  # name -> untrusted keys, shown apart (never empty)
+
+
+def split_groups(
+    buf: SensitivityBuffer, grouped: Mapping[str, Sequence[str]], mode: Untrusted
+) -> SplitGroups:
+    """``grouped`` split by trust under ``mode``: under ``apart`` a group left with no trusted
+    key is dropped from ``kept``, while one that never had a key keeps its empty row."""
+    if mode == "include":
+        return SplitGroups({name: tuple(keys) for name, keys in grouped.items()}, {})
+    kept: dict[str, tuple[str, ...]] = {}
+    left_out: dict[str, tuple[str, ...]] = {}
+    for name, keys in grouped.items():
+        apart = untrusted_keys(buf, keys)
+        trusted = tuple(k for k in keys if k not in apart)
+        if trusted or not keys:
+            kept[name] = trusted
+        if apart:
+            left_out[name] = apart
+    return SplitGroups(kept, left_out)
+
+
+def apart_name(name: str, taken: Mapping[str, object]) -> str:
+    """``name`` + APART_SUFFIX, made unique against ``taken`` (an object may be named so)."""
+    candidate = name + APART_SUFFIX
+    while candidate in taken:
+        candidate += "'"
+    return candidate
+
+
+@dataclass(frozen=True)
+class ZeroValued:
+    """A parameter that value weighting hides: θ is exactly 0 where ∂M/∂θ is not."""
+
+    key: str
+    owners: tuple[str, ...]
+    hidden: int  # components with θ = 0 and ∂M/∂θ ≠ 0
+    size: int  # components in all
+    raw_signed: float  # Σ ∂M/∂θ over the parameter: the response per unit of θ
+
+
+def zero_valued(
+    buf: SensitivityBuffer, objective: str, keys: Sequence[str] | None = None
+) -> dict[str, ZeroValued]:
+    """The parameters among ``keys`` (default all) whose value-weighted score hides a gradient."""
+    found = {}
+    sums = buf.sums
+    for key in buf.keys if keys is None else keys:
+        record = buf.param(key)
+        if sums is not None:  # stored by the writer (buffer/npz.py): no texel is read
+            hidden, raw = sums.hidden(objective, key)
+        else:
+            hidden, raw = hidden_by_zero(buf.value(key), buf.grad(objective, key))
+        if hidden:
+            found[key] = ZeroValued(key, record.owners, hidden, math.prod(record.shape), raw)
+    return found
+
+
+# Standard errors (from a buffer's batch statistics). Every group a view ranks (a key, an object,
+# a type, a sunburst wedge) gets, for each batch, the value its signed sum and its score would
+# have had from that batch alone: the signed sum exactly (sums add up), the ℓ2 and rms scores to
+# first order (the projection on the mean, see :mod:`sensaov_cli.buffer.statistics`). Their
+# spp-weighted spread gives the standard errors; a bootstrap over the batches gives how often the
+# top of a ranking keeps its order. Buffers without statistics (one batch) give None everywhere:
+# no error is claimed that was not measured.
+STABILITY_TOP = 3  # the ranking's top this many rows must keep their order
+RESAMPLES = 1000  # bootstrap resamples of the batches (seeded: the figure is reproducible)
+
+
+@dataclass(frozen=True)
+class GroupError:
+    score_se: float
+    signed_se: float
+    factor: float  # standard errors in the two-sided 95 % interval: Student's t at k - 1 dof
+
+    def significant(self, signed: float) -> bool:
+        """Whether the sign of ``signed`` is beyond noise: |Σc| > factor · SE, i.e. 0 lies
+        outside the 95 % interval (t with k − 1 degrees of freedom, docs/rankings.md)."""
+        return abs(signed) > self.factor * self.signed_se
+
+
+@dataclass(frozen=True)
+class Significance:
+    """The rule a ranking's ``significant`` column applies, recorded beside it."""
+
+    level: float  # two-sided coverage of the interval
+    batches: int
+    dof: int  # batches - 1
+    factor: float  # the t quantile: |Σc| > factor · SE is significant
+
+
+class Uncertainty:
+    """One objective's batch table, read once; None from :meth:`of` without statistics."""
+
+    def __init__(self, buf: SensitivityBuffer, objective: str, method: Aggregate, weight: Weight):
+        statistics = buf.statistics
+        assert statistics is not None
+        self.sums = statistics.batch_sums[objective]
+        self.spp = statistics.spp
+        self.index = {key: i for i, key in enumerate(buf.keys)}
+        self.counts = {p.key: math.prod(p.shape) for p in buf.params}  # no texel is read
+        self.method, self.weight = method, weight
+        batches = len(self.spp)
+        self.significance = Significance(
+            SIGNIFICANCE_LEVEL, batches, batches - 1, interval_factor(batches)
+        )
+
+    @classmethod
+    def of(
+        cls, buf: SensitivityBuffer, objective: str, method: Aggregate, weight: Weight
+    ) -> Uncertainty | None:
+        return None if buf.statistics is None else cls(buf, objective, method, weight)
+
+    def batch_values(self, keys: Sequence[str], score: float) -> tuple[np.ndarray, np.ndarray]:
+        """Per batch, the group's score and signed sum (their spp-weighted means: the group's)."""
+        rows = self.sums[[self.index[k] for k in keys]]  # (0, k, C) for no key: sums of 0
+        value = self.weight == "value"
+        signed = rows[:, :, SUM_VALUE if value else SUM_RAW].sum(axis=0)
+        if self.method == "sum":
+            return signed, signed
+        count = sum(self.counts[k] for k in keys)
+        l2 = score if self.method == "l2" else score * math.sqrt(count)
+        projection = rows[:, :, PROJ_VALUE if value else PROJ_RAW].sum(axis=0)
+        scores = projection / l2 if l2 > 0 else np.zeros(len(self.spp))
+        return (scores if self.method == "l2" else scores / math.sqrt(count)), signed
+
+    def error(self, keys: Sequence[str], score: float) -> GroupError:
+        scores, signed = self.batch_values(keys, score)
+        return GroupError(
+            float(pooled_stderr(scores, self.spp)),
+            float(pooled_stderr(signed, self.spp)),
+            self.significance.factor,
+        )
+
+    def stability(
+        self, ordered: Sequence[tuple[str, float]], grouped: Mapping[str, Sequence[str]]
+    ) -> tuple[float, int] | None:
+        """How often (fraction of bootstrap resamples of the batches) the top rows keep their
+        order, and how many rows that is; None when fewer than two rows are ranked."""
+        top = min(STABILITY_TOP, len(ordered))
+        if top < 2:
+            return None
+        table = np.stack([self.batch_values(grouped[name], s)[0] for name, s in ordered])
+        rng = np.random.default_rng(0)
+        batches = len(self.spp)
+        picks = rng.integers(0, batches, size=(RESAMPLES, batches))
+        weights = np.asarray(self.spp, dtype=np.float64)[picks]  # (R, k)
+        means = np.einsum("rk,grk->rg", weights, table[:, picks]) / weights.sum(axis=1)[:, None]
+        order = np.argsort(-np.abs(means), axis=1, kind="stable")[:, :top]
+        held = (order == np.arange(top)).all(axis=1)
+        return float(held.mean()), top
 
 
 @dataclass(frozen=True)
@@ -150,7 +356,7 @@ def _ranking(
         ranked=len(split.kept),
         total_signed=math.fsum(s.total for s in stats.values()),
         no_gradient=tuple(p for p in buf.params if p.trust == "no_gradient"),
-        batches=None if noise is None else noise.batches,
+        batches=None if noise is None else noise.significance.batches,
         stability=None if stable is None else stable[0],
         stability_top=None if stable is None else stable[1],
         left_out=table.rows(split.left_out, "untrusted", None),

@@ -7,7 +7,7 @@ rings 1 and 2. Siblings split their parent's angle in proportion to their scores
 siblings, which is what a reader compares). Angles are fractions of a turn, clockwise from the
 top; :mod:`sensaov_cli.outputs.sunburst_drawing` draws them.
 
-A ring-1 group holds the trusted parameters only (:mod:`.trusted`); the rest of it gets a
+A ring-1 group holds the trusted parameters only (:mod:`.hierarchy`); the rest of it gets a
 hatched sibling ``"<name> (untrusted)"``. As in the rankings, only parameters a gradient flows
 to are drawn, a shared parameter sits under each owner, one no object owns under
 :data:`SCENE_WIDE`, and a group that scores exactly 0 gets no wedge.
@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.queries import KeyStats, combine, key_stats, rank
-from sensaov_cli.views.trusted import (
+from sensaov_cli.views.hierarchy import (
+    Uncertainty,
     ZeroValued,
     apart_name,
     ranked_groups,
@@ -29,7 +30,6 @@ from sensaov_cli.views.trusted import (
     weakest_trust,
     zero_valued,
 )
-from sensaov_cli.views.uncertainty import Uncertainty
 from sensaov_cli.vocabulary import Aggregate, Order, Trust, Untrusted, Weight
 
 # The object ring's wedge for parameters no object owns (a sensor's, an integrator's): the
