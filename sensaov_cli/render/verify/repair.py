@@ -7,7 +7,7 @@ samples, so that the noise they share cancels; a component within a step of a bo
 throughput weight, 0 or 1 for a blend weight) takes (−3 M(θ; s) + 4 M(θ + h e_c; s) −
 M(θ + 2h e_c; s)) / 2h, h = ±ε away from it. ε = step · max(1, |θ_c|), the step measured for
 the kind (trust.REPAIRS). The mean over seeds replaces the stored gradient; the
-seeds' spread is its standard error (buffer/repairs.py). With ``render.batches: k`` the seeds
+seeds' spread is its standard error (buffer/model.py). With ``render.batches: k`` the seeds
 are dealt to the batches, so the buffer's batch statistics cover the repaired gradients too.
 
 The label a repaired parameter gets is the repair's, measured per kind (trust.REPAIRS):
@@ -42,8 +42,7 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli import interrupts
-from sensaov_cli.buffer.model import ParamRecord
-from sensaov_cli.buffer.repairs import Repair
+from sensaov_cli.buffer.model import ParamRecord, Repair
 from sensaov_cli.buffer.statistics import with_batch_estimates
 from sensaov_cli.job.spec import RepairSpec
 from sensaov_cli.progress import Progress
