@@ -27,15 +27,9 @@ from sensaov_cli.buffer.statistics import ParamSums, Statistics
 from sensaov_cli.errors import BufferContentError, NonFiniteGradientError, UnknownNameError
 from sensaov_cli.vocabulary import Estimator, Trust
 
-# --- repairs: gradients recomputed by finite differences ----------------------------------
-#
-# Where Mitsuba's reverse-mode gradient of a parameter is known to be wrong (docs/verification.md,
-# "Repairs"), ``sensaov run`` stores central differences with common random numbers in its place:
-# per seed s and component c, (M(θ + ε e_c; s) − M(θ − ε e_c; s)) / 2ε, both sides rendered with
-# the same samples; a component within a step of a bound (a throughput weight at 0, a blend
-# weight at 0 or 1) takes the one-sided (−3 M(θ; s) + 4 M(θ + h e_c; s) − M(θ + 2h e_c; s)) / 2h,
-# h = ±ε away from the bound, as accurate.
-# A Repair keeps every seed's estimate, so the stored gradient's standard error and its sign's
+# --- repairs: gradients recomputed by finite differences where Mitsuba's reverse mode is known
+# wrong (docs/verification.md, "Repairs"; the differences are render/verify/repair.py's). A Repair
+# keeps every seed's estimate, so the stored gradient's standard error and its sign's
 # significance come from its own spread, and the reverse-mode gradient it replaced (duality with
 # forward mode holds for that one).
 

@@ -164,14 +164,8 @@ def project_job(
     return views
 
 
-# --- which outputs belong together: the checks project, report and rank --exr share -------------
-#
-# A buffer records the job version it was made from (``run_version``, :meth:`JobSpec.run_hash`);
-# every EXR, preview and manifest made from a buffer records the buffer's id and the hash of the
-# job that made it (:func:`sensaov_cli.buffer.model.stamp`). A command that reads outputs
-# together refuses, in one line with exit 2, anything that would mix two states: a buffer from
-# another version of the job, an EXR or a preview from another buffer (docs/buffer-format.md,
-# "Identity").
+# --- which outputs belong together (docs/buffer-format.md, "Identity"): what project, report,
+# rank --exr and view refuse, in one line with exit 2, rather than mix two states.
 
 # The job's top-level keys, as `run` reads them; a mismatch names the ones that differ.
 _RUN_KEYS = ("scene", "scene_args", "variant", "render", "parameters", "objective_camera",
