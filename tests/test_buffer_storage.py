@@ -20,7 +20,7 @@ from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBu
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import BufferFormatError
-from sensaov_cli.pipeline.rank import rank_by_cut
+from sensaov_cli.pipeline.rank import rank_buffer
 from tests.bad_buffers import write_buffer
 from tests.conftest import sensaov_process
 
@@ -189,7 +189,7 @@ def colours(count: int) -> SensitivityBuffer:
 def ranked_seconds(path: Path) -> float:
     """Read and rank by object, as ``sensaov rank --by object`` does, in this process."""
     started = time.perf_counter()
-    rank_by_cut(path, by="object", objectives=(), style="text", exrs=(), top=8,
+    rank_buffer(path, by="object", objectives=(), style="text", exrs=(), top=8,
                 method="l2", weight="value")  # fmt: skip
     return time.perf_counter() - started
 

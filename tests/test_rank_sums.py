@@ -23,7 +23,7 @@ from sensaov_cli.buffer.npz import Archive, read_buffer
 from sensaov_cli.buffer.statistics import Statistics
 from sensaov_cli.errors import BufferFormatError
 from sensaov_cli.outputs.tables import ranking_csv, ranking_json, ranking_text
-from sensaov_cli.pipeline.rank import rank_by_cut, rank_summary, summary_of
+from sensaov_cli.pipeline.rank import rank_buffer, summary_of
 from sensaov_cli.views.hierarchy import rankings
 from tests.bad_buffers import write_buffer
 
@@ -128,10 +128,11 @@ def test_rank_command_prints_what_the_arrays_give(written: tuple[SensitivityBuff
     buf, path = written
     for case in CASES:
         for as_json in (False, True):
-            shown = rank_summary(path, as_json=as_json, top=8, **case)  # type: ignore[arg-type]
+            style = "json" if as_json else "text"
+            shown = rank_buffer(path, by=None, objectives=(), style=style, exrs=(), top=8, **case)  # type: ignore[arg-type]
             assert shown == summary_of(buf, as_json=as_json, top=8, **case)  # type: ignore[arg-type]
         found = rankings(buf, by="object", top=5, **case)  # type: ignore[arg-type]
-        text = rank_by_cut(path, by="object", objectives=(), style="text", exrs=(), top=5, **case)  # type: ignore[arg-type]
+        text = rank_buffer(path, by="object", objectives=(), style="text", exrs=(), top=5, **case)  # type: ignore[arg-type]
         assert text == ranking_text(found, method=case["method"], weight=case["weight"])  # type: ignore[arg-type]
 
 
@@ -147,9 +148,11 @@ def test_rank_reads_no_texel(
 
     monkeypatch.setattr(Archive, "array", counting)
     _, path = written
-    rank_summary(path, as_json=True, top=8, method="l2", weight="value")
+    rank_buffer(
+        path, by=None, objectives=(), style="json", exrs=(), top=8, method="l2", weight="value"
+    )
     for by in ("key", "object", "type"):
-        rank_by_cut(path, by=by, objectives=(), style="json", exrs=(), top=8, method="rms",  # type: ignore[arg-type]
+        rank_buffer(path, by=by, objectives=(), style="json", exrs=(), top=8, method="rms",  # type: ignore[arg-type]
                     weight="value", untrusted="apart")  # fmt: skip
     assert read and not [name for name in read if name.startswith(TEXEL_MEMBERS)]
     read.clear()

@@ -36,8 +36,7 @@ from typing import IO, Any, BinaryIO
 
 import numpy as np
 
-from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
-from sensaov_cli.buffer.repairs import Repair
+from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, Repair, SensitivityBuffer
 from sensaov_cli.buffer.statistics import SUMS_COLUMNS, ParamSums, Statistics, sums_of
 from sensaov_cli.errors import BufferFormatError, SensaovError
 from sensaov_cli.vocabulary import ESTIMATORS, TRUSTS

@@ -19,8 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
-from sensaov_cli.buffer.repairs import Repair
+from sensaov_cli.buffer.model import ParamRecord, Repair, SensitivityBuffer
 from sensaov_cli.buffer.statistics import combine_batches
 from sensaov_cli.errors import MergeError
 

@@ -91,11 +91,11 @@ def check(
     """
     from sensaov_cli.job.load import load_job
     from sensaov_cli.outputs.parameter_tables import checks_text, duality_text
-    from sensaov_cli.pipeline.check import FD_TOLERANCE, check_job, exit_code
+    from sensaov_cli.pipeline.check import FD_TOLERANCE, exit_code, run_check
     from sensaov_cli.progress import Progress
 
     spec = load_job(job)
-    report = check_job(
+    report = run_check(
         spec, objective=objective, spp=spp, seeds=seeds, keys=keys, buffer_path=buffer_path,
         top=top, directions=directions, full=full, allow_python=allow_python,
         progress=Progress(quiet=quiet, style=progress_style),

@@ -63,18 +63,20 @@ def rank(
       sensaov rank out/cbox/buffer.npz --by object --exr out/cbox/overhead.exr
       sensaov rank out/cbox/buffer.npz --by key --objective mean_luma --csv > keys.csv
     """
-    from sensaov_cli.pipeline.rank import rank_by_cut, rank_summary, refuse_options
+    from sensaov_cli.pipeline.rank import rank_buffer, refuse_options
 
     refuse_options(by=by, objective=bool(objective), as_json=as_json, as_csv=as_csv, exr=bool(exrs))
-    if by is None:
-        result = rank_summary(
-            buffer, as_json=as_json, top=top, method=aggregate, weight=weight, untrusted=untrusted
-        )
-    else:
-        style = "json" if as_json else "csv" if as_csv else "text"
-        result = rank_by_cut(
-            buffer, by=by, objectives=objective, style=style, exrs=exrs, top=top,
-            method=aggregate, weight=weight, untrusted=untrusted,
-        )  # fmt: skip
+    style = "json" if as_json else "csv" if as_csv else "text"
+    result = rank_buffer(
+        buffer,
+        by=by,
+        objectives=objective,
+        style=style,
+        exrs=exrs,
+        top=top,
+        method=aggregate,
+        weight=weight,
+        untrusted=untrusted,
+    )
     # JSON and the summary end without a newline; a table or CSV ends with its own
     click.echo(result, nl=by is None or as_json)

@@ -19,7 +19,7 @@ from sensaov_cli.render.verify.duality import FD_TOLERANCE, DualityCheck, check_
 from sensaov_cli.render.verify.fdcheck import GradientCheck, audit, plan_audit
 from sensaov_cli.scene import prepare_scene
 
-__all__ = ["FD_TOLERANCE", "CheckReport", "check_job", "exit_code"]
+__all__ = ["FD_TOLERANCE", "CheckReport", "exit_code", "run_check"]
 
 FULL_DIRECTIONS = 2  # random directions per parameter besides ones, with --full (else 0)
 
@@ -45,7 +45,7 @@ class CheckReport:
         }
 
 
-def check_job(
+def run_check(
     job: JobSpec,
     *,
     objective: str | None,

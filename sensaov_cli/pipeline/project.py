@@ -12,17 +12,27 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.forward_sidecar import check_belongs, read_forward
-from sensaov_cli.buffer.model import SensitivityBuffer, buffer_id, provenance_id, stamp
+from sensaov_cli.buffer.model import (
+    STAMP_BUFFER,
+    STAMP_JOB,
+    SensitivityBuffer,
+    buffer_id,
+    provenance_id,
+    run_version,
+    stamp,
+)
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.statistics import single_pass
-from sensaov_cli.errors import FingerprintMismatch, SensaovError, SpecError
+from sensaov_cli.errors import FingerprintMismatch, SensaovError, SpecError, StaleInputError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.outputs.atomic import (
     check_writable,
@@ -41,7 +51,6 @@ from sensaov_cli.outputs.layered_exr import (
     with_display,
     write_layered_exr,
 )
-from sensaov_cli.pipeline.consistency import check_buffer_of_job
 from sensaov_cli.pipeline.merge import primal_beside
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
@@ -158,6 +167,73 @@ def project_job(
             )  # fmt: skip
         views.append(replace(view, seconds=progress.timings[stage]))
     return views
+
+
+# --- which outputs belong together (docs/buffer-format.md, "Identity"): what project, report,
+# rank --exr and view refuse, in one line with exit 2, rather than mix two states.
+
+# The job's top-level keys, as `run` reads them; a mismatch names the ones that differ.
+_RUN_KEYS = ("scene", "scene_args", "variant", "render", "parameters", "objective_camera",
+             "objectives", "forward", "channels")  # fmt: skip
+
+
+def check_buffer_of_job(
+    job: JobSpec, buffer: SensitivityBuffer, path: Path, *, override: str = ""
+) -> None:
+    """Refuse a buffer that ``run`` made from another version of ``job`` (or another job).
+
+    The same version is the same ``run_version``, or (a job moved beside its scene, or a buffer
+    older than ``run_version``) the same values of every key ``run`` reads, paths absolute.
+    ``override`` names the command's way past the check, for the hint."""
+    if run_version(buffer) == job.run_hash():
+        return
+    stored = buffer.provenance.get("job")
+    differ = _differing(stored, json.loads(json.dumps(job.to_dict())))
+    if isinstance(stored, Mapping) and not differ:
+        return
+    what = f" ({', '.join(differ)} differ)" if differ else " (it records no job)"
+    raise StaleInputError(
+        f"the buffer was made by another version of {job.path.name}{what}",
+        where=str(path),
+        hint=f"re-run 'sensaov run {job.path}'" + (f", or {override}" if override else ""),
+    )
+
+
+def check_made_from(
+    attributes: Mapping[str, Any], buffer: SensitivityBuffer, where: str, *, remake: str
+) -> None:
+    """Refuse an output (its EXR header or PNG text) not made from ``buffer``."""
+    made = attributes.get(STAMP_BUFFER)
+    if made == buffer_id(buffer):
+        return
+    said = "records no buffer (an older sensaov made it)" if made is None else (
+        f"was made from another buffer ({made}, not {buffer_id(buffer)})"
+    )  # fmt: skip
+    raise StaleInputError(said, where=where, hint=f"re-run '{remake}'")
+
+
+def check_made_by(attributes: Mapping[str, Any], job: JobSpec, where: str, *, remake: str) -> None:
+    """Refuse an output made by another version of ``job`` (other cameras, channels, views)."""
+    if attributes.get(STAMP_JOB) != job.job_hash():
+        raise StaleInputError(
+            f"was made by another version of {job.path.name}",
+            where=where,
+            hint=f"re-run '{remake}'",
+        )
+
+
+def _differing(stored: Any, current: Mapping[str, Any]) -> list[str]:
+    """The keys ``run`` reads whose values differ (a transport channel is read by ``run``,
+    every other channel only later)."""
+    if not isinstance(stored, Mapping):
+        return []
+
+    def read_by_run(job: Mapping[str, Any], key: str) -> Any:
+        if key == "channels":
+            return [c for c in job.get(key) or () if c.get("kind") == "transport"]
+        return job.get(key)
+
+    return [key for key in _RUN_KEYS if read_by_run(stored, key) != read_by_run(current, key)]
 
 
 # --- checks before anything is written --------------------------------------------------------

@@ -19,22 +19,6 @@ from sensaov_cli.views.hierarchy import check_cut, ranked_summary, rankings
 from sensaov_cli.vocabulary import Aggregate, Cut, Untrusted, Weight
 
 
-def rank_summary(
-    buffer: Path,
-    *,
-    as_json: bool,
-    top: int,
-    method: Aggregate,
-    weight: Weight,
-    untrusted: Untrusted = "apart",
-) -> str:
-    """The summary ``sensaov run`` prints (top keys, objects, types), as text or JSON."""
-    loaded = read_buffer(buffer, lazy=True)  # a ranking reads each parameter's sums
-    return summary_of(
-        loaded, as_json=as_json, top=top, method=method, weight=weight, untrusted=untrusted
-    )
-
-
 def summary_of(
     buffer: SensitivityBuffer,
     *,
@@ -53,10 +37,10 @@ def summary_of(
     return summary_text(buffer, top=top, method=method, weight=weight, untrusted=untrusted)
 
 
-def rank_by_cut(
+def rank_buffer(
     buffer: Path,
     *,
-    by: Cut,
+    by: Cut | None,
     objectives: tuple[str, ...],
     style: str,
     exrs: tuple[Path, ...],
@@ -65,8 +49,18 @@ def rank_by_cut(
     weight: Weight,
     untrusted: Untrusted = "apart",
 ) -> str:
-    """One table per objective at one cut: ``style`` "json", "csv" or "text"."""
+    """The summary ``sensaov run`` prints (top keys, objects, types) without ``by``, else one
+    table per objective at that cut: ``style`` "json", "csv" or "text"."""
     loaded = read_buffer(buffer, lazy=True)  # a ranking reads each parameter's sums
+    if by is None:
+        return summary_of(
+            loaded,
+            as_json=style == "json",
+            top=top,
+            method=method,
+            weight=weight,
+            untrusted=untrusted,
+        )
     check_cut(by, cameras=bool(exrs))
     for name in objectives:
         loaded.objective(name)  # an unknown name is an error that lists the known ones
@@ -105,7 +99,7 @@ def _visible(
     """What each camera's EXR sees, each EXR checked to come from this very buffer."""
     # Imported here: only --exr needs them, and the job spec they load costs every rank time.
     from sensaov_cli.outputs.cryptomatte import visible_objects
-    from sensaov_cli.pipeline.consistency import check_made_from
+    from sensaov_cli.pipeline.project import check_made_from
 
     remake = f"sensaov project JOB, with the job that wrote {buffer.name}"
     return visible_objects(

@@ -1,8 +1,8 @@
 """``sensaov report``: gather a job's outputs into one self-contained HTML page.
 
 Reads what ``run`` and ``project`` wrote and renders nothing. Everything shown comes from one
-state (:mod:`~sensaov_cli.pipeline.consistency`); previews no manifest lists (left over from an
-objective or a channel since renamed) are not shown, and the page names them.
+state (the checks in :mod:`~sensaov_cli.pipeline.project`); previews no manifest lists (left over
+from an objective or a channel since renamed) are not shown, and the page names them.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from sensaov_cli.outputs.report_html import (
     write_report,
 )
 from sensaov_cli.outputs.sunburst_drawing import sunburst_bytes
-from sensaov_cli.pipeline.consistency import check_buffer_of_job, check_made_by, check_made_from
+from sensaov_cli.pipeline.project import check_buffer_of_job, check_made_by, check_made_from
 from sensaov_cli.pipeline.run import BUFFER_NAME, PRIMAL_NAME
 from sensaov_cli.scene.expand import expand_scene
 from sensaov_cli.views.hierarchy import is_trusted, rankings

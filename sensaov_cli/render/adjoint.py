@@ -18,8 +18,7 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli import interrupts
-from sensaov_cli.buffer.model import ParamRecord
-from sensaov_cli.buffer.repairs import Repair
+from sensaov_cli.buffer.model import ParamRecord, Repair
 from sensaov_cli.buffer.statistics import Statistics, combine_batches, weighted_mean
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene

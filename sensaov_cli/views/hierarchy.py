@@ -446,7 +446,7 @@ class RepairError:
 def repair_error(
     buf: SensitivityBuffer, objective: str, key: str, signed: float, weight: Weight
 ) -> RepairError | None:
-    """A repaired parameter's error (buffer/repairs.py); None for any other parameter."""
+    """A repaired parameter's error (buffer/model.py); None for any other parameter."""
     repair = buf.repairs.get(key)
     if repair is None or not repair.has_error:
         return None

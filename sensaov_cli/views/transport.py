@@ -102,7 +102,7 @@ def reverse_along(
     buffer: SensitivityBuffer, objective: str, keys: Sequence[str], direction: str
 ) -> float:
     """⟨g, v⟩ from the reverse-mode gradients, in float64: for a repaired parameter the one
-    its repair replaced, whose dual the forward pass is (buffer/repairs.py)."""
+    its repair replaced, whose dual the forward pass is (buffer/model.py)."""
     v = direction_values(buffer, keys, direction)
     return float(
         sum(

@@ -20,8 +20,7 @@ from typing import Any
 import numpy as np
 
 from sensaov_cli import interrupts
-from sensaov_cli.buffer.model import ParamRecord
-from sensaov_cli.buffer.repairs import Repair
+from sensaov_cli.buffer.model import ParamRecord, Repair
 from sensaov_cli.buffer.statistics import with_batch_estimates
 from sensaov_cli.job.spec import RepairSpec
 from sensaov_cli.progress import Progress
