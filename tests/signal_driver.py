@@ -1,14 +1,10 @@
 """Run the sensaov command line and send it a signal at a chosen point (for test_signals.py).
 
-usage: python signal_driver.py POINT SIGNAL DELAY STAMP sensaov-arguments...
+usage: python signal_driver.py POINT SIGNAL STAMP sensaov-arguments...
 
 POINT is where the signal is sent from:
-  stage:PREFIX  a timer started when a progress stage whose name starts with PREFIX begins
-                (load_s, primal_s, backward_, view_) fires after DELAY seconds, from another
-                thread, so the signal lands in the middle of the stage's work (a kernel);
-                should the work be over sooner, the first output file the command then begins
-                is held until the signal has come (sent from there): the signal always lands
-                before anything is written, however fast the machine;
+  stage:PREFIX  when the first progress stage whose name starts with PREFIX begins (load_s,
+                primal_s, backward_, view_), before its work;
   write:N       inside the N-th output file's writer (counting from 1), after it wrote a part;
   rename        just before the first rename of a set of outputs (signals are held there);
   written       just after the first set of outputs was renamed into place (the command is
@@ -19,8 +15,9 @@ POINT is where the signal is sent from:
                 swallowed there, as inside a Dr.Jit kernel's callback: only the stop checks
                 between chunks can end the pass;
   import:NAME   held when the interpreter starts importing module NAME (the command is run as
-                ``python -m sensaov_cli``; nothing of sensaov is imported before).
-SIGNAL is TERM, INT, HUP or KILL. DELAY is used by stage: only. STAMP receives the number of chunks
+                ``python -m sensaov_cli``, unpatched: nothing of sensaov is imported before;
+                STAMP says 0).
+SIGNAL is TERM, INT, HUP or KILL. STAMP receives the number of chunks
 that began after the signal (rewritten at each): a prompt stop begins at most one (the chunk a
 signal landed in), however slow the machine.
 """
@@ -31,14 +28,12 @@ import os
 import runpy
 import signal
 import sys
-import threading
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-POINT, SIGNAL, DELAY, STAMP = sys.argv[1], sys.argv[2], float(sys.argv[3]), Path(sys.argv[4])
+POINT, SIGNAL, STAMP = sys.argv[1], sys.argv[2], Path(sys.argv[3])
 SIGNUM = {
     "TERM": signal.SIGTERM,
     "INT": signal.SIGINT,
@@ -56,12 +51,13 @@ class HoldImport:
     def find_spec(self, name: str, path: Any, target: Any = None) -> None:
         if name == self.name:
             sys.meta_path.remove(self)
+            STAMP.write_text("0")
             os.kill(os.getpid(), SIGNUM)
 
 
 if POINT.startswith("import:"):
     sys.meta_path.insert(0, HoldImport(POINT.split(":", 1)[1]))
-    sys.argv = ["sensaov", *sys.argv[5:]]
+    sys.argv = ["sensaov", *sys.argv[4:]]
     runpy.run_module("sensaov_cli", run_name="__main__", alter_sys=True)
     raise SystemExit(0)
 
@@ -129,32 +125,16 @@ def count_chunks(hold: str | None = None) -> None:
 
 
 def patch_stage(prefix: str) -> None:
-    original, write = Progress.stage, atomic._written_temporary
-    timer: list[threading.Timer] = []  # started by the first matching stage only
-    sent = threading.Lock()
-
-    def send_once() -> None:
-        if sent.acquire(blocking=False):
-            send()
+    original = Progress.stage
 
     @contextmanager
     def stage(self: Progress, name: str, label: str) -> Iterator[None]:
-        if name.startswith(prefix) and not timer:
-            timer.append(threading.Timer(DELAY, send_once))
-            timer[0].start()
         with original(self, name, label):
+            if name.startswith(prefix) and not SENT[0]:
+                send()
             yield
 
-    def held(path: Path, writer: Callable[[Path], None]) -> Path:
-        if timer:
-            timer[0].cancel()
-            send_once()
-            while not interrupts.requested():  # the handler runs (and raises) in this wait
-                time.sleep(0.001)
-        return write(path, writer)
-
     Progress.stage = stage  # type: ignore[method-assign]
-    atomic._written_temporary = held  # type: ignore[assignment]
 
 
 def patch_write(n: int) -> None:
@@ -215,4 +195,4 @@ elif POINT == "written":
     patch_written()
 elif not POINT.startswith("pass:"):
     raise SystemExit(f"unknown point {POINT!r}")
-main(args=sys.argv[5:], prog_name="sensaov")
+main(args=sys.argv[4:], prog_name="sensaov")

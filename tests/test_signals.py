@@ -68,23 +68,23 @@ def loadable(path: Path) -> None:
 
 
 def driven(
-    job: Path, command: list[str], point: str, sig: str, delay: float = 0.0
+    job: Path, command: list[str], point: str, sig: str
 ) -> tuple[subprocess.CompletedProcess[str], int | None]:
     """``command`` on ``job`` through the driver; the chunks begun after the signal (None: the
     signal was never sent)."""
     stamp = job.parent / "stamp"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    args = [sys.executable, str(DRIVER), point, sig, str(delay), str(stamp), *command, str(job)]
+    args = [sys.executable, str(DRIVER), point, sig, str(stamp), *command, str(job)]
     result = subprocess.run(args, capture_output=True, text=True, env=env, timeout=300)
     return result, int(stamp.read_text()) if stamp.exists() else None
 
 
 def interrupted(
-    tmp_path: Path, previous: Path, command: list[str], point: str, sig: str, delay: float = 0.0
+    tmp_path: Path, previous: Path, command: list[str], point: str, sig: str
 ) -> tuple[subprocess.CompletedProcess[str], dict[str, bytes], int | None]:
     job = write_job(tmp_path, render=RENDER)
     shutil.copytree(previous, tmp_path / "out")
-    result, chunks = driven(job, command, point, sig, delay)
+    result, chunks = driven(job, command, point, sig)
     return result, snapshot(tmp_path / "out"), chunks
 
 
@@ -127,28 +127,28 @@ def check_outcome(
 
 
 RUN_CASES = [
-    # point, signal, delay after the stage began, what must have been replaced
-    ("stage:load_s", "TERM", 0.0, set()),  # before Mitsuba is imported
-    ("stage:load_s", "TERM", 0.1, set()),  # during Mitsuba's import or the scene load
-    ("stage:primal_s", "TERM", 0.005, set()),
-    ("stage:backward_", "TERM", 0.005, set()),
-    ("stage:backward_", "INT", 0.005, set()),
-    ("stage:backward_", "HUP", 0.005, set()),  # a closed terminal: a stop like the others
-    ("rename", "HUP", 0.0, {"buffer.npz", "primal.exr"}),
-    ("write:1", "TERM", 0.0, set()),  # the buffer half written
-    ("write:2", "TERM", 0.0, set()),  # the buffer complete, the primal EXR half written
-    ("rename", "TERM", 0.0, {"buffer.npz", "primal.exr"}),  # both renamed together
-    ("stage:primal_s", "KILL", 0.005, set()),
-    ("write:2", "KILL", 0.0, set()),
-    ("rename", "KILL", 0.0, {"buffer.npz"}),  # killed between the two renames
+    # point (signal_driver.py), signal, what must have been replaced
+    ("stage:load_s", "TERM", set()),  # before Mitsuba is imported
+    ("import:mitsuba", "TERM", set()),  # during Mitsuba's import, the scene load's first act
+    ("pass:primal_s", "TERM", set()),  # in the middle of the primal render
+    ("pass:backward_", "TERM", set()),
+    ("pass:backward_", "INT", set()),
+    ("pass:backward_", "HUP", set()),  # a closed terminal: a stop like the others
+    ("rename", "HUP", {"buffer.npz", "primal.exr"}),
+    ("write:1", "TERM", set()),  # the buffer half written
+    ("write:2", "TERM", set()),  # the buffer complete, the primal EXR half written
+    ("rename", "TERM", {"buffer.npz", "primal.exr"}),  # both renamed together
+    ("pass:primal_s", "KILL", set()),
+    ("write:2", "KILL", set()),
+    ("rename", "KILL", {"buffer.npz"}),  # killed between the two renames
 ]
 
 
-@pytest.mark.parametrize(("point", "sig", "delay", "expected"), RUN_CASES)
+@pytest.mark.parametrize(("point", "sig", "expected"), RUN_CASES)
 def test_run_stopped(
-    tmp_path: Path, previous: Path, point: str, sig: str, delay: float, expected: set[str]
+    tmp_path: Path, previous: Path, point: str, sig: str, expected: set[str]
 ) -> None:
-    result, after, chunks = interrupted(tmp_path, previous, ["run", "-q"], point, sig, delay)
+    result, after, chunks = interrupted(tmp_path, previous, ["run", "-q"], point, sig)
     replaced = check_outcome(result, snapshot(previous), after, sig, chunks)
     if sig != "KILL" or point != "rename":
         assert replaced == expected, result.stderr
@@ -157,22 +157,22 @@ def test_run_stopped(
 
 
 PROJECT_CASES = [
-    ("stage:load_s", "TERM", 0.05, set()),
-    ("stage:view_", "TERM", 0.005, set()),
-    ("stage:view_", "HUP", 0.005, set()),
-    ("write:1", "TERM", 0.0, set()),  # the camera's EXR half written
-    ("write:3", "TERM", 0.0, {"objective.exr", "previews/objective/mean_luma.objects.png"}),
-    ("rename", "TERM", 0.0, {"objective.exr"}),
-    ("write:3", "KILL", 0.0, {"objective.exr", "previews/objective/mean_luma.objects.png"}),
+    ("import:mitsuba", "TERM", set()),
+    ("stage:view_", "TERM", set()),  # as the objective camera's view begins (the middle of a
+    ("stage:view_", "HUP", set()),  # view: test_sigterm_in_a_pass_ends_within_one_chunk)
+    ("write:1", "TERM", set()),  # the camera's EXR half written
+    ("write:3", "TERM", {"objective.exr", "previews/objective/mean_luma.objects.png"}),
+    ("rename", "TERM", {"objective.exr"}),
+    ("write:3", "KILL", {"objective.exr", "previews/objective/mean_luma.objects.png"}),
 ]
 
 
-@pytest.mark.parametrize(("point", "sig", "delay", "expected"), PROJECT_CASES)
+@pytest.mark.parametrize(("point", "sig", "expected"), PROJECT_CASES)
 def test_project_stopped(
-    tmp_path: Path, previous: Path, point: str, sig: str, delay: float, expected: set[str]
+    tmp_path: Path, previous: Path, point: str, sig: str, expected: set[str]
 ) -> None:
     command = ["project", "-q", "--png", "--beauty-spp", "1"]
-    result, after, chunks = interrupted(tmp_path, previous, command, point, sig, delay)
+    result, after, chunks = interrupted(tmp_path, previous, command, point, sig)
     replaced = check_outcome(result, snapshot(previous), after, sig, chunks)
     if sig == "KILL":  # no message: the bytes tell, and a re-drawn PNG may be the same bytes
         assert "objective.exr" in replaced and replaced <= expected
