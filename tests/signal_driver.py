@@ -14,6 +14,8 @@ POINT is where the signal is sent from:
                 chunk limits are lowered so a 16x16 job has several. The signal's raise is
                 swallowed there, as inside a Dr.Jit kernel's callback: only the stop checks
                 between chunks can end the pass;
+  serve         the signal is not sent by the driver (the test sends it while ``view`` waits for
+                requests); STAMP receives the server's poll-loop turns begun after it;
   import:NAME   held when the interpreter starts importing module NAME (the command is run as
                 ``python -m sensaov_cli``, unpatched: nothing of sensaov is imported before;
                 STAMP says 0).
@@ -181,7 +183,24 @@ def patch_written() -> None:
     atomic.atomic_write = lambda path, write: write_all([(path, write)])  # type: ignore
 
 
-if POINT.startswith("pass:"):
+def count_polls() -> None:
+    import socketserver
+
+    original = socketserver.BaseServer.service_actions
+    turns = [0]
+
+    def service_actions(self: socketserver.BaseServer) -> None:
+        if interrupts.requested():
+            turns[0] += 1
+            STAMP.write_text(str(turns[0]))
+        original(self)
+
+    socketserver.BaseServer.service_actions = service_actions  # type: ignore[method-assign]
+
+
+if POINT == "serve":
+    count_polls()
+elif POINT.startswith("pass:"):
     count_chunks(POINT.split(":", 1)[1])
 else:
     count_chunks()
@@ -193,6 +212,6 @@ elif POINT == "rename":
     patch_rename()
 elif POINT == "written":
     patch_written()
-elif not POINT.startswith("pass:"):
+elif not POINT.startswith("pass:") and POINT != "serve":
     raise SystemExit(f"unknown point {POINT!r}")
 main(args=sys.argv[4:], prog_name="sensaov")
