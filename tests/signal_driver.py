@@ -8,7 +8,7 @@ POINT is where the signal is sent from:
   write:N       inside the N-th output file's writer (counting from 1), after it wrote a part;
   rename        just before the first rename of a set of outputs (signals are held there);
   written       just after the first set of outputs was renamed into place (the command is
-                finishing: printing what it wrote).
+                finishing: printing what it wrote);
   pass:PREFIX   held at the start of the second chunk (sub-pass, path chunk or visibility span)
                 of the first chunked pass inside a stage whose name starts with PREFIX; the
                 chunk limits are lowered so a 16x16 job has several. The signal's raise is
@@ -19,9 +19,9 @@ POINT is where the signal is sent from:
   import:NAME   held when the interpreter starts importing module NAME (the command is run as
                 ``python -m sensaov_cli``, unpatched: nothing of sensaov is imported before;
                 STAMP says 0).
-SIGNAL is TERM, INT, HUP or KILL. STAMP receives the number of chunks
-that began after the signal (rewritten at each): a prompt stop begins at most one (the chunk a
-signal landed in), however slow the machine.
+SIGNAL is TERM, INT, HUP or KILL. STAMP receives the number of chunks that began after the
+signal (rewritten at each): a prompt stop begins at most one (the chunk the signal landed in),
+however slow the machine.
 """
 
 from __future__ import annotations
