@@ -108,9 +108,9 @@ def counted(chunks: Callable[..., Iterator[Any]], hold: str | None) -> Callable[
 def count_chunks(hold: str | None = None) -> None:
     if hold is not None:  # several chunks even in a 16x16 job
         adjoint.SAMPLES_PER_SUBPASS = adjoint.PATH_SAMPLES_PER_PASS = 64
+        forward.PATH_SAMPLES_PER_PASS = 64
         visibility.SAMPLES_PER_CHUNK = 64
     adjoint.subpasses = forward.subpasses = counted(adjoint.subpasses, hold)  # type: ignore
-    adjoint.path_chunks = forward.path_chunks = counted(adjoint.path_chunks, hold)  # type: ignore
     visibility.sample_spans = counted(visibility.sample_spans, hold)  # type: ignore
     original = Progress.stage
 
