@@ -32,7 +32,6 @@ from sensaov_cli.scene.sensors import (
     sensor_ids,
     set_film_size,
 )
-from sensaov_cli.scene.sharing import place_textures, split_shapegroups, split_shared_bsdfs
 from sensaov_cli.scene.source import Change, locate_load_error, user_attributes, where, write_xml
 
 _CHUNK = 1 << 20  # files are hashed a MiB at a time, never read whole
@@ -127,10 +126,10 @@ def prepare_xml(
     changes += [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
     integration = plan_integrator(root, max_depth, changes)
     bitmaps = _bitmaps_as_float(root, changes)
-    groups = split_shapegroups(root) if shared == "split" else {}  # before the BSDFs
+    groups = naming.split_shapegroups(root) if shared == "split" else {}  # before the BSDFs
     materials = naming.materials(root)  # before splitting: copies keep the user's name
-    textures = place_textures(root, copies=shared == "split")
-    split = split_shared_bsdfs(root) if shared == "split" else {}
+    textures = naming.place_textures(root, copies=shared == "split")
+    split = naming.split_shared_bsdfs(root) if shared == "split" else {}
     changes += _sharing_changes(groups, textures, split, shared)
     sensor, inspection_ids = _cameras(root, path, camera, resolution, inspection)
     others = () if job is None else tuple(c for c in job.inspection_cameras if c not in inspection)

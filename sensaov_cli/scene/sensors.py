@@ -14,8 +14,7 @@ from pathlib import Path
 
 from sensaov_cli.errors import SceneError
 from sensaov_cli.job.spec import CameraSpec
-from sensaov_cli.scene.naming import child_value, objects_by_id
-from sensaov_cli.scene.sharing import replace_ref
+from sensaov_cli.scene.naming import child_value, objects_by_id, replace_ref
 from sensaov_cli.scene.source import detached_copy, where
 
 OBJECTIVE_SENSOR_ID = "sensaov_objective"
