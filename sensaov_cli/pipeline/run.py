@@ -330,7 +330,7 @@ def _provenance(
         "scene_path": str(job.scene),
         "scene_fingerprint": loaded.prepared.fingerprint,
         "scene_files": [str(path) for path in loaded.prepared.files],  # never an output's name
-        "scene_args": loaded.prepared.argument_values,  # every $name the scene used
+        "scene_args": loaded.prepared.scene_args,  # every $name the scene used
         "scene_sample_count": loaded.prepared.sample_count,  # the scene's spp; the job's renders
         "integrator": loaded.integrator_type,  # the replay integrator that ran
         "scene_integrator_replaced": loaded.prepared.replaced_integrator,

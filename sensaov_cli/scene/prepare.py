@@ -22,7 +22,7 @@ from pathlib import Path
 from sensaov_cli.errors import SceneError, SpecError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.scene import naming
-from sensaov_cli.scene.expand import SceneArgument, expand_scene
+from sensaov_cli.scene.expand import expand_scene
 from sensaov_cli.scene.integrator import IntegratorPlan, plan_integrator
 from sensaov_cli.scene.sensors import (
     add_inspection_sensor,
@@ -32,13 +32,10 @@ from sensaov_cli.scene.sensors import (
     sensor_ids,
     set_film_size,
 )
-from sensaov_cli.scene.source import Change, locate_load_error, user_attributes, where, write_xml
+from sensaov_cli.scene.source import Change, user_attributes, where, write_xml
 
 _CHUNK = 1 << 20  # files are hashed a MiB at a time, never read whole
 DEFAULT_FILTER, DEFAULT_WRAP = "bilinear", "repeat"  # a bitmap's lookup when the scene sets none
-
-
-SceneChange = Change  # what the scene stage hands on: what, why, where, alters_image
 
 
 @dataclass(frozen=True)
@@ -55,33 +52,19 @@ class PreparedScene:
     instances: dict[str, str]  # instance shape id -> the shapegroup id it instantiates
     shapegroups: dict[str, tuple[str, ...]]  # shapegroup id -> ids of its member shapes
     textures: dict[str, tuple[str, ...]]  # top-level texture id -> "object.slot" of each use
-    scene_args: dict[str, SceneArgument]  # each $name the scene used, its value and origin
+    scene_args: dict[str, str]  # each $name the scene used and the value it got
     sample_count: int | None  # the objective sensor's sampler sample_count, as the scene says
     files: tuple[Path, ...]  # every file the scene reads
     search_path: tuple[Path, ...]  # folders Mitsuba resolves names still relative against
     line_sources: tuple[str | None, ...]  # line of `text` -> the user's file:line it came from
     integration: IntegratorPlan  # the scene's integrator and depth, and the replay's
     fingerprint: str  # sha256 of every file the scene reads and of the job's arguments
-    changes: tuple[SceneChange, ...]  # what was rewritten and why
+    changes: tuple[Change, ...]  # what was rewritten and why
 
     @property
     def replaced_integrator(self) -> str | None:
         """The scene's integrator when it renders other light transport than the replay."""
         return None if self.integration.same_transport else self.integration.scene_kind
-
-    @property
-    def image_changes(self) -> tuple[SceneChange, ...]:
-        """The changes after which M is measured on another image than the scene renders."""
-        return tuple(change for change in self.changes if change.alters_image)
-
-    @property
-    def argument_values(self) -> dict[str, str]:
-        """Every ``$name`` the scene used and the value it got."""
-        return {name: argument.value for name, argument in self.scene_args.items()}
-
-    def locate(self, message: str) -> tuple[str, str | None]:
-        """Mitsuba's load error on ``text`` -> (one-line message, the user's file:line)."""
-        return locate_load_error(message, self.line_sources)
 
 
 def prepare_scene(job: JobSpec, cameras: tuple[CameraSpec, ...] = ()) -> PreparedScene:
@@ -123,7 +106,7 @@ def prepare_xml(
         _check_camera_ids(job, own_sensors)
     _refuse_non_finite_numbers(root)
     changes = list(expanded.changes)  # old formats upgraded, each with its line
-    changes += [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
+    changes += [Change(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
     integration = plan_integrator(root, max_depth, changes)
     bitmaps = _bitmaps_as_float(root, changes)
     groups = naming.split_shapegroups(root) if shared == "split" else {}  # before the BSDFs
@@ -150,7 +133,7 @@ def prepare_xml(
         instances=naming.instances(root),
         shapegroups=naming.shapegroups(root),
         textures=textures,
-        scene_args=expanded.arguments,
+        scene_args={name: a.value for name, a in expanded.arguments.items()},
         sample_count=sample_count(root, sensor),
         files=expanded.files,
         search_path=expanded.search_path,
@@ -170,14 +153,14 @@ def _sharing_changes(
     textures: dict[str, tuple[str, ...]],
     split: dict[str, tuple[str, ...]],
     shared: str,
-) -> list[SceneChange]:
+) -> list[Change]:
     own = "each use gets its own parameters, so each object its own gradient (shared: split)"
     placed = own if shared == "split" else "Mitsuba keys a top-level bitmap by memory address"
-    changes = [SceneChange(f"shapegroup {g!r} copied for {', '.join(i)}", own, "")
+    changes = [Change(f"shapegroup {g!r} copied for {', '.join(i)}", own, "")
                for g, i in groups.items()]  # fmt: skip
-    changes += [SceneChange(f"texture {t!r} written into {', '.join(u)}", placed, "")
+    changes += [Change(f"texture {t!r} written into {', '.join(u)}", placed, "")
                 for t, u in textures.items()]  # fmt: skip
-    changes += [SceneChange(f"bsdf {b!r} copied into {', '.join(s)}", own, "")
+    changes += [Change(f"bsdf {b!r} copied into {', '.join(s)}", own, "")
                 for b, s in split.items()]  # fmt: skip
     return changes
 
@@ -238,7 +221,7 @@ def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: P
 # --- bitmaps: loaded as float; their lookup settings, which the plugin's binding hides ---
 
 
-def _bitmaps_as_float(root: ET.Element, changes: list[SceneChange]) -> tuple[str, ...]:
+def _bitmaps_as_float(root: ET.Element, changes: list[Change]) -> tuple[str, ...]:
     """Load every bitmap texture that has no ``format`` as float, so its texels receive
     gradients (envmaps load theirs as float already); returns every bitmap's file name."""
     files = []
@@ -251,9 +234,7 @@ def _bitmaps_as_float(root: ET.Element, changes: list[SceneChange]) -> tuple[str
         if naming.child_value(texture, "format") is None:
             ET.SubElement(texture, "string", {"name": "format", "value": "variant"})
             name = Path(filename or "(no file)").name
-            changes.append(
-                SceneChange(f"bitmap {name} loaded as float", _EIGHT_BIT, where(texture))
-            )
+            changes.append(Change(f"bitmap {name} loaded as float", _EIGHT_BIT, where(texture)))
     return tuple(files)
 
 
