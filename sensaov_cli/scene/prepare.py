@@ -96,14 +96,13 @@ def prepare_xml(
     scene_args: Mapping[str, object] | None = None,
     job: JobSpec | None = None,
 ) -> PreparedScene:
-    """A scene file prepared with explicit settings; ``job``, where given, has its cameras
+    """A scene file prepared with explicit settings; ``job``, where given, has all its cameras
     checked against the scene, with the job's keys named."""
     expanded = expand_scene(path, scene_args or {})
     root = expanded.root
     named = naming.name_objects(root)
     own_sensors = sensor_ids(root)
-    if job is not None:
-        _check_camera_ids(job, own_sensors)
+    _check_camera_ids(path, own_sensors, camera, job.inspection_cameras if job else inspection, job)
     _refuse_non_finite_numbers(root)
     changes = list(expanded.changes)  # old formats upgraded, each with its line
     changes += [Change(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
@@ -114,10 +113,10 @@ def prepare_xml(
     textures = naming.place_textures(root, copies=shared == "split")
     split = naming.split_shared_bsdfs(root) if shared == "split" else {}
     changes += _sharing_changes(groups, textures, split, shared)
-    sensor, inspection_ids = _cameras(root, path, camera, resolution, inspection)
+    sensor, inspection_ids = _cameras(root, camera, resolution, inspection)
     others = () if job is None else tuple(c for c in job.inspection_cameras if c not in inspection)
     if others:  # cameras this command does not load: placed on a copy, to refuse them early
-        _cameras(copy.deepcopy(root), path, camera, resolution, others)
+        _cameras(copy.deepcopy(root), camera, resolution, others)
     text, line_sources = write_xml(root)
     job_args = {name: a.value for name, a in expanded.arguments.items() if a.origin == "job"}
     return PreparedScene(
@@ -165,38 +164,44 @@ def _sharing_changes(
     return changes
 
 
-def _check_camera_ids(job: JobSpec, ids: tuple[str, ...]) -> None:
-    """Refuse a job whose cameras name a sensor the scene lacks, naming the job's key."""
-    if not ids and job.objective_camera.look_at is None:
+def _check_camera_ids(
+    scene: Path,
+    ids: tuple[str, ...],
+    camera: CameraSpec,
+    inspection: tuple[CameraSpec, ...],
+    job: JobSpec | None,
+) -> None:
+    """Refuse cameras that name a sensor the scene lacks, naming the job's key, before any
+    camera is placed (sensors.choose_sensor relies on it)."""
+    if not ids and camera.look_at is None:
         raise SceneError(
             "the scene has no sensor",
-            where=str(job.scene),
+            where=str(scene),
             hint="add one, or give objective_camera a look_at",
         )
-    named = [("objective_camera", job.objective_camera)]
-    named += [(f"inspection_cameras[{i}].sensor", c) for i, c in enumerate(job.inspection_cameras)]
-    for key, camera in named:
-        if camera.sensor is not None and camera.sensor not in ids:
+    named = [("objective_camera", camera)]
+    named += [(f"inspection_cameras[{i}].sensor", c) for i, c in enumerate(inspection)]
+    for key, each in named:
+        if each.sensor is not None and each.sensor not in ids:
             raise SpecError(
-                f"no sensor with id {camera.sensor!r} in {job.scene.name}",
-                where=f"{job.path}: {key}",
+                f"no sensor with id {each.sensor!r} in {scene.name}",
+                where=f"{job.path}: {key}" if job is not None else key,
                 hint=f"sensors in the scene: {', '.join(ids) or 'none'}",
             )
 
 
 def _cameras(
     root: ET.Element,
-    path: Path,
     camera: CameraSpec,
     resolution: tuple[int, int] | None,
     inspection: tuple[CameraSpec, ...],
 ) -> tuple[ET.Element, dict[str, str]]:
     """The objective sensor, and each inspection camera's own sensor id."""
-    sensor = choose_sensor(root, camera, path)
+    sensor = choose_sensor(root, camera)
     if resolution is not None:
         set_film_size(root, sensor, resolution)
     check_film_size(root, sensor, "objective camera")
-    return sensor, {cam.name: add_inspection_sensor(root, cam, sensor, path) for cam in inspection}
+    return sensor, {cam.name: add_inspection_sensor(root, cam, sensor) for cam in inspection}
 
 
 def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: Path) -> str:
