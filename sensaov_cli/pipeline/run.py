@@ -195,7 +195,7 @@ def run_job(
         timed = {**buffer.provenance, "timings_s": dict(progress.timings),
                  "wall_time_s": round(time.perf_counter() - started, 4)}  # fmt: skip
         buffer = replace(buffer, provenance=timed, _copy_arrays=False)
-    interrupts.check()  # a stop asked for during a kernel must not end in written files
+    interrupts.raise_if_stopped()  # a stop asked for during a kernel must not end in written files
     with progress.stage("write_s", f"writing {buffer_path.name} and {primal_path.name}"):
         primal = exr_writer(image_channels(result.image), provenance_attributes(buffer.provenance))
         files = [(buffer_path, buffer_writer(buffer)), (primal_path, primal)]

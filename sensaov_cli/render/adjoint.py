@@ -106,7 +106,7 @@ def subpasses(pixels: int, spp: int) -> Iterator[tuple[int, int]]:
     time); a pending stop is raised (as KeyboardInterrupt) before every sub-pass after the first."""
     for index, chunk in enumerate(sample_chunks(pixels, spp, SAMPLES_PER_SUBPASS)):
         if index:
-            interrupts.check()
+            interrupts.raise_if_stopped()
         yield index, chunk
 
 
@@ -288,7 +288,7 @@ def _path_backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int)
     path = path_integrator(loaded)
     for index, chunk in enumerate(path_chunks(width * height, spp)):
         if index:
-            interrupts.check()
+            interrupts.raise_if_stopped()
         with _nothing_attached_is_zero():
             path.render_backward(
                 loaded.scene, loaded.params, grad_in=adjoint_image * (chunk / spp),

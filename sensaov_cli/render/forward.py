@@ -163,7 +163,7 @@ def _path_forward(
     total = np.zeros(shape, np.float32)
     for index, chunk in enumerate(path_chunks(width * height, spp)):
         if index:
-            interrupts.check()
+            interrupts.raise_if_stopped()
         for leaf, tangent in tangents.items():
             dr.set_grad(leaf, tangent)  # each chunk pushes v afresh
         try:

@@ -13,7 +13,7 @@ import xml.etree.ElementTree as ET
 
 from sensaov_cli.errors import SceneError
 from sensaov_cli.job.spec import CameraSpec
-from sensaov_cli.scene.naming import child_value, objects_by_id, replace_ref
+from sensaov_cli.scene.naming import child_value, objects_by_id, refs_to, replace_ref
 from sensaov_cli.scene.source import detached_copy, where
 
 OBJECTIVE_SENSOR_ID = "sensaov_objective"
@@ -106,13 +106,10 @@ def check_film_size(root: ET.Element, sensor: ET.Element, what: str) -> None:
 
 
 def _child_object(root: ET.Element, sensor: ET.Element, tag: str) -> ET.Element | None:
-    """The sensor's ``tag`` object, written inline or shared by ``<ref>``."""
     inline = sensor.find(tag)
     if inline is not None:
         return inline
-    ids = objects_by_id(root)
-    refs = (ids.get(c.get("id", "")) for c in sensor if c.tag == "ref")
-    return next((target for target in refs if target is not None and target.tag == tag), None)
+    return next(iter(refs_to(sensor, tag, objects_by_id(root))), None)  # shared by <ref>
 
 
 def _add_look_at_sensor(

@@ -271,7 +271,7 @@ class _Objectives:
         self.base: dict[int, np.ndarray] = {}
 
     def __call__(self, seed: int) -> np.ndarray:
-        interrupts.check()  # between renders: a stop is acted on within one render
+        interrupts.raise_if_stopped()  # between renders: a stop is acted on within one render
         image = render_primal(self.loaded, self.spp, seed)
         return np.array([value_and_adjoint(self.loaded.mi, o, image)[0] for o in self.objectives])
 
