@@ -21,17 +21,9 @@ from pathlib import Path
 
 from sensaov_cli.errors import SceneError, SpecError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
-from sensaov_cli.scene import naming
+from sensaov_cli.scene import naming, sensors
 from sensaov_cli.scene.expand import expand_scene
 from sensaov_cli.scene.integrator import IntegratorPlan, plan_integrator
-from sensaov_cli.scene.sensors import (
-    add_inspection_sensor,
-    check_film_size,
-    choose_sensor,
-    sample_count,
-    sensor_ids,
-    set_film_size,
-)
 from sensaov_cli.scene.source import Change, user_attributes, where, write_xml
 
 _CHUNK = 1 << 20  # files are hashed a MiB at a time, never read whole
@@ -101,7 +93,7 @@ def prepare_xml(
     expanded = expand_scene(path, scene_args or {})
     root = expanded.root
     named = naming.name_objects(root)
-    own_sensors = sensor_ids(root)
+    own_sensors = sensors.sensor_ids(root)
     _check_camera_ids(path, own_sensors, camera, job.inspection_cameras if job else inspection, job)
     _refuse_non_finite_numbers(root)
     changes = list(expanded.changes)  # old formats upgraded, each with its line
@@ -133,7 +125,7 @@ def prepare_xml(
         shapegroups=naming.shapegroups(root),
         textures=textures,
         scene_args={name: a.value for name, a in expanded.arguments.items()},
-        sample_count=sample_count(root, sensor),
+        sample_count=sensors.sample_count(root, sensor),
         files=expanded.files,
         search_path=expanded.search_path,
         line_sources=line_sources,
@@ -197,11 +189,11 @@ def _cameras(
     inspection: tuple[CameraSpec, ...],
 ) -> tuple[ET.Element, dict[str, str]]:
     """The objective sensor, and each inspection camera's own sensor id."""
-    sensor = choose_sensor(root, camera)
+    sensor = sensors.choose_sensor(root, camera)
     if resolution is not None:
-        set_film_size(root, sensor, resolution)
-    check_film_size(root, sensor, "objective camera")
-    return sensor, {cam.name: add_inspection_sensor(root, cam, sensor) for cam in inspection}
+        sensors.set_film_size(root, sensor, resolution)
+    sensors.check_film_size(root, sensor, "objective camera")
+    return sensor, {c.name: sensors.add_inspection_sensor(root, c, sensor) for c in inspection}
 
 
 def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: Path) -> str:
