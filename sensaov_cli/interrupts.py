@@ -2,17 +2,16 @@
 
 Python runs signal handlers only between bytecodes; during a long Dr.Jit kernel the resulting
 KeyboardInterrupt can surface inside a callback and be swallowed. So the handler also records the
-request, and every stage that is about to write checks it (:func:`check`).
+request, and every stage that is about to write checks it (:func:`raise_if_stopped`).
 
 Where an exception must not be raised at all (while the interpreter imports click, or Mitsuba's
 C++ extension initialises: a KeyboardInterrupt there ends in ``std::terminate``), the handler only
-records the request (:func:`deferred`), and the next :func:`check` acts on it.
+records the request (:func:`deferred`), and the next :func:`raise_if_stopped` acts on it.
 """
 
 from __future__ import annotations
 
 import signal
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
@@ -28,45 +27,38 @@ STOP_SIGNALS: dict[int, int] = {
     signal.SIGHUP: EXIT_HANGUP,
 }
 
-_requested = threading.Event()
-_signal: list[int] = []  # the first stop signal received
+_signal: list[int] = []  # the first stop signal received: a stop was requested
 _raising = [False]  # False: record only (start-up, imports); True: also raise
 
 
 def _stop(signum: int, frame: FrameType | None) -> None:
     if not _signal:
         _signal.append(signum)
-    _requested.set()
     if _raising[0]:
         raise KeyboardInterrupt
 
 
 def install(*, raising: bool = True) -> None:
-    """Farms stop jobs with SIGTERM, people with Ctrl-C, closed terminals with SIGHUP: all
-    unwind as KeyboardInterrupt.
-
-    ``raising=False`` only records the signal: the command line's first act, before any import
-    that a raised exception could break.
-    """
+    """Make every stop signal unwind as KeyboardInterrupt; ``raising=False`` only records it:
+    the command line's first act, before any import that a raised exception could break."""
     _raising[0] = raising
     for signum in STOP_SIGNALS:
         signal.signal(signum, _stop)
 
 
-def check() -> None:
+def raise_if_stopped() -> None:
     """Raise KeyboardInterrupt if a stop was requested, even if its first raise was lost."""
-    if _requested.is_set():
+    if _signal:
         raise KeyboardInterrupt
 
 
 def requested() -> bool:
-    """Whether a stop signal has arrived (or Ctrl-C raised KeyboardInterrupt directly)."""
-    return _requested.is_set()
+    """Whether a stop signal has arrived."""
+    return bool(_signal)
 
 
-def exit_code() -> int:
-    """130 after SIGINT (or a KeyboardInterrupt with no signal), 143 after SIGTERM, 129 after
-    SIGHUP."""
+def stop_exit_code() -> int:
+    """The first stop signal's exit code (SIGINT's for a KeyboardInterrupt with no signal)."""
     return STOP_SIGNALS.get(_first(), EXIT_INTERRUPTED)
 
 
@@ -88,4 +80,4 @@ def deferred() -> Iterator[None]:
     finally:
         _raising[0] = before
     if before:
-        check()
+        raise_if_stopped()

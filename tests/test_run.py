@@ -221,8 +221,7 @@ def test_a_stop_requested_during_a_kernel_writes_nothing(
     from sensaov_cli.progress import Progress
 
     job = job_writer("stopped")
-    monkeypatch.setattr(interrupts, "_requested", __import__("threading").Event())
-    interrupts._requested.set()
+    monkeypatch.setattr(interrupts, "_signal", [__import__("signal").SIGINT])
     with pytest.raises(KeyboardInterrupt):
         run_job(load_job(job), allow_python=False, progress=Progress(quiet=True))
     assert not (job.parent / "out").exists()

@@ -169,10 +169,12 @@ def test_arguments_are_recorded_with_their_origin(tmp_path: Path) -> None:
     main = write(
         tmp_path, "main.xml", f'<default name="res" value="8"/>\n{SENSOR}'.replace('"4"', '"$res"')
     )
-    prepared = prepare(main, scene_args={"res": "16"})
-    assert prepared.scene_args["res"].value == "16" and prepared.scene_args["res"].origin == "job"
-    defaults = prepare(main).scene_args["res"]
+    given = expand_scene(main, {"res": "16"}).arguments["res"]
+    assert (given.value, given.origin) == ("16", "job")
+    defaults = expand_scene(main, {}).arguments["res"]
     assert (defaults.value, defaults.origin) == ("8", f"{main}:2")
+    assert prepare(main, scene_args={"res": "16"}).scene_args == {"res": "16"}
+    assert prepare(main).scene_args == {"res": "8"}
 
 
 def test_an_argument_the_scene_does_not_use_is_refused(tmp_path: Path) -> None:
@@ -240,7 +242,7 @@ def test_every_line_of_the_rewritten_text_points_at_the_users_file(tmp_path: Pat
     prepared = prepare(main)
     line = next(i for i, text in enumerate(prepared.text.splitlines(), 1) if 'value="x"' in text)
     error = f'[parser.cpp:451] Error while loading string (line {line}, col 9): could not parse "x"'
-    assert prepared.locate(error) == ('could not parse "x"', f"{inc}:4")
+    assert locate_load_error(error, prepared.line_sources) == ('could not parse "x"', f"{inc}:4")
 
 
 def test_a_long_value_in_mitsubas_error_is_shortened() -> None:

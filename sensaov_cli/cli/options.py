@@ -151,7 +151,7 @@ def _stopped(earlier: int) -> None:
     """Report a stop and end the process at once with 130/143, skipping interpreter
     finalisation: a stop that arrived while Dr.Jit initialised could else end the process by
     SIGINT (exit -2) after the line was printed. Temporaries are removed; nothing else is open."""
-    code = interrupts.exit_code()
+    code = interrupts.stop_exit_code()
     with contextlib.suppress(SystemExit):
         _fail(f"stopped by {interrupts.signal_name()}", code, earlier)
     for stream in (sys.stdout, sys.stderr):
@@ -316,13 +316,13 @@ def reports_errors(command: Callable[..., Any]) -> Callable[..., Any]:
         interrupts.install()
         earlier = len(atomic.replaced())  # one process may run several commands (tests)
         try:
-            interrupts.check()  # a signal that came while the interpreter was importing
+            interrupts.raise_if_stopped()  # a signal that came while the interpreter was importing
             _require_stdout()
             result = command(*args, **kwargs)
             # The work is done and printed: a stop from here on is only recorded (the process
             # exits 0), one that came while the result was printed still says what was written.
             interrupts.install(raising=False)
-            interrupts.check()
+            interrupts.raise_if_stopped()
             return result
         except (KeyboardInterrupt, Exception) as err:
             interrupts.install(raising=False)  # a second signal must not break the report

@@ -139,7 +139,6 @@ def _first_error(exc: ValidationError, document: YamlDocument, shown: str) -> Sp
 
 
 def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
-    """(key path, message, hint) for one pydantic error."""
     # "[key]" is pydantic's marker for a mapping's key (scene_args); the key itself precedes it.
     path: KeyPath = tuple(
         part for part in error["loc"] if part not in _union_tags() and part != "[key]"
@@ -178,7 +177,6 @@ def _explain_union(path: KeyPath, error: ErrorDetails) -> tuple[KeyPath, str, st
 
 
 def _not_one_of(choices: Sequence[str], value: Any) -> tuple[str, str | None]:
-    """The message and hint for a value that is none of ``choices``."""
     hint = did_you_mean(value, choices) if isinstance(value, str) else None
     return f"must be one of {', '.join(choices)}; got {describe(value)}", hint
 

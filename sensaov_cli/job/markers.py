@@ -437,7 +437,6 @@ def _union(
 
 
 def _not_null(hint: Any) -> Any:
-    """``hint`` without None among its members."""
     if get_origin(hint) is Annotated:
         return Annotated[(_not_null(hint.__origin__), *hint.__metadata__)]
     if get_origin(hint) in (Union, types.UnionType):

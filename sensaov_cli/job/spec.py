@@ -24,6 +24,7 @@ from typing import Annotated, Any, Literal
 
 from annotated_types import Ge, Gt, Le, Lt
 
+from sensaov_cli import vocabulary
 from sensaov_cli.job.markers import (
     STRICT,
     After,
@@ -42,21 +43,6 @@ from sensaov_cli.job.markers import (
     TaggedByKey,
     Text,
     describe,
-)
-from sensaov_cli.vocabulary import (
-    Aggregate,
-    ChannelKind,
-    Direction,
-    Normalize,
-    ObjectiveType,
-    PoolKind,
-    ScaleScope,
-    Sign,
-    TexelUnits,
-    Tonemap,
-    Untrusted,
-    Variant,
-    Weight,
 )
 
 # --- the field types ---
@@ -377,7 +363,7 @@ class ViewsSpec(Section):
     """How the headline views and the pictures read the buffer (docs/encoding.md)."""
 
     untrusted: Annotated[
-        Untrusted,
+        vocabulary.Untrusted,
         Doc(
             "apart: object and type views add up only gradients sensaov stands behind "
             "(verified); the rest gets layers, rows and wedges of its own, named per object. "
@@ -385,7 +371,7 @@ class ViewsSpec(Section):
         ),
     ] = "apart"
     scale: Annotated[
-        ScaleScope,
+        vocabulary.ScaleScope,
         Doc(
             "shared: one display scale per (objective, channel) across every camera of the "
             "job, for previews, contact sheets, the report and display layers; tile: each "
@@ -408,7 +394,7 @@ class ObjectiveSpec:
     """A scalar of the rendered image whose derivatives are computed."""
 
     name: Annotated[Name, Doc("Unique among objectives.")]
-    type: ObjectiveType
+    type: vocabulary.ObjectiveType
     region: Annotated[
         Region | None, In("region_luminance"), Doc("[x0, y0, x1, y1], normalised, y down.")
     ] = None
@@ -445,7 +431,9 @@ class ObjectiveSpec:
 class PoolSpec(Section):
     """Sum-conserving pooling of a texel field (paper §6): texel gradients are sparse."""
 
-    kind: Annotated[PoolKind, Doc("gaussian, box, mip (block sums) or none.")] = "gaussian"
+    kind: Annotated[vocabulary.PoolKind, Doc("gaussian, box, mip (block sums) or none.")] = (
+        "gaussian"
+    )
     radius: Annotated[
         float | None,
         STRICT,
@@ -460,7 +448,7 @@ class ChannelSpec:
     """A sensitivity image layer: a selection of parameters, aggregated and encoded."""
 
     name: Annotated[Name, Doc("Unique among channels; the EXR layer name.")]
-    kind: ChannelKind
+    kind: vocabulary.ChannelKind
     types: Annotated[
         Annotated[tuple[Text, ...], MinItems(1)] | None,
         In("type"),
@@ -471,11 +459,11 @@ class ChannelSpec:
         In("select", required=True, doc="fnmatch glob over parameter keys."),
         In("texel", doc="fnmatch glob over texture keys; null = every texture in the buffer."),
     ] = None
-    weight: Weight = "value"
-    sign: Sign = "signed"
-    aggregate: Aggregate = "l2"
-    tonemap: Tonemap = "none"
-    normalize: Normalize = "none"
+    weight: vocabulary.Weight = "value"
+    sign: vocabulary.Sign = "signed"
+    aggregate: vocabulary.Aggregate = "l2"
+    tonemap: vocabulary.Tonemap = "none"
+    normalize: vocabulary.Normalize = "none"
     top: Annotated[
         int, STRICT, Ge(1), Lt(65), In("transport"), Doc("Objects per objective (top by l2).")
     ] = 3
@@ -485,7 +473,7 @@ class ChannelSpec:
         Doc("How the texel field is pooled before projection; null = chosen from spp and size."),
     ] = None
     units: Annotated[
-        TexelUnits,
+        vocabulary.TexelUnits,
         In("texel"),
         Doc("texel: θ·∂M/∂θ of each texel; uv_area: per unit UV area (resolution-free)."),
     ] = "texel"
@@ -503,7 +491,8 @@ class ForwardSpec:
     object: Annotated[Text | None, Doc("Every selected parameter of this object.")] = None
     type: Annotated[Text | None, Doc("Every selected parameter of this type.")] = None
     direction: Annotated[
-        Direction, Doc("value: push v = θ (a proportional change); ones: v = 1 per component.")
+        vocabulary.Direction,
+        Doc("value: push v = θ (a proportional change); ones: v = 1 per component."),
     ] = "value"
     transport: Annotated[
         bool, STRICT, Doc("Also write <objective>.transport_<name>.Y for every objective.")
@@ -531,7 +520,7 @@ class JobSpec(Section):
     version: Annotated[Literal[1], Doc("Job format version.")]
     scene: Annotated[JobFile, Doc("Mitsuba scene XML, relative to the job.")]
     scene_args: SceneArgs = dataclasses.field(default_factory=dict)
-    variant: Annotated[Variant, Doc("Mitsuba variant; auto picks one.")] = "auto"
+    variant: Annotated[vocabulary.Variant, Doc("Mitsuba variant; auto picks one.")] = "auto"
     render: RenderSpec = RenderSpec()
     parameters: ParameterSpec = ParameterSpec()
     repair: RepairSpec = RepairSpec()

@@ -64,7 +64,7 @@ def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> Merge
         # A merge is a new buffer: outputs made from a shard (or an earlier merge) are not its.
         merged.provenance.update(made_by("merge"), **{BUFFER_ID: new_buffer_id()})
         primal = _merged_primal(shards)
-    interrupts.check()
+    interrupts.raise_if_stopped()
     with progress.stage("write_s", f"writing {output.name} and {primal_path.name}"):
         attributes = provenance_attributes(merged.provenance)
         try:

@@ -664,7 +664,7 @@ def _project_camera(
             "buffer_provenance": buffer.provenance,
         }
     )
-    interrupts.check()
+    interrupts.raise_if_stopped()
     write_layered_exr(
         path,
         beauty=beauty,

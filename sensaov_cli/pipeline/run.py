@@ -200,7 +200,7 @@ def run_job(
         timed = {**buffer.provenance, "timings_s": dict(progress.timings),
                  "wall_time_s": round(time.perf_counter() - started, 4)}  # fmt: skip
         buffer = replace(buffer, provenance=timed, _copy_arrays=False)
-    interrupts.check()  # a stop asked for during a kernel must not end in written files
+    interrupts.raise_if_stopped()  # a stop asked for during a kernel must not end in written files
     with progress.stage("write_s", f"writing {buffer_path.name} and {primal_path.name}"):
         primal = exr_writer(image_channels(result.image), provenance_attributes(buffer.provenance))
         files = [(buffer_path, buffer_writer(buffer)), (primal_path, primal)]
@@ -335,7 +335,7 @@ def _provenance(
         "scene_path": str(job.scene),
         "scene_fingerprint": loaded.prepared.fingerprint,
         "scene_files": [str(path) for path in loaded.prepared.files],  # never an output's name
-        "scene_args": loaded.prepared.argument_values,  # every $name the scene used
+        "scene_args": loaded.prepared.scene_args,  # every $name the scene used
         "scene_sample_count": loaded.prepared.sample_count,  # the scene's spp; the job's renders
         "integrator": loaded.integrator_type,  # the replay integrator that ran
         "scene_integrator_replaced": loaded.prepared.replaced_integrator,

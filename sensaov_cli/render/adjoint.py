@@ -84,7 +84,7 @@ def subpasses(pixels: int, spp: int, limit: int | None = None) -> Iterator[tuple
     read at call time); a pending stop is raised before every sub-pass after the first."""
     for index, chunk in enumerate(sample_chunks(pixels, spp, limit or SAMPLES_PER_SUBPASS)):
         if index:
-            interrupts.check()
+            interrupts.raise_if_stopped()
         yield index, chunk
 
 

@@ -18,6 +18,7 @@ from sensaov_cli.render.runtime import import_mitsuba
 from sensaov_cli.render.selection import ownership_of, select_parameters
 from sensaov_cli.render.verify.trust import Context
 from sensaov_cli.scene import PreparedScene, prepare_scene
+from sensaov_cli.scene.source import locate_load_error
 
 
 @dataclass
@@ -58,7 +59,7 @@ def load_scene(prepared: PreparedScene, *, variant: str, parameters: ParameterSp
         with _resolving_from(mi, prepared.search_path):
             scene = mi.load_string(prepared.text, optimize=False)
     except Exception as exc:  # Mitsuba raises plain RuntimeError with a long message
-        message, where = prepared.locate(str(exc))
+        message, where = locate_load_error(str(exc), prepared.line_sources)
         named = (f for f in prepared.files[1:] if f'"{f.name}"' in message or f'"{f}"' in message)
         culprit = next(named, None)  # a file Mitsuba's message names in quotes
         if culprit is not None:  # a mesh's or an image's own fault: that file is where

@@ -132,7 +132,7 @@ def sample_spans(count: int, spp: int) -> Iterator[tuple[int, int]]:
     step = max(1, SAMPLES_PER_CHUNK // spp) * spp
     for first in range(0, count, step):
         if first:
-            interrupts.check()
+            interrupts.raise_if_stopped()
         yield first, min(first + step, count)
 
 

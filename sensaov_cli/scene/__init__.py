@@ -4,6 +4,6 @@ The face is :func:`prepare_scene`: a job's scene reference in, a :class:`Prepare
 Every command prepares its scene once and passes that value down.
 """
 
-from sensaov_cli.scene.prepare import PreparedScene, SceneChange, prepare_scene
+from sensaov_cli.scene.prepare import PreparedScene, prepare_scene
 
-__all__ = ["PreparedScene", "SceneChange", "prepare_scene"]
+__all__ = ["PreparedScene", "prepare_scene"]

@@ -21,25 +21,13 @@ from pathlib import Path
 
 from sensaov_cli.errors import SceneError, SpecError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
-from sensaov_cli.scene import naming
-from sensaov_cli.scene.expand import SceneArgument, expand_scene
+from sensaov_cli.scene import naming, sensors
+from sensaov_cli.scene.expand import expand_scene
 from sensaov_cli.scene.integrator import IntegratorPlan, plan_integrator
-from sensaov_cli.scene.sensors import (
-    add_inspection_sensor,
-    check_film_size,
-    choose_sensor,
-    sample_count,
-    sensor_ids,
-    set_film_size,
-)
-from sensaov_cli.scene.sharing import place_textures, split_shapegroups, split_shared_bsdfs
-from sensaov_cli.scene.source import Change, locate_load_error, user_attributes, where, write_xml
+from sensaov_cli.scene.source import Change, user_attributes, where, write_xml
 
 _CHUNK = 1 << 20  # files are hashed a MiB at a time, never read whole
 DEFAULT_FILTER, DEFAULT_WRAP = "bilinear", "repeat"  # a bitmap's lookup when the scene sets none
-
-
-SceneChange = Change  # what the scene stage hands on: what, why, where, alters_image
 
 
 @dataclass(frozen=True)
@@ -56,33 +44,19 @@ class PreparedScene:
     instances: dict[str, str]  # instance shape id -> the shapegroup id it instantiates
     shapegroups: dict[str, tuple[str, ...]]  # shapegroup id -> ids of its member shapes
     textures: dict[str, tuple[str, ...]]  # top-level texture id -> "object.slot" of each use
-    scene_args: dict[str, SceneArgument]  # each $name the scene used, its value and origin
+    scene_args: dict[str, str]  # each $name the scene used and the value it got
     sample_count: int | None  # the objective sensor's sampler sample_count, as the scene says
     files: tuple[Path, ...]  # every file the scene reads
     search_path: tuple[Path, ...]  # folders Mitsuba resolves names still relative against
     line_sources: tuple[str | None, ...]  # line of `text` -> the user's file:line it came from
     integration: IntegratorPlan  # the scene's integrator and depth, and the replay's
     fingerprint: str  # sha256 of every file the scene reads and of the job's arguments
-    changes: tuple[SceneChange, ...]  # what was rewritten and why
+    changes: tuple[Change, ...]  # what was rewritten and why
 
     @property
     def replaced_integrator(self) -> str | None:
         """The scene's integrator when it renders other light transport than the replay."""
         return None if self.integration.same_transport else self.integration.scene_kind
-
-    @property
-    def image_changes(self) -> tuple[SceneChange, ...]:
-        """The changes after which M is measured on another image than the scene renders."""
-        return tuple(change for change in self.changes if change.alters_image)
-
-    @property
-    def argument_values(self) -> dict[str, str]:
-        """Every ``$name`` the scene used and the value it got."""
-        return {name: argument.value for name, argument in self.scene_args.items()}
-
-    def locate(self, message: str) -> tuple[str, str | None]:
-        """Mitsuba's load error on ``text`` -> (one-line message, the user's file:line)."""
-        return locate_load_error(message, self.line_sources)
 
 
 def prepare_scene(job: JobSpec, cameras: tuple[CameraSpec, ...] = ()) -> PreparedScene:
@@ -114,28 +88,27 @@ def prepare_xml(
     scene_args: Mapping[str, object] | None = None,
     job: JobSpec | None = None,
 ) -> PreparedScene:
-    """A scene file prepared with explicit settings; ``job``, where given, has its cameras
+    """A scene file prepared with explicit settings; ``job``, where given, has all its cameras
     checked against the scene, with the job's keys named."""
     expanded = expand_scene(path, scene_args or {})
     root = expanded.root
     named = naming.name_objects(root)
-    own_sensors = sensor_ids(root)
-    if job is not None:
-        _check_camera_ids(job, own_sensors)
+    own_sensors = sensors.sensor_ids(root)
+    _check_camera_ids(path, own_sensors, camera, job.inspection_cameras if job else inspection, job)
     _refuse_non_finite_numbers(root)
     changes = list(expanded.changes)  # old formats upgraded, each with its line
-    changes += [SceneChange(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
+    changes += [Change(f"named {e.tag} {i!r}", _UNNAMED, where(e)) for i, e in named.items()]
     integration = plan_integrator(root, max_depth, changes)
     bitmaps = _bitmaps_as_float(root, changes)
-    groups = split_shapegroups(root) if shared == "split" else {}  # before the BSDFs
+    groups = naming.split_shapegroups(root) if shared == "split" else {}  # before the BSDFs
     materials = naming.materials(root)  # before splitting: copies keep the user's name
-    textures = place_textures(root, copies=shared == "split")
-    split = split_shared_bsdfs(root) if shared == "split" else {}
+    textures = naming.place_textures(root, copies=shared == "split")
+    split = naming.split_shared_bsdfs(root) if shared == "split" else {}
     changes += _sharing_changes(groups, textures, split, shared)
-    sensor, inspection_ids = _cameras(root, path, camera, resolution, inspection)
+    sensor, inspection_ids = _cameras(root, camera, resolution, inspection)
     others = () if job is None else tuple(c for c in job.inspection_cameras if c not in inspection)
     if others:  # cameras this command does not load: placed on a copy, to refuse them early
-        _cameras(copy.deepcopy(root), path, camera, resolution, others)
+        _cameras(copy.deepcopy(root), camera, resolution, others)
     text, line_sources = write_xml(root)
     job_args = {name: a.value for name, a in expanded.arguments.items() if a.origin == "job"}
     return PreparedScene(
@@ -151,8 +124,8 @@ def prepare_xml(
         instances=naming.instances(root),
         shapegroups=naming.shapegroups(root),
         textures=textures,
-        scene_args=expanded.arguments,
-        sample_count=sample_count(root, sensor),
+        scene_args={name: a.value for name, a in expanded.arguments.items()},
+        sample_count=sensors.sample_count(root, sensor),
         files=expanded.files,
         search_path=expanded.search_path,
         line_sources=line_sources,
@@ -171,50 +144,56 @@ def _sharing_changes(
     textures: dict[str, tuple[str, ...]],
     split: dict[str, tuple[str, ...]],
     shared: str,
-) -> list[SceneChange]:
+) -> list[Change]:
     own = "each use gets its own parameters, so each object its own gradient (shared: split)"
     placed = own if shared == "split" else "Mitsuba keys a top-level bitmap by memory address"
-    changes = [SceneChange(f"shapegroup {g!r} copied for {', '.join(i)}", own, "")
+    changes = [Change(f"shapegroup {g!r} copied for {', '.join(i)}", own, "")
                for g, i in groups.items()]  # fmt: skip
-    changes += [SceneChange(f"texture {t!r} written into {', '.join(u)}", placed, "")
+    changes += [Change(f"texture {t!r} written into {', '.join(u)}", placed, "")
                 for t, u in textures.items()]  # fmt: skip
-    changes += [SceneChange(f"bsdf {b!r} copied into {', '.join(s)}", own, "")
+    changes += [Change(f"bsdf {b!r} copied into {', '.join(s)}", own, "")
                 for b, s in split.items()]  # fmt: skip
     return changes
 
 
-def _check_camera_ids(job: JobSpec, ids: tuple[str, ...]) -> None:
-    """Refuse a job whose cameras name a sensor the scene lacks, naming the job's key."""
-    if not ids and job.objective_camera.look_at is None:
+def _check_camera_ids(
+    scene: Path,
+    ids: tuple[str, ...],
+    camera: CameraSpec,
+    inspection: tuple[CameraSpec, ...],
+    job: JobSpec | None,
+) -> None:
+    """Refuse cameras that name a sensor the scene lacks, naming the job's key, before any
+    camera is placed (sensors.choose_sensor relies on it)."""
+    if not ids and camera.look_at is None:
         raise SceneError(
             "the scene has no sensor",
-            where=str(job.scene),
+            where=str(scene),
             hint="add one, or give objective_camera a look_at",
         )
-    named = [("objective_camera", job.objective_camera)]
-    named += [(f"inspection_cameras[{i}].sensor", c) for i, c in enumerate(job.inspection_cameras)]
-    for key, camera in named:
-        if camera.sensor is not None and camera.sensor not in ids:
+    named = [("objective_camera", camera)]
+    named += [(f"inspection_cameras[{i}].sensor", c) for i, c in enumerate(inspection)]
+    for key, each in named:
+        if each.sensor is not None and each.sensor not in ids:
             raise SpecError(
-                f"no sensor with id {camera.sensor!r} in {job.scene.name}",
-                where=f"{job.path}: {key}",
+                f"no sensor with id {each.sensor!r} in {scene.name}",
+                where=f"{job.path}: {key}" if job is not None else key,
                 hint=f"sensors in the scene: {', '.join(ids) or 'none'}",
             )
 
 
 def _cameras(
     root: ET.Element,
-    path: Path,
     camera: CameraSpec,
     resolution: tuple[int, int] | None,
     inspection: tuple[CameraSpec, ...],
 ) -> tuple[ET.Element, dict[str, str]]:
     """The objective sensor, and each inspection camera's own sensor id."""
-    sensor = choose_sensor(root, camera, path)
+    sensor = sensors.choose_sensor(root, camera)
     if resolution is not None:
-        set_film_size(root, sensor, resolution)
-    check_film_size(root, sensor, "objective camera")
-    return sensor, {cam.name: add_inspection_sensor(root, cam, sensor, path) for cam in inspection}
+        sensors.set_film_size(root, sensor, resolution)
+    sensors.check_film_size(root, sensor, "objective camera")
+    return sensor, {c.name: sensors.add_inspection_sensor(root, c, sensor) for c in inspection}
 
 
 def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: Path) -> str:
@@ -239,7 +218,7 @@ def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: P
 # --- bitmaps: loaded as float; their lookup settings, which the plugin's binding hides ---
 
 
-def _bitmaps_as_float(root: ET.Element, changes: list[SceneChange]) -> tuple[str, ...]:
+def _bitmaps_as_float(root: ET.Element, changes: list[Change]) -> tuple[str, ...]:
     """Load every bitmap texture that has no ``format`` as float, so its texels receive
     gradients (envmaps load theirs as float already); returns every bitmap's file name."""
     files = []
@@ -252,9 +231,7 @@ def _bitmaps_as_float(root: ET.Element, changes: list[SceneChange]) -> tuple[str
         if naming.child_value(texture, "format") is None:
             ET.SubElement(texture, "string", {"name": "format", "value": "variant"})
             name = Path(filename or "(no file)").name
-            changes.append(
-                SceneChange(f"bitmap {name} loaded as float", _EIGHT_BIT, where(texture))
-            )
+            changes.append(Change(f"bitmap {name} loaded as float", _EIGHT_BIT, where(texture)))
     return tuple(files)
 
 

@@ -10,12 +10,10 @@ never resizes another.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 from sensaov_cli.errors import SceneError
 from sensaov_cli.job.spec import CameraSpec
-from sensaov_cli.scene.naming import child_value, objects_by_id
-from sensaov_cli.scene.sharing import replace_ref
+from sensaov_cli.scene.naming import child_value, objects_by_id, refs_to, replace_ref
 from sensaov_cli.scene.source import detached_copy, where
 
 OBJECTIVE_SENSOR_ID = "sensaov_objective"
@@ -34,38 +32,20 @@ def sensor_ids(root: ET.Element) -> tuple[str, ...]:
     )
 
 
-def choose_sensor(
-    root: ET.Element, camera: CameraSpec, path: Path, where: str = "objective_camera"
-) -> ET.Element:
+def choose_sensor(root: ET.Element, camera: CameraSpec) -> ET.Element:
+    """The camera's sensor, the first where it names none (prepare.py checked that it exists)."""
     sensors = root.findall("sensor")
     if camera.look_at is not None:
         return _add_look_at_sensor(root, camera, sensors[0] if sensors else None)
-    if not sensors:
-        raise SceneError(
-            "the scene has no sensor",
-            where=str(path),
-            hint="add one, or give objective_camera a look_at",
-        )
-    chosen = next((s for s in sensors if camera.sensor in (None, s.get("id"))), None)
-    if chosen is not None:
-        return chosen  # the first sensor where the camera names none
-    raise SceneError(
-        f"no sensor with id {camera.sensor!r} in {path.name}",
-        where=where,
-        hint=f"sensors in the scene: {', '.join(sensor_ids(root))}",
-    )
+    return next(s for s in sensors if camera.sensor in (None, s.get("id")))
 
 
-def add_inspection_sensor(
-    root: ET.Element, camera: CameraSpec, objective: ET.Element, path: Path
-) -> str:
+def add_inspection_sensor(root: ET.Element, camera: CameraSpec, objective: ET.Element) -> str:
     """A sensor of its own for each inspection camera, so resolution overrides stay local."""
     if camera.look_at is not None:
         source = _add_look_at_sensor(root, camera, objective)
     else:
-        where = f"inspection camera {camera.name!r}: sensor"
-        chosen = objective if camera.objective else choose_sensor(root, camera, path, where)
-        source = detached_copy(chosen)
+        source = detached_copy(objective if camera.objective else choose_sensor(root, camera))
         root.append(source)
         own_film(root, source)
         if camera.resolution is not None:
@@ -126,13 +106,10 @@ def check_film_size(root: ET.Element, sensor: ET.Element, what: str) -> None:
 
 
 def _child_object(root: ET.Element, sensor: ET.Element, tag: str) -> ET.Element | None:
-    """The sensor's ``tag`` object, written inline or shared by ``<ref>``."""
     inline = sensor.find(tag)
     if inline is not None:
         return inline
-    ids = objects_by_id(root)
-    refs = (ids.get(c.get("id", "")) for c in sensor if c.tag == "ref")
-    return next((target for target in refs if target is not None and target.tag == tag), None)
+    return next(iter(refs_to(sensor, tag, objects_by_id(root))), None)  # shared by <ref>
 
 
 def _add_look_at_sensor(

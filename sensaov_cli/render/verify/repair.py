@@ -248,7 +248,7 @@ def _differences(
 
     def measure(seed: int) -> np.ndarray:
         """M of every objective at the current parameters."""
-        interrupts.check()  # between renders: a stop is acted on within one render
+        interrupts.raise_if_stopped()  # between renders: a stop is acted on within one render
         image = render_primal(loaded, chosen.spp, seed)
         return np.array([value_and_adjoint(loaded.mi, o, image)[0] for o in objectives])
 
