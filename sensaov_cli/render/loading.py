@@ -47,8 +47,7 @@ class LoadedScene:
     held_keys: frozenset[str] | None = None
 
     @property
-    def integrator_type(self) -> str:
-        """The plugin name of the replay integrator: "prb", or "prbvolpath" for media."""
+    def integrator_type(self) -> str:  # the replay's plugin: "prb", or "prbvolpath" for media
         return "prbvolpath" if type(self.integrator).__name__ == "PRBVolpathIntegrator" else "prb"
 
 
@@ -209,7 +208,9 @@ def check_job(job: JobSpec, sizes: Mapping[str, tuple[int, int]] | None = None) 
     texels = any(channel.kind == "texel" for channel in job.channels)
     layers = len(job.objectives) * max(len(job.channels), 1)
     for index, camera in enumerate(job.inspection_cameras):
-        size = (sizes or {}).get(camera.name) or _stated_size(job, camera)
+        size = (sizes or {}).get(camera.name) or camera.resolution
+        if size is None and camera.objective:
+            size = job.render.resolution
         if size is None:
             continue
         key = f"inspection_cameras[{index}].vis_spp = {camera.vis_spp} at {size[0]}x{size[1]}"
@@ -221,9 +222,3 @@ def sensor_sizes(loaded: LoadedScene) -> dict[str, tuple[int, int]]:
     """Each inspection camera's film size, as the loaded scene has it."""
     films = {name: sensor.film().crop_size() for name, sensor in loaded.inspection_sensors.items()}
     return {name: (int(size[0]), int(size[1])) for name, size in films.items()}
-
-
-def _stated_size(job: JobSpec, camera: CameraSpec) -> tuple[int, int] | None:
-    if camera.resolution is not None:
-        return camera.resolution
-    return job.render.resolution if camera.objective else None

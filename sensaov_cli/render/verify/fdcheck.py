@@ -31,8 +31,13 @@ from sensaov_cli.buffer.forward_sidecar import DUALITY_FLOOR, duality_tolerance
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.errors import SpecError
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.adjoint import backward_pass, image_like_backward, render_primal
-from sensaov_cli.render.forward import adjoint_images, forward_image
+from sensaov_cli.render.adjoint import (
+    adjoint_images,
+    backward_pass,
+    forward_image,
+    image_like_backward,
+    render_primal,
+)
 from sensaov_cli.render.loading import LoadedScene, assign
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
 from sensaov_cli.render.verify.trust import SAME_SEED_EXACT, gradient_integrator
