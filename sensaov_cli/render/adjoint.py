@@ -100,7 +100,6 @@ def integrator_plan(loaded: LoadedScene) -> dict[str, set[str]]:
 
 
 def backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int) -> dict[str, np.ndarray]:
-    """dM/dθ for every selected parameter, given dM/dI at the objective camera."""
     grads: dict[str, np.ndarray] = {}
     for name, keys in integrator_plan(loaded).items():
         grads.update(backward_pass(loaded, name, keys, adjoint_image, spp, seed))
@@ -166,7 +165,6 @@ _NOTHING_ATTACHED = ("not attached to the AD graph", "does not depend on the inp
 
 @contextmanager
 def nothing_attached_is_zero() -> Iterator[None]:
-    """Swallow Mitsuba's error when no gradient-enabled parameter reaches the image."""
     try:
         yield
     except Exception as exc:  # Mitsuba raises plain exceptions; anything else propagates

@@ -219,6 +219,5 @@ def check_job(job: JobSpec, sizes: Mapping[str, tuple[int, int]] | None = None) 
 
 
 def sensor_sizes(loaded: LoadedScene) -> dict[str, tuple[int, int]]:
-    """Each inspection camera's film size, as the loaded scene has it."""
     films = {name: sensor.film().crop_size() for name, sensor in loaded.inspection_sensors.items()}
     return {name: (int(size[0]), int(size[1])) for name, size in films.items()}
