@@ -13,8 +13,8 @@ parameter per kind (plugin, type, texture or not), or the ``--key`` ones (:func:
 - kinds the trust table calls biased are repaired by ``sensaov run``: measured only when named
   or with ``--full``.
 
-:func:`check_parameter_independent` differences independent renders at more samples: the trust
-table's reference where θ changes which paths are sampled (``scripts/trust_table.py``).
+:func:`check_parameter` with ``fd_spp`` differences independent renders at more samples: the
+trust table's reference where θ changes which paths are sampled (``scripts/trust_table.py``).
 """
 
 from __future__ import annotations
@@ -156,36 +156,26 @@ def central_difference(
 
 
 def check_parameter(
-    loaded: LoadedScene, objective: Objective, info: ParamRecord, *, spp: int, seeds: list[int]
-) -> GradientCheck:
-    """Same-seed central differences, ε = STEP · max(1, |θ|)."""
-    v = direction(info)
-    adjoints, differences = [], []
-    for seed in seeds:
-        adjoints.append(adjoint_along(loaded, objective, info, v, spp, seed))
-        differences.append(central_difference(loaded, objective, info, STEP, spp, (seed, seed)))
-    return judge(info, np.array(adjoints), np.array(differences))
-
-
-def check_parameter_independent(
     loaded: LoadedScene,
     objective: Objective,
     info: ParamRecord,
     *,
     spp: int,
-    fd_spp: int,
     seeds: list[int],
+    fd_spp: int | None = None,
 ) -> GradientCheck:
-    """Differences of independent renders at ``fd_spp``: the reference where θ changes which
-    paths are sampled."""
+    """Same-seed central differences, ε = STEP · max(1, |θ|); with ``fd_spp``, differences of
+    independent renders at ``fd_spp``: the reference where θ changes which paths are sampled."""
     v = direction(info)
     adjoints, differences = [], []
     for seed in seeds:
         adjoints.append(adjoint_along(loaded, objective, info, v, spp, seed))
-        sides = (1000 + 2 * seed, 1001 + 2 * seed)
-        differences.append(
-            central_difference(loaded, objective, info, INDEPENDENT_STEP, fd_spp, sides)
-        )
+        if fd_spp is None:
+            fd = central_difference(loaded, objective, info, STEP, spp, (seed, seed))
+        else:
+            sides = (1000 + 2 * seed, 1001 + 2 * seed)
+            fd = central_difference(loaded, objective, info, INDEPENDENT_STEP, fd_spp, sides)
+        differences.append(fd)
     return judge(info, np.array(adjoints), np.array(differences))
 
 
