@@ -302,20 +302,12 @@ def _one_seed(
     )
 
 
-# --- a stored buffer against forward mode: duality and central differences at one seed.
-#
-# For the top-k parameters of each objective (or named keys) and a few directions v (ones, then
-# seeded Gaussian ones), three numbers at the buffer's gradient seed of that objective:
-#
-# - reverse  ⟨g, v⟩ from the buffer's stored gradient;
-# - forward  ⟨dM/dI, J·v⟩ from ``render_forward`` (same seed, integrator, spp as the backward
-#   pass): equal to reverse up to float32 rounding, so a larger gap means the stored gradient is
-#   not the one this job computes (a corrupt or stale buffer) — ``duality_tolerance``;
-# - central  ⟨dM/dI, (I(θ+εv) − I(θ−εv)) / 2ε⟩, the images rendered at the same seed: checks
-#   Mitsuba's derivative itself, within FD_TOLERANCE. Parameters flagged discontinuous (their
-#   value changes which paths are sampled) are not checkable this way: that cell reads "n/a".
-# A failed duality fails whatever the trust label (both sides come from the same AD); a failed
-# central difference fails only a parameter the buffer labels verified (docs/verification.md).
+# --- a stored buffer against forward mode (docs/verification.md, "Forward/reverse duality"):
+# per objective, key and direction v (ones, then seeded Gaussian ones), at the buffer's gradient
+# seed, reverse ⟨g, v⟩ from the stored gradient against forward ⟨dM/dI, J·v⟩: equal up to float32
+# rounding, so a larger gap is a corrupt or stale buffer and fails whatever the trust label. When
+# asked, the central difference of the image at that seed checks Mitsuba's derivative itself,
+# within FD_TOLERANCE; it fails only a verified parameter ("n/a" where discontinuous).
 
 # Same-seed central differences (STEP): 2 % leaves room for a path that crosses a
 # light's edge between the two sides.
