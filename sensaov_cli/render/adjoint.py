@@ -304,9 +304,8 @@ def run_adjoint(
     results = []
     with reproducible(loaded, deterministic) as exact:
         for index, (batch_spp, batch_seed) in enumerate(plan):
-            labels = (f"batch {index + 1}/{batches}: ", f"_batch{index + 1}")
-            labels = labels if batches > 1 else ("", "")
-            results.append(_run_passes(loaded, objectives, batch_spp, batch_seed, progress, labels))
+            batch = (index + 1, batches)
+            results.append(_run_passes(loaded, objectives, batch_spp, batch_seed, progress, batch))
     grads, objective_values, statistics = combine_batches(
         [info.key for info in loaded.selected],
         results[0].values,
@@ -338,11 +337,12 @@ def _run_passes(
     spp: int,
     seed: int,
     progress: Progress,
-    labels: tuple[str, str],
+    batch: tuple[int, int],
 ) -> AdjointResult:
-    """One batch: a primal, then each objective's backward passes (``labels``: the batch's
-    prefix in progress lines and suffix in timing names)."""
-    tag, suffix = labels
+    """One batch (``batch``: its number and the count): a primal, then each objective's backward
+    passes."""
+    number, count = batch
+    tag, suffix = (f"batch {number}/{count}: ", f"_batch{number}") if count > 1 else ("", "")
     width, height = loaded.resolution
     with progress.stage(f"primal{suffix}_s", f"{tag}primal render {width}x{height} at {spp} spp"):
         image = render_primal(loaded, spp, seed)
