@@ -380,12 +380,11 @@ def check_duality(
     keys: list[str] | None,
     top: int,
     random_directions: int,
-    progress: Progress | None = None,
-    central: bool = True,
+    progress: Progress,
+    central: bool,
 ) -> list[DualityCheck]:
     """One row per (objective, key, direction), each a progress line; ``central``: also the
     central difference of the image (two renders a row)."""
-    progress = progress or Progress(quiet=True)
     spp = int(buffer.provenance["spp"])
     primal = np.array(render_primal(loaded, spp, int(buffer.provenance["primal_seed"])))
     adjoints = adjoint_images(loaded, objectives, primal)
