@@ -21,7 +21,7 @@ def forward_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
         "Forward channels: one forward pass / one backward pass (report)",
         "report (MITSUBA-NOTES: render_forward ≈ 3× a primal, a backward pass ≈ 2×)",
         "In-process, interleaved, `dr.sync_thread()` around each, all threads: the backward "
-        "pass of every selected parameter (`adjoint.backward`) vs `render.forward."
+        "pass of every selected parameter (`adjoint.backward`) vs `render.adjoint."
         "forward_image` of one pushed reflectance (direction θ, the image read back to numpy) "
         "vs a transport layer (the same forward pass plus T_p = Σ_c dM/dI · J·v and its sum, "
         f"numpy). {s.resolutions[0]}², {s.spp} spp, the same seed.",
@@ -67,7 +67,7 @@ def _forward_seconds(passes: Passes, key: str) -> float:
 
 
 def _forward(passes: Passes, key: str) -> tuple[float, Any]:
-    from sensaov_cli.render.forward import forward_image
+    from sensaov_cli.render.adjoint import forward_image
 
     info = next(i for i in passes.loaded.selected if i.key == key)
     theta = np.array(passes.loaded.params[key], np.float32).reshape(info.shape)

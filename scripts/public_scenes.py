@@ -27,7 +27,7 @@ from sensaov_cli.errors import SensaovError
 from sensaov_cli.job.load import load_job
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
 from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.verify.fdcheck import check_parameter, check_parameter_independent
+from sensaov_cli.render.verify.fdcheck import check_parameter
 
 STEERING = ("roughness", "eta", "weight", "opacity", "bump", "normal", "sigma_t", "g",
             "metallic", "spec_trans", "clearcoat", "specular", "anisotropic")  # fmt: skip
@@ -68,7 +68,7 @@ def sweep(scene: Path, kinds_per_scene: int) -> str:
         checked, wrong = [], []
         for info in _representatives(loaded)[:kinds_per_scene]:
             if steers(info.plugin, info.type):
-                check = check_parameter_independent(
+                check = check_parameter(
                     loaded, objective, info, spp=AD_SPP, fd_spp=FD_SPP,
                     seeds=list(range(IND_SEEDS)),
                 )  # fmt: skip

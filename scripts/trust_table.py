@@ -34,11 +34,7 @@ from sensaov_cli.job.load import load_job
 from sensaov_cli.render.loading import load_job_scene
 from sensaov_cli.render.objectives import build_objectives
 from sensaov_cli.render.runtime import import_mitsuba
-from sensaov_cli.render.verify.fdcheck import (
-    GradientCheck,
-    check_parameter,
-    check_parameter_independent,
-)
+from sensaov_cli.render.verify.fdcheck import GradientCheck, check_parameter
 from sensaov_cli.render.verify.trust import COMPOSITES, TABLE, Context
 
 RES, SPP, SEEDS = 32, 32, 8  # same-seed checks
@@ -408,7 +404,7 @@ def measure(case: Case) -> list[Row]:
         for info in loaded.selected:
             independent = info.key.endswith(case.independent) if case.independent else False
             if independent:
-                check = check_parameter_independent(
+                check = check_parameter(
                     loaded,
                     objective,
                     info,

@@ -43,7 +43,7 @@ from sensaov_cli.live.server import ViewServer, copy_path
 from sensaov_cli.live.session import ViewSession, open_session, single_values, view_request
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.viewpoint import Pose, ViewTracer, sensor_pose
+from sensaov_cli.render.visibility import Pose, ViewTracer, sensor_pose
 from sensaov_cli.views.hierarchy import is_trusted
 
 from .conftest import ROOT, sensaov
@@ -413,7 +413,7 @@ def test_rays_match_mitsubas_perspective_sensor(session: ViewSession) -> None:
                            "film": {"type": "hdrfilm", "width": 40, "height": 30}})  # fmt: skip
     film = mi.Point2f(mi.Float([0.1, 0.9, 0.5, 0.3]), mi.Float([0.2, 0.7, 0.5, 0.95]))
     theirs, _ = sensor.sample_ray(0.0, 0.5, film, mi.Point2f(0.5, 0.5))
-    from sensaov_cli.render.viewpoint import _frame
+    from sensaov_cli.render.visibility import _frame
 
     ours = session.tracer._ray(_frame(Pose(look, 50.0), 40, 30), film)
     assert np.array(ours.d) == pytest.approx(np.array(theirs.d), abs=1e-6)

@@ -54,9 +54,8 @@ from sensaov_cli.pipeline.project import (
 )
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.loading import LoadedScene, load_scene
-from sensaov_cli.render.memory import check_view
-from sensaov_cli.render.viewpoint import Pose, Vec3, ViewTracer, scene_bounds, sensor_pose
+from sensaov_cli.render.loading import LoadedScene, check_view, load_scene
+from sensaov_cli.render.visibility import Pose, Vec3, ViewTracer, scene_bounds, sensor_pose
 from sensaov_cli.scene import prepare_scene
 from sensaov_cli.views.channels import ChannelValues, channel_values
 from sensaov_cli.views.coverage import VisibilityPass

@@ -15,8 +15,14 @@ from sensaov_cli.pipeline.run import BUFFER_NAME
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import load_scene
 from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.verify.duality import FD_TOLERANCE, DualityCheck, check_duality
-from sensaov_cli.render.verify.fdcheck import GradientCheck, audit, plan_audit
+from sensaov_cli.render.verify.fdcheck import (
+    FD_TOLERANCE,
+    DualityCheck,
+    GradientCheck,
+    audit,
+    check_duality,
+    plan_audit,
+)
 from sensaov_cli.scene import prepare_scene
 
 __all__ = ["FD_TOLERANCE", "CheckReport", "exit_code", "run_check"]

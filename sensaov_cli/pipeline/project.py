@@ -54,8 +54,7 @@ from sensaov_cli.outputs.layered_exr import (
 from sensaov_cli.pipeline.merge import primal_beside
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.loading import LoadedScene, load_scene
-from sensaov_cli.render.memory import check_job, sensor_sizes
+from sensaov_cli.render.loading import LoadedScene, check_job, load_scene, sensor_sizes
 from sensaov_cli.render.visibility import (
     TextureProbe,
     objects_without_uv,

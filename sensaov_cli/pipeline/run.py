@@ -47,14 +47,14 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import (
     AdjointResult,
     ImageEffect,
+    adjoint_images,
     batch_plan,
     depth_effect,
+    forward_image,
     integrator_plan,
     run_adjoint,
 )
-from sensaov_cli.render.forward import adjoint_images, forward_image
-from sensaov_cli.render.loading import LoadedScene, load_scene, refuse_non_finite
-from sensaov_cli.render.memory import check_render
+from sensaov_cli.render.loading import LoadedScene, check_render, load_scene, refuse_non_finite
 from sensaov_cli.render.objectives import Objective, build_objectives
 from sensaov_cli.render.runtime import library_versions
 from sensaov_cli.render.verify.repair import repair

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from sensaov_cli.job.spec import JobSpec
-from sensaov_cli.render.memory import check_job
+from sensaov_cli.render.loading import check_job
 from sensaov_cli.scene import PreparedScene, prepare_scene
 
 

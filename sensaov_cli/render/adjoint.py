@@ -1,4 +1,5 @@
-"""One primal render at the objective camera, then the backward passes of each objective (§2).
+"""One primal render at the objective camera, then the backward passes of each objective (§2);
+forward passes (§4) along a pushed group of parameters.
 
 prb's ``render_backward`` takes the image-space adjoint dM/dI directly: one backward pass per
 objective, one primal without AD. The gradient seed differs from the primal seed so that, for
@@ -10,6 +11,7 @@ second backward pass of Mitsuba's ``path`` integrator, in chunks that bound its 
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -21,7 +23,7 @@ from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import ParamRecord, Repair
 from sensaov_cli.buffer.statistics import Statistics, combine_batches, weighted_mean
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.loading import LoadedScene
+from sensaov_cli.render.loading import LoadedScene, value_like
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
 from sensaov_cli.render.verify.selfcheck import SelfCheck, self_check
 
@@ -97,7 +99,6 @@ def integrator_plan(loaded: LoadedScene) -> dict[str, set[str]]:
 
 
 def backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int) -> dict[str, np.ndarray]:
-    """dM/dθ for every selected parameter, given dM/dI at the objective camera."""
     grads: dict[str, np.ndarray] = {}
     for name, keys in integrator_plan(loaded).items():
         grads.update(backward_pass(loaded, name, keys, adjoint_image, spp, seed))
@@ -163,7 +164,6 @@ _NOTHING_ATTACHED = ("not attached to the AD graph", "does not depend on the inp
 
 @contextmanager
 def nothing_attached_is_zero() -> Iterator[None]:
-    """Swallow Mitsuba's error when no gradient-enabled parameter reaches the image."""
     try:
         yield
     except Exception as exc:  # Mitsuba raises plain exceptions; anything else propagates
@@ -303,9 +303,8 @@ def run_adjoint(
     results = []
     with reproducible(loaded, deterministic) as exact:
         for index, (batch_spp, batch_seed) in enumerate(plan):
-            labels = (f"batch {index + 1}/{batches}: ", f"_batch{index + 1}")
-            labels = labels if batches > 1 else ("", "")
-            results.append(_run_passes(loaded, objectives, batch_spp, batch_seed, progress, labels))
+            batch = (index + 1, batches)
+            results.append(_run_passes(loaded, objectives, batch_spp, batch_seed, progress, batch))
     grads, objective_values, statistics = combine_batches(
         [info.key for info in loaded.selected],
         results[0].values,
@@ -337,11 +336,12 @@ def _run_passes(
     spp: int,
     seed: int,
     progress: Progress,
-    labels: tuple[str, str],
+    batch: tuple[int, int],
 ) -> AdjointResult:
-    """One batch: a primal, then each objective's backward passes (``labels``: the batch's
-    prefix in progress lines and suffix in timing names)."""
-    tag, suffix = labels
+    """One batch (``batch``: its number and the count): a primal, then each objective's backward
+    passes."""
+    number, count = batch
+    tag, suffix = (f"batch {number}/{count}: ", f"_batch{number}") if count > 1 else ("", "")
     width, height = loaded.resolution
     with progress.stage(f"primal{suffix}_s", f"{tag}primal render {width}x{height} at {spp} spp"):
         image = render_primal(loaded, spp, seed)
@@ -401,3 +401,143 @@ def depth_effect(
     return [
         ImageEffect(o.spec.name, value(o, ours), value(o, theirs), EFFECT_SPP) for o in objectives
     ]
+
+
+# --- forward passes (§4): the image's derivative J·v along one pushed group of parameters.
+# Gradients are enabled on the pushed parameters only (any other makes prb's ``render_forward``
+# raise, MITSUBA-NOTES "Forward mode"). Each integrator pushes its share in the chunks and chunk
+# seeds of the backward pass, so that at the same seed ⟨dM/dI, J·v⟩ equals the buffer's ⟨g, v⟩
+# (forward/reverse duality, docs/verification.md).
+
+
+@dataclass(frozen=True)
+class ForwardImage:
+    """J·v at the objective camera, (H, W, C) float32, or why Mitsuba could not produce it."""
+
+    image: np.ndarray | None
+    seconds: float  # wall time of the pass, kernels synchronised
+    integrators: tuple[str, ...]  # which integrators pushed which part of the group
+    failure: str = ""  # Mitsuba's message when it cannot compute this derivative
+
+
+def adjoint_images(
+    loaded: LoadedScene, objectives: list[Objective], primal: np.ndarray
+) -> dict[str, np.ndarray]:
+    """dM/dI of each objective at the run's primal image, as the backward passes used it."""
+    image = loaded.mi.TensorXf(np.ascontiguousarray(primal, dtype=np.float32))
+    result = {}
+    for objective in objectives:
+        _, adjoint = value_and_adjoint(loaded.mi, objective, image)
+        result[objective.spec.name] = np.array(adjoint, dtype=np.float32).reshape(primal.shape)
+    return result
+
+
+def forward_image(
+    loaded: LoadedScene,
+    direction: dict[str, np.ndarray],
+    *,
+    spp: int,
+    seed: int,
+    shape: tuple[int, ...],
+    deterministic: bool = True,
+) -> ForwardImage:
+    """J·v for v = ``direction`` (key -> array in the key's recorded shape), at ``seed``;
+    ``shape``: the primal image's (H, W, C)."""
+    import drjit as dr
+
+    started = time.perf_counter()
+    plan = {name: keys & set(direction) for name, keys in integrator_plan(loaded).items()}
+    plan = {name: keys for name, keys in plan.items() if keys}
+    total: np.ndarray | None = None
+    try:
+        with reproducible(loaded, deterministic):
+            for name, keys in plan.items():
+                part = _push(loaded, name, {k: direction[k] for k in keys}, spp, seed, shape)
+                total = part if total is None else total + part
+    except Exception as exc:  # Mitsuba raises plain exceptions: the derivative is not available
+        enable_gradients(loaded, set())
+        message = " ".join(str(exc).split())[:200]
+        return ForwardImage(None, time.perf_counter() - started, tuple(plan), message)
+    dr.sync_thread()
+    if total is None:  # no pushed parameter is differentiable at all
+        total = np.zeros(shape, np.float32)
+    return ForwardImage(total, time.perf_counter() - started, tuple(plan))
+
+
+def _push(
+    loaded: LoadedScene,
+    name: str,
+    direction: dict[str, np.ndarray],
+    spp: int,
+    seed: int,
+    shape: tuple[int, ...],
+) -> np.ndarray:
+    """One integrator's share of J·v, v pushed afresh for each of prb's sub-passes; leaves no
+    gradient-enabled parameter behind."""
+    if name != "prb":
+        _push_leaves(loaded, direction)
+        try:
+            leaves = loaded.leaves
+            tangents = {leaves[k]: value_like(leaves[k], v) for k, v in direction.items()}
+            return _path_forward(loaded, tangents, spp, seed, shape)
+        finally:
+            enable_gradients(loaded, set())
+    width, height = loaded.resolution
+    total = np.zeros(shape, np.float64)  # summed in float64, as the backward
+    for index, chunk in subpasses(width * height, spp):
+        _push_leaves(loaded, direction)
+        try:
+            part = _prb_forward(loaded, chunk, chunk_seed(seed, index), shape)
+        finally:
+            enable_gradients(loaded, set())
+        total += part if chunk == spp else part * (chunk / spp)
+    return total.astype(np.float32)
+
+
+def _push_leaves(loaded: LoadedScene, direction: dict[str, np.ndarray]) -> None:
+    """Fresh leaves with gradients on the pushed keys only, their tangents set to v."""
+    import drjit as dr
+
+    enable_gradients(loaded, set(direction))
+    leaves = loaded.leaves
+    for key, v in direction.items():
+        dr.set_grad(leaves[key], value_like(leaves[key], v))
+    # ``params.update()`` may derive values from a leaf (a plastic's lobe weights from its
+    # reflectance): push v through those edges now, outside prb's isolate_grad scope.
+    dr.enqueue(dr.ADMode.Forward, *[leaves[key] for key in direction])
+    dr.traverse(dr.ADMode.Forward, dr.ADFlag.ClearEdges)
+
+
+def _prb_forward(loaded: LoadedScene, spp: int, seed: int, shape: tuple[int, ...]) -> np.ndarray:
+    tangent = None
+    with nothing_attached_is_zero():
+        tangent = loaded.integrator.render_forward(
+            loaded.scene, loaded.params, sensor=loaded.sensor, seed=seed, spp=spp
+        )
+    if tangent is None:
+        return np.zeros(shape, np.float32)
+    return np.array(tangent, dtype=np.float32).reshape(shape)
+
+
+def _path_forward(
+    loaded: LoadedScene, tangents: dict[Any, Any], spp: int, seed: int, shape: tuple[int, ...]
+) -> np.ndarray:
+    """Chunk by chunk as :func:`_path_backward`, through path's own ``render_forward``
+    (``dr.forward_to`` by hand differs from the backward pass at some seeds)."""
+    import drjit as dr
+
+    width, height = loaded.resolution
+    path = path_integrator(loaded)
+    total = np.zeros(shape, np.float32)
+    for index, chunk in subpasses(width * height, spp, PATH_SAMPLES_PER_PASS):
+        for leaf, tangent in tangents.items():
+            dr.set_grad(leaf, tangent)  # each chunk pushes v afresh
+        part = None
+        with nothing_attached_is_zero():
+            part = path.render_forward(
+                loaded.scene, loaded.params, sensor=loaded.sensor,
+                seed=chunk_seed(seed, index), spp=chunk,
+            )  # fmt: skip
+        if part is not None:
+            total += np.array(part, dtype=np.float32).reshape(shape) * np.float32(chunk / spp)
+    return total

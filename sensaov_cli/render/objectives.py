@@ -84,7 +84,7 @@ def _function(
     if spec.type == "region_luminance":
         return _mean_luminance(mi, _region_mask(spec, size, where))
     if spec.type == "l2_to_target":
-        return _l2_to_target(mi, _read_rgb(spec.target, size, f"{where}.target"))
+        return _l2_to_target(mi, _read_image(spec.target, size, f"{where}.target"))
     return _user_function(spec, where, allow_python)  # "python": the spec admits no other
 
 
@@ -122,7 +122,14 @@ def _region_mask(spec: ObjectiveSpec, size: tuple[int, int], where: str) -> np.n
         ys = (np.arange(height) + 0.5) / height
         mask = np.outer((ys >= y0) & (ys < y1), (xs >= x0) & (xs < x1)).astype(np.float32)
     else:
-        mask = _read_mask(spec.mask, size, f"{where}.mask")
+        pixels = _read_image(spec.mask, size, f"{where}.mask")
+        if (pixels[..., 0] < 0).any():  # M would weigh some pixels negatively: not a mean
+            raise SpecError(
+                f"{spec.mask} holds negative weights (least {pixels[..., 0].min():g})",
+                where=f"{where}.mask",
+                hint="a mask weighs pixels by 0 (ignored) to 1 (counted); write values >= 0",
+            )
+        mask = np.ascontiguousarray(pixels[..., 0])  # first channel; grey masks have one
     if not mask.sum() > 0:  # also catches NaN in a mask image
         key = "region" if spec.region is not None else "mask"
         raise SpecError(
@@ -166,27 +173,13 @@ def _read_image(path: Path | None, size: tuple[int, int], where: str) -> np.ndar
     return pixels
 
 
-def _read_mask(path: Path | None, size: tuple[int, int], where: str) -> np.ndarray:
-    pixels = _read_image(path, size, where)
-    if (pixels[..., 0] < 0).any():  # M would weigh some pixels negatively: not a mean any more
-        raise SpecError(
-            f"{path} holds negative weights (least {pixels[..., 0].min():g})",
-            where=where,
-            hint="a mask weighs pixels by 0 (ignored) to 1 (counted); write values >= 0",
-        )
-    return np.ascontiguousarray(pixels[..., 0])  # first channel; grey masks have one
-
-
-def _read_rgb(path: Path | None, size: tuple[int, int], where: str) -> np.ndarray:
-    pixels = _read_image(path, size, where)
-    if pixels.shape[2] < 3:  # a grey target compares against every colour channel
-        pixels = np.repeat(pixels[..., :1], 3, axis=2)
-    return np.ascontiguousarray(pixels[..., :3])
-
-
-def _l2_to_target(mi: ModuleType, target: np.ndarray) -> Callable[[Any], Any]:
+def _l2_to_target(mi: ModuleType, pixels: np.ndarray) -> Callable[[Any], Any]:
     """M = mean over pixels and colour channels of (I - T)^2; alpha takes no part."""
     import drjit as dr
+
+    if pixels.shape[2] < 3:  # a grey target compares against every colour channel
+        pixels = np.repeat(pixels[..., :1], 3, axis=2)
+    target = np.ascontiguousarray(pixels[..., :3])
 
     def objective(image: Any) -> Any:
         channels = image.shape[2]

@@ -63,21 +63,6 @@ def configure_libllvm() -> str:
     return found
 
 
-def _check_llvm_loaded(dr: ModuleType) -> None:
-    version = tuple(dr.detail.llvm_version())
-    if not version or version[0] == 0:
-        raise EnvironmentProblem(
-            f"Dr.Jit could not load libLLVM from {os.environ.get('DRJIT_LIBLLVM_PATH')}",
-            hint=LLVM_HINT,
-        )
-    if version[0] < MIN_LLVM_MAJOR:
-        raise EnvironmentProblem(
-            f"Dr.Jit loaded LLVM {'.'.join(map(str, version))}, "
-            f"but sensaov needs LLVM >= {MIN_LLVM_MAJOR}",
-            hint=LLVM_HINT,
-        )
-
-
 def cuda_available(dr: ModuleType) -> bool:
     try:
         return bool(dr.has_backend(dr.JitBackend.CUDA))
@@ -89,38 +74,45 @@ def import_mitsuba(variant: str) -> ModuleType:
     """Import Mitsuba with ``variant`` set (``auto`` picks CUDA when usable, else LLVM); signals
     are deferred meanwhile (a KeyboardInterrupt in the extensions' set-up aborts the process)."""
     with interrupts.deferred():
-        return _import_mitsuba(variant)
+        llvm_problem = None
+        if not variant.startswith("cuda"):
+            try:
+                configure_libllvm()
+            except EnvironmentProblem as problem:  # fatal only if the LLVM backend is chosen
+                llvm_problem = problem
+        import drjit as dr
+        import mitsuba as mi
 
-
-def _import_mitsuba(variant: str) -> ModuleType:
-    llvm_problem = None
-    if not variant.startswith("cuda"):
-        try:
-            configure_libllvm()
-        except EnvironmentProblem as problem:  # fatal only if the LLVM backend is chosen
-            llvm_problem = problem
-    import drjit as dr
-    import mitsuba as mi
-
-    if variant == "auto":
-        variant = "cuda_ad_rgb" if cuda_available(dr) else "llvm_ad_rgb"
-    if variant.startswith("llvm"):
-        if llvm_problem is not None:
-            raise llvm_problem
-        _check_llvm_loaded(dr)
-    elif not cuda_available(dr):
-        raise EnvironmentProblem(
-            f"variant {variant!r} needs a usable CUDA device and none was found",
-            hint="use variant: auto or an llvm_ad_* variant",
-        )
-    if variant not in mi.variants():
-        raise EnvironmentProblem(
-            f"this Mitsuba build has no variant {variant!r}",
-            hint=f"available: {', '.join(mi.variants())}",
-        )
-    mi.set_variant(variant)
-    _log_to_stderr(mi)
-    return mi
+        if variant == "auto":
+            variant = "cuda_ad_rgb" if cuda_available(dr) else "llvm_ad_rgb"
+        if variant.startswith("llvm"):
+            if llvm_problem is not None:
+                raise llvm_problem
+            version = tuple(dr.detail.llvm_version())
+            if not version or version[0] == 0:
+                raise EnvironmentProblem(
+                    f"Dr.Jit could not load libLLVM from {os.environ.get('DRJIT_LIBLLVM_PATH')}",
+                    hint=LLVM_HINT,
+                )
+            if version[0] < MIN_LLVM_MAJOR:
+                raise EnvironmentProblem(
+                    f"Dr.Jit loaded LLVM {'.'.join(map(str, version))}, "
+                    f"but sensaov needs LLVM >= {MIN_LLVM_MAJOR}",
+                    hint=LLVM_HINT,
+                )
+        elif not cuda_available(dr):
+            raise EnvironmentProblem(
+                f"variant {variant!r} needs a usable CUDA device and none was found",
+                hint="use variant: auto or an llvm_ad_* variant",
+            )
+        if variant not in mi.variants():
+            raise EnvironmentProblem(
+                f"this Mitsuba build has no variant {variant!r}",
+                hint=f"available: {', '.join(mi.variants())}",
+            )
+        mi.set_variant(variant)
+        _log_to_stderr(mi)
+        return mi
 
 
 def library_versions(mi: ModuleType) -> dict[str, str]:

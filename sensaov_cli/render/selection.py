@@ -79,7 +79,7 @@ GEOMETRY_FIELDS = ("to_world", "position", "direction", "faces")
 
 @dataclass(frozen=True)
 class Selection:
-    """What :func:`select` found: the records the buffer stores and what was left out."""
+    """What :func:`select_parameters` found: the records the buffer stores and what was left out."""
 
     selected: tuple[ParamRecord, ...]
     excluded: tuple[ExcludedParam, ...]
@@ -151,7 +151,8 @@ def select_parameters(
             excluded.append(ExcludedParam(key, f"Mitsuba cannot read its value ({exc!s:.80})"))
             continue
         reason = _exclusion_reason(mi, parameters, key, value, node, flags)
-        if reason is None and media is not None and _in_medium(mi, node, params.hierarchy):
+        holder = _above_textures(mi, node, params.hierarchy)[1] if media is not None else None
+        if reason is None and isinstance(holder, mi.Medium | mi.PhaseFunction):  # or in one
             reason = f"medium parameter: the scene's '{media}' integrator renders no media"
         owners = ownership.of(node) if reason is None else ()
         if reason is None and not owners:
@@ -224,7 +225,8 @@ def _describe(
         ("verified", "") if plugin in COMPOSITES else verification_status(plugin, ptype)
     )
     trust, note = weakest(own, composite_status(contexts))
-    shape = value_shape(np.asarray(params[key]))
+    shape = tuple(int(n) for n in np.asarray(params[key]).shape)
+    shape = shape[:1] if len(shape) == 2 and shape[1] == 1 else shape  # colours: (3, 1) -> (3,)
     if is_texture_node and "spectral" in mi.variant() and shape[-1:] == (3,):
         trust, note = "unverified", SPECTRAL_COEFFICIENTS_NOTE
     flag_names = ("discontinuous",) if flags & int(mi.ParamFlags.Discontinuous) else ()
@@ -283,11 +285,6 @@ def _slot_and_holder(
     return parts[-1 - levels], holder
 
 
-def _in_medium(mi: ModuleType, node: Any, hierarchy: Any) -> bool:
-    """Whether ``node`` is a medium, its phase function, or a volume or texture inside one."""
-    return isinstance(_above_textures(mi, node, hierarchy)[1], mi.Medium | mi.PhaseFunction)
-
-
 def _above_textures(mi: ModuleType, node: Any, hierarchy: Any) -> tuple[int, Any]:
     """The texture (or volume) levels above ``node`` and the plugin they fill a slot of, or the
     outermost texture when none holds it."""
@@ -299,12 +296,6 @@ def _above_textures(mi: ModuleType, node: Any, hierarchy: Any) -> tuple[int, Any
             break
         holder = parent[0]
     return levels, holder
-
-
-def value_shape(array: Any) -> tuple[int, ...]:
-    """The shape a value is stored with: colours (3, 1) in Dr.Jit become (3,)."""
-    shape = tuple(int(n) for n in array.shape)
-    return shape[:1] if len(shape) == 2 and shape[1] == 1 else shape
 
 
 def _plugin_name(node: Any) -> str:

@@ -1,4 +1,5 @@
-"""Reverse-mode gradients against central finite differences: ``sensaov check``'s comparisons.
+"""``sensaov check``'s comparisons: reverse-mode gradients against central finite differences,
+and a stored buffer against forward mode.
 
 A parameter is pushed along a direction v (all components; a central block of texels for
 textures); per seed, <dM/dθ, v> is compared with (M(θ + εv) − M(θ − εv)) / 2ε rendered at the
@@ -12,8 +13,8 @@ parameter per kind (plugin, type, texture or not), or the ``--key`` ones (:func:
 - kinds the trust table calls biased are repaired by ``sensaov run``: measured only when named
   or with ``--full``.
 
-:func:`check_parameter_independent` differences independent renders at more samples: the trust
-table's reference where θ changes which paths are sampled (``scripts/trust_table.py``).
+:func:`check_parameter` with ``fd_spp`` differences independent renders at more samples: the
+trust table's reference where θ changes which paths are sampled (``scripts/trust_table.py``).
 """
 
 from __future__ import annotations
@@ -21,15 +22,22 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from sensaov_cli.buffer.model import ParamRecord
+from sensaov_cli.buffer.forward_sidecar import DUALITY_FLOOR, duality_tolerance
+from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.errors import SpecError
 from sensaov_cli.progress import Progress
-from sensaov_cli.render.adjoint import backward_pass, image_like_backward, render_primal
+from sensaov_cli.render.adjoint import (
+    adjoint_images,
+    backward_pass,
+    forward_image,
+    image_like_backward,
+    render_primal,
+)
 from sensaov_cli.render.loading import LoadedScene, assign
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
 from sensaov_cli.render.verify.trust import SAME_SEED_EXACT, gradient_integrator
@@ -148,36 +156,26 @@ def central_difference(
 
 
 def check_parameter(
-    loaded: LoadedScene, objective: Objective, info: ParamRecord, *, spp: int, seeds: list[int]
-) -> GradientCheck:
-    """Same-seed central differences, ε = STEP · max(1, |θ|)."""
-    v = direction(info)
-    adjoints, differences = [], []
-    for seed in seeds:
-        adjoints.append(adjoint_along(loaded, objective, info, v, spp, seed))
-        differences.append(central_difference(loaded, objective, info, STEP, spp, (seed, seed)))
-    return judge(info, np.array(adjoints), np.array(differences))
-
-
-def check_parameter_independent(
     loaded: LoadedScene,
     objective: Objective,
     info: ParamRecord,
     *,
     spp: int,
-    fd_spp: int,
     seeds: list[int],
+    fd_spp: int | None = None,
 ) -> GradientCheck:
-    """Differences of independent renders at ``fd_spp``: the reference where θ changes which
-    paths are sampled."""
+    """Same-seed central differences, ε = STEP · max(1, |θ|); with ``fd_spp``, differences of
+    independent renders at ``fd_spp``: the reference where θ changes which paths are sampled."""
     v = direction(info)
     adjoints, differences = [], []
     for seed in seeds:
         adjoints.append(adjoint_along(loaded, objective, info, v, spp, seed))
-        sides = (1000 + 2 * seed, 1001 + 2 * seed)
-        differences.append(
-            central_difference(loaded, objective, info, INDEPENDENT_STEP, fd_spp, sides)
-        )
+        if fd_spp is None:
+            fd = central_difference(loaded, objective, info, STEP, spp, (seed, seed))
+        else:
+            sides = (1000 + 2 * seed, 1001 + 2 * seed)
+            fd = central_difference(loaded, objective, info, INDEPENDENT_STEP, fd_spp, sides)
+        differences.append(fd)
     return judge(info, np.array(adjoints), np.array(differences))
 
 
@@ -302,3 +300,142 @@ def _one_seed(
     return GradientCheck(
         info.key, info.plugin, info.type, info.trust, ad, fd, 0.0, verdict, method="same seed"
     )
+
+
+# --- a stored buffer against forward mode (docs/verification.md, "Forward/reverse duality"):
+# per objective, key and direction v (ones, then seeded Gaussian ones), at the buffer's gradient
+# seed, reverse ⟨g, v⟩ from the stored gradient against forward ⟨dM/dI, J·v⟩: equal up to float32
+# rounding, so a larger gap is a corrupt or stale buffer and fails whatever the trust label. When
+# asked, the central difference of the image at that seed checks Mitsuba's derivative itself,
+# within FD_TOLERANCE; it fails only a verified parameter ("n/a" where discontinuous).
+
+# Same-seed central differences (STEP): 2 % leaves room for a path that crosses a
+# light's edge between the two sides.
+FD_TOLERANCE = 0.02
+_TINY = 1e-30
+
+
+@dataclass(frozen=True)
+class DualityCheck:
+    objective: str
+    key: str
+    direction: str  # "ones" or "random <n>"
+    trust: Trust
+    reverse: float
+    forward: float
+    central: float | None  # None: not checkable at one seed (discontinuous), or not asked for
+    seed: int
+    tolerance: float = DUALITY_FLOOR  # of the duality residual, for this image and spp
+    central_asked: bool = True  # False: the quick check leaves central differences out
+
+    @property
+    def duality_error(self) -> float:
+        return abs(self.forward - self.reverse) / max(abs(self.reverse), _TINY)
+
+    @property
+    def central_error(self) -> float | None:
+        if self.central is None:
+            return None
+        return abs(self.forward - self.central) / max(abs(self.central), _TINY)
+
+    @property
+    def verdict(self) -> str:
+        if self.duality_error > self.tolerance and abs(self.forward - self.reverse) > _TINY:
+            return "BUFFER DISAGREES"
+        error = self.central_error
+        if error is not None and error > FD_TOLERANCE:
+            return "fd disagrees" if self.trust != "verified" else "FD DISAGREES"
+        return "agrees"
+
+    @property
+    def failed(self) -> bool:
+        return self.verdict.isupper()
+
+
+def top_keys(buffer: SensitivityBuffer, objective: str, k: int) -> list[str]:
+    """The ``k`` keys with the largest ‖θ · g‖ (parameters with no gradient left out); a
+    repaired parameter by its reverse-mode gradient, which is the one checked."""
+    scores = {
+        p.key: float(np.linalg.norm(buffer.value(p.key) * buffer.reverse_grad(objective, p.key)))
+        for p in buffer.params
+        if p.trust != "no_gradient"
+    }
+    return sorted((key for key in scores if scores[key] > 0), key=lambda k_: -scores[k_])[:k]
+
+
+def directions(info: ParamRecord, count: int, seed: int) -> list[tuple[str, np.ndarray]]:
+    """Ones, then ``count`` Gaussian directions (seeded: the same every run)."""
+    rng = np.random.default_rng(seed)
+    randoms = [rng.standard_normal(info.shape).astype(np.float32) for _ in range(count)]
+    return [("ones", np.ones(info.shape, np.float32))] + [
+        (f"random {n + 1}", v) for n, v in enumerate(randoms)
+    ]
+
+
+def check_duality(
+    loaded: LoadedScene,
+    objectives: list[Objective],
+    buffer: SensitivityBuffer,
+    *,
+    keys: list[str] | None,
+    top: int,
+    random_directions: int,
+    progress: Progress,
+    central: bool,
+) -> list[DualityCheck]:
+    """One row per (objective, key, direction), each a progress line; ``central``: also the
+    central difference of the image (two renders a row)."""
+    spp = int(buffer.provenance["spp"])
+    primal = np.array(render_primal(loaded, spp, int(buffer.provenance["primal_seed"])))
+    adjoints = adjoint_images(loaded, objectives, primal)
+    records = {info.key: info for info in loaded.selected}  # ``keys``: checked by named
+    tolerance = duality_tolerance(primal.shape[0] * primal.shape[1] * spp)
+    rows: list[DualityCheck] = []
+    for objective in objectives:
+        name = objective.spec.name
+        for key in keys or top_keys(buffer, name, top):
+            for label, v in directions(records[key], random_directions, seed=len(rows)):
+                stage = f"check: duality of {key} along {label} for '{name}'"
+                with progress.stage(f"duality_{len(rows)}_s", stage):
+                    row = _row(
+                        loaded, buffer, name, records[key], label, v, adjoints[name], central
+                    )
+                    rows.append(row)
+    return [replace(row, tolerance=tolerance) for row in rows]
+
+
+def _row(
+    loaded: LoadedScene,
+    buffer: SensitivityBuffer,
+    objective: str,
+    info: ParamRecord,
+    label: str,
+    v: np.ndarray,
+    adjoint: np.ndarray,
+    asked: bool,
+) -> DualityCheck:
+    spp = int(buffer.provenance["spp"])
+    seed = buffer.objective(objective).grad_seed
+    stored = buffer.reverse_grad(objective, info.key).astype(np.float64)  # forward's dual
+    reverse = float(np.dot(stored.ravel(), v.ravel()))
+    pushed = forward_image(loaded, {info.key: v}, spp=spp, seed=seed, shape=adjoint.shape)
+    forward = _weighted(adjoint, pushed.image) if pushed.image is not None else float("nan")
+    central = None
+    if asked and "discontinuous" not in info.flags:
+
+        def image_at(side_seed: int) -> np.ndarray:
+            image = image_like_backward(loaded, loaded.routes[info.key], spp, side_seed)
+            return np.array(image, np.float32).astype(np.float64)
+
+        central = _weighted(adjoint, difference(loaded, info, v, STEP, (seed, seed), image_at))
+    record = buffer.param(info.key)
+    # A repaired parameter's reverse mode is the one known wrong: its central difference may
+    # disagree with forward mode without failing the check.
+    trust = "biased" if record.estimator in ("finite-difference", "mixed") else record.trust
+    return DualityCheck(
+        objective, info.key, label, trust, reverse, forward, central, seed, central_asked=asked
+    )
+
+
+def _weighted(adjoint: np.ndarray, image: np.ndarray) -> float:
+    return float((adjoint.astype(np.float64) * image.astype(np.float64)).sum())

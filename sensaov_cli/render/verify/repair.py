@@ -247,7 +247,6 @@ def _differences(
     theta = result.values[target.key].astype(np.float32).ravel()
 
     def measure(seed: int) -> np.ndarray:
-        """M of every objective at the current parameters."""
         interrupts.raise_if_stopped()  # between renders: a stop is acted on within one render
         image = render_primal(loaded, chosen.spp, seed)
         return np.array([value_and_adjoint(loaded.mi, o, image)[0] for o in objectives])

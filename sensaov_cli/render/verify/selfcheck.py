@@ -95,8 +95,11 @@ def check_gradients(
 ) -> SelfCheck:
     """Apply checks (a), (b), (c) to a run's gradients; ``integrators``: key -> its integrator."""
     no_flow = [r.key for r in records if all(not np.any(g[r.key]) for g in grads.values())]
-    zeros = {r.key: _zero_components(r, values[r.key]) for r in records}
-    zeros = {key: where for key, where in zeros.items() if where}
+    zeros = {
+        r.key: [int(i) for i in np.flatnonzero(values[r.key].ravel() == 0)]
+        for r in records
+        if r.type in THROUGHPUT_TYPES and np.any(values[r.key] == 0)
+    }
     identities = []
     for name, objective in linear.items():
         contributions = {r.key: _contribution(values[r.key], grads[name][r.key]) for r in records}
@@ -116,12 +119,6 @@ def check_gradients(
 
 def _contribution(value: np.ndarray, grad: np.ndarray) -> float:
     return float(np.dot(value.astype(np.float64).ravel(), grad.astype(np.float64).ravel()))
-
-
-def _zero_components(record: ParamRecord, value: np.ndarray) -> list[int]:
-    if record.type not in THROUGHPUT_TYPES:
-        return []
-    return [int(i) for i in np.flatnonzero(value.ravel() == 0)]
 
 
 def _label(
