@@ -251,7 +251,7 @@ def enlarged(tile: np.ndarray, width: int = SINGLE_TILE_WIDTH) -> np.ndarray:
 
 def safe_file_stem(key: str) -> str:
     """``a/b.c`` -> ``a_b_c-<6 hex>``: safe on every file system, unique per key."""
-    stem = _UNSAFE.sub("_", key[: -len(".data")] if key.endswith(".data") else key)
+    stem = _UNSAFE.sub("_", key.removesuffix(".data"))
     if stem != key:
         stem += "-" + hashlib.sha256(key.encode()).hexdigest()[:6]
     return stem

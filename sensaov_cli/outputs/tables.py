@@ -367,7 +367,7 @@ def ranking_json(
                 "value": r.objective_value,
                 "ranked": r.ranked,
                 "total_signed": r.total_signed,
-                "batches": r.batches,
+                "batches": None if r.significance is None else r.significance.batches,
                 "stability": r.stability,
                 "stability_top": r.stability_top,
                 "untrusted": r.untrusted,
@@ -428,7 +428,7 @@ def ranking_text(found: Sequence[Ranking], *, method: Aggregate, weight: Weight)
 def _ranking_table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
     cameras = any(row.off_frame is not None for row in shown)
     values = r.by == "key"  # only a parameter has a value; groups leave the column out
-    errors = r.batches is not None or any(row.signed_se is not None for row in r.rows)
+    errors = r.significance is not None or any(row.signed_se is not None for row in r.rows)
     se = ["±"] * errors
     headers = ["#", "", "score", *se, "signed", *se, "sign", "share", *(["value"] * values)]
     headers += ["estimator", r.by, *(["off-frame"] * cameras)]
@@ -437,24 +437,20 @@ def _ranking_table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
         cells = [str(row.rank), trust_mark(row.trust, row.zero_value), f"{row.score:.2e}"]
         cells += [*[se_text(row.score_se)] * errors, f"{row.signed:+.2e}"]
         cells += [*[se_text(row.signed_se)] * errors, row.sign + "?" * (row.significant is False)]
-        cells += [f"{100 * row.share:.1f}%", *[_value(row.value)] * values, row.estimator]
+        value = "-" if row.value is None else f"{row.value:.4g}"
+        cells += [f"{100 * row.share:.1f}%", *[value] * values, row.estimator]
         rows.append([*cells, row.name, *[", ".join(row.off_frame or ()) or "-"] * cameras])
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "±", "signed", "share")}
     numeric |= {headers.index("value")} if values else set()
     return _indented(headers, rows, numeric)
 
 
-def _value(value: float | None) -> str:
-    return "-" if value is None else f"{value:.4g}"
-
-
 def _ranking_legend(r: Ranking) -> list[str]:
     shown = (*r.rows, *r.left_out)
     lines = trust_legend([row.trust for row in shown], groups=r.by != "key")
-    if r.batches is not None and r.significance is not None:
-        sig = r.significance
+    if (sig := r.significance) is not None:
         lines.append(
-            f"  ±: standard error from {r.batches} batches; ? = sign not significant: |signed| "
+            f"  ±: standard error from {sig.batches} batches; ? = sign not significant: |signed| "
             f"within {sig.factor:.2f} standard errors (Student's t, {sig.dof} degrees of "
             f"freedom, {100 * sig.level:.0f} % two-sided)"
         )

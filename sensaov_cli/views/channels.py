@@ -313,7 +313,9 @@ def choose_scale(
     else:
         scope = objects
     peak = float(np.max(np.abs(scope))) if scope.size else 0.0
-    threshold = 0.0 if encoding.tonemap == "none" else _threshold(peak)
+    # An all-zero scope (or one so small its fraction underflows) still needs a positive
+    # threshold; any will do, since 0 maps to 0.
+    threshold = 0.0 if encoding.tonemap == "none" else THRESHOLD_FRACTION * peak or 1.0
     if encoding.normalize == "none" or peak == 0.0:
         return Scale(threshold, 1.0)
     top = float(_tonemap64(np.array([peak]), encoding.tonemap, threshold)[0])
@@ -330,13 +332,6 @@ def encode_image(
     if scale == 0.0 or scale == 1.0:
         return mapped
     return _float32(mapped.astype(np.float64) / scale)
-
-
-def _threshold(peak: float) -> float:
-    # An all-zero scope (or one so small its fraction underflows) still needs a positive
-    # threshold; any will do, since 0 maps to 0.
-    threshold = THRESHOLD_FRACTION * peak
-    return threshold if threshold > 0 else 1.0
 
 
 def _check_choice(kind: str, given: str, valid: tuple[str, ...]) -> None:

@@ -282,12 +282,11 @@ class Ranking:
     ranked: int  # rows before the --top cut
     total_signed: float  # Σc over every ranked parameter
     no_gradient: tuple[ParamRecord, ...]  # listed apart, never ranked
-    batches: int | None = None  # batches behind the standard errors (None: no statistics)
     stability: float | None = None  # how often the top ``stability_top`` rows keep their order
     stability_top: int | None = None
     left_out: tuple[RankRow, ...] = ()  # untrusted parts of objects or types, ranked apart
     untrusted: Untrusted = "include"  # how untrusted parameters were treated
-    significance: Significance | None = None  # the rule behind ``significant``
+    significance: Significance | None = None  # the rule behind ``significant``; None: 1 batch
     zero_valued: tuple[ZeroValued, ...] = ()  # every key value weighting hides
 
 
@@ -356,7 +355,6 @@ def _ranking(
         ranked=len(split.kept),
         total_signed=math.fsum(s.total for s in stats.values()),
         no_gradient=tuple(p for p in buf.params if p.trust == "no_gradient"),
-        batches=None if noise is None else noise.significance.batches,
         stability=None if stable is None else stable[0],
         stability_top=None if stable is None else stable[1],
         left_out=table.rows(split.left_out, "untrusted", None),
