@@ -193,13 +193,11 @@ def _legend_notes(
     elif left_out:
         lines.append(f"left out (untrusted, see {layer.pass_name}_untrusted): "
                      + ", ".join(sorted(left_out)))  # fmt: skip
-    zero = layer.zero_valued or {}
-    if zero:
-        raw = ", ".join(f"{k} (raw dM/dtheta {v:+.2e})" for k, v in zero.items())
+    if layer.zero_valued:
+        raw = ", ".join(f"{k} (raw dM/dtheta {v:+.2e})" for k, v in layer.zero_valued.items())
         lines.append(f"theta = 0, scored 0 whatever the gradient: {raw}")
-    invisible = layer.invisible or ()
-    if invisible:
-        lines.append("not in this view: " + ", ".join(invisible))
+    if layer.invisible:
+        lines.append("not in this view: " + ", ".join(layer.invisible))
     if layer.duality_failed:
         lines.append("duality check FAILED: do not trust this layer")
     return lines

@@ -69,14 +69,6 @@ class ScaleGroup:
     fixed: float | None = None  # set by what the layer means (1: an even spread), not its pixels
 
 
-@dataclass(frozen=True)
-class Display:
-    """The display scale a layer is pictured at, and the share of this camera's pixels it clips."""
-
-    scale: DisplayScale
-    clipped: float
-
-
 @dataclass(frozen=True, eq=False)
 class SensitivityLayer:
     """One sensitivity pass: (H, W) data becomes channel ``Y``, (H, W, 3) becomes ``R, G, B``.
@@ -95,7 +87,8 @@ class SensitivityLayer:
     left_out: Mapping[str, tuple[str, ...]] | None = None  # object -> its untrusted keys
     zero_valued: Mapping[str, float] | None = None  # key -> raw sum of dM/dtheta at theta = 0
     duality_agrees: bool | None = None  # a transport layer's duality check
-    display: Display | None = None
+    display: DisplayScale | None = None  # the scale a layer is pictured at
+    display_clipped: float = 0.0  # the share of this camera's non-zero pixels above it
 
     @property
     def original_name(self) -> str:
@@ -216,14 +209,13 @@ def layer_metadata(layer: SensitivityLayer, name: str) -> dict[str, str]:
         entries["zero_valued"] = json.dumps(dict(layer.zero_valued))
     if layer.duality_agrees is not None:
         entries["duality"] = "agrees" if layer.duality_agrees else DUALITY_FAILED
-    if layer.display is not None:
-        scale = layer.display.scale
+    if (scale := layer.display) is not None:
         entries |= {
             "display_scale": repr(scale.value),
             "display_rule": scale.rule(),
             "display_scope": scale.scope,
             "display_cameras": json.dumps(list(scale.cameras)),
-            "display_clipped": repr(layer.display.clipped),  # of this camera's non-zero pixels
+            "display_clipped": repr(layer.display_clipped),
             "display_clipped_all": repr(scale.clipped),  # every camera of the rule, equally
         }
     prefix = f"sensaov/{cryptomatte.layer_key(name)}"
@@ -245,13 +237,13 @@ def with_display(
     """The raw layer with its display scale, and its display layer (``background``: the
     camera's :func:`display_background`, shown where the layer is zero)."""
     values = signed_pixels(layer.data, layer.kind)
-    shown = Display(scale, clipped_share([values], scale.value))
+    clipped = clipped_share([values], scale.value)
     # Half keeps the picture's sRGB 8-bit codes (tested); planes make each channel contiguous.
     planes = diverging_linear_planes(values, scale.value, np.float16)
     np.copyto(planes, background, where=(values == 0)[None])
     display_name = layer.pass_name + DISPLAY_SUFFIX
     metadata = {**layer.metadata, "display_layer": f"{layer.objective}.{display_name}"}
-    raw = replace(layer, metadata=metadata, display=shown)
+    raw = replace(layer, metadata=metadata, display=scale, display_clipped=clipped)
     display = SensitivityLayer(
         layer.objective,
         display_name,
@@ -265,7 +257,8 @@ def with_display(
         group=ScaleGroup(layer.group.name),
         part=layer.part,
         left_out=layer.left_out,
-        display=shown,
+        display=scale,
+        display_clipped=clipped,
     )
     return raw, display
 
