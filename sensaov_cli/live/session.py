@@ -44,7 +44,7 @@ from sensaov_cli.live.inspection import (
 )
 from sensaov_cli.outputs.atomic import made_by
 from sensaov_cli.outputs.exr import encode_exr
-from sensaov_cli.outputs.png import encode_png
+from sensaov_cli.outputs.previews import encode_png
 from sensaov_cli.pipeline.consistency import check_buffer_of_job
 from sensaov_cli.pipeline.project import (
     check_fingerprint,

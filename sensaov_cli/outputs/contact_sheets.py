@@ -36,8 +36,7 @@ from sensaov_cli.outputs.atomic import (
 )
 from sensaov_cli.outputs.exr import exr_writer
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
-from sensaov_cli.outputs.png import write_png
-from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay
+from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay, write_png
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, clipped_share, signed_pixels
 from sensaov_cli.views.hierarchy import TRUSTED

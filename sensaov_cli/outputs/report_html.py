@@ -27,7 +27,7 @@ from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.limits import read_regular, regular_file
 from sensaov_cli.outputs import tables
 from sensaov_cli.outputs.atomic import atomic_write_bytes
-from sensaov_cli.outputs.png import png_problem
+from sensaov_cli.outputs.previews import png_problem
 from sensaov_cli.views.hierarchy import Ranking, RankRow
 
 REPORT_FORMAT = "sensaov-report"

@@ -28,8 +28,7 @@ from sensaov_cli.outputs.atomic import (
 )
 from sensaov_cli.outputs.cryptomatte import seen_names
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.outputs.png import encode_png, read_png_text
-from sensaov_cli.outputs.previews import srgb_uint8
+from sensaov_cli.outputs.previews import encode_png, read_png_text, srgb_uint8
 from sensaov_cli.outputs.report_html import (
     CameraSection,
     ObjectiveSection,
