@@ -72,7 +72,9 @@ def diverging_linear_planes(
     starts = run_starts(flat)
     lengths = np.diff(starts, append=flat.size)
     srgb = np.rint(_diverging_srgb(flat[starts], scale)) / 255.0
-    colours = _linear(srgb).astype(np.float32).astype(dtype)
+    # decoded by the inverse of the sRGB transfer curve (IEC 61966-2-1)
+    linear = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    colours = linear.astype(np.float32).astype(dtype)
     planes = np.empty((3, x.size), dtype)
     for channel in range(3):
         planes[channel] = np.repeat(colours[:, channel], lengths)
@@ -307,11 +309,6 @@ def srgb_uint8(linear: np.ndarray) -> np.ndarray:
     """A linear (H, W, 3) image as uint8 sRGB: clipped to [0, 1], non-finite pixels black."""
     clean = np.nan_to_num(np.asarray(linear, dtype=np.float64), nan=0.0, posinf=1.0, neginf=0.0)
     return np.rint(_srgb(np.clip(clean, 0.0, 1.0)) * 255.0).astype(np.uint8)
-
-
-def _linear(encoded: np.ndarray) -> np.ndarray:
-    """The inverse of :func:`_srgb` (IEC 61966-2-1) on [0, 1]."""
-    return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
 
 
 def _srgb(linear: np.ndarray) -> np.ndarray:

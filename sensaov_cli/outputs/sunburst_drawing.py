@@ -150,10 +150,9 @@ def _draw_wedge(ax: Axes, wedge: Wedge, colour: tuple[float, ...], inches: float
     )
     ax.add_patch(ring(facecolor=colour, edgecolor="white", linewidth=0.8))
     hatches = _HATCH * (wedge.trust != "verified") + _NOISE_HATCH * (wedge.significant is False)
-    hatched = bool(hatches)
-    if hatched:  # a second, unfilled patch: matplotlib hatches in the edge colour
+    if hatches:  # a second, unfilled patch: matplotlib hatches in the edge colour
         ax.add_patch(ring(fill=False, hatch=hatches, edgecolor="#444444", linewidth=0))
-    _label(ax, wedge, (inner, outer), colour, hatched, inches)
+    _label(ax, wedge, (inner, outer), colour, bool(hatches), inches)
 
 
 def _label(
