@@ -303,8 +303,7 @@ def test_zero_valued_parameters_are_flagged_with_their_raw_gradient() -> None:
     from sensaov_cli.job.spec import ChannelSpec
     from sensaov_cli.outputs.tables import ranking_json, ranking_text, summary_json
     from sensaov_cli.views.channels import channel_values
-    from sensaov_cli.views.hierarchy import ranked_summary, rankings
-    from sensaov_cli.views.sunburst_geometry import panels
+    from sensaov_cli.views.hierarchy import panels, ranked_summary, rankings
 
     buf, key = zero_valued_buffer(), "lamp.emitter.radiance.value"
     raw = float(buf.grad("brightness", key).astype(np.float64).sum())

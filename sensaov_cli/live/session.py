@@ -61,7 +61,7 @@ from sensaov_cli.scene import prepare_scene
 from sensaov_cli.views.channels import ChannelValues, channel_values
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, shared_channel_scale
-from sensaov_cli.views.sunburst_geometry import Panel, panels
+from sensaov_cli.views.hierarchy import Panel, panels
 from sensaov_cli.views.texels import PANELS, TexelField, texture_token
 from sensaov_cli.views.transport import forward_views, transport_views
 from sensaov_cli.vocabulary import SIGNS, Sign

@@ -1,6 +1,6 @@
 """The sunburst as an SVG or PNG (paper Fig. 1), drawn with matplotlib from views' wedges.
 
-:mod:`sensaov_cli.views.sunburst_geometry` computes every angle; this module only draws.
+:mod:`sensaov_cli.views.hierarchy` computes every angle; this module only draws.
 Colour is the wedge's signed sum Σc on the previews' RdBu relative to the largest |Σc| in its
 ring, so a pale wedge is a small one or one whose parameters pull both ways. Unverified wedges
 are hatched. matplotlib is imported lazily, with the Agg backend: no display is needed.
@@ -23,7 +23,7 @@ import numpy as np
 from sensaov_cli.errors import OutputError
 from sensaov_cli.outputs.atomic import atomic_write_bytes, scratch_folder
 from sensaov_cli.outputs.previews import RDBU, diverging_rgb
-from sensaov_cli.views.sunburst_geometry import Panel, Wedge
+from sensaov_cli.views.hierarchy import Panel, Wedge
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes

@@ -42,8 +42,7 @@ from sensaov_cli.outputs.sunburst_drawing import sunburst_bytes
 from sensaov_cli.pipeline.consistency import check_buffer_of_job, check_made_by, check_made_from
 from sensaov_cli.pipeline.run import BUFFER_NAME, PRIMAL_NAME
 from sensaov_cli.scene.expand import expand_scene
-from sensaov_cli.views.hierarchy import is_trusted, rankings
-from sensaov_cli.views.sunburst_geometry import panels
+from sensaov_cli.views.hierarchy import is_trusted, panels, rankings
 
 REPORT_NAME = "report.html"
 SUMMARY_TOP = 5  # objects per objective in the summary; the appendix ranks them all
