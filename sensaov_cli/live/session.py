@@ -58,12 +58,11 @@ from sensaov_cli.render.loading import LoadedScene, load_scene
 from sensaov_cli.render.memory import check_view
 from sensaov_cli.render.viewpoint import Pose, Vec3, ViewTracer, scene_bounds, sensor_pose
 from sensaov_cli.scene import prepare_scene
-from sensaov_cli.views.channels import ChannelValues, channel_values
+from sensaov_cli.views.channels import ChannelValues, channel_values, forward_views, transport_views
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, shared_channel_scale
 from sensaov_cli.views.hierarchy import Panel, panels
 from sensaov_cli.views.texels import PANELS, TexelField, texture_token
-from sensaov_cli.views.transport import forward_views, transport_views
 from sensaov_cli.vocabulary import SIGNS, Sign
 
 REST_SPP = 16  # what the page asks for once the mouse rests
