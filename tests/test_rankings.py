@@ -18,7 +18,7 @@ from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBu
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.cli import main
 from sensaov_cli.errors import EXIT_BAD_INPUT
-from sensaov_cli.outputs.cryptomatte import metadata, rank_channels, seen_names
+from sensaov_cli.outputs.layered_exr import metadata, rank_channels, seen_names
 from sensaov_cli.outputs.tables import COLUMNS, summary_text
 from tests.bad_buffers import write_buffer
 

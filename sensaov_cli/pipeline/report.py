@@ -26,8 +26,8 @@ from sensaov_cli.outputs.atomic import (
     recorded_inputs,
     refuse_unsafe_outputs,
 )
-from sensaov_cli.outputs.cryptomatte import seen_names
 from sensaov_cli.outputs.exr import read_exr
+from sensaov_cli.outputs.layered_exr import seen_names
 from sensaov_cli.outputs.previews import encode_png, read_png_text, srgb_uint8
 from sensaov_cli.outputs.report_html import (
     CameraSection,
