@@ -69,7 +69,6 @@ interrupts.install(raising=False)  # as __main__ does, before the imports
 
 import sensaov_cli.outputs.atomic as atomic  # noqa: E402
 import sensaov_cli.render.adjoint as adjoint  # noqa: E402
-import sensaov_cli.render.forward as forward  # noqa: E402
 import sensaov_cli.render.visibility as visibility  # noqa: E402
 from sensaov_cli.cli import main  # noqa: E402
 from sensaov_cli.progress import Progress  # noqa: E402
@@ -108,9 +107,8 @@ def counted(chunks: Callable[..., Iterator[Any]], hold: str | None) -> Callable[
 def count_chunks(hold: str | None = None) -> None:
     if hold is not None:  # several chunks even in a 16x16 job
         adjoint.SAMPLES_PER_SUBPASS = adjoint.PATH_SAMPLES_PER_PASS = 64
-        forward.PATH_SAMPLES_PER_PASS = 64
         visibility.SAMPLES_PER_CHUNK = 64
-    adjoint.subpasses = forward.subpasses = counted(adjoint.subpasses, hold)  # type: ignore
+    adjoint.subpasses = counted(adjoint.subpasses, hold)  # type: ignore
     visibility.sample_spans = counted(visibility.sample_spans, hold)  # type: ignore
     original = Progress.stage
 

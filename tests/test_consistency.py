@@ -18,7 +18,7 @@ import yaml
 
 from sensaov_cli.errors import EXIT_BAD_INPUT
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.outputs.png import read_png_text
+from sensaov_cli.outputs.previews import read_png_text
 
 from .conftest import sensaov, write_job
 from .test_rankings import DEMO_CAMERAS

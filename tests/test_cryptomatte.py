@@ -16,7 +16,7 @@ import mmh3
 import numpy as np
 import pytest
 
-from sensaov_cli.outputs import cryptomatte
+from sensaov_cli.outputs import layered_exr as cryptomatte
 from sensaov_cli.outputs.layered_exr import CryptoLayer, write_layered_exr
 
 SAMPLES = 4  # per axis: 16 stratified samples a pixel, so coverages are multiples of 1/16

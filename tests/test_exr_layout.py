@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from sensaov_cli.outputs import layered_exr as exr_layout
-from sensaov_cli.outputs.cryptomatte import layer_key
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.outputs.layered_exr import (
     CryptoLayer,
     SensitivityLayer,
+    layer_key,
     layer_names,
     write_layered_exr,
 )

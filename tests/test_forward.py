@@ -16,7 +16,7 @@ from sensaov_cli.buffer.forward_sidecar import read_forward
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.errors import SpecError
-from sensaov_cli.views.transport import forward_views, transport_views
+from sensaov_cli.views.channels import forward_views, transport_views
 from tests.bad_buffers import write_buffer
 
 from .conftest import sensaov, write_job

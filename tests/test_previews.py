@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from sensaov_cli.errors import NonFiniteError
-from sensaov_cli.outputs.png import write_png
 from sensaov_cli.outputs.previews import (
     BACKGROUND,
     BAR_HEIGHT,
@@ -21,6 +20,7 @@ from sensaov_cli.outputs.previews import (
     contact_sheet,
     diverging_rgb,
     underlay,
+    write_png,
 )
 
 BLUE, WHITE, RED = RDBU[0], RDBU[5], RDBU[-1]
@@ -285,7 +285,7 @@ def test_previews_are_the_files_write_png_writes(tmp_path: Path) -> None:
     from PIL import Image
 
     from sensaov_cli.outputs.contact_sheets import write_previews
-    from sensaov_cli.outputs.png import encode_png, read_png_text
+    from sensaov_cli.outputs.previews import encode_png, read_png_text
 
     layers = _preview_layers([1.0, -0.5, 0.25])
     entries = write_previews(tmp_path, "cam", layers, None, _Visibility(), {"sensaov/i": "x"})  # type: ignore[arg-type]

@@ -18,7 +18,7 @@ from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBu
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.cli import main
 from sensaov_cli.errors import EXIT_BAD_INPUT
-from sensaov_cli.outputs.cryptomatte import metadata, rank_channels, seen_names
+from sensaov_cli.outputs.layered_exr import metadata, rank_channels, seen_names
 from sensaov_cli.outputs.tables import COLUMNS, summary_text
 from tests.bad_buffers import write_buffer
 
@@ -303,8 +303,7 @@ def test_zero_valued_parameters_are_flagged_with_their_raw_gradient() -> None:
     from sensaov_cli.job.spec import ChannelSpec
     from sensaov_cli.outputs.tables import ranking_json, ranking_text, summary_json
     from sensaov_cli.views.channels import channel_values
-    from sensaov_cli.views.hierarchy import ranked_summary, rankings
-    from sensaov_cli.views.sunburst_geometry import panels
+    from sensaov_cli.views.hierarchy import panels, ranked_summary, rankings
 
     buf, key = zero_valued_buffer(), "lamp.emitter.radiance.value"
     raw = float(buf.grad("brightness", key).astype(np.float64).sum())

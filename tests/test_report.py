@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 from sensaov_cli.buffer.model import ObjectiveRecord, ParamRecord, SensitivityBuffer
-from sensaov_cli.outputs.parameter_tables import params_dict, params_text
 from sensaov_cli.outputs.tables import (
     LABEL_MEANINGS,
     NO_GRADIENT_MARK,
     SUSPECT_MARK,
     UNVERIFIED_MARK,
+    params_dict,
+    params_text,
     summary_json,
     summary_text,
 )

@@ -13,7 +13,7 @@ from sensaov_cli import interrupts
 from sensaov_cli.buffer.queries import aggregate, ranking
 from sensaov_cli.cli import main
 from sensaov_cli.errors import EXIT_BAD_INPUT
-from sensaov_cli.views.sunburst_geometry import SCENE_WIDE, Wedge, panels, sunburst_wedges
+from sensaov_cli.views.hierarchy import SCENE_WIDE, Wedge, panels, sunburst_wedges
 from tests.bad_buffers import write_buffer
 
 from .test_rankings import OBJECTIVES, make_buffer

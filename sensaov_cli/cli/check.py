@@ -90,7 +90,7 @@ def check(
       sensaov check configs/cbox.yaml --key glass.eta --spp 1024 --seeds 12
     """
     from sensaov_cli.job.load import load_job
-    from sensaov_cli.outputs.parameter_tables import checks_text, duality_text
+    from sensaov_cli.outputs.tables import checks_text, duality_text
     from sensaov_cli.pipeline.check import FD_TOLERANCE, exit_code, run_check
     from sensaov_cli.progress import Progress
 

@@ -27,7 +27,7 @@ def params(job: Path, as_json: bool, show_all: bool) -> None:
       sensaov params configs/cbox.yaml --json | jq '.selected[].key'
     """
     from sensaov_cli.job.load import load_job
-    from sensaov_cli.outputs.parameter_tables import params_dict, params_text
+    from sensaov_cli.outputs.tables import params_dict, params_text
     from sensaov_cli.pipeline.params import parameter_inventory
 
     inventory = parameter_inventory(load_job(job))

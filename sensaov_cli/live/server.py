@@ -46,7 +46,7 @@ from sensaov_cli.live.session import (
 from sensaov_cli.outputs.atomic import atomic_write, check_writable, made_by, refuse_unsafe_outputs
 from sensaov_cli.outputs.previews import RDBU
 from sensaov_cli.pipeline.run import FORWARD_NAME
-from sensaov_cli.views.sunburst_geometry import Panel
+from sensaov_cli.views.hierarchy import Panel
 
 META_FORMAT = "sensaov-view"
 META_VERSION = 1

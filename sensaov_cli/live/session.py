@@ -44,7 +44,7 @@ from sensaov_cli.live.inspection import (
 )
 from sensaov_cli.outputs.atomic import made_by
 from sensaov_cli.outputs.exr import encode_exr
-from sensaov_cli.outputs.png import encode_png
+from sensaov_cli.outputs.previews import encode_png
 from sensaov_cli.pipeline.project import (
     check_buffer_of_job,
     check_fingerprint,
@@ -57,12 +57,11 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene, check_view, load_scene
 from sensaov_cli.render.visibility import Pose, Vec3, ViewTracer, scene_bounds, sensor_pose
 from sensaov_cli.scene import prepare_scene
-from sensaov_cli.views.channels import ChannelValues, channel_values
+from sensaov_cli.views.channels import ChannelValues, channel_values, forward_views, transport_views
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, shared_channel_scale
-from sensaov_cli.views.sunburst_geometry import Panel, panels
+from sensaov_cli.views.hierarchy import Panel, panels
 from sensaov_cli.views.texels import PANELS, TexelField, texture_token
-from sensaov_cli.views.transport import forward_views, transport_views
 from sensaov_cli.vocabulary import SIGNS, Sign
 
 REST_SPP = 16  # what the page asks for once the mouse rests

@@ -306,20 +306,16 @@ def file_token(name: str) -> str:
     :data:`MAX_TOKEN` characters, never empty, never hidden. A changed name gets a short hash
     of the original, so two names never share a file; the file's metadata keeps the original.
     """
-    if _is_safe(name):
-        return name
-    digest = hashlib.sha256(name.encode("utf-8", "surrogatepass")).hexdigest()[:_HASH_CHARS]
-    stem = _UNSAFE.sub("_", name).strip("._-")[: MAX_TOKEN - _HASH_CHARS - 1]
-    return f"{stem}_{digest}" if stem else f"name_{digest}"
-
-
-def _is_safe(name: str) -> bool:
-    return (
+    if (
         0 < len(name) <= MAX_TOKEN
         and _UNSAFE.search(name) is None
         and not name.startswith((".", "-"))
         and ".." not in name
-    )
+    ):
+        return name
+    digest = hashlib.sha256(name.encode("utf-8", "surrogatepass")).hexdigest()[:_HASH_CHARS]
+    stem = _UNSAFE.sub("_", name).strip("._-")[: MAX_TOKEN - _HASH_CHARS - 1]
+    return f"{stem}_{digest}" if stem else f"name_{digest}"
 
 
 def made_by(command: str) -> dict[str, str]:

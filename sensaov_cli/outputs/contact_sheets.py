@@ -36,8 +36,7 @@ from sensaov_cli.outputs.atomic import (
 )
 from sensaov_cli.outputs.exr import exr_writer
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
-from sensaov_cli.outputs.png import write_png
-from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay
+from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay, write_png
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.display_scale import DisplayScale, clipped_share, signed_pixels
 from sensaov_cli.views.hierarchy import TRUSTED
@@ -193,13 +192,11 @@ def _legend_notes(
     elif left_out:
         lines.append(f"left out (untrusted, see {layer.pass_name}_untrusted): "
                      + ", ".join(sorted(left_out)))  # fmt: skip
-    zero = layer.zero_valued or {}
-    if zero:
-        raw = ", ".join(f"{k} (raw dM/dtheta {v:+.2e})" for k, v in zero.items())
+    if layer.zero_valued:
+        raw = ", ".join(f"{k} (raw dM/dtheta {v:+.2e})" for k, v in layer.zero_valued.items())
         lines.append(f"theta = 0, scored 0 whatever the gradient: {raw}")
-    invisible = layer.invisible or ()
-    if invisible:
-        lines.append("not in this view: " + ", ".join(invisible))
+    if layer.invisible:
+        lines.append("not in this view: " + ", ".join(layer.invisible))
     if layer.duality_failed:
         lines.append("duality check FAILED: do not trust this layer")
     return lines
@@ -251,7 +248,7 @@ def enlarged(tile: np.ndarray, width: int = SINGLE_TILE_WIDTH) -> np.ndarray:
 
 def safe_file_stem(key: str) -> str:
     """``a/b.c`` -> ``a_b_c-<6 hex>``: safe on every file system, unique per key."""
-    stem = _UNSAFE.sub("_", key[: -len(".data")] if key.endswith(".data") else key)
+    stem = _UNSAFE.sub("_", key.removesuffix(".data"))
     if stem != key:
         stem += "-" + hashlib.sha256(key.encode()).hexdigest()[:6]
     return stem

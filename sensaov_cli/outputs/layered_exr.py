@@ -1,5 +1,5 @@
 """The multilayer EXR a compositor opens: beauty, Cryptomatte ID layers, sensitivity passes and
-their display layers.
+their display layers; and, read back from a camera's EXR, which objects that camera sees.
 
 One file per camera: ``objective.pass.Y`` (or ``.R/.G/.B``) beside an ``R,G,B,A`` beauty and a
 real Cryptomatte (``CryptoObject00..02``), so a keyer's matte can gate any pass. Compositors are
@@ -18,16 +18,16 @@ from __future__ import annotations
 import json
 import re
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
+import mmh3
 import numpy as np
 
-from sensaov_cli.errors import ExrError
-from sensaov_cli.outputs import cryptomatte
-from sensaov_cli.outputs.exr import write_exr
+from sensaov_cli.errors import CameraFileError, CryptomatteError, ExrError
+from sensaov_cli.outputs.exr import read_exr, write_exr
 from sensaov_cli.outputs.previews import diverging_linear, diverging_linear_planes
 from sensaov_cli.views.display_scale import DisplayScale, clipped_share, signed_pixels
 
@@ -45,18 +45,26 @@ DISPLAY_ENCODING = (
 DUALITY_FAILED = "EXCEEDS TOLERANCE: do not trust this layer"
 # What a layer shows: "" a buffer channel's values, or a forward, transport, texel or display one.
 LayerKind = Literal["", "forward", "transport", "texel", "display"]
+# Cryptomatte (below)
+HASH_NAME = "MurmurHash3_32"
+CONVERSION = "uint32_to_float32"
+DEFAULT_RANKS = 6
+TYPE_NAME_PATTERN = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,60}")
+_EXPONENT_SHIFT = 23
+_EXPONENT_MASK = 0xFF
+OBJECT_TYPE = "CryptoObject"
 
 
 @dataclass(frozen=True, eq=False)
 class CryptoLayer:
     """Ranked per-pixel coverage of named things for one Cryptomatte type (as
-    :func:`cryptomatte.rank_channels` takes it)."""
+    :func:`rank_channels` takes it)."""
 
     type_name: str
     names: Sequence[str]
     rank_index: np.ndarray
     rank_coverage: np.ndarray
-    ranks: int = cryptomatte.DEFAULT_RANKS
+    ranks: int = DEFAULT_RANKS
     ordered: bool = False  # ranks already in order, empty last at 0 (a visibility pass's)
 
 
@@ -67,14 +75,6 @@ class ScaleGroup:
     name: str  # e.g. ``<objective>/<channel>``
     role: str | None = None  # REFERENCE sets the scale, FOLLOWER follows it; None: not recorded
     fixed: float | None = None  # set by what the layer means (1: an even spread), not its pixels
-
-
-@dataclass(frozen=True)
-class Display:
-    """The display scale a layer is pictured at, and the share of this camera's pixels it clips."""
-
-    scale: DisplayScale
-    clipped: float
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,7 +95,8 @@ class SensitivityLayer:
     left_out: Mapping[str, tuple[str, ...]] | None = None  # object -> its untrusted keys
     zero_valued: Mapping[str, float] | None = None  # key -> raw sum of dM/dtheta at theta = 0
     duality_agrees: bool | None = None  # a transport layer's duality check
-    display: Display | None = None
+    display: DisplayScale | None = None  # the scale a layer is pictured at
+    display_clipped: float = 0.0  # the share of this camera's non-zero pixels above it
 
     @property
     def original_name(self) -> str:
@@ -126,15 +127,15 @@ def write_layered_exr(
         image = _as_float32(beauty)
         channels.update({n: image[..., i] for i, n in enumerate(BEAUTY_CHANNELS[: image.shape[2]])})
     for crypto in cryptomattes:
-        channels.update(cryptomatte.rank_channels(
+        channels.update(rank_channels(
             crypto.type_name, crypto.names, crypto.rank_index, crypto.rank_coverage, crypto.ranks,
             ordered=crypto.ordered,
         ))  # fmt: skip
-        header.update(cryptomatte.metadata(crypto.type_name, crypto.names))
+        header.update(metadata(crypto.type_name, crypto.names))
     reserved = {
         f"{crypto.type_name}{index:02d}"
         for crypto in cryptomattes
-        for index in range(cryptomatte.layer_count(crypto.ranks))
+        for index in range(layer_count(crypto.ranks))
     }
     for layer, name in zip(layers, layer_names(layers, reserved=reserved), strict=True):
         channels.update(_sensitivity_channels(layer, name))
@@ -216,17 +217,16 @@ def layer_metadata(layer: SensitivityLayer, name: str) -> dict[str, str]:
         entries["zero_valued"] = json.dumps(dict(layer.zero_valued))
     if layer.duality_agrees is not None:
         entries["duality"] = "agrees" if layer.duality_agrees else DUALITY_FAILED
-    if layer.display is not None:
-        scale = layer.display.scale
+    if (scale := layer.display) is not None:
         entries |= {
             "display_scale": repr(scale.value),
             "display_rule": scale.rule(),
             "display_scope": scale.scope,
             "display_cameras": json.dumps(list(scale.cameras)),
-            "display_clipped": repr(layer.display.clipped),  # of this camera's non-zero pixels
+            "display_clipped": repr(layer.display_clipped),
             "display_clipped_all": repr(scale.clipped),  # every camera of the rule, equally
         }
-    prefix = f"sensaov/{cryptomatte.layer_key(name)}"
+    prefix = f"sensaov/{layer_key(name)}"
     return {f"{prefix}/{key}": value for key, value in entries.items()}
 
 
@@ -245,13 +245,13 @@ def with_display(
     """The raw layer with its display scale, and its display layer (``background``: the
     camera's :func:`display_background`, shown where the layer is zero)."""
     values = signed_pixels(layer.data, layer.kind)
-    shown = Display(scale, clipped_share([values], scale.value))
+    clipped = clipped_share([values], scale.value)
     # Half keeps the picture's sRGB 8-bit codes (tested); planes make each channel contiguous.
     planes = diverging_linear_planes(values, scale.value, np.float16)
     np.copyto(planes, background, where=(values == 0)[None])
     display_name = layer.pass_name + DISPLAY_SUFFIX
     metadata = {**layer.metadata, "display_layer": f"{layer.objective}.{display_name}"}
-    raw = replace(layer, metadata=metadata, display=shown)
+    raw = replace(layer, metadata=metadata, display=scale, display_clipped=clipped)
     display = SensitivityLayer(
         layer.objective,
         display_name,
@@ -265,20 +265,21 @@ def with_display(
         group=ScaleGroup(layer.group.name),
         part=layer.part,
         left_out=layer.left_out,
-        display=shown,
+        display=scale,
+        display_clipped=clipped,
     )
     return raw, display
 
 
 def _with_suffix(token: str, original: str) -> str:
-    suffix = f"_{cryptomatte.name_hash(original):08x}"[: SUFFIX_HEX + 1]
+    suffix = f"_{name_hash(original):08x}"[: SUFFIX_HEX + 1]
     return token[: TOKEN_BYTES - len(suffix)] + suffix
 
 
 def _check_unique(names: Sequence[str], reserved: set[str] | frozenset[str]) -> None:
     views = [name.replace(".", "_") for name in names] + sorted(reserved)
     clashing = sorted(view for view, count in Counter(views).items() if count > 1)
-    keys = Counter(cryptomatte.layer_key(name) for name in names)
+    keys = Counter(layer_key(name) for name in names)
     if clashing or len(keys) < len(names):
         raise ExrError(
             f"sensitivity layer names still clash after sanitising: {clashing or sorted(keys)}",
@@ -312,3 +313,227 @@ def _non_finite(data: np.ndarray) -> int:
 def _as_float32(data: np.ndarray) -> np.ndarray:
     with np.errstate(over="ignore"):  # an overflow becomes inf, which the caller reports
         return np.ascontiguousarray(data, dtype=np.float32)
+
+
+# Cryptomatte 1.2 ID layers: object names hashed into float IDs, ranked coverage, manifest.
+# A keyer picks an object by hashing the name the artist chose, so the IDs must be exactly the
+# specification's: MurmurHash3_x86_32 (seed 0) of the UTF-8 name, its exponent forced into
+# [1, 254] (never a denormal, infinity or NaN), as the bits of a little-endian float32. Layers
+# ``{T}00``, ``{T}01``, … hold two ranks each as (ID, coverage, ID, coverage); the deprecated
+# preview layer ``{T}.R/G/B`` is never written (Blender 3.4 mistakes it for another rank).
+# An object is in a camera's frame when its ID covers some pixel of the camera's ``CryptoObject``
+# layers (:func:`visible_objects`); the manifest names every object of the scene, seen or not.
+
+
+def name_hash(name: str) -> int:
+    return int(mmh3.hash(name.encode("utf-8"), seed=0, signed=False))
+
+
+def id_bits(name: str) -> int:
+    """The 32 bits of ``name``'s ID: its hash with the exponent moved off 0 and 255."""
+    bits = name_hash(name)
+    exponent = (bits >> _EXPONENT_SHIFT) & _EXPONENT_MASK
+    if exponent in (0, _EXPONENT_MASK):
+        bits ^= 1 << _EXPONENT_SHIFT
+    return bits
+
+
+def uint32_to_float32(bits: int) -> np.float32:
+    """Reinterpret 32 bits as a little-endian float32 (the specification's conversion)."""
+    return np.array([bits], dtype="<u4").view("<f4")[0]
+
+
+def id_float(name: str) -> np.float32:
+    return uint32_to_float32(id_bits(name))
+
+
+def id_hex(name: str) -> str:
+    """The ID as the manifest writes it: 8 lowercase hex digits of the float's bits."""
+    return f"{id_bits(name):08x}"
+
+
+def manifest(names: Sequence[str]) -> str:
+    """The JSON manifest ``{"name": "8-hex ID"}``, sorted, compact, UTF-8 names unescaped
+    (identical names merge into one entry, as the specification intends)."""
+    entries = {name: id_hex(name) for name in sorted(set(names))}
+    return json.dumps(entries, ensure_ascii=False, separators=(",", ":"), sort_keys=True)
+
+
+def layer_key(type_name: str) -> str:
+    """The metadata key of a type: the first 7 hex digits of its name's hash (stable per type)."""
+    return f"{name_hash(type_name):08x}"[:7]
+
+
+def layer_count(ranks: int) -> int:
+    """How many RGBA layers hold ``ranks`` ranks (two per layer)."""
+    return (ranks + 1) // 2
+
+
+def channel_names(type_name: str, ranks: int = DEFAULT_RANKS) -> list[str]:
+    """The channel names :func:`rank_channels` writes, in order: ``T00.R`` … ``T02.A``."""
+    return [f"{type_name}{layer:02d}.{c}" for layer in range(layer_count(ranks)) for c in "RGBA"]
+
+
+def rank_channels(
+    type_name: str,
+    names: Sequence[str],
+    rank_index: np.ndarray,
+    rank_coverage: np.ndarray,
+    ranks: int = DEFAULT_RANKS,
+    *,
+    ordered: bool = False,
+) -> dict[str, np.ndarray]:
+    """Cryptomatte channels (name -> H x W float32) from per-pixel ranked coverage.
+
+    ``rank_index`` (H, W, R) indexes ``names`` (-1 = empty rank); ``rank_coverage`` (H, W, R)
+    is each rank's coverage. Ranks are stably sorted by coverage, largest first, empty ranks
+    last; the first ``ranks`` are written, padded with ID 0 / coverage 0, into a fixed
+    ``ceil(ranks / 2)`` layers, so a sequence keeps its channels on every frame. ``ordered``
+    promises that order already (empty ranks at coverage 0, as a visibility pass builds them):
+    nothing is then zeroed, checked or sorted.
+    """
+    _check_type_name(type_name)
+    index, coverage = _checked_ranks(names, rank_index, rank_coverage)
+    ids = np.array([id_float(name) for name in names] + [np.float32(0.0)], dtype=np.float32)
+    if not ordered:
+        empty = index < 0
+        coverage = np.where(empty, np.float32(0.0), coverage)
+        if not _in_rank_order(coverage, empty):
+            # Empty ranks sort last whatever their coverage; among the rest, largest first.
+            order = np.lexsort((-coverage, empty), axis=-1)
+            index = np.take_along_axis(index, order, axis=-1)
+            coverage = np.take_along_axis(coverage, order, axis=-1)
+    height, width, present = index.shape
+    channels: dict[str, np.ndarray] = {}
+    names_out = channel_names(type_name, ranks)
+    for rank in range(2 * layer_count(ranks)):
+        id_name, cov_name = names_out[2 * rank], names_out[2 * rank + 1]
+        if rank < min(present, ranks):
+            channels[id_name] = ids[index[..., rank]]  # index -1 picks the trailing 0.0
+            channels[cov_name] = np.ascontiguousarray(coverage[..., rank])
+        else:  # padding: ranks asked for beyond those present, and the last layer's odd one
+            channels[id_name] = np.zeros((height, width), dtype=np.float32)
+            channels[cov_name] = np.zeros((height, width), dtype=np.float32)
+    return channels
+
+
+def metadata(type_name: str, names: Sequence[str]) -> dict[str, str]:
+    """The header attributes ``cryptomatte/<key>/name|hash|conversion|manifest`` of one type."""
+    _check_type_name(type_name)
+    prefix = f"cryptomatte/{layer_key(type_name)}"
+    return {
+        f"{prefix}/name": type_name,
+        f"{prefix}/hash": HASH_NAME,
+        f"{prefix}/conversion": CONVERSION,
+        f"{prefix}/manifest": manifest(names),
+    }
+
+
+def _check_type_name(type_name: str) -> None:
+    if not TYPE_NAME_PATTERN.fullmatch(type_name):
+        raise CryptomatteError(
+            f"Cryptomatte type name {type_name!r} is not a compositor-safe layer name",
+            hint="use 1 to 61 characters from [A-Za-z0-9_], not starting with a digit, "
+            "e.g. CryptoObject or CryptoMaterial",
+        )
+
+
+def _in_rank_order(coverage: np.ndarray, empty: np.ndarray) -> bool:
+    """Whether the stable sort would leave every pixel's ranks as they are."""
+    filled_after_empty = empty[..., :-1] & ~empty[..., 1:]
+    increasing = coverage[..., 1:] > coverage[..., :-1]
+    return not (filled_after_empty.any() or (increasing & ~empty[..., 1:]).any())
+
+
+def _checked_ranks(
+    names: Sequence[str], rank_index: np.ndarray, rank_coverage: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    index = np.asarray(rank_index)
+    coverage = np.asarray(rank_coverage)
+    if index.ndim != 3 or coverage.shape != index.shape:
+        raise CryptomatteError(
+            f"rank_index {index.shape} and rank_coverage {coverage.shape} must share one "
+            "(H, W, R) shape",
+            hint="pass the visibility pass's ranked ids and coverage unchanged",
+        )
+    if index.size and (index.min() < -1 or index.max() >= len(names)):
+        raise CryptomatteError(
+            f"rank_index holds {int(index.min())}..{int(index.max())} but there are "
+            f"{len(names)} names",
+            hint="indices run from 0 to len(names) - 1, with -1 for an empty rank",
+        )
+    return index, coverage.astype(np.float32, copy=False)
+
+
+def visible_objects(
+    paths: Sequence[Path], check: Callable[[Path, Mapping[str, Any]], None]
+) -> dict[str, frozenset[str]]:
+    """Camera name (the file's stem, as ``project`` names it) -> the objects it sees; ``check``
+    is called with each file's header first (``rank --exr`` refuses an EXR of another buffer)."""
+    seen = {}
+    for path in paths:
+        if path.stem in seen:
+            raise CameraFileError(
+                "two files for one camera", where=str(path), hint="pass each once"
+            )
+        try:
+            channels, header = read_exr(path)
+        except ExrError as error:  # a file the user named: bad input, not a failed job
+            raise CameraFileError(error.message, where=error.where, hint=error.hint) from error
+        check(path, header)
+        seen[path.stem] = seen_names(channels, header, where=str(path))
+    return seen
+
+
+def seen_names(
+    channels: Mapping[str, np.ndarray], header: Mapping[str, Any], *, where: str = "EXR"
+) -> frozenset[str]:
+    """The manifest names of ``CryptoObject`` whose ID has coverage > 0 in some pixel."""
+    names = _manifest(header, where)
+    pattern = re.compile(rf"^{OBJECT_TYPE}\d\d\.([RGBA])$")
+    layers = {name[:-2] for name in channels if pattern.match(name)}
+    ids: set[float] = set()
+    for layer in sorted(layers):
+        for id_channel, coverage_channel in (("R", "G"), ("B", "A")):  # an ID, its coverage
+            pair = (f"{layer}.{id_channel}", f"{layer}.{coverage_channel}")
+            missing = [name for name in pair if name not in channels]
+            if missing:
+                raise CameraFileError(f"Cryptomatte channel {missing[0]} is missing", where=where)
+            ids.update(np.asarray(channels[pair[0]])[np.asarray(channels[pair[1]]) > 0].tolist())
+    return frozenset(name for name in names if float(id_float(name)) in ids)
+
+
+def _manifest(header: Mapping[str, Any], where: str) -> list[str]:
+    for key, value in header.items():
+        if key.startswith("cryptomatte/") and key.endswith("/name") and value == OBJECT_TYPE:
+            return _manifest_names(header.get(key[: -len("name")] + "manifest", "{}"), where)
+    raise CameraFileError(
+        f"no {OBJECT_TYPE} layer",
+        where=where,
+        hint="pass an inspection camera's EXR written by 'sensaov project'",
+    )
+
+
+def _manifest_names(manifest: Any, where: str) -> list[str]:
+    """The object names of a Cryptomatte manifest: a JSON object of name -> 8 hex digits."""
+    try:
+        names = json.loads(manifest) if isinstance(manifest, str | bytes) else None
+    except (ValueError, RecursionError):
+        names = None
+    if not isinstance(names, dict) or not all(isinstance(v, str) for v in names.values()):
+        raise CameraFileError(
+            f"the {OBJECT_TYPE} manifest is not a JSON object of names and IDs",
+            where=where,
+            hint="pass an inspection camera's EXR written by 'sensaov project'",
+        )
+    # Names are matched by their hash: an ID that is not its name's hash would list the wrong
+    # objects as seen.
+    wrong = next((name for name, value in names.items() if value.lower() != id_hex(name)), None)
+    if wrong is not None:
+        raise CameraFileError(
+            f"the {OBJECT_TYPE} manifest gives {wrong[:60]!r} the ID {names[wrong][:20]!r}, "
+            f"not its Cryptomatte hash {id_hex(wrong)}",
+            where=where,
+            hint="the file is damaged: run 'sensaov project' again for this camera",
+        )
+    return list(names)

@@ -1,22 +1,32 @@
-"""PNG previews of sensitivity channels, for people who would rather look than read.
+"""PNG previews of sensitivity channels, for people who would rather look than read, and the
+PNG files they go to: encoded by Pillow in memory, written atomically, read back.
 
 Values are drawn on ColorBrewer's RdBu: blue where increasing the parameters lowers the
 objective, red where it raises it, near-white at zero, saturating at ±scale. The scale is an
 argument, so one channel seen from several cameras shares one (Fig. 6). Text is drawn with
 OpenImageIO's ``render_text`` in the DroidSans font its wheel ships. The data live in the EXRs.
+
+OpenImageIO's PNG writer reports success on a full disk and leaves a cut-off file; Python's
+``write`` raises ``OSError`` for every failure. Text chunks (``tEXt``, Latin-1) trace a preview
+back to its data. Pillow's encoder holds the GIL, so previews are written one after the other.
 """
 
 from __future__ import annotations
 
 import functools
+import io
 import math
-from collections.abc import Sequence
+import struct
+import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+from PIL import Image, PngImagePlugin
 
 from sensaov_cli.errors import NonFiniteError, PreviewError
-from sensaov_cli.outputs.png import check_rgb
+from sensaov_cli.outputs.atomic import atomic_write_bytes
 from sensaov_cli.views.coverage import run_starts
 
 # ColorBrewer RdBu, 11 classes (Brewer 2002), from -scale (blue) to +scale (red); symmetric in
@@ -62,7 +72,9 @@ def diverging_linear_planes(
     starts = run_starts(flat)
     lengths = np.diff(starts, append=flat.size)
     srgb = np.rint(_diverging_srgb(flat[starts], scale)) / 255.0
-    colours = _linear(srgb).astype(np.float32).astype(dtype)
+    # decoded by the inverse of the sRGB transfer curve (IEC 61966-2-1)
+    linear = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    colours = linear.astype(np.float32).astype(dtype)
     planes = np.empty((3, x.size), dtype)
     for channel in range(3):
         planes[channel] = np.repeat(colours[:, channel], lengths)
@@ -299,13 +311,77 @@ def srgb_uint8(linear: np.ndarray) -> np.ndarray:
     return np.rint(_srgb(np.clip(clean, 0.0, 1.0)) * 255.0).astype(np.uint8)
 
 
-def _linear(encoded: np.ndarray) -> np.ndarray:
-    """The inverse of :func:`_srgb` (IEC 61966-2-1) on [0, 1]."""
-    return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
-
-
 def _srgb(linear: np.ndarray) -> np.ndarray:
     """The sRGB transfer curve (IEC 61966-2-1) of values in [0, 1]."""
     return np.where(
         linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1.0 / 2.4) - 0.055
     )
+
+
+_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_MAX_KEYWORD = 79  # bytes, by the PNG specification
+# A header declaring more pixels than Pillow decodes (the warning: made an error below).
+_TOO_LARGE = (Image.DecompressionBombError, Image.DecompressionBombWarning)
+LEVEL = 3  # zlib's level for files: nearly as small as the default 6, far faster
+
+
+def encode_png(
+    rgb_uint8: np.ndarray, text: Mapping[str, str] | None = None, level: int = LEVEL
+) -> bytes:
+    """An (H, W, 3) uint8 image as PNG bytes (8-bit RGB, no interlace), with ``text`` as
+    ``tEXt`` chunks (what Latin-1 cannot hold becomes ``?``); ``level`` is zlib's."""
+    check_rgb(rgb_uint8)
+    info = PngImagePlugin.PngInfo()
+    for key, value in (text or {}).items():
+        keyword = key.encode("latin-1", "replace")[:_MAX_KEYWORD]
+        info.add_text(keyword, value.encode("latin-1", "replace"))  # bytes: always tEXt
+    out = io.BytesIO()
+    Image.fromarray(rgb_uint8).save(out, "PNG", pnginfo=info, compress_level=level)
+    return out.getvalue()
+
+
+def write_png(path: Path, rgb_uint8: np.ndarray, text: Mapping[str, str] | None = None) -> None:
+    atomic_write_bytes(Path(path), encode_png(rgb_uint8, text))
+
+
+def check_rgb(rgb: np.ndarray) -> None:
+    """Refuse anything but an (H, W, 3) uint8 image: Pillow would write another kind of PNG
+    (grey, RGBA, 16-bit) without a word."""
+    if rgb.dtype != np.uint8:
+        raise ValueError(f"expected a uint8 image, got {rgb.dtype}")
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"expected an (H, W, 3) image, got shape {rgb.shape}")
+
+
+def png_problem(data: bytes) -> str | None:
+    """Why ``data`` is not a whole PNG a browser shows as written (None: it is): every chunk's
+    checksum through IEND, and pixels that decode to the size the header declares. A header
+    declaring more pixels than Pillow's decompression-bomb limit is refused before decoding."""
+    if not data:
+        return "an empty file"
+    if not data.startswith(_SIGNATURE):
+        return "not a PNG file"
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with Image.open(io.BytesIO(data), formats=["PNG"]) as image:
+                image.verify()
+            with Image.open(io.BytesIO(data), formats=["PNG"]) as image:
+                image.load()
+    except Image.UnidentifiedImageError:  # its message names the stream, not the cause
+        return "a PNG whose header chunks are damaged"
+    # Pillow says a file is damaged with OSError (cut short), SyntaxError (a checksum),
+    # struct.error (a chunk cut short) or ValueError.
+    except (OSError, SyntaxError, struct.error, ValueError, *_TOO_LARGE) as error:
+        return f"not a whole PNG ({' '.join(str(error).split())[:120]})"
+    return None
+
+
+def read_png_text(path: Path) -> dict[str, str]:
+    """The text chunks of a PNG file before its pixels (where sensaov writes its text), without
+    decoding the pixels. Raises ``OSError`` or ``ValueError`` for a damaged file."""
+    with Image.open(path, formats=["PNG"]) as image:
+        info = image.info.items()  # text as str; the rest (gamma, dpi, ...) as other types
+        return {
+            key: value for key, value in info if isinstance(key, str) and isinstance(value, str)
+        }

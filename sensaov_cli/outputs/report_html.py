@@ -27,7 +27,7 @@ from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.limits import read_regular, regular_file
 from sensaov_cli.outputs import tables
 from sensaov_cli.outputs.atomic import atomic_write_bytes
-from sensaov_cli.outputs.png import png_problem
+from sensaov_cli.outputs.previews import png_problem
 from sensaov_cli.views.hierarchy import Ranking, RankRow
 
 REPORT_FORMAT = "sensaov-report"
@@ -189,6 +189,10 @@ def _appendix(content: ReportContent) -> str:
             "no camera's manifest lists (left from an earlier state of the job): "
             f"{html.escape(', '.join(content.ignored[:8]))}</p>"
         )
+    trust = [
+        [p.key, p.type, p.plugin, ", ".join(p.owners) or "-", p.trust, p.note]
+        for p in content.buffer.params
+    ]
     return "\n".join(
         [
             '<section id="appendix">',
@@ -198,7 +202,7 @@ def _appendix(content: ReportContent) -> str:
             "<h3>Rankings in full</h3>",
             _rankings_html(content.rankings),
             "<h3>Trust of the buffer's parameters</h3>",
-            _trust_table(content.buffer.params),
+            _table(["key", "type", "plugin", "owners", "trust", "note"], trust, set()),
             "<h3>Provenance</h3>",
             _provenance_table(content.buffer.provenance),
             "</section>",
@@ -241,7 +245,7 @@ def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -
     if not rows:
         return '<p class="note">(none)</p>'
     cameras = any(row.off_frame is not None for row in rows)
-    errors = r.batches is not None
+    errors = r.significance is not None
     trust = any(row.trust != "verified" for row in rows)  # every row verified: said once, below
     headers = ["#", "", r.by, "score", "signed", *(["±", "sign"] * errors), "share",
                *(["trust"] * trust), *(["off-frame"] * cameras)]  # fmt: skip
@@ -325,11 +329,6 @@ def _rankings_html(by_cut: Mapping[str, tuple[Ranking, ...]]) -> str:
     if first is not None:
         parts.append(_significance(first))
     return "\n".join(parts)
-
-
-def _trust_table(params: Sequence[ParamRecord]) -> str:
-    rows = [[p.key, p.type, p.plugin, ", ".join(p.owners) or "-", p.trust, p.note] for p in params]
-    return _table(["key", "type", "plugin", "owners", "trust", "note"], rows, set())
 
 
 def _provenance_table(provenance: Mapping[str, Any]) -> str:

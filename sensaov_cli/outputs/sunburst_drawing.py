@@ -1,6 +1,6 @@
 """The sunburst as an SVG or PNG (paper Fig. 1), drawn with matplotlib from views' wedges.
 
-:mod:`sensaov_cli.views.sunburst_geometry` computes every angle; this module only draws.
+:mod:`sensaov_cli.views.hierarchy` computes every angle; this module only draws.
 Colour is the wedge's signed sum Σc on the previews' RdBu relative to the largest |Σc| in its
 ring, so a pale wedge is a small one or one whose parameters pull both ways. Unverified wedges
 are hatched. matplotlib is imported lazily, with the Agg backend: no display is needed.
@@ -23,7 +23,7 @@ import numpy as np
 from sensaov_cli.errors import OutputError
 from sensaov_cli.outputs.atomic import atomic_write_bytes, scratch_folder
 from sensaov_cli.outputs.previews import RDBU, diverging_rgb
-from sensaov_cli.views.sunburst_geometry import Panel, Wedge
+from sensaov_cli.views.hierarchy import Panel, Wedge
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -150,10 +150,9 @@ def _draw_wedge(ax: Axes, wedge: Wedge, colour: tuple[float, ...], inches: float
     )
     ax.add_patch(ring(facecolor=colour, edgecolor="white", linewidth=0.8))
     hatches = _HATCH * (wedge.trust != "verified") + _NOISE_HATCH * (wedge.significant is False)
-    hatched = bool(hatches)
-    if hatched:  # a second, unfilled patch: matplotlib hatches in the edge colour
+    if hatches:  # a second, unfilled patch: matplotlib hatches in the edge colour
         ax.add_patch(ring(fill=False, hatch=hatches, edgecolor="#444444", linewidth=0))
-    _label(ax, wedge, (inner, outer), colour, hatched, inches)
+    _label(ax, wedge, (inner, outer), colour, bool(hatches), inches)
 
 
 def _label(

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from sensaov_cli.job.spec import JobSpec
-from sensaov_cli.outputs.parameter_tables import ParameterInventory
+from sensaov_cli.outputs.tables import ParameterInventory
 from sensaov_cli.render.loading import load_scene
 from sensaov_cli.render.verify.repair import planned
 from sensaov_cli.scene import prepare_scene

@@ -63,7 +63,15 @@ from sensaov_cli.render.visibility import (
     trace,
 )
 from sensaov_cli.scene import prepare_scene
-from sensaov_cli.views.channels import ChannelValues, channel_values, paint_pass
+from sensaov_cli.views.channels import (
+    ChannelValues,
+    ForwardView,
+    TransportView,
+    channel_values,
+    forward_views,
+    paint_pass,
+    transport_views,
+)
 from sensaov_cli.views.coverage import VisibilityPass, ranked
 from sensaov_cli.views.display_scale import (
     FOLLOWER,
@@ -85,7 +93,6 @@ from sensaov_cli.views.texels import (
     texture_footprint,
     texture_keys,
 )
-from sensaov_cli.views.transport import ForwardView, TransportView, forward_views, transport_views
 
 DEFAULT_BEAUTY_SPP = 4
 PROBE_TOLERANCE = 1e-4  # relative to the texture's largest value; float32 lookups agree to ~1e-6

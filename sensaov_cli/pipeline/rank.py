@@ -98,7 +98,7 @@ def _visible(
 ) -> dict[str, frozenset[str]]:
     """What each camera's EXR sees, each EXR checked to come from this very buffer."""
     # Imported here: only --exr needs them, and the job spec they load costs every rank time.
-    from sensaov_cli.outputs.cryptomatte import visible_objects
+    from sensaov_cli.outputs.layered_exr import visible_objects
     from sensaov_cli.pipeline.project import check_made_from
 
     remake = f"sensaov project JOB, with the job that wrote {buffer.name}"

@@ -26,10 +26,9 @@ from sensaov_cli.outputs.atomic import (
     recorded_inputs,
     refuse_unsafe_outputs,
 )
-from sensaov_cli.outputs.cryptomatte import seen_names
 from sensaov_cli.outputs.exr import read_exr
-from sensaov_cli.outputs.png import encode_png, read_png_text
-from sensaov_cli.outputs.previews import srgb_uint8
+from sensaov_cli.outputs.layered_exr import seen_names
+from sensaov_cli.outputs.previews import encode_png, read_png_text, srgb_uint8
 from sensaov_cli.outputs.report_html import (
     CameraSection,
     ObjectiveSection,
@@ -43,8 +42,7 @@ from sensaov_cli.outputs.sunburst_drawing import sunburst_bytes
 from sensaov_cli.pipeline.project import check_buffer_of_job, check_made_by, check_made_from
 from sensaov_cli.pipeline.run import BUFFER_NAME, PRIMAL_NAME
 from sensaov_cli.scene.expand import expand_scene
-from sensaov_cli.views.hierarchy import is_trusted, rankings
-from sensaov_cli.views.sunburst_geometry import panels
+from sensaov_cli.views.hierarchy import is_trusted, panels, rankings
 
 REPORT_NAME = "report.html"
 SUMMARY_TOP = 5  # objects per objective in the summary; the appendix ranks them all

@@ -59,7 +59,7 @@ from sensaov_cli.render.objectives import Objective, build_objectives
 from sensaov_cli.render.runtime import library_versions
 from sensaov_cli.render.verify.repair import repair
 from sensaov_cli.scene import PreparedScene, prepare_scene
-from sensaov_cli.views.transport import direction_values, group_keys, top_objects, transport_views
+from sensaov_cli.views.channels import direction_values, group_keys, top_objects, transport_views
 
 BUFFER_NAME = "buffer.npz"
 PRIMAL_NAME = "primal.exr"

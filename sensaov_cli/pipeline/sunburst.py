@@ -12,7 +12,7 @@ from sensaov_cli.outputs.atomic import (
     refuse_unsafe_outputs,
 )
 from sensaov_cli.outputs.sunburst_drawing import write_sunburst
-from sensaov_cli.views.sunburst_geometry import panels
+from sensaov_cli.views.hierarchy import panels
 from sensaov_cli.vocabulary import Aggregate, Order, Untrusted, Weight
 
 

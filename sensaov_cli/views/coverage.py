@@ -83,10 +83,7 @@ class VisibilityPass:
     @property
     def coverage_hit(self) -> np.ndarray:
         """(H, W) fraction of samples that hit any object (an alpha for the beauty)."""
-        hits = np.bincount(
-            self.coverage.pixel, weights=self.coverage.count, minlength=self.width * self.height
-        )
-        return (hits / self.spp).astype(np.float32).reshape(self.height, self.width)
+        return self.paint(np.ones(len(self.objects)))
 
     @cached_property
     def visible_objects(self) -> tuple[str, ...]:

@@ -471,12 +471,6 @@ class TexelField:
         return math.fsum(self.pooled.ravel()) / self.unit_factor
 
     @functools.cached_property
-    def raw_empty(self) -> np.ndarray:
-        """(H, W) bool: texels with no contribution in any channel, before pooling."""
-        empty: np.ndarray = np.abs(self.raw).max(axis=2) == 0
-        return empty
-
-    @functools.cached_property
     def pooled_empty(self) -> np.ndarray:
         """(H, W) bool: texels that pooling left with nothing in any channel."""
         empty: np.ndarray = np.abs(self.pooled).max(axis=2) == 0
@@ -600,8 +594,7 @@ class TexelPass:
 
 def texture_token(key: str) -> str:
     """A texture key as one name token: ``wall.reflectance.data`` -> ``wall_reflectance``."""
-    stem = key[: -len(".data")] if key.endswith(".data") else key
-    return _UNSAFE.sub("_", stem)
+    return _UNSAFE.sub("_", key.removesuffix(".data"))
 
 
 def owners_in(tf: TexelField, visibility: VisibilityPass) -> list[str]:
@@ -646,7 +639,7 @@ def _common_metadata(tf: TexelField, seen: np.ndarray, notes: list[str]) -> dict
         "signed_sum": repr(tf.signed_sum),
         "pooled_sum": repr(tf.pooled_sum),
         "texels_seen": str(int(seen.sum())),
-        "seen_empty_before_pool": str(int(np.count_nonzero(tf.raw_empty & seen))),
+        "seen_empty_before_pool": str(int(np.count_nonzero(~tf.raw.any(axis=2) & seen))),
         "seen_empty_after_pool": str(int(np.count_nonzero(tf.pooled_empty & seen))),
         "unverified": json.dumps(
             [tf.record.key] if tf.record.trust not in ("verified", "no_gradient") else []
