@@ -1,4 +1,4 @@
-"""Trust by composition (issue 19): a parameter's label and integrator follow the composites its
+"""Trust by composition: a parameter's label and integrator follow the composites its
 gradient passes. A diffuse child beside a smooth conductor in a blend is right only through
 ``path`` (prb is 40 % off), the blend's weight is wrong either way and says so, a mask's opacity
 goes through ``path``; ``run`` applies it (docs/verification.md, "Composites").

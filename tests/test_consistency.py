@@ -1,6 +1,6 @@
 """One consistent state: every output records its buffer, and nothing mixes two states.
 
-The cases of issue 18, point 7, played on one small job in order (each step's result recorded
+Which outputs belong together, played on one small job in order (each step's result recorded
 once, checked by its own test): rename an objective and re-run; re-run `run` alone; project a
 buffer of an earlier job version; share an output folder with another job; `rank --exr` with an
 EXR of another buffer.

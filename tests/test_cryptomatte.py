@@ -226,7 +226,7 @@ def test_empty_ranks_are_zero_even_with_stray_coverage() -> None:
 
 
 def test_ranks_already_in_order_skip_the_sort_with_the_same_channels() -> None:
-    """A visibility pass's ranks come in order and are not sorted again (issue 23): the
+    """A visibility pass's ranks come in order and are not sorted again: the
     channels equal those of the same ranks shuffled per pixel, which must be sorted."""
     rng = np.random.default_rng(3)
     names = [f"n{k}" for k in range(9)]

@@ -46,7 +46,7 @@ from .test_report import make_buffer as report_buffer
 
 
 def test_a_few_pixels_never_set_the_scale() -> None:
-    """99 % of the pixels at 0.39 and a lamp of 1 % at 18.7 (issue 18, point 2): p95 = 0.39."""
+    """99 % of the pixels at 0.39 and a lamp of 1 % at 18.7: p95 = 0.39."""
     image = np.full((10, 10), 0.39)
     image[0, 0] = 18.7
     scale = robust_scale({"objective": [image]})
@@ -83,9 +83,9 @@ def sorted_rule(magnitudes: list[np.ndarray], percentile: float) -> float:
 
 
 def test_the_percentile_by_selection_is_the_documented_sorted_rule() -> None:
-    """Cameras of one size take a selection instead of a sort, others merge pre-sorted pixels
-    (issue 23): the value is the sorted rule's, ties and all, for one camera, two of one size
-    and two of different sizes."""
+    """Cameras of one size take a selection instead of a sort, others merge pre-sorted pixels:
+    the value is the sorted rule's, ties and all, for one camera, two of one size and two of
+    different sizes."""
     rng = np.random.default_rng(5)
     images = [np.round(rng.normal(size=(30, 40)), 2) for _ in range(2)]  # many ties
 
@@ -128,7 +128,7 @@ def test_the_percentile_of_large_cameras_of_different_sizes_is_the_exact_one() -
     """With millions of pixels the sorted rule's running float sum of 1/n drifts past its
     1e-12 allowance and could pick a neighbour of the percentile where the cumulative weight
     lands on it exactly (an HD and a half-HD camera: 1/4 the pixels). The bracketed rule
-    sums only the values inside the bracket (issue 23): its value is the exact one, checked
+    sums only the values inside the bracket: its value is the exact one, checked
     in integers: the smallest v whose cumulative weight reaches p %."""
     rng = np.random.default_rng(0)
     images = [rng.random(1920 * 1080), rng.random(960 * 540)]
@@ -148,7 +148,7 @@ def test_the_percentile_of_large_cameras_of_different_sizes_is_the_exact_one() -
 
 
 def test_colours_of_runs_of_equal_pixels_are_each_pixels_own() -> None:
-    """diverging_linear colours each run of equal values once (issue 23): bit for bit the
+    """diverging_linear colours each run of equal values once: bit for bit the
     colours of the pixels drawn one at a time, zeros, -0 and clipped values included."""
     rng = np.random.default_rng(6)
     image = np.repeat(rng.normal(size=(8, 5)) * 1e-3, rng.integers(1, 9, size=5), axis=1)

@@ -288,7 +288,7 @@ def test_format_name_and_version_match_the_documentation() -> None:
 def test_exr_bytes_do_not_depend_on_how_many_cores_compress_them(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """OpenEXR compresses on every core the process may use (issue 23); the file is the same
+    """OpenEXR compresses on every core the process may use; the file is the same
     byte for byte as one compressed on a single core."""
     import os
 

@@ -1,4 +1,4 @@
-"""Forward channels, transport layers and the duality column of ``check`` (issue 10)."""
+"""Forward channels, transport layers and the duality column of ``check``."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Mitsuba 0.5/0.6 scenes: upgraded where Mitsuba 3.9.1 has a counterpart, refused in one pass
-where it has none, numbered meshes named after their material (issue 19).
+where it has none, numbered meshes named after their material.
 
 ``tests/scenes/legacy_interior`` is our own interior written as Bitterli's 0.5 exports are:
 numbered meshes, twosided walls, 8-bit textures with trilinear filtering and gamma, metals with

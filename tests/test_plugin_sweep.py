@@ -1,7 +1,7 @@
 """Every emitter, BSDF and texture plugin of Mitsuba 3.9.1, instantiated in a tiny scene: a
 read-only or non-differentiable entry is left out with its reason, and every parameter sensaov
 selects takes a gradient-enabled leaf of its own (what a backward pass does first) without an
-error (issue 19: a sunsky's read-only ``sun_direction`` crashed ``run`` after the primal).
+error (a sunsky's read-only ``sun_direction`` once crashed ``run`` after the primal).
 """
 
 from __future__ import annotations

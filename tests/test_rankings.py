@@ -298,7 +298,7 @@ def zero_valued_buffer() -> SensitivityBuffer:
 
 
 def test_zero_valued_parameters_are_flagged_with_their_raw_gradient() -> None:
-    """θ = 0 gives a value-weighted score of 0 (issue 18, point 5): never 'does not matter'
+    """θ = 0 gives a value-weighted score of 0: never 'does not matter'
     without a word, in rankings, the summary, channels and the sunburst."""
     from sensaov_cli.job.spec import ChannelSpec
     from sensaov_cli.outputs.tables import ranking_json, ranking_text, summary_json

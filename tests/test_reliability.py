@@ -1,4 +1,4 @@
-"""Issue 21's smaller defects, one test each: what a command prints, keeps and blames.
+"""Smaller defects adversarial trials found, one test each: what a command prints, keeps and blames.
 
 The classes with many cases (outputs onto inputs, special files, metadata, memory, pipes) are
 in the bad-input corpus (test_bad_inputs.py); the stops in test_signals.py. Here: replaced files

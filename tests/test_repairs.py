@@ -1,6 +1,6 @@
 """Repairs (render/verify/repair.py): known-wrong gradients computed again by finite differences.
 
-The acceptance test of issue 20 runs tests/scenes/repair_mix.xml (roughplastic α and η, smooth
+The acceptance test of repairs runs tests/scenes/repair_mix.xml (roughplastic α and η, smooth
 plastic, a reflectance component exactly 0, the light's own reflectance 0, a blend over a smooth
 conductor) and compares every repaired gradient with central differences computed here, apart
 from the repair: other seeds, four times the samples, twice the step. They must agree within 3
@@ -129,7 +129,7 @@ def test_every_known_wrong_gradient_is_repaired_and_labelled(repaired: Sensitivi
 def test_repaired_gradients_agree_with_independent_central_differences(
     repaired: SensitivityBuffer, references: dict
 ) -> None:
-    """Issue 20's acceptance: within 3 combined standard errors, every component and objective;
+    """The repairs' acceptance: within 3 combined standard errors, every component and objective;
     the reverse-mode gradients that were replaced are far outside that."""
     far = []
     for key, repair in repaired.repairs.items():

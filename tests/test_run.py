@@ -104,7 +104,7 @@ def test_same_seed_gives_byte_identical_gradients(
 ) -> None:  # noqa: ANN001
     job_a, _ = first_run
     a = read_buffer(job_a.parent / "out" / "buffer.npz")
-    assert a.provenance["deterministic"] is False  # the default since issue 12: all threads
+    assert a.provenance["deterministic"] is False  # the default: all threads
     render = {"spp": 16, "max_depth": 6, "seed": 0, "resolution": [24, 24], "deterministic": True}
     job_c = job_writer("run_c", render=render, **JOB_EXTRAS)
     job_b = job_writer("run_b", render=render, **JOB_EXTRAS)

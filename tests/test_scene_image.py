@@ -1,4 +1,4 @@
-"""The image differentiated is the scene's: its integrator, depth and media (issue 19).
+"""The image differentiated is the scene's: its integrator, depth and media.
 
 Pure-XML plans first (which replay integrator, which depth, what is listed), then renders that
 compare sensaov's primal with Mitsuba's own render of the unedited file.

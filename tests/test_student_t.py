@@ -26,7 +26,7 @@ def test_the_cdf_against_closed_forms() -> None:
 
 
 def test_two_standard_errors_cover_86_percent_at_four_batches() -> None:
-    """Why 2 SE was overconfident (issue 18, point 6): with 3 dof it covers 86 %, not 95 %."""
+    """Why 2 SE was overconfident: with 3 dof it covers 86 %, not 95 %."""
     assert 2 * t_cdf(2.0, 3) - 1 == pytest.approx(0.8607, abs=1e-4)
 
 

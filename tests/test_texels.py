@@ -156,8 +156,8 @@ def test_footprint_painting_equals_per_sample_lookups() -> None:
 @pytest.mark.parametrize("wrap", ["repeat", "mirror", "clamp"])
 @pytest.mark.parametrize("kind", ["bilinear", "nearest"])
 def test_footprint_merges_a_pixels_samples_in_one_cell(kind: str, wrap: str) -> None:
-    """Samples of a pixel that read one texel cell become one entry per corner (issue 23:
-    texel indices per run, not per sample), and painting still equals per-sample lookups,
+    """Samples of a pixel that read one texel cell become one entry per corner
+    (texel indices per run, not per sample), and painting still equals per-sample lookups,
     UVs past the edges (wrapped) and six owners (the gather, not the comparisons) included."""
     rng = np.random.default_rng(5)
     texels = rng.normal(size=(4, 5, 3))

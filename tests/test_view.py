@@ -225,7 +225,7 @@ def test_a_taken_port_and_a_missing_buffer_are_one_line_of_bad_input(
 
 
 def test_a_buffer_of_another_job_version_is_refused(small_job: Path, tmp_path: Path) -> None:
-    """One consistent state (issue 18): an objective renamed since `run` is refused in one line
+    """One consistent state: an objective renamed since `run` is refused in one line
     (exit 2) before anything is served; --force inspects it anyway."""
     data = yaml.safe_load(small_job.read_text())
     data["objectives"][0]["name"] = "renamed"
@@ -242,7 +242,7 @@ def test_a_view_paints_the_buffer_values_and_a_pick_lists_the_gradients(
     server: ViewServer, session: ViewSession
 ) -> None:
     """The EXR layer holds the objects' aggregates of their trusted gradients (the headline
-    view, issue 18) at fully covered pixels, and a pick reports the stored value and gradient
+    view) at fully covered pixels, and a pick reports the stored value and gradient
     of each of the object's parameters."""
     buffer = read_buffer(session.buffer_path)
     trusted = [p.key for p in buffer.params if is_trusted(p)]

@@ -74,7 +74,7 @@ def test_regroup_merges_objects_into_their_groups() -> None:
 
 def test_coverage_orders_and_merges_as_the_plain_sorts_did() -> None:
     """Histogram, regroup and ranks use one stable sort of a combined key and run starts
-    (issue 23) where they used lexsort, unique and searchsorted: on random sample ids (ties,
+    where they used lexsort, unique and searchsorted: on random sample ids (ties,
     background, 1 to 40 objects) the triplets and ranks are those of the plain versions, and
     a key too wide for 63 bits takes the lexsort."""
     rng = np.random.default_rng(3)
@@ -121,7 +121,7 @@ def test_traced_uvs_lie_on_hit_surfaces(mi: ModuleType, job_writer) -> None:  # 
     uv = vis.sample_uv[covered]
     assert np.all((uv >= 0) & (uv <= 1)) and uv.std() > 0.1  # real surface coordinates
     # A sample on a shape the buffer does not list is background too, UV 0 (zeroed in the
-    # kernel since issue 23): trace as if the buffer lacked the most covered object.
+    # kernel): trace as if the buffer lacked the most covered object.
     most = int(np.bincount(vis.sample_object[vis.sample_object >= 0]).argmax())
     fewer = tuple(name if i != most else "not-in-the-scene" for i, name in enumerate(vis.objects))
     partial = trace(mi, loaded.scene, loaded.sensor, fewer, 4, with_uv=True)
