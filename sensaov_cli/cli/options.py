@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import io
 import json
 import os
 import select
@@ -96,16 +95,9 @@ class OneLineGroup(click.Group):
     unknown command) end as every other failure does, in one line and a documented exit code
     (click prints three: the usage, a pointer to --help, the error)."""
 
-    def main(  # type: ignore[override]
-        self,
-        args: list[str] | None = None,
-        prog_name: str | None = None,
-        complete_var: str | None = None,
-        standalone_mode: bool = True,
-        **extra: Any,
-    ) -> Any:
+    def main(self, args: list[str] | None = None, standalone_mode: bool = True, **rest: Any) -> Any:  # type: ignore[override]
         try:
-            result = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+            result = super().main(args, standalone_mode=False, **rest)
         except click.exceptions.NoArgsIsHelpError as exc:  # bare 'sensaov': its help, exit 0
             click.echo(exc.ctx.get_help() if exc.ctx else "")
             result = 0
@@ -219,8 +211,10 @@ def _stdout_refuses(err: OSError) -> bool:
     trace = err.__traceback__
     while trace is not None:
         frame = trace.tb_frame
-        if frame.f_code.co_name == "echo" and _writes_to_stdout(frame.f_locals.get("file")):
-            return True
+        stream = frame.f_locals.get("file")
+        with contextlib.suppress(OSError, ValueError, AttributeError):  # a stream without an fd
+            if frame.f_code.co_name == "echo" and stream is not None and stream.fileno() == 1:
+                return True
         trace = trace.tb_next
     try:
         sys.stdout.flush()
@@ -229,13 +223,6 @@ def _stdout_refuses(err: OSError) -> bool:
     except (ValueError, AttributeError):  # closed or absent: not what failed here
         return False
     return False
-
-
-def _writes_to_stdout(stream: Any) -> bool:
-    try:
-        return bool(stream is not None and stream.fileno() == 1)
-    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
-        return False
 
 
 def _reported(err: BaseException, verbose: int = 0) -> tuple[str, int]:
