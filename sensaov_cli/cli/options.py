@@ -244,9 +244,13 @@ def _require_stdout() -> None:
     """A closed stdout (``>&-``) cannot take the result: refused before any work (exit 2).
     Closed standard descriptors get /dev/null first: else the first file the command opens
     becomes descriptor 1, and whatever prints (a library's log) writes into it."""
-    closed = [descriptor for descriptor in (0, 1, 2) if not _is_open(descriptor)]
-    for _ in closed:  # open() takes the lowest free descriptor: the closed ones, in order
-        os.open(os.devnull, os.O_RDWR)
+    closed = []
+    for descriptor in (0, 1, 2):  # in order: open() takes the lowest free one, this one
+        try:
+            os.fstat(descriptor)
+        except OSError:
+            closed.append(descriptor)
+            os.open(os.devnull, os.O_RDWR)
     from sensaov_cli.errors import OutputError
 
     if 1 in closed or sys.stdout is None:
@@ -254,26 +258,14 @@ def _require_stdout() -> None:
             "stdout is closed: the result could not be printed",
             hint="send it to a file or to /dev/null instead of closing it",
         )
-    if _reader_gone(1):  # a pipe whose reader exited: found now, not after hours of rendering
+    # A pipe whose reader exited polls as an error: found now, not after hours of rendering.
+    poller = select.poll()
+    poller.register(1, select.POLLOUT)
+    if any(events & select.POLLERR for _, events in poller.poll(0)):
         raise OutputError(
             "stdout is a pipe nobody reads any more: the result could not be printed",
             hint="check the command after the '|'",
         )
-
-
-def _reader_gone(descriptor: int) -> bool:
-    """Whether ``descriptor`` is a pipe whose read end is closed (poll reports an error)."""
-    poller = select.poll()
-    poller.register(descriptor, select.POLLOUT)
-    return any(events & select.POLLERR for _, events in poller.poll(0))
-
-
-def _is_open(descriptor: int) -> bool:
-    try:
-        os.fstat(descriptor)
-    except OSError:
-        return False
-    return True
 
 
 @contextlib.contextmanager
