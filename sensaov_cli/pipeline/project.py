@@ -384,8 +384,16 @@ def prepare_texel_fields(
     probes = texture_probes(loaded.mi, loaded.params, keys, loaded.prepared.bitmap_options)
     samplings = {key: sampling_of(probe) for key, probe in probes.items()}
     no_uv = set(objects_without_uv(loaded.mi, loaded.scene, buffer.objects))
-    fields = [f for i, c in channels for f in texel_fields(buffer, c, i, samplings)]
-    return [_with_uv_note(f, no_uv) for f in fields]
+    fields = []
+    for field in (f for i, c in channels for f in texel_fields(buffer, c, i, samplings)):
+        if missing := sorted(no_uv.intersection(field.record.owners)):
+            note = (
+                f"{', '.join(missing)} has no UV coordinates: Mitsuba looks the texture up at each "
+                "triangle's barycentric (b1, b2), so the field repeats per triangle"
+            )
+            field = replace(field, notes=(*field.notes, note))
+        fields.append(field)
+    return fields
 
 
 def sampling_of(probe: TextureProbe) -> TextureSampling:
@@ -411,17 +419,6 @@ def sampling_of(probe: TextureProbe) -> TextureSampling:
         return TextureSampling(*stated, to_uv=matrix, note=note.rstrip("; "))
     chosen = matching[0]
     return TextureSampling(*chosen, to_uv=matrix, note="filter and wrap read from Mitsuba's lookup")
-
-
-def _with_uv_note(field: TexelField, no_uv: set[str]) -> TexelField:
-    missing = sorted(no_uv.intersection(field.record.owners))
-    if not missing:
-        return field
-    note = (
-        f"{', '.join(missing)} has no UV coordinates: Mitsuba looks the texture up at each "
-        "triangle's barycentric (b1, b2), so the field repeats per triangle"
-    )
-    return replace(field, notes=(*field.notes, note))
 
 
 @dataclass(frozen=True)

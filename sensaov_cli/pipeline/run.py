@@ -75,9 +75,8 @@ class Task:
 
     def file_names(self) -> tuple[str, str]:
         """buffer.npz / primal.exr, or e.g. buffer.shard-2-of-8.objective-mean_luma.npz."""
-        parts = [f"shard-{self.shard[0]}-of-{self.shard[1]}"] if self.shard else []
-        parts += [f"objective-{name}" for name in self.objectives]
-        middle = "".join(f".{part}" for part in parts)
+        middle = f".shard-{self.shard[0]}-of-{self.shard[1]}" if self.shard else ""
+        middle += "".join(f".objective-{name}" for name in self.objectives)
         return f"buffer{middle}.npz", f"primal{middle}.exr"
 
     def describe(self) -> dict[str, dict[str, int] | list[str] | None]:
@@ -96,7 +95,7 @@ def run_job(
 ) -> SensitivityBuffer:
     """Render the task of ``job`` and write its files (``task.file_names()`` in its output)."""
     started = time.perf_counter()
-    whole, job = job, _task_job(job, task)  # provenance records the whole job: shards compare
+    whole, job = job, task_job(job, task)  # provenance records the whole job: shards compare
     buffer_name, primal_name = task.file_names()
     buffer_path, primal_path = job.output / buffer_name, job.output / primal_name
     prepared = prepare_scene(job)  # every camera checked: a bad one fails before the render
@@ -263,7 +262,7 @@ def _make_buffer(
     )
 
 
-def _task_job(job: JobSpec, task: Task) -> JobSpec:
+def task_job(job: JobSpec, task: Task) -> JobSpec:
     """The job restricted to the task's objectives (each named once, in the job's order)."""
     if task.shard is not None and task.shard[1] > job.render.spp:
         raise SpecError(
