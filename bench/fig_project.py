@@ -152,7 +152,9 @@ def _make_buffer(job: Path) -> Path:
     from sensaov_cli.pipeline.run import run_job
     from sensaov_cli.progress import Progress
 
-    return run_job(load_job(job), allow_python=False, progress=Progress(quiet=True)).buffer_path
+    spec = load_job(job)
+    run_job(spec, allow_python=False, progress=Progress(quiet=True))
+    return spec.output / "buffer.npz"
 
 
 def _view(

@@ -58,7 +58,7 @@ def repaired_buffer(folder: Path) -> SensitivityBuffer:
     }  # fmt: skip
     (folder / "job.yaml").write_text(yaml.safe_dump(job, sort_keys=False))
     spec = load_job(folder / "job.yaml")
-    return run_job(spec, allow_python=False, progress=Progress(quiet=True)).buffer
+    return run_job(spec, allow_python=False, progress=Progress(quiet=True))
 
 
 class Reference:

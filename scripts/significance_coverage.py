@@ -42,7 +42,7 @@ def signed_rows(job_path: Path, out: Path, spp: int, seed: int, batches: int) ->
     job = dataclasses.replace(
         job, render=render, output=out, forward=(), channels=(), inspection_cameras=()
     )
-    buffer = run_job(job, allow_python=False, progress=Progress(quiet=True)).buffer
+    buffer = run_job(job, allow_python=False, progress=Progress(quiet=True))
     rows = {}
     for cut in ("key", "object", "type"):
         for ranking in rankings(buffer, by=cut, untrusted="include"):

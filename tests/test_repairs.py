@@ -62,7 +62,7 @@ def _job(job_writer: Callable[..., Path], name: str, **overrides: object) -> Pat
 @pytest.fixture(scope="module")
 def repaired(job_writer: Callable[..., Path]) -> SensitivityBuffer:
     job = _job(job_writer, "repairs", repair={"budget": 50, "seeds": 8})
-    return run_job(load_job(job), allow_python=False, progress=Progress(quiet=True)).buffer
+    return run_job(load_job(job), allow_python=False, progress=Progress(quiet=True))
 
 
 def _reference(job: Path, key: str, step: float, one_sided: tuple[tuple[int, int], ...]) -> dict:
@@ -171,7 +171,7 @@ def test_summary_shows_the_repairs_with_their_own_errors(repaired: SensitivityBu
 
 def test_over_budget_stays_labelled_and_named(job_writer: Callable[..., Path]) -> None:
     job = load_job(_job(job_writer, "small_budget", repair={"budget": 0.15}))
-    buffer = run_job(job, allow_python=False, progress=Progress(quiet=True)).buffer
+    buffer = run_job(job, allow_python=False, progress=Progress(quiet=True))
     left = buffer.provenance["repairs"]["not_repaired"]
     assert left and set(left) | set(buffer.repairs) == set(REPAIRED)
     for key, why in left.items():
@@ -183,7 +183,7 @@ def test_over_budget_stays_labelled_and_named(job_writer: Callable[..., Path]) -
 
 def test_no_budget_repairs_nothing(job_writer: Callable[..., Path]) -> None:
     job = load_job(_job(job_writer, "no_budget", repair={"budget": 0}))
-    buffer = run_job(job, allow_python=False, progress=Progress(quiet=True)).buffer
+    buffer = run_job(job, allow_python=False, progress=Progress(quiet=True))
     assert buffer.repairs == {} and set(buffer.provenance["repairs"]["not_repaired"]) == set(
         REPAIRED
     )
@@ -222,7 +222,7 @@ def test_batches_give_repaired_gradients_their_statistics(job_writer: Callable[.
     job = _job(job_writer, "repair_batches", repair={"budget": 20, "seeds": 4})
     spec = load_job(job)
     spec = dataclasses.replace(spec, render=dataclasses.replace(spec.render, **render))
-    buffer = run_job(spec, allow_python=False, progress=Progress(quiet=True)).buffer
+    buffer = run_job(spec, allow_python=False, progress=Progress(quiet=True))
     assert buffer.statistics is not None and buffer.repairs
     key, repair = next(iter(buffer.repairs.items()))
     batch_means = [repair.estimates["mean_luma"][b::2].mean(axis=0) for b in range(2)]

@@ -92,7 +92,3 @@ def console() -> None:
 
 
 __all__ = ["console", "main"]
-
-
-if __name__ == "__main__":  # pragma: no cover
-    console()

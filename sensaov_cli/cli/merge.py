@@ -33,11 +33,11 @@ def merge(shards: tuple[Path, ...], output: Path, quiet: bool, progress_style: s
       sensaov merge out/cbox/buffer.shard-*-of-4.npz -o out/cbox/buffer.npz
       sensaov rank out/cbox/buffer.npz --top 5      # with standard errors
     """
-    from sensaov_cli.pipeline.merge import merge_files
+    from sensaov_cli.pipeline.merge import merge_files, primal_beside
     from sensaov_cli.progress import Progress
 
     result = merge_files(list(shards), output, progress=Progress(quiet, style=progress_style))
     click.echo(
         f"merged {result.shards} shard file(s), {result.buffer.provenance['spp']} spp: "
-        f"wrote {result.buffer_path} and {result.primal_path}"
+        f"wrote {output} and {primal_beside(output)}"
     )

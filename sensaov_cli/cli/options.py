@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import io
 import json
 import os
 import select
@@ -96,16 +95,9 @@ class OneLineGroup(click.Group):
     unknown command) end as every other failure does, in one line and a documented exit code
     (click prints three: the usage, a pointer to --help, the error)."""
 
-    def main(  # type: ignore[override]
-        self,
-        args: list[str] | None = None,
-        prog_name: str | None = None,
-        complete_var: str | None = None,
-        standalone_mode: bool = True,
-        **extra: Any,
-    ) -> Any:
+    def main(self, args: list[str] | None = None, standalone_mode: bool = True, **rest: Any) -> Any:  # type: ignore[override]
         try:
-            result = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+            result = super().main(args, standalone_mode=False, **rest)
         except click.exceptions.NoArgsIsHelpError as exc:  # bare 'sensaov': its help, exit 0
             click.echo(exc.ctx.get_help() if exc.ctx else "")
             result = 0
@@ -219,8 +211,10 @@ def _stdout_refuses(err: OSError) -> bool:
     trace = err.__traceback__
     while trace is not None:
         frame = trace.tb_frame
-        if frame.f_code.co_name == "echo" and _writes_to_stdout(frame.f_locals.get("file")):
-            return True
+        stream = frame.f_locals.get("file")
+        with contextlib.suppress(OSError, ValueError, AttributeError):  # a stream without an fd
+            if frame.f_code.co_name == "echo" and stream is not None and stream.fileno() == 1:
+                return True
         trace = trace.tb_next
     try:
         sys.stdout.flush()
@@ -229,13 +223,6 @@ def _stdout_refuses(err: OSError) -> bool:
     except (ValueError, AttributeError):  # closed or absent: not what failed here
         return False
     return False
-
-
-def _writes_to_stdout(stream: Any) -> bool:
-    try:
-        return bool(stream is not None and stream.fileno() == 1)
-    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
-        return False
 
 
 def _reported(err: BaseException, verbose: int = 0) -> tuple[str, int]:
@@ -257,9 +244,13 @@ def _require_stdout() -> None:
     """A closed stdout (``>&-``) cannot take the result: refused before any work (exit 2).
     Closed standard descriptors get /dev/null first: else the first file the command opens
     becomes descriptor 1, and whatever prints (a library's log) writes into it."""
-    closed = [descriptor for descriptor in (0, 1, 2) if not _is_open(descriptor)]
-    for _ in closed:  # open() takes the lowest free descriptor: the closed ones, in order
-        os.open(os.devnull, os.O_RDWR)
+    closed = []
+    for descriptor in (0, 1, 2):  # in order: open() takes the lowest free one, this one
+        try:
+            os.fstat(descriptor)
+        except OSError:
+            closed.append(descriptor)
+            os.open(os.devnull, os.O_RDWR)
     from sensaov_cli.errors import OutputError
 
     if 1 in closed or sys.stdout is None:
@@ -267,26 +258,14 @@ def _require_stdout() -> None:
             "stdout is closed: the result could not be printed",
             hint="send it to a file or to /dev/null instead of closing it",
         )
-    if _reader_gone(1):  # a pipe whose reader exited: found now, not after hours of rendering
+    # A pipe whose reader exited polls as an error: found now, not after hours of rendering.
+    poller = select.poll()
+    poller.register(1, select.POLLOUT)
+    if any(events & select.POLLERR for _, events in poller.poll(0)):
         raise OutputError(
             "stdout is a pipe nobody reads any more: the result could not be printed",
             hint="check the command after the '|'",
         )
-
-
-def _reader_gone(descriptor: int) -> bool:
-    """Whether ``descriptor`` is a pipe whose read end is closed (poll reports an error)."""
-    poller = select.poll()
-    poller.register(descriptor, select.POLLOUT)
-    return any(events & select.POLLERR for _, events in poller.poll(0))
-
-
-def _is_open(descriptor: int) -> bool:
-    try:
-        os.fstat(descriptor)
-    except OSError:
-        return False
-    return True
 
 
 @contextlib.contextmanager

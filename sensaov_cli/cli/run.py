@@ -72,18 +72,20 @@ def run(
     from sensaov_cli.progress import Progress
 
     spec = load_job(job)
+    task = Task(shard, tuple(dict.fromkeys(objective)))
     with options.stdout_to_stderr():  # an objective's print() must not end up in the summary
-        outputs = run_job(
+        buffer = run_job(
             spec,
             allow_python=allow_python,
             progress=Progress(quiet=quiet, style=progress_style),
-            task=Task(shard, tuple(dict.fromkeys(objective))),
+            task=task,
             resume=resume,
         )
-    files = {"buffer": str(outputs.buffer_path), "primal": str(outputs.primal_path)}
+    buffer_path, primal_path = (spec.output / name for name in task.file_names())
+    files = {"buffer": str(buffer_path), "primal": str(primal_path)}
     summary = summary_of(
-        outputs.buffer, as_json=as_json, top=top, untrusted=spec.views.untrusted, files=files
+        buffer, as_json=as_json, top=top, untrusted=spec.views.untrusted, files=files
     )
     click.echo(summary)
     if not as_json:
-        click.echo(f"wrote {outputs.buffer_path} and {outputs.primal_path}")
+        click.echo(f"wrote {buffer_path} and {primal_path}")

@@ -9,9 +9,9 @@ from pathlib import Path
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.statistics import single_pass
-from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, FingerprintMismatch, SpecError
-from sensaov_cli.job.spec import JobSpec, ObjectiveSpec
-from sensaov_cli.pipeline.run import BUFFER_NAME
+from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, FingerprintMismatch
+from sensaov_cli.job.spec import JobSpec
+from sensaov_cli.pipeline.run import BUFFER_NAME, Task, task_job
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import load_scene
 from sensaov_cli.render.objectives import build_objectives
@@ -70,7 +70,8 @@ def run_check(
     mode (``sensaov check --help`` says how); the scene is prepared and loaded once."""
     if directions is None:
         directions = FULL_DIRECTIONS if full else 0
-    chosen = _objective(job, objective)  # the command's own options are checked first
+    task = Task(objectives=() if objective is None else (objective,))
+    chosen = task_job(job, task).objectives[0]  # the command's own options are checked first
     path = buffer_path or job.output / BUFFER_NAME
     buffer = _checkable_buffer(job, path) if path.is_file() else None
     prepared = prepare_scene(job)
@@ -121,14 +122,3 @@ def exit_code(checks: Sequence[GradientCheck], duality: Sequence[DualityCheck] =
     disagrees with forward mode at its own seed; else success."""
     contradicted = any(c.claimed_verified and c.verdict == "disagrees" for c in checks)
     return EXIT_JOB_FAILED if contradicted or any(d.failed for d in duality) else EXIT_OK
-
-
-def _objective(job: JobSpec, name: str | None) -> ObjectiveSpec:
-    """The job's first objective, or the one called ``name``."""
-    for spec in job.objectives:
-        if name in (None, spec.name):
-            return spec
-    names = ", ".join(o.name for o in job.objectives)
-    raise SpecError(
-        f"no objective named {name!r}", where="--objective", hint=f"objectives: {names}"
-    )

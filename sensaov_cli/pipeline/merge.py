@@ -31,9 +31,7 @@ from sensaov_cli.progress import Progress
 
 @dataclass(frozen=True)
 class MergeOutputs:
-    buffer: SensitivityBuffer
-    buffer_path: Path
-    primal_path: Path
+    buffer: SensitivityBuffer  # written to the output, its primal to primal_beside(output)
     shards: int
 
 
@@ -75,17 +73,16 @@ def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> Merge
             raise SensaovError(
                 f"cannot write outputs: {exc.strerror or exc}", where=str(output.parent)
             ) from exc
-    return MergeOutputs(merged, output, primal_path, len(shards))
+    return MergeOutputs(merged, len(shards))
 
 
 def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:
     """The spp-weighted mean of one primal per shard index (objective splits share it)."""
-    first_of_index: dict[int, Shard] = {}
-    for shard in shards:
-        first_of_index.setdefault(shard.task.index, shard)
-    images, spp = [], []
+    first = {shard.task.index: shard for shard in reversed(shards)}  # the first of each index
+    ordered = [first[index] for index in sorted(first)]
+    images = []
     width, height = shards[0].buffer.provenance["resolution"]  # checked: two positive ints
-    for _, shard in sorted(first_of_index.items()):
+    for shard in ordered:
         path = primal_beside(shard.path)
         if not path.exists():
             raise MergeError("the shard's primal is missing", where=str(path))
@@ -93,9 +90,9 @@ def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:
         if not channels or any(c.shape != (height, width) for c in channels.values()):
             raise MergeError(f"the primal is not the shard's {width}x{height}", where=str(path))
         images.append(channels)
-        spp.append(int(shard.buffer.provenance["spp"]))
-    for image, (_, shard) in zip(images, sorted(first_of_index.items()), strict=True):
+    for image, shard in zip(images, ordered, strict=True):
         if list(image) != list(images[0]):
             where = str(primal_beside(shard.path))
             raise MergeError("this primal has other channels than the first shard's", where=where)
+    spp = [int(shard.buffer.provenance["spp"]) for shard in ordered]
     return {name: weighted_mean([image[name] for image in images], spp) for name in images[0]}

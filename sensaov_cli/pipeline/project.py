@@ -206,26 +206,25 @@ def check_buffer_of_job(
 
 
 def check_made_from(
-    attributes: Mapping[str, Any], buffer: SensitivityBuffer, where: str, *, remake: str
+    attributes: Mapping[str, Any],
+    buffer: SensitivityBuffer,
+    where: str,
+    *,
+    remake: str,
+    job: JobSpec | None = None,
 ) -> None:
-    """Refuse an output (its EXR header or PNG text) not made from ``buffer``."""
+    """Refuse an output (its EXR header or PNG text) not made from ``buffer`` or, given ``job``,
+    made by another version of it (other cameras, channels, views)."""
     made = attributes.get(STAMP_BUFFER)
-    if made == buffer_id(buffer):
+    if made is None:
+        said = "records no buffer (an older sensaov made it)"
+    elif made != buffer_id(buffer):
+        said = f"was made from another buffer ({made}, not {buffer_id(buffer)})"
+    elif job is not None and attributes.get(STAMP_JOB) != job.job_hash():
+        said = f"was made by another version of {job.path.name}"
+    else:
         return
-    said = "records no buffer (an older sensaov made it)" if made is None else (
-        f"was made from another buffer ({made}, not {buffer_id(buffer)})"
-    )  # fmt: skip
     raise StaleInputError(said, where=where, hint=f"re-run '{remake}'")
-
-
-def check_made_by(attributes: Mapping[str, Any], job: JobSpec, where: str, *, remake: str) -> None:
-    """Refuse an output made by another version of ``job`` (other cameras, channels, views)."""
-    if attributes.get(STAMP_JOB) != job.job_hash():
-        raise StaleInputError(
-            f"was made by another version of {job.path.name}",
-            where=where,
-            hint=f"re-run '{remake}'",
-        )
 
 
 def _differing(stored: Any, current: Mapping[str, Any]) -> list[str]:
@@ -385,8 +384,16 @@ def prepare_texel_fields(
     probes = texture_probes(loaded.mi, loaded.params, keys, loaded.prepared.bitmap_options)
     samplings = {key: sampling_of(probe) for key, probe in probes.items()}
     no_uv = set(objects_without_uv(loaded.mi, loaded.scene, buffer.objects))
-    fields = [f for i, c in channels for f in texel_fields(buffer, c, i, samplings)]
-    return [_with_uv_note(f, no_uv) for f in fields]
+    fields = []
+    for field in (f for i, c in channels for f in texel_fields(buffer, c, i, samplings)):
+        if missing := sorted(no_uv.intersection(field.record.owners)):
+            note = (
+                f"{', '.join(missing)} has no UV coordinates: Mitsuba looks the texture up at each "
+                "triangle's barycentric (b1, b2), so the field repeats per triangle"
+            )
+            field = replace(field, notes=(*field.notes, note))
+        fields.append(field)
+    return fields
 
 
 def sampling_of(probe: TextureProbe) -> TextureSampling:
@@ -412,17 +419,6 @@ def sampling_of(probe: TextureProbe) -> TextureSampling:
         return TextureSampling(*stated, to_uv=matrix, note=note.rstrip("; "))
     chosen = matching[0]
     return TextureSampling(*chosen, to_uv=matrix, note="filter and wrap read from Mitsuba's lookup")
-
-
-def _with_uv_note(field: TexelField, no_uv: set[str]) -> TexelField:
-    missing = sorted(no_uv.intersection(field.record.owners))
-    if not missing:
-        return field
-    note = (
-        f"{', '.join(missing)} has no UV coordinates: Mitsuba looks the texture up at each "
-        "triangle's barycentric (b1, b2), so the field repeats per triangle"
-    )
-    return replace(field, notes=(*field.notes, note))
 
 
 @dataclass(frozen=True)
@@ -592,43 +588,19 @@ def run_beauty(
         return None
     provenance = header_provenance(header)
     recorded = int(provenance.get("spp") or 0) if provenance is not None else 0
-    rgb = _rgb(channels)
+    # A mono variant's primal (Y) is shown grey, as the quick pass shows it.
+    rgb = ("R", "G", "B") if {"R", "G", "B"} <= channels.keys() else ("Y", "Y", "Y")
     if provenance is None or provenance_id(provenance) != buffer_id(buffer):
         reason = "it was not written with this buffer"
     elif recorded < spp:
         reason = f"it has {recorded} spp, fewer than the {spp} asked for"
-    elif rgb is None:
+    elif rgb[0] not in channels:
         reason = "it has no R, G, B or Y channels"
     else:
-        return RunBeauty(rgb, f"{path.name} of the buffer's run ({recorded} spp)")
+        image = np.stack([channels[name] for name in rgb], axis=-1).astype(np.float32)
+        return RunBeauty(image, f"{path.name} of the buffer's run ({recorded} spp)")
     progress.note(f"{path.name} not used as the objective camera's beauty: {reason}")
     return None
-
-
-def _rgb(channels: dict[str, np.ndarray]) -> np.ndarray | None:
-    if all(name in channels for name in ("R", "G", "B")):
-        return np.stack([channels[n] for n in ("R", "G", "B")], axis=-1).astype(np.float32)
-    if "Y" in channels:  # a mono variant's primal: shown grey, as the quick pass shows it
-        return np.repeat(channels["Y"][..., None], 3, axis=2).astype(np.float32)
-    return None
-
-
-def _view_beauty(
-    loaded: LoadedScene,
-    camera: str,
-    visibility: VisibilityPass,
-    spp: int,
-    seed: int,
-    reused: RunBeauty | None,
-) -> tuple[np.ndarray | None, str]:
-    """The view's RGBA beauty (alpha: the visibility coverage) and what it is."""
-    if spp <= 0:
-        return None, "none (--beauty-spp 0)"
-    if reused is not None and reused.rgb.shape[:2] == (visibility.height, visibility.width):
-        alpha = visibility.coverage_hit[..., None].astype(np.float32)
-        return np.concatenate([reused.rgb, alpha], axis=2), reused.made
-    sensor = loaded.inspection_sensors[camera]
-    return render_beauty(loaded, sensor, visibility, spp, seed), f"path trace at {spp} spp"
 
 
 # --- one camera's files --------------------------------------------------------------------------
@@ -647,8 +619,16 @@ def _project_camera(
     reused: RunBeauty | None,
 ) -> ProjectedView:
     visibility = raw.visibility
-    seed = job.render.seed
-    beauty, made = _view_beauty(loaded, camera.name, visibility, beauty_spp, seed, reused)
+    beauty: np.ndarray | None = None  # RGBA, alpha the visibility coverage
+    if beauty_spp <= 0:
+        made = "none (--beauty-spp 0)"
+    elif reused is not None and reused.rgb.shape[:2] == (visibility.height, visibility.width):
+        alpha = visibility.coverage_hit[..., None].astype(np.float32)
+        beauty, made = np.concatenate([reused.rgb, alpha], axis=2), reused.made
+    else:
+        sensor = loaded.inspection_sensors[camera.name]
+        beauty = render_beauty(loaded, sensor, visibility, beauty_spp, job.render.seed)
+        made = f"path trace at {beauty_spp} spp"
     shown = [(layer, scales[(camera.name, layer.group.name)]) for layer in raw.layers]
     background = display_background(visibility.coverage_hit)  # once per view, every layer's
     pairs = [with_display(layer, scale, background) for layer, scale in shown]
@@ -678,9 +658,7 @@ def _project_camera(
         layers=[layer for pair in pairs for layer in pair],
         attributes={**attributes, **made_from},
     )
-    previews: tuple[Path, ...] = ()
-    if png:
-        previews = _write_previews(job, camera, raw, scales, shown, beauty, made_from)
+    previews = _write_previews(job, camera, raw, scales, shown, beauty, made_from) if png else ()
     return ProjectedView(
         camera.name, path, visibility.width, visibility.height, visibility.spp, 0.0, previews, made
     )

@@ -39,7 +39,7 @@ from sensaov_cli.outputs.report_html import (
     write_report,
 )
 from sensaov_cli.outputs.sunburst_drawing import sunburst_bytes
-from sensaov_cli.pipeline.project import check_buffer_of_job, check_made_by, check_made_from
+from sensaov_cli.pipeline.project import check_buffer_of_job, check_made_from
 from sensaov_cli.pipeline.run import BUFFER_NAME, PRIMAL_NAME
 from sensaov_cli.scene.expand import expand_scene
 from sensaov_cli.views.hierarchy import is_trusted, panels, rankings
@@ -120,8 +120,7 @@ def _visible(job: JobSpec, buf: SensitivityBuffer, camera: CameraSpec) -> frozen
         return None
     channels, header = read_exr(path)
     remake = f"sensaov project {job.path}"
-    check_made_from(header, buf, str(path), remake=remake)
-    check_made_by(header, job, str(path), remake=remake)
+    check_made_from(header, buf, str(path), remake=remake, job=job)
     return seen_names(channels, header, where=str(path))
 
 
@@ -135,10 +134,8 @@ def _camera_section(
         return CameraSection(camera.name, visible, (), (), (), note)
     manifest = _manifest(manifest_path)
     remake = f"sensaov project {job.path} --png"
-    check_made_from({"sensaov/buffer_id": manifest.get("buffer_id")}, buf, str(manifest_path),
-                    remake=remake)  # fmt: skip
-    check_made_by({"sensaov/job_hash": manifest.get("job_hash")}, job, str(manifest_path),
-                  remake=remake)  # fmt: skip
+    stamped = {f"sensaov/{key}": manifest.get(key) for key in ("buffer_id", "job_hash")}
+    check_made_from(stamped, buf, str(manifest_path), remake=remake, job=job)
     headline: list[Picture] = []
     more: list[Picture] = []
     files: list[str] = []
@@ -192,8 +189,7 @@ def _preview(
     except (OSError, ValueError) as error:
         raise StaleInputError(f"cannot read this preview: {error}", where=str(path),
                               hint=f"re-run '{remake}'") from error  # fmt: skip
-    check_made_from(text, buf, str(path), remake=remake)
-    check_made_by(text, job, str(path), remake=remake)
+    check_made_from(text, buf, str(path), remake=remake, job=job)
     return Picture(_caption(entry), path.read_bytes(), kind=entry.kind)
 
 

@@ -67,13 +67,6 @@ FORWARD_NAME = "forward.npz"  # the forward sidecar, written with its buffer or 
 
 
 @dataclass(frozen=True)
-class RunOutputs:
-    buffer: SensitivityBuffer
-    buffer_path: Path
-    primal_path: Path
-
-
-@dataclass(frozen=True)
 class Task:
     """Which part of a job one process renders: a shard of the samples, some objectives."""
 
@@ -82,9 +75,8 @@ class Task:
 
     def file_names(self) -> tuple[str, str]:
         """buffer.npz / primal.exr, or e.g. buffer.shard-2-of-8.objective-mean_luma.npz."""
-        parts = [f"shard-{self.shard[0]}-of-{self.shard[1]}"] if self.shard else []
-        parts += [f"objective-{name}" for name in self.objectives]
-        middle = "".join(f".{part}" for part in parts)
+        middle = f".shard-{self.shard[0]}-of-{self.shard[1]}" if self.shard else ""
+        middle += "".join(f".objective-{name}" for name in self.objectives)
         return f"buffer{middle}.npz", f"primal{middle}.exr"
 
     def describe(self) -> dict[str, dict[str, int] | list[str] | None]:
@@ -100,9 +92,10 @@ def run_job(
     progress: Progress,
     task: Task = Task(),
     resume: bool = False,
-) -> RunOutputs:
+) -> SensitivityBuffer:
+    """Render the task of ``job`` and write its files (``task.file_names()`` in its output)."""
     started = time.perf_counter()
-    whole, job = job, _task_job(job, task)  # provenance records the whole job: shards compare
+    whole, job = job, task_job(job, task)  # provenance records the whole job: shards compare
     buffer_name, primal_name = task.file_names()
     buffer_path, primal_path = job.output / buffer_name, job.output / primal_name
     prepared = prepare_scene(job)  # every camera checked: a bad one fails before the render
@@ -110,7 +103,7 @@ def run_job(
         done = completed(whole, task, buffer_path, primal_path, prepared.fingerprint)
         if done is not None:
             progress.note(f"{buffer_path.name} is complete for this job: skipped (--resume)")
-            return RunOutputs(done, buffer_path, primal_path)
+            return done
     # Duality needs the forward pass at the backward's samples: one batch, the whole job.
     single = task.shard is None and not task.objectives and job.render.batches == 1
     forward_wanted = job.wants_forward and single
@@ -212,7 +205,7 @@ def run_job(
             raise SensaovError(
                 f"cannot write outputs: {exc.strerror or exc}", where=str(job.output)
             ) from exc
-    return RunOutputs(buffer, buffer_path, primal_path)
+    return buffer
 
 
 def _depth(depth: int) -> str:
@@ -269,7 +262,7 @@ def _make_buffer(
     )
 
 
-def _task_job(job: JobSpec, task: Task) -> JobSpec:
+def task_job(job: JobSpec, task: Task) -> JobSpec:
     """The job restricted to the task's objectives (each named once, in the job's order)."""
     if task.shard is not None and task.shard[1] > job.render.spp:
         raise SpecError(
@@ -292,28 +285,22 @@ def _task_job(job: JobSpec, task: Task) -> JobSpec:
 def completed(
     job: JobSpec, task: Task, buffer_path: Path, primal_path: Path, fingerprint: str
 ) -> SensitivityBuffer | None:
-    """The task's buffer if it and its primal are complete and made by this very job from the
-    scene whose ``fingerprint`` is given."""
+    """The task's buffer if it and its primal (an EXR of the whole film: a cut one is rendered
+    again) are complete and made by this very job from the scene whose ``fingerprint`` is given."""
     if not (buffer_path.is_file() and primal_path.is_file()):
         return None
     try:
         buffer = read_buffer(buffer_path)
+        channels, _ = read_exr(primal_path)
     except SensaovError:
         return None  # unreadable: render it again
     made = buffer.provenance
     same = made.get("job_hash") == job.job_hash() and made.get("task") == task.describe()
     same = same and made.get("scene_fingerprint") == fingerprint
-    return buffer if same and _whole_image(primal_path, made.get("resolution")) else None
-
-
-def _whole_image(path: Path, resolution: Any) -> bool:
-    """Whether ``path`` is a complete EXR of ``[width, height]`` (a cut one is rendered again)."""
-    try:
-        channels, _ = read_exr(path)
-    except SensaovError:
-        return False
+    resolution = made.get("resolution")
     shape = tuple(reversed(resolution)) if isinstance(resolution, list) else None
-    return bool(channels) and all(c.shape == shape for c in channels.values())
+    whole = bool(channels) and all(c.shape == shape for c in channels.values())
+    return buffer if same and whole else None
 
 
 def _provenance(
