@@ -22,14 +22,16 @@ from sensaov_cli.buffer.queries import combine, key_stats, rank
 from sensaov_cli.outputs.previews import BACKGROUND, diverging_rgb
 from sensaov_cli.views.channels import (
     ChannelValues,
+    DisplayScale,
     Encoding,
     Scale,
     choose_scale,
+    clipped_share,
     encode_image,
     painted_values,
+    robust_scale,
 )
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.display_scale import DisplayScale, clipped_share, robust_scale
 from sensaov_cli.views.hierarchy import Uncertainty, weakest_trust
 from sensaov_cli.views.texels import TexelField, texel_passes, texture_footprint
 from sensaov_cli.vocabulary import Weight
@@ -227,7 +229,7 @@ def _panel_scale(field: TexelField, panel: str, encoded: Scale) -> Scale:
 
 
 def view_own_scale(encoding: Encoding, painted: np.ndarray) -> Scale:
-    """This view's own scale: the job's rule (:func:`~.display_scale.robust_scale`) over this
+    """This view's own scale: the job's rule (:func:`~.channels.robust_scale`) over this
     view's painted pixels alone, so neither an object off frame (an environment light, a lamp
     behind the camera) nor a few bright pixels wash the picture out."""
     own = robust_scale({"view": [painted]}, scope="tile")
