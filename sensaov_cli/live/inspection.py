@@ -301,6 +301,7 @@ def object_parameters(
         value = buf.value(key).astype(np.float64).ravel()
         grad = buf.grad(objective, key).astype(np.float64).ravel()
         listed = value.size <= LISTED_COMPONENTS
+        se = None if buf.statistics is None or not listed else buf.statistics.stderr[objective][key]
         rows.append(
             ParameterRow(
                 rank=index,
@@ -310,7 +311,7 @@ def object_parameters(
                 components=int(value.size),
                 value=tuple(map(float, value)) if listed else (float(value.mean()),),
                 gradient=tuple(map(float, grad)) if listed else (float(grad.sum()),),
-                gradient_se=_gradient_se(buf, objective, key) if listed else None,
+                gradient_se=None if se is None else tuple(map(float, np.asarray(se).ravel())),
                 score=score,
                 signed=stats[key].total,
                 signed_se=None if noise is None else noise.error([key], score).signed_se,
@@ -320,12 +321,6 @@ def object_parameters(
             )
         )
     return rows
-
-
-def _gradient_se(buf: SensitivityBuffer, objective: str, key: str) -> tuple[float, ...] | None:
-    if buf.statistics is None:
-        return None
-    return tuple(map(float, np.asarray(buf.statistics.stderr[objective][key]).ravel()))
 
 
 def view_rgb(display: np.ndarray, coverage: np.ndarray, unverified: np.ndarray) -> np.ndarray:

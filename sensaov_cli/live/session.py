@@ -185,11 +185,10 @@ def _vector(
 ) -> tuple[float, float, float]:
     if key not in values:
         return default
-    parts = values[key].split(",")
+    given = values[key]
     try:
-        x, y, z = (_finite(key, part) for part in parts)
+        x, y, z = (_finite(key, part) for part in given.split(","))
     except (RequestError, ValueError):
-        given = values[key]
         raise RequestError(f"{key} must be three finite numbers x,y,z, got {given!r}") from None
     return (x, y, z)
 
