@@ -203,7 +203,7 @@ def test_an_unexpected_error_is_an_internal_error(
 
 
 def test_check_table_says_biased_where_the_trust_table_does() -> None:
-    from sensaov_cli.outputs.tables import checks_text
+    from sensaov_cli.pipeline.check import checks_text
 
     text = checks_text([_gradient_check(False, "disagrees")])  # type: ignore[list-item]
     (row,) = text.splitlines()[1:]

@@ -1,6 +1,6 @@
 """Pictures that tell the truth: shared robust display scales, display layers, trusted headlines.
 
-Unit tests of the rule (views/display_scale.py), then two small projected jobs: the demo's Cornell
+Unit tests of the rule (views/channels.py), then two small projected jobs: the demo's Cornell
 box from two cameras (Fig. 6) and the interior, whose floor varnish has a biased eta.
 """
 
@@ -26,16 +26,16 @@ from sensaov_cli.outputs.previews import (
     diverging_rgb,
     srgb_uint8,
 )
-from sensaov_cli.views.channels import channel_values
-from sensaov_cli.views.coverage import VisibilityPass, histogram, ranked
-from sensaov_cli.views.display_scale import (
+from sensaov_cli.views.channels import (
     FOLLOWER,
     REFERENCE,
+    channel_values,
     group_scales,
     robust_scale,
     shared_channel_scale,
     signed_pixels,
 )
+from sensaov_cli.views.coverage import VisibilityPass, histogram, ranked
 
 from .conftest import sensaov
 from .test_cryptomatte import decode_file

@@ -11,7 +11,7 @@ from sensaov_cli.outputs.atomic import MAX_TOKEN, file_token
 from sensaov_cli.outputs.contact_sheets import write_manifest, write_previews
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.tables import format_table
-from sensaov_cli.views.display_scale import robust_scale
+from sensaov_cli.views.channels import robust_scale
 
 HOSTILE = [
     "/etc/passwd", "../../outside", "..", ".", "", "a/b\\c", "tab\tnew\nline\x00nul",

@@ -193,7 +193,7 @@ def test_a_contact_sheet_names_what_its_tiles_cannot_show(tmp_path: Path) -> Non
     with a sensitivity that this camera does not see, and a failed duality check."""
     from sensaov_cli.outputs.contact_sheets import write_previews
     from sensaov_cli.outputs.layered_exr import SensitivityLayer
-    from sensaov_cli.views.display_scale import robust_scale
+    from sensaov_cli.views.channels import robust_scale
 
     data = np.linspace(-1, 1, 16, dtype=np.float32).reshape(4, 4)
     scale = robust_scale({"cam": [data]})
@@ -264,7 +264,7 @@ def test_text_is_blended_where_glyphs_cover_and_nowhere_else() -> None:
 def _preview_layers(values: list[float]) -> list[tuple[object, object]]:
     """One layer per value of ``values`` (a 4x4 ramp times it), all on one scale."""
     from sensaov_cli.outputs.layered_exr import SensitivityLayer
-    from sensaov_cli.views.display_scale import robust_scale
+    from sensaov_cli.views.channels import robust_scale
 
     data = np.linspace(-1, 1, 16, dtype=np.float32).reshape(4, 4)
     scale = robust_scale({"cam": [data]})

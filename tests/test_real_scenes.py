@@ -28,9 +28,8 @@ from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
 from sensaov_cli.render.visibility import trace
 from sensaov_cli.scene.prepare import prepare_xml
-from sensaov_cli.views.channels import ChannelValues, paint_pass
+from sensaov_cli.views.channels import ChannelValues, paint_pass, robust_scale
 from sensaov_cli.views.coverage import VisibilityPass, histogram, ranked
-from sensaov_cli.views.display_scale import robust_scale
 from tests.conftest import sensaov, write_job
 
 CORPUS = Path(__file__).resolve().parents[1] / "scenes" / "corpus"

@@ -90,8 +90,7 @@ def check(
       sensaov check configs/cbox.yaml --key glass.eta --spp 1024 --seeds 12
     """
     from sensaov_cli.job.load import load_job
-    from sensaov_cli.outputs.tables import checks_text, duality_text
-    from sensaov_cli.pipeline.check import FD_TOLERANCE, exit_code, run_check
+    from sensaov_cli.pipeline.check import checks_text, duality_text, exit_code, run_check
     from sensaov_cli.progress import Progress
 
     spec = load_job(job)
@@ -111,5 +110,5 @@ def check(
             click.echo(f"not measured: {key}: {why}")
         if report.duality and report.buffer_path is not None:
             click.echo("")
-            click.echo(duality_text(report.duality, report.buffer_path, FD_TOLERANCE))
+            click.echo(duality_text(report.duality, report.buffer_path))
     sys.exit(exit_code(report.gradients, report.duality))

@@ -22,14 +22,16 @@ from sensaov_cli.buffer.queries import combine, key_stats, rank
 from sensaov_cli.outputs.previews import BACKGROUND, diverging_rgb
 from sensaov_cli.views.channels import (
     ChannelValues,
+    DisplayScale,
     Encoding,
     Scale,
     choose_scale,
+    clipped_share,
     encode_image,
     painted_values,
+    robust_scale,
 )
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.display_scale import DisplayScale, clipped_share, robust_scale
 from sensaov_cli.views.hierarchy import Uncertainty, weakest_trust
 from sensaov_cli.views.texels import TexelField, texel_passes, texture_footprint
 from sensaov_cli.vocabulary import Weight
@@ -227,7 +229,7 @@ def _panel_scale(field: TexelField, panel: str, encoded: Scale) -> Scale:
 
 
 def view_own_scale(encoding: Encoding, painted: np.ndarray) -> Scale:
-    """This view's own scale: the job's rule (:func:`~.display_scale.robust_scale`) over this
+    """This view's own scale: the job's rule (:func:`~.channels.robust_scale`) over this
     view's painted pixels alone, so neither an object off frame (an environment light, a lamp
     behind the camera) nor a few bright pixels wash the picture out."""
     own = robust_scale({"view": [painted]}, scope="tile")
@@ -299,6 +301,7 @@ def object_parameters(
         value = buf.value(key).astype(np.float64).ravel()
         grad = buf.grad(objective, key).astype(np.float64).ravel()
         listed = value.size <= LISTED_COMPONENTS
+        se = None if buf.statistics is None or not listed else buf.statistics.stderr[objective][key]
         rows.append(
             ParameterRow(
                 rank=index,
@@ -308,7 +311,7 @@ def object_parameters(
                 components=int(value.size),
                 value=tuple(map(float, value)) if listed else (float(value.mean()),),
                 gradient=tuple(map(float, grad)) if listed else (float(grad.sum()),),
-                gradient_se=_gradient_se(buf, objective, key) if listed else None,
+                gradient_se=None if se is None else tuple(map(float, np.asarray(se).ravel())),
                 score=score,
                 signed=stats[key].total,
                 signed_se=None if noise is None else noise.error([key], score).signed_se,
@@ -318,12 +321,6 @@ def object_parameters(
             )
         )
     return rows
-
-
-def _gradient_se(buf: SensitivityBuffer, objective: str, key: str) -> tuple[float, ...] | None:
-    if buf.statistics is None:
-        return None
-    return tuple(map(float, np.asarray(buf.statistics.stderr[objective][key]).ravel()))
 
 
 def view_rgb(display: np.ndarray, coverage: np.ndarray, unverified: np.ndarray) -> np.ndarray:

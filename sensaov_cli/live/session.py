@@ -57,9 +57,15 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene, check_view, load_scene
 from sensaov_cli.render.visibility import Pose, Vec3, ViewTracer, scene_bounds, sensor_pose
 from sensaov_cli.scene import prepare_scene
-from sensaov_cli.views.channels import ChannelValues, channel_values, forward_views, transport_views
+from sensaov_cli.views.channels import (
+    ChannelValues,
+    DisplayScale,
+    channel_values,
+    forward_views,
+    shared_channel_scale,
+    transport_views,
+)
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.display_scale import DisplayScale, shared_channel_scale
 from sensaov_cli.views.hierarchy import Panel, panels
 from sensaov_cli.views.texels import PANELS, TexelField, texture_token
 from sensaov_cli.vocabulary import SIGNS, Sign
@@ -179,11 +185,10 @@ def _vector(
 ) -> tuple[float, float, float]:
     if key not in values:
         return default
-    parts = values[key].split(",")
+    given = values[key]
     try:
-        x, y, z = (_finite(key, part) for part in parts)
+        x, y, z = (_finite(key, part) for part in given.split(","))
     except (RequestError, ValueError):
-        given = values[key]
         raise RequestError(f"{key} must be three finite numbers x,y,z, got {given!r}") from None
     return (x, y, z)
 
@@ -565,7 +570,7 @@ class JobScales:
     """The job's shared display scale of each painted channel, under either sign: read over
     every camera ``project`` paints, traced as it traces them (same spp, same seed), so the
     page's colours are those of its previews and EXR display layers
-    (:func:`~sensaov_cli.views.display_scale.shared_channel_scale`). The cameras are traced
+    (:func:`~sensaov_cli.views.channels.shared_channel_scale`). The cameras are traced
     once, on opening; each (objective, channel, sign) is computed once."""
 
     def __init__(

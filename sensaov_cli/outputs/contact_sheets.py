@@ -2,7 +2,7 @@
 and the camera's manifest of what was written from which buffer; texel fields in the texture's
 own domain, and Fig. 4's three-panel contact sheet.
 
-Every picture saturates at its layer's display scale (:mod:`sensaov_cli.views.display_scale`),
+Every picture saturates at its layer's display scale (:mod:`sensaov_cli.views.channels`),
 so the same object has the same colour in every view; each single preview's legend says the
 scale's rule, what it clips and what the layer leaves out. Untrusted layers are hatched. The
 manifest ``<previews>/<camera>.json`` lists every file with the buffer id and job version it was
@@ -37,8 +37,8 @@ from sensaov_cli.outputs.atomic import (
 from sensaov_cli.outputs.exr import exr_writer
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
 from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay, write_png
+from sensaov_cli.views.channels import DisplayScale, clipped_share, signed_pixels
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.display_scale import DisplayScale, clipped_share, signed_pixels
 from sensaov_cli.views.hierarchy import TRUSTED
 from sensaov_cli.views.texels import TexelField, TexelPass, white_noise_factor
 

@@ -53,7 +53,12 @@ def _exr_file(channels: dict[str, np.ndarray], attributes: dict[str, str]) -> An
     all else becomes float32."""
     import OpenEXR
 
-    _use_every_core(OpenEXR)
+    # OpenEXR compresses on one thread by default; it writes blocks in line order whatever the
+    # thread count, so the bytes do not depend on it.
+    affinity = getattr(os, "sched_getaffinity", None)  # Linux; elsewhere every core counts
+    cores = len(affinity(0)) if affinity else (os.cpu_count() or 1)
+    if OpenEXR.global_thread_count() != cores:
+        OpenEXR.set_global_thread_count(cores)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     pixels = {
         name: np.ascontiguousarray(data, np.float16 if data.dtype == np.float16 else np.float32)
@@ -70,15 +75,6 @@ def encode_exr(channels: dict[str, np.ndarray], attributes: dict[str, str]) -> b
     with _exr_file(channels, attributes) as exr:
         exr.write(stream)
     return stream.getvalue()
-
-
-def _use_every_core(openexr: Any) -> None:
-    """Let OpenEXR compress on every core this process may use (its default is one thread).
-    Blocks are still written in line order: the bytes do not depend on the thread count."""
-    affinity = getattr(os, "sched_getaffinity", None)  # Linux; elsewhere every core counts
-    cores = len(affinity(0)) if affinity else (os.cpu_count() or 1)
-    if openexr.global_thread_count() != cores:
-        openexr.set_global_thread_count(cores)
 
 
 def _os_error(message: str) -> OSError:

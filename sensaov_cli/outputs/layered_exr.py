@@ -29,7 +29,7 @@ import numpy as np
 from sensaov_cli.errors import CameraFileError, CryptomatteError, ExrError
 from sensaov_cli.outputs.exr import read_exr, write_exr
 from sensaov_cli.outputs.previews import diverging_linear, diverging_linear_planes
-from sensaov_cli.views.display_scale import DisplayScale, clipped_share, signed_pixels
+from sensaov_cli.views.channels import DisplayScale, clipped_share, signed_pixels
 
 FORMAT_NAME = "sensaov-aov-exr"
 FORMAT_VERSION = 2  # 2: display layers, display scales, trust parts, stamps (exr-layout.md)

@@ -1,5 +1,5 @@
-"""What a terminal shows and ``rank``/``run``/``params``/``check`` print: the summary and the
-rankings, a scene's parameters and their checks, as text and JSON, in aligned tables.
+"""What a terminal shows and ``rank``/``run``/``params`` print: the summary and the rankings, a
+scene's parameters and their checks, as text and JSON, in aligned tables.
 
 One aligned-table function serves them all. ``rank``: text and JSON are both written from one
 :class:`~sensaov_cli.views.hierarchy.Summary`, so they agree. ``rank --by``'s JSON, CSV and
@@ -19,8 +19,7 @@ import unicodedata
 from collections import defaultdict
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, SensitivityBuffer, TextureSource
 from sensaov_cli.views.hierarchy import (
@@ -477,9 +476,8 @@ def _ranking_legend(r: Ranking) -> list[str]:
 
 
 # ``params``: the selected parameters, what was left out, and why; text and ``--json`` come from
-# one ParameterInventory, so they agree. ``check``: reverse mode against finite differences, and
-# duality; its rows are the render stage's results, read through the protocols below so that
-# this stage never imports the renderer.
+# one ParameterInventory, so they agree. (``check``'s tables are the render stage's results:
+# pipeline/check.py prints them with format_table, since this stage never imports the renderer.)
 _PARAMS_NOTES = {
     "unverified": "UNVERIFIED", "biased": "BIASED", "suspect": "SUSPECT",
     "no_gradient": "NO GRADIENT",
@@ -599,92 +597,3 @@ def _excluded(loaded: ParameterInventory, show_all: bool) -> list[str]:
         else:
             lines.append(f"  {reason}: {len(keys)} keys (e.g. {keys[0]}; --all lists them)")
     return lines
-
-
-class GradientRow(Protocol):
-    """One row of ``check``'s finite-difference table (the render stage's GradientCheck)."""
-
-    @property
-    def key(self) -> str: ...
-    @property
-    def plugin(self) -> str: ...
-    @property
-    def type(self) -> str: ...
-    @property
-    def adjoint(self) -> float: ...
-    @property
-    def finite_difference(self) -> float: ...
-    @property
-    def standard_error(self) -> float: ...
-    @property
-    def verdict(self) -> str: ...
-    @property
-    def method(self) -> str: ...
-    @property
-    def claimed_verified(self) -> bool: ...
-    @property
-    def claimed(self) -> str: ...
-
-
-class DualityRow(Protocol):
-    """One row of ``check``'s duality table (the render stage's DualityCheck)."""
-
-    @property
-    def objective(self) -> str: ...
-    @property
-    def key(self) -> str: ...
-    @property
-    def direction(self) -> str: ...
-    @property
-    def trust(self) -> str: ...
-    @property
-    def reverse(self) -> float: ...
-    @property
-    def forward(self) -> float: ...
-    @property
-    def central(self) -> float | None: ...
-    @property
-    def tolerance(self) -> float: ...
-    @property
-    def duality_error(self) -> float: ...
-    @property
-    def central_error(self) -> float | None: ...
-    @property
-    def central_asked(self) -> bool: ...
-    @property
-    def verdict(self) -> str: ...
-
-
-def checks_text(checks: Sequence[GradientRow]) -> str:
-    rows = [
-        ("key", "plugin", "type", "table", "method", "adjoint", "finite diff", "std err", "verdict")
-    ]
-    for c in checks:
-        error = "-" if c.method == "same seed" else f"{c.standard_error:.1e}"
-        contradicts = c.claimed_verified and c.verdict == "disagrees"
-        verdict = c.verdict + ("  <-- CONTRADICTS THE TABLE" if contradicts else "")
-        # c.claimed: the table's own label (biased kinds say biased)
-        numbers = (f"{c.adjoint:+.3e}", f"{c.finite_difference:+.3e}", error, verdict)
-        rows.append((c.key, c.plugin, c.type, c.claimed, c.method, *numbers))
-    return "\n".join(format_table(rows))
-
-
-def duality_text(rows: Sequence[DualityRow], buffer: Path, fd_tolerance: float) -> str:
-    """The duality column of ``check``: the buffer against forward mode and central differences."""
-    head = (
-        f"duality at the buffer's gradient seeds ({buffer}): forward <dM/dI, Jv> vs stored "
-        f"<g, v> (tolerance {rows[0].tolerance:.1e} at this size); central differences of "
-        f"the image at the same seed (tolerance {fd_tolerance:.0%}; n/a: discontinuous parameter)"
-    )
-    table = [
-        ("objective", "key", "v", "trust", "<g,v>", "forward", "err", "central", "err", "verdict")
-    ]
-    for d in rows:
-        central = "n/a" if d.central is None else f"{d.central:+.4e}"
-        central = central if d.central_asked else "(--full)"
-        error = "" if d.central_error is None else f"{d.central_error:.1e}"
-        duality = (f"{d.reverse:+.4e}", f"{d.forward:+.4e}", f"{d.duality_error:.1e}")
-        table.append(
-            (d.objective, d.key, d.direction, d.trust, *duality, central, error, d.verdict)
-        )
-    return "\n".join([head, *format_table(table)])

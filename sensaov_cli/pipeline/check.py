@@ -11,6 +11,7 @@ from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.statistics import single_pass
 from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, FingerprintMismatch
 from sensaov_cli.job.spec import JobSpec
+from sensaov_cli.outputs.tables import format_table
 from sensaov_cli.pipeline.run import BUFFER_NAME, Task, task_job
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import load_scene
@@ -25,7 +26,7 @@ from sensaov_cli.render.verify.fdcheck import (
 )
 from sensaov_cli.scene import prepare_scene
 
-__all__ = ["FD_TOLERANCE", "CheckReport", "exit_code", "run_check"]
+__all__ = ["CheckReport", "checks_text", "duality_text", "exit_code", "run_check"]
 
 FULL_DIRECTIONS = 2  # random directions per parameter besides ones, with --full (else 0)
 
@@ -122,3 +123,38 @@ def exit_code(checks: Sequence[GradientCheck], duality: Sequence[DualityCheck] =
     disagrees with forward mode at its own seed; else success."""
     contradicted = any(c.claimed_verified and c.verdict == "disagrees" for c in checks)
     return EXIT_JOB_FAILED if contradicted or any(d.failed for d in duality) else EXIT_OK
+
+
+def checks_text(checks: Sequence[GradientCheck]) -> str:
+    rows = [
+        ("key", "plugin", "type", "table", "method", "adjoint", "finite diff", "std err", "verdict")
+    ]
+    for c in checks:
+        error = "-" if c.method == "same seed" else f"{c.standard_error:.1e}"
+        contradicts = c.claimed_verified and c.verdict == "disagrees"
+        verdict = c.verdict + ("  <-- CONTRADICTS THE TABLE" if contradicts else "")
+        # c.claimed: the table's own label (biased kinds say biased)
+        numbers = (f"{c.adjoint:+.3e}", f"{c.finite_difference:+.3e}", error, verdict)
+        rows.append((c.key, c.plugin, c.type, c.claimed, c.method, *numbers))
+    return "\n".join(format_table(rows))
+
+
+def duality_text(rows: Sequence[DualityCheck], buffer: Path) -> str:
+    """The duality column of ``check``: the buffer against forward mode and central differences."""
+    head = (
+        f"duality at the buffer's gradient seeds ({buffer}): forward <dM/dI, Jv> vs stored "
+        f"<g, v> (tolerance {rows[0].tolerance:.1e} at this size); central differences of "
+        f"the image at the same seed (tolerance {FD_TOLERANCE:.0%}; n/a: discontinuous parameter)"
+    )
+    table = [
+        ("objective", "key", "v", "trust", "<g,v>", "forward", "err", "central", "err", "verdict")
+    ]
+    for d in rows:
+        central = "n/a" if d.central is None else f"{d.central:+.4e}"
+        central = central if d.central_asked else "(--full)"
+        error = "" if d.central_error is None else f"{d.central_error:.1e}"
+        duality = (f"{d.reverse:+.4e}", f"{d.forward:+.4e}", f"{d.duality_error:.1e}")
+        table.append(
+            (d.objective, d.key, d.direction, d.trust, *duality, central, error, d.verdict)
+        )
+    return "\n".join([head, *format_table(table)])

@@ -2,7 +2,7 @@
 
 Reads the buffer, traces primary visibility per camera and paints per-object values: no
 derivative is computed here (§3 "Binding"; the deferred-shading half of the paper). Every
-picture of a layer saturates at its group's display scale (views/display_scale.py): one per
+picture of a layer saturates at its group's display scale (views/channels.py): one per
 (objective, channel) read from the pixels of *every* camera of the job, so each camera's
 visibility is traced even when ``--camera`` picks one: farm tasks that each write one camera
 derive the very same scales.
@@ -64,22 +64,20 @@ from sensaov_cli.render.visibility import (
 )
 from sensaov_cli.scene import prepare_scene
 from sensaov_cli.views.channels import (
+    FOLLOWER,
+    REFERENCE,
     ChannelValues,
+    DisplayScale,
     ForwardView,
     TransportView,
     channel_values,
     forward_views,
+    group_scales,
     paint_pass,
+    signed_pixels,
     transport_views,
 )
 from sensaov_cli.views.coverage import VisibilityPass, ranked
-from sensaov_cli.views.display_scale import (
-    FOLLOWER,
-    REFERENCE,
-    DisplayScale,
-    group_scales,
-    signed_pixels,
-)
 from sensaov_cli.views.texels import (
     FILTERS,
     WRAPS,
