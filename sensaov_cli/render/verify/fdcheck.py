@@ -397,10 +397,9 @@ def check_duality(
             for label, v in directions(records[key], random_directions, seed=len(rows)):
                 stage = f"check: duality of {key} along {label} for '{name}'"
                 with progress.stage(f"duality_{len(rows)}_s", stage):
-                    row = _row(
-                        loaded, buffer, name, records[key], label, v, adjoints[name], central
+                    rows.append(
+                        _row(loaded, buffer, name, records[key], label, v, adjoints[name], central)
                     )
-                    rows.append(row)
     return [replace(row, tolerance=tolerance) for row in rows]
 
 

@@ -117,11 +117,6 @@ def renders_per_seed(targets: Sequence[Target]) -> int:
     return sum(2 * t.components for t in targets) + any(t.one_sided for t in targets)
 
 
-def run_samples(pixels: int, spp: int, passes: int) -> int:
-    """What the run's own passes cost, in samples: a primal and P backward passes of ~2."""
-    return pixels * spp * (1 + 2 * passes) + RENDER_OVERHEAD + BACKWARD_OVERHEAD * passes
-
-
 def plan(
     reasons: Mapping[str, str],
     records: Sequence[ParamRecord],
@@ -135,7 +130,9 @@ def plan(
     seeds: Sequence[int],
 ) -> RepairPlan:
     """The targets that fit ``settings.budget``, and why the others were left out."""
-    budget = int(settings.budget * run_samples(pixels, spp, passes))
+    # the run's own cost in samples: a primal and ``passes`` backward passes of ~2 renders each
+    run = pixels * spp * (1 + 2 * passes) + RENDER_OVERHEAD + BACKWARD_OVERHEAD * passes
+    budget = int(settings.budget * run)
     by_key = {r.key: r for r in records}
     skipped, targets = {}, []
     for key, reason in reasons.items():
