@@ -219,14 +219,13 @@ def repair(
         with progress.stage(f"repair_{index}_s", label):
             repairs[target.key] = _differences(loaded, objectives, result, chosen, target)
     grads, statistics = _stored(result, repairs, batches)
-    provenance = {**result.provenance, "repairs": _figures(chosen, settings, repairs)}
     return replace(
         result,
         grads=grads,
         statistics=statistics,
         params=tuple(_relabel(r, reasons, repairs, chosen) for r in result.params),
         repairs=repairs,
-        provenance=provenance,
+        provenance={**result.provenance, "repairs": _figures(chosen, settings, repairs)},
     )
 
 
