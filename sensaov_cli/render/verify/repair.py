@@ -166,12 +166,10 @@ def _target(
     flat = value.astype(np.float64).ravel()
     low, high = BOUNDS.get(record.type, (None, None))
     eps = step * np.maximum(1.0, np.abs(flat))
-    one_sided = tuple(
-        (int(i), 1 if low is not None and flat[i] - eps[i] < low else -1)
-        for i in range(flat.size)
-        if (low is not None and flat[i] - eps[i] < low)
-        or (high is not None and flat[i] + eps[i] > high)
-    )
+    near_low = flat - eps < low if low is not None else np.zeros(flat.size, bool)
+    near_high = flat + eps > high if high is not None else np.zeros(flat.size, bool)
+    near = np.flatnonzero(near_low | near_high)
+    one_sided = tuple((int(i), 1 if near_low[i] else -1) for i in near)
     weighted = max(
         (float(np.abs(flat * g[record.key].ravel()).sum()) for g in grads.values()), default=0.0
     )
