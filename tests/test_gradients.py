@@ -79,8 +79,7 @@ def test_split_gradients_sum_to_the_shared_one(
             job_writer(f"shared_{mode}", render=render, parameters={"shared": mode})
         )
         _, adjoint_image = value_and_adjoint(mi, objective, adjoint.render_primal(loaded, 32, 0))
-        keys = adjoint.integrator_plan(loaded)["prb"]  # every diffuse reflectance
-        grads[mode] = adjoint.backward_pass(loaded, "prb", keys, adjoint_image, 32, 7)
+        grads[mode] = adjoint.backward(loaded, adjoint_image, 32, 7)
     split = sum(
         grads["split"][f"{shape}.bsdf.reflectance.value"]
         for shape in ("floor", "ceiling", "back_wall", "light")

@@ -98,6 +98,13 @@ def integrator_plan(loaded: LoadedScene) -> dict[str, set[str]]:
     return {name: keys for name, keys in plan.items() if keys}
 
 
+def backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int) -> dict[str, np.ndarray]:
+    grads: dict[str, np.ndarray] = {}
+    for name, keys in integrator_plan(loaded).items():
+        grads.update(backward_pass(loaded, name, keys, adjoint_image, spp, seed))
+    return {info.key: grads[info.key] for info in loaded.selected}
+
+
 def backward_pass(
     loaded: LoadedScene, name: str, keys: set[str], adjoint_image: Any, spp: int, seed: int
 ) -> dict[str, np.ndarray]:
