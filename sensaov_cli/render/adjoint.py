@@ -116,7 +116,15 @@ def backward_pass(
     if name == "prb":
         sums = _prb_backward(loaded, adjoint_image, spp, seed, keys)
         return {key: sums[key].astype(np.float32).reshape(shapes[key]) for key in keys}
-    _path_backward(loaded, adjoint_image, spp, seed)
+    # path's gradients accumulate chunk by chunk; each chunk's share is its fraction of spp
+    width, height = loaded.resolution
+    path = path_integrator(loaded)
+    for index, chunk in subpasses(width * height, spp, PATH_SAMPLES_PER_PASS):
+        with nothing_attached_is_zero():
+            path.render_backward(
+                loaded.scene, loaded.params, grad_in=adjoint_image * (chunk / spp),
+                sensor=loaded.sensor, seed=chunk_seed(seed, index), spp=chunk,
+            )  # fmt: skip
     return {key: to_numpy(dr.grad(loaded.leaves[key]), shapes[key]) for key in keys}
 
 
@@ -237,21 +245,9 @@ def derived_seed(seed: int, purpose: str, index: int) -> int:
     return int(np.random.SeedSequence([seed, tag, index]).generate_state(1)[0]) % 2**31
 
 
-def _path_backward(loaded: LoadedScene, adjoint_image: Any, spp: int, seed: int) -> None:
-    """Accumulate path's gradients chunk by chunk; each chunk's share is its fraction of spp."""
-    width, height = loaded.resolution
-    path = path_integrator(loaded)
-    for index, chunk in subpasses(width * height, spp, PATH_SAMPLES_PER_PASS):
-        with nothing_attached_is_zero():
-            path.render_backward(
-                loaded.scene, loaded.params, grad_in=adjoint_image * (chunk / spp),
-                sensor=loaded.sensor, seed=chunk_seed(seed, index), spp=chunk,
-            )  # fmt: skip
-
-
 def image_like_backward(loaded: LoadedScene, route: str, spp: int, seed: int) -> Any:
     """The image a backward pass through ``route`` ("prb" or "path") at ``seed`` replays: the
-    primal, or path's chunks, each its share of spp (as :func:`_path_backward`)."""
+    primal, or path's chunks, each its share of spp (as :func:`backward_pass`)."""
     if route == "prb":
         return render_primal(loaded, spp, seed)
     path = path_integrator(loaded)
@@ -486,11 +482,17 @@ def _push(
     total = np.zeros(shape, np.float64)  # summed in float64, as the backward
     for index, chunk in subpasses(width * height, spp):
         _push_leaves(loaded, direction)
+        tangent, at = None, chunk_seed(seed, index)
         try:
-            part = _prb_forward(loaded, chunk, chunk_seed(seed, index), shape)
+            with nothing_attached_is_zero():
+                tangent = loaded.integrator.render_forward(
+                    loaded.scene, loaded.params, sensor=loaded.sensor, seed=at, spp=chunk
+                )
         finally:
             enable_gradients(loaded, set())
-        total += part if chunk == spp else part * (chunk / spp)
+        if tangent is not None:
+            part = np.array(tangent, dtype=np.float32).reshape(shape)
+            total += part if chunk == spp else part * (chunk / spp)
     return total.astype(np.float32)
 
 
@@ -508,21 +510,10 @@ def _push_leaves(loaded: LoadedScene, direction: dict[str, np.ndarray]) -> None:
     dr.traverse(dr.ADMode.Forward, dr.ADFlag.ClearEdges)
 
 
-def _prb_forward(loaded: LoadedScene, spp: int, seed: int, shape: tuple[int, ...]) -> np.ndarray:
-    tangent = None
-    with nothing_attached_is_zero():
-        tangent = loaded.integrator.render_forward(
-            loaded.scene, loaded.params, sensor=loaded.sensor, seed=seed, spp=spp
-        )
-    if tangent is None:
-        return np.zeros(shape, np.float32)
-    return np.array(tangent, dtype=np.float32).reshape(shape)
-
-
 def _path_forward(
     loaded: LoadedScene, tangents: dict[Any, Any], spp: int, seed: int, shape: tuple[int, ...]
 ) -> np.ndarray:
-    """Chunk by chunk as :func:`_path_backward`, through path's own ``render_forward``
+    """Chunk by chunk as :func:`backward_pass`, through path's own ``render_forward``
     (``dr.forward_to`` by hand differs from the backward pass at some seeds)."""
     import drjit as dr
 

@@ -214,7 +214,12 @@ def _describe(
     _, _, node, flags = params.properties[key]
     parts = key.split(".")
     is_texture_node = isinstance(node, mi.Texture)
-    slot, holder = _slot_and_holder(mi, parts, node, params.hierarchy)
+    # The slot the parameter fills in the plugin that is not a texture (or volume): in
+    # ``glaze.roughness.color0.value`` the type is roughness, whatever the nesting.
+    levels, holder = _above_textures(mi, node, params.hierarchy)
+    if len(parts) <= levels:
+        levels, holder = 0, node
+    slot = parts[-1 - levels]
     plugin = _plugin_name(holder)
     ptype = _EMITTER_SLOT_TYPES.get(slot, slot) if isinstance(holder, mi.Emitter) else slot
     ptype = TYPE_ALIASES.get(ptype, ptype)
@@ -272,17 +277,6 @@ def _composition(
         parent = hierarchy.get(node)
         node = parent[0] if parent is not None else None
     return tuple(contexts)
-
-
-def _slot_and_holder(
-    mi: ModuleType, parts: list[str], node: Any, hierarchy: Any
-) -> tuple[str, Any]:
-    """The slot a parameter fills in the plugin that is not a texture (or volume), and that
-    plugin: in ``glaze.roughness.color0.value`` the type is roughness, whatever the nesting."""
-    levels, holder = _above_textures(mi, node, hierarchy)
-    if levels == 0 or len(parts) <= levels:
-        return parts[-1], node
-    return parts[-1 - levels], holder
 
 
 def _above_textures(mi: ModuleType, node: Any, hierarchy: Any) -> tuple[int, Any]:

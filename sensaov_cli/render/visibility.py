@@ -380,8 +380,7 @@ def sensor_pose(mi: ModuleType, sensor: Any, bounds: tuple[Vec3, Vec3]) -> Pose:
         notes.append(f"the objective sensor ({kind}) is shown through a 40° pinhole")
     if np.linalg.det(axes) < 0:  # look_at's frame (left, up, forward) is right-handed
         notes.append("the objective sensor's frame is mirrored: the view shows it unmirrored")
-    target = origin + reach * forward
-    look_at = LookAt(_vec(origin), _vec(target), _vec(up))
+    look_at = LookAt(_vec(origin), _vec(origin + reach * forward), _vec(up))
     return Pose(look_at, fov, "; ".join(notes))
 
 

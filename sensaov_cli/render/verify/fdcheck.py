@@ -120,18 +120,19 @@ def difference(
     info: ParamRecord,
     v: np.ndarray,
     step: float,
+    spp: int,
     seeds: tuple[int, int],
-    measure: Callable[[int], Any],
+    measure: Callable[[Any], Any],
 ) -> Any:
-    """(f(θ + εv) − f(θ − εv)) / 2ε, ε = ``step`` · max(1, |θ|), each side ``measure``d at its
-    seed; θ is restored."""
+    """(f(θ + εv) − f(θ − εv)) / 2ε, ε = ``step`` · max(1, |θ|), f the ``measure`` of the image
+    rendered at each side's seed as the backward pass of ``info`` is; θ is restored."""
     theta = np.array(loaded.params[info.key], dtype=np.float32).reshape(info.shape)
     eps = step * max(1.0, float(np.abs(theta).max()))
     sides = []
     try:
         for seed, sign in zip(seeds, (1, -1), strict=True):
             assign(loaded, info.key, theta + sign * eps * v)
-            sides.append(measure(seed))
+            sides.append(measure(image_like_backward(loaded, loaded.routes[info.key], spp, seed)))
     finally:
         assign(loaded, info.key, theta)
     return (sides[0] - sides[1]) / (2 * eps)
@@ -145,14 +146,12 @@ def central_difference(
     spp: int,
     seeds: tuple[int, int],
 ) -> float:
-    """The :func:`difference` of M along v = :func:`direction`, each side rendered as the
-    backward pass of ``info`` is."""
+    """The :func:`difference` of M along v = :func:`direction`."""
 
-    def measure(seed: int) -> float:
-        image = image_like_backward(loaded, loaded.routes[info.key], spp, seed)
+    def measure(image: Any) -> float:
         return value_and_adjoint(loaded.mi, objective, image)[0]
 
-    return float(difference(loaded, info, direction(info), step, seeds, measure))
+    return float(difference(loaded, info, direction(info), step, spp, seeds, measure))
 
 
 def check_parameter(
@@ -397,10 +396,9 @@ def check_duality(
             for label, v in directions(records[key], random_directions, seed=len(rows)):
                 stage = f"check: duality of {key} along {label} for '{name}'"
                 with progress.stage(f"duality_{len(rows)}_s", stage):
-                    row = _row(
-                        loaded, buffer, name, records[key], label, v, adjoints[name], central
+                    rows.append(
+                        _row(loaded, buffer, name, records[key], label, v, adjoints[name], central)
                     )
-                    rows.append(row)
     return [replace(row, tolerance=tolerance) for row in rows]
 
 
@@ -423,11 +421,10 @@ def _row(
     central = None
     if asked and "discontinuous" not in info.flags:
 
-        def image_at(side_seed: int) -> np.ndarray:
-            image = image_like_backward(loaded, loaded.routes[info.key], spp, side_seed)
+        def image_at(image: Any) -> np.ndarray:
             return np.array(image, np.float32).astype(np.float64)
 
-        central = _weighted(adjoint, difference(loaded, info, v, STEP, (seed, seed), image_at))
+        central = _weighted(adjoint, difference(loaded, info, v, STEP, spp, (seed, seed), image_at))
     record = buffer.param(info.key)
     # A repaired parameter's reverse mode is the one known wrong: its central difference may
     # disagree with forward mode without failing the check.

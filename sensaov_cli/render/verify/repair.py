@@ -117,11 +117,6 @@ def renders_per_seed(targets: Sequence[Target]) -> int:
     return sum(2 * t.components for t in targets) + any(t.one_sided for t in targets)
 
 
-def run_samples(pixels: int, spp: int, passes: int) -> int:
-    """What the run's own passes cost, in samples: a primal and P backward passes of ~2."""
-    return pixels * spp * (1 + 2 * passes) + RENDER_OVERHEAD + BACKWARD_OVERHEAD * passes
-
-
 def plan(
     reasons: Mapping[str, str],
     records: Sequence[ParamRecord],
@@ -135,7 +130,9 @@ def plan(
     seeds: Sequence[int],
 ) -> RepairPlan:
     """The targets that fit ``settings.budget``, and why the others were left out."""
-    budget = int(settings.budget * run_samples(pixels, spp, passes))
+    # the run's own cost in samples: a primal and ``passes`` backward passes of ~2 renders each
+    run = pixels * spp * (1 + 2 * passes) + RENDER_OVERHEAD + BACKWARD_OVERHEAD * passes
+    budget = int(settings.budget * run)
     by_key = {r.key: r for r in records}
     skipped, targets = {}, []
     for key, reason in reasons.items():
@@ -169,12 +166,10 @@ def _target(
     flat = value.astype(np.float64).ravel()
     low, high = BOUNDS.get(record.type, (None, None))
     eps = step * np.maximum(1.0, np.abs(flat))
-    one_sided = tuple(
-        (int(i), 1 if low is not None and flat[i] - eps[i] < low else -1)
-        for i in range(flat.size)
-        if (low is not None and flat[i] - eps[i] < low)
-        or (high is not None and flat[i] + eps[i] > high)
-    )
+    near_low = flat - eps < low if low is not None else np.zeros(flat.size, bool)
+    near_high = flat + eps > high if high is not None else np.zeros(flat.size, bool)
+    near = np.flatnonzero(near_low | near_high)
+    one_sided = tuple((int(i), 1 if near_low[i] else -1) for i in near)
     weighted = max(
         (float(np.abs(flat * g[record.key].ravel()).sum()) for g in grads.values()), default=0.0
     )
@@ -222,14 +217,13 @@ def repair(
         with progress.stage(f"repair_{index}_s", label):
             repairs[target.key] = _differences(loaded, objectives, result, chosen, target)
     grads, statistics = _stored(result, repairs, batches)
-    provenance = {**result.provenance, "repairs": _figures(chosen, settings, repairs)}
     return replace(
         result,
         grads=grads,
         statistics=statistics,
         params=tuple(_relabel(r, reasons, repairs, chosen) for r in result.params),
         repairs=repairs,
-        provenance=provenance,
+        provenance={**result.provenance, "repairs": _figures(chosen, settings, repairs)},
     )
 
 

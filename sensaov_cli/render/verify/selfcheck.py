@@ -131,7 +131,11 @@ def _label(
     """The record with the strongest finding: no gradient flowing through integrator
     ``no_flow``, then suspect, then zero components."""
     if no_flow is not None:
-        return replace(record, trust="no_gradient", note=_no_flow_reason(record, value, no_flow))
+        all_zero = record.type in THROUGHPUT_TYPES and not np.any(value)
+        reason = known_zero_reason(record.plugin, record.type, record.key, no_flow, all_zero)
+        # a kind the table labels no_gradient keeps the table's reason
+        note = record.note if record.trust == "no_gradient" else reason or NO_FLOW_REASON
+        return replace(record, trust="no_gradient", note=note)
     if record.key in suspect:
         figures = "failed a self-check: " + "; ".join(suspect[record.key])
         if record.trust == "biased":  # already known wrong: keep the label, add the figures
@@ -140,14 +144,6 @@ def _label(
     if record.key in zeros and record.trust == "verified":
         return replace(record, trust="unverified", note=_zeros_note(zeros[record.key], value))
     return record
-
-
-def _no_flow_reason(record: ParamRecord, value: np.ndarray, integrator: str) -> str:
-    if record.trust == "no_gradient":  # the table knows why
-        return record.note
-    all_zero = record.type in THROUGHPUT_TYPES and not np.any(value)
-    reason = known_zero_reason(record.plugin, record.type, record.key, integrator, all_zero)
-    return reason or NO_FLOW_REASON
 
 
 def _zeros_note(where: list[int], value: np.ndarray) -> str:
