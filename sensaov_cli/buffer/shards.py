@@ -164,7 +164,13 @@ def _check_alike(shards: Sequence[Shard]) -> None:
                 f"shard of {shard.task.count}, {first.path.name} is a shard of {first.task.count}",
                 where=where,
             )
-        _check_parameters(shard, first)
+        if shard.buffer.keys != first.buffer.keys or shard.buffer.objects != first.buffer.objects:
+            raise MergeError(f"other parameters or objects than {first.path.name}", where=where)
+        for key in first.buffer.keys:
+            if not np.array_equal(shard.buffer.values[key], first.buffer.values[key]):
+                raise MergeError(
+                    f"parameter {key!r} has another value than in {first.path.name}", where=where
+                )
 
 
 def _check_spp_total(shards: Sequence[Shard], total: int) -> None:
@@ -177,17 +183,6 @@ def _check_spp_total(shards: Sequence[Shard], total: int) -> None:
                 f"the shards hold {total} spp in all, but their job's render.spp is {wanted}",
                 where=str(shard.path),
                 hint="a shard's provenance spp was changed, or shards of other runs are mixed",
-            )
-
-
-def _check_parameters(shard: Shard, first: Shard) -> None:
-    where = str(shard.path)
-    if shard.buffer.keys != first.buffer.keys or shard.buffer.objects != first.buffer.objects:
-        raise MergeError(f"other parameters or objects than {first.path.name}", where=where)
-    for key in first.buffer.keys:
-        if not np.array_equal(shard.buffer.values[key], first.buffer.values[key]):
-            raise MergeError(
-                f"parameter {key!r} has another value than in {first.path.name}", where=where
             )
 
 
