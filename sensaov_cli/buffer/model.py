@@ -39,12 +39,6 @@ _T_975 = {1: 12.71, 2: 4.30, 3: 3.18, 4: 2.78, 5: 2.57, 6: 2.45, 7: 2.36, 8: 2.3
           10: 2.23, 15: 2.13, 20: 2.09, 30: 2.04}  # fmt: skip
 
 
-def t_975(seeds: int) -> float:
-    """The significance threshold for a mean of ``seeds`` estimates (next tabulated dof below)."""
-    dof = max(seeds - 1, 1)
-    return _T_975[max(d for d in _T_975 if d <= dof)] if dof <= 30 else 1.96
-
-
 @dataclass(frozen=True)
 class Repair:
     """How one parameter's stored gradient was computed by finite differences."""
@@ -111,8 +105,11 @@ class Repair:
         return float(projections.std(ddof=1) / math.sqrt(len(projections)))
 
     def significant(self, signed: float, error: float) -> bool:
-        """Whether |signed| is beyond noise: Student's t at 95 % with seeds − 1 dof."""
-        return abs(signed) > t_975(len(self.seeds)) * error
+        """Whether |signed| is beyond noise: Student's t at 95 % with seeds − 1 dof (the next
+        tabulated dof below)."""
+        dof = max(len(self.seeds) - 1, 1)
+        t = _T_975[max(d for d in _T_975 if d <= dof)] if dof <= 30 else 1.96
+        return abs(signed) > t * error
 
 
 def _require(ok: bool, message: str) -> None:

@@ -436,8 +436,8 @@ def _arrays(
     size = sum(math.prod(p.shape) for p, slot in zip(params, slots, strict=True)
                if slot.offset is not None)  # fmt: skip
     kinds = [("grads", "texgrad")] + [("stderrs", "texstderr")] * with_stderr
-    packed = ["values"] + [_packed(kind, j) for kind, _ in kinds for j in range(len(names))]
-    for name in packed:  # the packed members exist even if empty
+    flat = ["values"] + [_packed(kind, j) for kind, _ in kinds for j in range(len(names))]
+    for name in flat:  # the packed members exist even if empty
         members.float32(name, (size,))
     at = {p.key: (p.shape, slot) for p, slot in zip(params, slots, strict=True)}
     for shape, slot in at.values():

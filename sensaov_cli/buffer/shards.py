@@ -115,13 +115,10 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
             where=str(first.path.parent),
             hint="run them ('sensaov run JOB --shard I/N') or list every shard file",
         )
-    merged_grads, merged_values, spp, seeds = [], [], [], []
-    for index in range(1, count + 1):
-        shard_grads, values, spps = _one_index(by_index[index], job_objectives, index, count)
-        merged_grads.append(shard_grads)
-        merged_values.append(values)
-        spp.append(spps)
-        seeds.append(by_index[index][0].task.seed)
+    indices = [by_index[i] for i in range(1, count + 1)]
+    parts = [_one_index(files, job_objectives, i, count) for i, files in enumerate(indices, 1)]
+    merged_grads, merged_values, spp = zip(*parts, strict=True)
+    seeds = [files[0].task.seed for files in indices]
     _check_spp_total(shards, sum(spp))
     keys = first.buffer.keys
     grads, objective_values, statistics = combine_batches(
@@ -140,7 +137,7 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
         values=dict(first.buffer.values),
         grads=grads,
         statistics=statistics,
-        repairs=_merged_repairs(params, [by_index[i] for i in range(1, count + 1)], spp),
+        repairs=_merged_repairs(params, indices, spp),
     )
 
 
@@ -269,8 +266,8 @@ def _merged_repairs(
 
 
 def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:
-    base = dict(shards[0].buffer.provenance)
-    base.update(
+    return dict(
+        shards[0].buffer.provenance,
         spp=spp,
         task={"shard": None, "objectives": None},
         # what each shard (one batch of the merge) rendered; per-shard timings do not add up
@@ -290,4 +287,3 @@ def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:
             for s in shards
         ],
     )
-    return base
