@@ -27,21 +27,17 @@ from sensaov_cli.buffer.statistics import ParamSums, Statistics
 from sensaov_cli.errors import BufferContentError, NonFiniteGradientError, UnknownNameError
 from sensaov_cli.vocabulary import Estimator, Trust
 
-# --- repairs: gradients recomputed by finite differences where Mitsuba's reverse mode is known
-# wrong (docs/verification.md, "Repairs"; the differences are render/verify/repair.py's). A Repair
-# keeps every seed's estimate, so the stored gradient's standard error and its sign's
-# significance come from its own spread, and the reverse-mode gradient it replaced (duality with
-# forward mode holds for that one).
-
-# Two-sided 95 % points of Student's t by degrees of freedom (seeds − 1): a sign is significant
-# when |Σc| exceeds this many standard errors of a repair's own few seeds (3.18 at 4 seeds).
+# Two-sided 95 % points of Student's t by degrees of freedom (seeds − 1), for a repair's own seeds.
 _T_975 = {1: 12.71, 2: 4.30, 3: 3.18, 4: 2.78, 5: 2.57, 6: 2.45, 7: 2.36, 8: 2.31, 9: 2.26,
           10: 2.23, 15: 2.13, 20: 2.09, 30: 2.04}  # fmt: skip
 
 
 @dataclass(frozen=True)
 class Repair:
-    """How one parameter's stored gradient was computed by finite differences."""
+    """How one parameter's stored gradient was computed by finite differences, where Mitsuba's
+    reverse mode is known wrong (docs/verification.md, "Repairs"; render/verify/repair.py). It
+    keeps every seed's estimate, whose spread gives the gradient's standard error and its sign's
+    significance, and the reverse-mode gradient it replaced (the one forward mode is dual to)."""
 
     reason: str  # why the reverse-mode gradient was not kept: its label and note
     step: float  # relative step: ε = step · max(1, |θ_c|) per component
@@ -243,10 +239,7 @@ class SensitivityBuffer:
         known_objects = set(self.objects)
         for p in self.params:
             unknown = [o for o in p.owners if o not in known_objects]
-            if unknown:
-                raise BufferContentError(
-                    f"parameter {p.key!r} is owned by unknown objects {unknown}"
-                )
+            _require(not unknown, f"parameter {p.key!r} is owned by unknown objects {unknown}")
         set_(self, "_by_key", MappingProxyType({p.key: p for p in self.params}))
         set_(self, "_by_name", MappingProxyType({o.name: o for o in self.objectives}))
         if _copy_arrays:

@@ -254,22 +254,17 @@ def _reading(path: Path) -> Iterator[None]:
     """Every error of reading ``path`` as one BufferFormatError naming the file."""
     try:
         yield
-    except _Malformed as exc:
-        raise BufferFormatError(str(exc), where=str(path), hint=exc.hint) from exc
-    except SensaovError as exc:  # the arrays read, but construction found them inconsistent
-        raise BufferFormatError(
-            f"inconsistent buffer: {exc.message}", where=str(path), hint=_REGENERATE
-        ) from exc
-    except OSError as exc:
-        raise BufferFormatError(
-            f"cannot read buffer: {exc.strerror or exc}", where=str(path)
-        ) from exc
-    except _READ_ERRORS as exc:
-        raise BufferFormatError(
-            f"corrupt or truncated buffer: {exc or type(exc).__name__}",
-            where=str(path),
-            hint=_REGENERATE,
-        ) from exc
+    except (_Malformed, SensaovError, OSError, *_READ_ERRORS) as exc:
+        hint: str | None = _REGENERATE
+        if isinstance(exc, _Malformed):
+            message, hint = str(exc), exc.hint
+        elif isinstance(exc, SensaovError):  # the arrays read, but construction refused them
+            message = f"inconsistent buffer: {exc.message}"
+        elif isinstance(exc, OSError):
+            message, hint = f"cannot read buffer: {exc.strerror or exc}", None
+        else:
+            message = f"corrupt or truncated buffer: {exc or type(exc).__name__}"
+        raise BufferFormatError(message, where=str(path), hint=hint) from exc
 
 
 # --- reading ---------------------------------------------------------------------------------
