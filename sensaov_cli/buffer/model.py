@@ -193,14 +193,15 @@ def _check_unique(kind: str, names: Sequence[str]) -> None:
         seen.add(name)
 
 
-def _check_keys(kind: str, given: Iterable[str], known: Sequence[str], missing: str) -> None:
-    """``given`` names exactly ``known``: ``missing`` (formatted with the name) if one lacks."""
+def _check_keys(kind: str, given: Iterable[str], known: Sequence[str], missing: str = "") -> None:
+    """``given`` names only ``known``; every one of them if ``missing`` (formatted with the name
+    it lacks) is given."""
     given = set(given)
     extra = sorted(given - set(known))
     if extra:
         raise BufferContentError(f"{kind} for undeclared names: {', '.join(map(repr, extra))}")
     for name in known:
-        if name not in given:
+        if missing and name not in given:
             raise BufferContentError(missing.format(name))
 
 
@@ -281,9 +282,7 @@ class SensitivityBuffer:
         return grads
 
     def _check_repairs(self) -> None:
-        extra = sorted(set(self.repairs) - set(self._by_key))
-        if extra:
-            raise BufferContentError(f"repairs for undeclared names: {', '.join(map(repr, extra))}")
+        _check_keys("repairs", self.repairs, self.keys)
         names = sorted(o.name for o in self.objectives)
         for p in self.params:
             repair = self.repairs.get(p.key)
@@ -346,7 +345,6 @@ class SensitivityBuffer:
 
 BUFFER_ID = "buffer_id"
 RUN_VERSION = "run_version"
-LEGACY_PREFIX = "legacy-"  # a buffer without an id: named by its provenance
 # What every output made from a buffer records: the job_hash is that of the job that made the
 # output (project's job may differ from run's in cameras and channels).
 STAMP_BUFFER = "sensaov/buffer_id"
@@ -370,7 +368,7 @@ def provenance_id(provenance: dict[str, Any]) -> str:
     if isinstance(recorded, str) and recorded:
         return recorded
     text = json.dumps(provenance, sort_keys=True, default=str)
-    return LEGACY_PREFIX + hashlib.sha256(text.encode()).hexdigest()[:16]
+    return "legacy-" + hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def run_version(buf: SensitivityBuffer) -> str | None:
