@@ -402,8 +402,7 @@ def _read_archive(archive: Archive, guard: Guard | None) -> SensitivityBuffer:
     statistics = _read_statistics(archive, header["statistics"], len(params), names, stderr)
     expected = {HEADER_MEMBER} | archive.used
     if set(archive.members) != expected:
-        found = set(archive.members)
-        raise _Malformed(f"inconsistent buffer: {_differences('arrays', expected, found)}")
+        raise _inconsistent(_differences("arrays", expected, set(archive.members)))
     return SensitivityBuffer(
         provenance=header["provenance"],
         objects=tuple(header["objects"]),

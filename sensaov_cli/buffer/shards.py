@@ -4,10 +4,6 @@
 the merge of n shards is the estimate one run with ``render.batches: n`` gives, standard errors
 included (each shard is a batch). Shards may also split objectives (``--objective``): every
 (shard, objective) pair must be present exactly once. Anything else is refused with the reason.
-
-What merge relies on in a shard's provenance comes from a file and is checked where it is read
-(:func:`shard_task`): a value of another type or out of range would end in an internal error,
-or in a shard silently left out of (or over-weighted in) the mean.
 """
 
 from __future__ import annotations
@@ -49,8 +45,9 @@ class Shard:
 
 
 def shard_task(path: Path, provenance: Mapping[str, Any]) -> ShardTask:
-    """What merge reads of a shard's provenance; refuses a buffer made without --shard, or
-    one whose provenance lacks what merge reads, or holds it in another form."""
+    """What merge reads of a shard's provenance, checked: a buffer made without --shard is
+    refused, and so is a value missing, of another type or out of range (it would end in an
+    internal error, or in a shard silently left out of, or over-weighted in, the mean)."""
     task = _field(path, provenance, "task", dict)
     shard = task.get("shard")
     if shard is None:
