@@ -327,8 +327,7 @@ class Archive:
         self._zeros: dict[tuple[int, ...], np.ndarray] = {}
 
     def array(self, name: str, check: Callable[[tuple[int, ...], np.dtype], None]) -> np.ndarray:
-        """A member's array (read-only), its declared shape and dtype ``check``ed before its
-        data is read; zipfile checks its CRC as the last byte is read."""
+        """A member's array (read-only); its declared shape and dtype are ``check``ed first."""
         with self._zip.open(self.members[name]) as stream:
             shape, dtype, fortran = _npy_header(stream)
             check(shape, dtype)
@@ -425,8 +424,7 @@ def _arrays(
     with_stderr: bool,
     guard: Guard | None,
 ) -> tuple[Mapping[str, np.ndarray], dict[str, Mapping[str, np.ndarray]], Any]:
-    """Values, gradients and standard errors (or None) by key; every texture member's declared
-    shape is checked now, its data read on first use (now, without a ``guard``)."""
+    """Values, gradients and standard errors (or None) by key, all read now without a ``guard``."""
     size = sum(math.prod(p.shape) for p, slot in zip(params, slots, strict=True)
                if slot.offset is not None)  # fmt: skip
     kinds = [("grads", "texgrad")] + [("stderrs", "texstderr")] * with_stderr

@@ -147,9 +147,8 @@ def _check_alike(shards: Sequence[Shard]) -> None:
         if resolved in seen:
             raise MergeError("the same file is given twice", where=where)
         seen.add(resolved)
-        made, reference = shard.buffer.provenance, first.buffer.provenance
         for field, what in (("scene_fingerprint", "scene"), ("job_hash", "job")):
-            if made.get(field) != reference.get(field):
+            if shard.buffer.provenance.get(field) != first.buffer.provenance.get(field):
                 raise MergeError(
                     f"another {what} than {first.path.name} ({field} differs)", where=where
                 )
@@ -262,6 +261,9 @@ def _merged_repairs(
     return merged
 
 
+_RECORDED = ("task", "spp", "created_utc", "deterministic")  # of each shard, in merged_from
+
+
 def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:
     return dict(
         shards[0].buffer.provenance,
@@ -274,13 +276,7 @@ def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:
         ],
         timings_s={},
         merged_from=[
-            {
-                "file": s.path.name,
-                "task": s.buffer.provenance["task"],
-                "spp": s.buffer.provenance.get("spp"),
-                "created_utc": s.buffer.provenance.get("created_utc"),
-                "deterministic": s.buffer.provenance.get("deterministic"),
-            }
+            {"file": s.path.name} | {k: s.buffer.provenance.get(k) for k in _RECORDED}
             for s in shards
         ],
     )

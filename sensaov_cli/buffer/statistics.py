@@ -130,13 +130,12 @@ def combine_batches(
     sums: dict[str, np.ndarray] = {}
     for name in objectives:
         stderr[name] = {}
-        table = np.zeros((len(keys), len(batch_grads), len(COLUMNS)), dtype=np.float64)
+        sums[name] = table = np.zeros((len(keys), len(batch_grads), len(COLUMNS)), np.float64)
         for p, key in enumerate(keys):
             stderr[name][key], table[p] = _key_batches(
                 [b[name][key] for b in batch_grads], grads[name][key],
                 values[key].astype(np.float64), spp,
             )  # fmt: skip
-        sums[name] = table
     statistics = Statistics(
         source=source,
         spp=tuple(int(n) for n in spp),
