@@ -3,11 +3,6 @@
 One reverse-mode pass per objective fills it; every view afterwards is a re-projection of the
 stored buffer, never a second differentiation. Its file format is buffer/npz.py's, which
 validates what it reads; the records here trust their types.
-
-Which buffer an output was made from: every buffer ``run`` or ``merge`` writes carries a fresh
-random ``buffer_id`` in its provenance, and ``run_version`` (``JobSpec.run_hash``). Every output
-made from a buffer records both, so a command that reads outputs together refuses to mix two
-states (docs/buffer-format.md, "Identity").
 """
 
 from __future__ import annotations
@@ -341,7 +336,9 @@ class SensitivityBuffer:
         return tuple(sorted({p.type for p in self.params}))
 
 
-# --- identity: which buffer, which job version -------------------------------------------
+# --- identity: every buffer run or merge writes carries a fresh random buffer_id and its
+# run_version (JobSpec.run_hash) in its provenance; every output made from it records both, so a
+# command reading outputs together refuses to mix two states (docs/buffer-format.md, "Identity").
 
 BUFFER_ID = "buffer_id"
 RUN_VERSION = "run_version"

@@ -116,10 +116,18 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
     parts = [_one_index(files, job_objectives, i, count) for i, files in enumerate(indices, 1)]
     merged_grads, merged_values, spp = zip(*parts, strict=True)
     seeds = [files[0].task.seed for files in indices]
-    _check_spp_total(shards, sum(spp))
-    keys = first.buffer.keys
+    # The shards split the job's render.spp (batch_plan): a shard that says it holds more samples
+    # than it does would weigh more in the mean, silently.
+    for shard in shards:
+        if shard.task.job_spp != sum(spp):
+            raise MergeError(
+                f"the shards hold {sum(spp)} spp in all, but their job's render.spp is "
+                f"{shard.task.job_spp}",
+                where=str(shard.path),
+                hint="a shard's provenance spp was changed, or shards of other runs are mixed",
+            )
     grads, objective_values, statistics = combine_batches(
-        keys, first.buffer.values, merged_grads, merged_values, spp, seeds, "shards"
+        first.buffer.keys, first.buffer.values, merged_grads, merged_values, spp, seeds, "shards"
     )
     records = {o.name: o for s in shards for o in s.buffer.objectives}
     objectives = tuple(
@@ -164,19 +172,6 @@ def _check_alike(shards: Sequence[Shard]) -> None:
                 raise MergeError(
                     f"parameter {key!r} has another value than in {first.path.name}", where=where
                 )
-
-
-def _check_spp_total(shards: Sequence[Shard], total: int) -> None:
-    """The shards split the job's render.spp between them (``batch_plan``): a shard that says
-    it holds more samples than it does would weigh more in the mean, silently."""
-    for shard in shards:
-        wanted = shard.task.job_spp
-        if wanted != total:
-            raise MergeError(
-                f"the shards hold {total} spp in all, but their job's render.spp is {wanted}",
-                where=str(shard.path),
-                hint="a shard's provenance spp was changed, or shards of other runs are mixed",
-            )
 
 
 def _one_index(

@@ -194,11 +194,8 @@ def stats_of(grad: np.ndarray, value: np.ndarray | None) -> KeyStats:
     """Σc², Σc and the count of c = value·grad (or grad, without a value)."""
     if not grad.any():  # an untouched texture (no gradient): one cheap pass, no float64 copy
         return KeyStats(sum_sq=0.0, total=0.0, count=grad.size)
-    c = (
-        grad.ravel().astype(np.float64)
-        if value is None
-        else np.multiply(grad.ravel(), value.ravel(), dtype=np.float64)
-    )
+    weight = 1.0 if value is None else value.ravel()  # times 1.0 in float64: exact
+    c = np.multiply(grad.ravel(), weight, dtype=np.float64)
     return KeyStats(sum_sq=float(c @ c), total=float(c.sum()), count=c.size)
 
 
