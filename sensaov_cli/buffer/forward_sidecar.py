@@ -98,17 +98,10 @@ def forward_writer(data: ForwardData) -> Callable[[Path], None]:
         "ties": data.ties,
         "provenance": data.provenance,
         "objectives": objectives,
-        "passes": [
-            {
-                "keys": list(p.keys),
-                "direction": p.direction,
-                "seed": p.seed,
-                "seconds": round(p.seconds, 4),
-                "integrators": list(p.integrators),
-                "failure": p.failure,
-            }
+        "passes": [  # every field but the image (a member), in field order
+            {k: round(v, 4) if k == "seconds" else v for k, v in vars(p).items() if k != "image"}
             for p in data.passes
-        ],  # fmt: skip
+        ],
         "layers": [layer.__dict__ for layer in data.layers],
     }
     members = {HEADER: np.array(json.dumps(header, allow_nan=False))}

@@ -3,11 +3,6 @@
 One reverse-mode pass per objective fills it; every view afterwards is a re-projection of the
 stored buffer, never a second differentiation. Its file format is buffer/npz.py's, which
 validates what it reads; the records here trust their types.
-
-Which buffer an output was made from: every buffer ``run`` or ``merge`` writes carries a fresh
-random ``buffer_id`` in its provenance, and ``run_version`` (``JobSpec.run_hash``). Every output
-made from a buffer records both, so a command that reads outputs together refuses to mix two
-states (docs/buffer-format.md, "Identity").
 """
 
 from __future__ import annotations
@@ -27,27 +22,17 @@ from sensaov_cli.buffer.statistics import ParamSums, Statistics
 from sensaov_cli.errors import BufferContentError, NonFiniteGradientError, UnknownNameError
 from sensaov_cli.vocabulary import Estimator, Trust
 
-# --- repairs: gradients recomputed by finite differences where Mitsuba's reverse mode is known
-# wrong (docs/verification.md, "Repairs"; the differences are render/verify/repair.py's). A Repair
-# keeps every seed's estimate, so the stored gradient's standard error and its sign's
-# significance come from its own spread, and the reverse-mode gradient it replaced (duality with
-# forward mode holds for that one).
-
-# Two-sided 95 % points of Student's t by degrees of freedom (seeds − 1): a sign is significant
-# when |Σc| exceeds this many standard errors of a repair's own few seeds (3.18 at 4 seeds).
+# Two-sided 95 % points of Student's t by degrees of freedom (seeds − 1), for a repair's own seeds.
 _T_975 = {1: 12.71, 2: 4.30, 3: 3.18, 4: 2.78, 5: 2.57, 6: 2.45, 7: 2.36, 8: 2.31, 9: 2.26,
           10: 2.23, 15: 2.13, 20: 2.09, 30: 2.04}  # fmt: skip
 
 
-def t_975(seeds: int) -> float:
-    """The significance threshold for a mean of ``seeds`` estimates (next tabulated dof below)."""
-    dof = max(seeds - 1, 1)
-    return _T_975[max(d for d in _T_975 if d <= dof)] if dof <= 30 else 1.96
-
-
 @dataclass(frozen=True)
 class Repair:
-    """How one parameter's stored gradient was computed by finite differences."""
+    """How one parameter's stored gradient was computed by finite differences, where Mitsuba's
+    reverse mode is known wrong (docs/verification.md, "Repairs"; render/verify/repair.py). It
+    keeps every seed's estimate, whose spread gives the gradient's standard error and its sign's
+    significance, and the reverse-mode gradient it replaced (the one forward mode is dual to)."""
 
     reason: str  # why the reverse-mode gradient was not kept: its label and note
     step: float  # relative step: ε = step · max(1, |θ_c|) per component
@@ -111,8 +96,11 @@ class Repair:
         return float(projections.std(ddof=1) / math.sqrt(len(projections)))
 
     def significant(self, signed: float, error: float) -> bool:
-        """Whether |signed| is beyond noise: Student's t at 95 % with seeds − 1 dof."""
-        return abs(signed) > t_975(len(self.seeds)) * error
+        """Whether |signed| is beyond noise: Student's t at 95 % with seeds − 1 dof (the next
+        tabulated dof below)."""
+        dof = max(len(self.seeds) - 1, 1)
+        t = _T_975[max(d for d in _T_975 if d <= dof)] if dof <= 30 else 1.96
+        return abs(signed) > t * error
 
 
 def _require(ok: bool, message: str) -> None:
@@ -200,14 +188,15 @@ def _check_unique(kind: str, names: Sequence[str]) -> None:
         seen.add(name)
 
 
-def _check_keys(kind: str, given: Iterable[str], known: Sequence[str], missing: str) -> None:
-    """``given`` names exactly ``known``: ``missing`` (formatted with the name) if one lacks."""
+def _check_keys(kind: str, given: Iterable[str], known: Sequence[str], missing: str = "") -> None:
+    """``given`` names only ``known``; every one of them if ``missing`` (formatted with the name
+    it lacks) is given."""
     given = set(given)
     extra = sorted(given - set(known))
     if extra:
         raise BufferContentError(f"{kind} for undeclared names: {', '.join(map(repr, extra))}")
     for name in known:
-        if name not in given:
+        if missing and name not in given:
             raise BufferContentError(missing.format(name))
 
 
@@ -246,10 +235,7 @@ class SensitivityBuffer:
         known_objects = set(self.objects)
         for p in self.params:
             unknown = [o for o in p.owners if o not in known_objects]
-            if unknown:
-                raise BufferContentError(
-                    f"parameter {p.key!r} is owned by unknown objects {unknown}"
-                )
+            _require(not unknown, f"parameter {p.key!r} is owned by unknown objects {unknown}")
         set_(self, "_by_key", MappingProxyType({p.key: p for p in self.params}))
         set_(self, "_by_name", MappingProxyType({o.name: o for o in self.objectives}))
         if _copy_arrays:
@@ -291,9 +277,7 @@ class SensitivityBuffer:
         return grads
 
     def _check_repairs(self) -> None:
-        extra = sorted(set(self.repairs) - set(self._by_key))
-        if extra:
-            raise BufferContentError(f"repairs for undeclared names: {', '.join(map(repr, extra))}")
+        _check_keys("repairs", self.repairs, self.keys)
         names = sorted(o.name for o in self.objectives)
         for p in self.params:
             repair = self.repairs.get(p.key)
@@ -352,11 +336,12 @@ class SensitivityBuffer:
         return tuple(sorted({p.type for p in self.params}))
 
 
-# --- identity: which buffer, which job version -------------------------------------------
+# --- identity: every buffer run or merge writes carries a fresh random buffer_id and its
+# run_version (JobSpec.run_hash) in its provenance; every output made from it records both, so a
+# command reading outputs together refuses to mix two states (docs/buffer-format.md, "Identity").
 
 BUFFER_ID = "buffer_id"
 RUN_VERSION = "run_version"
-LEGACY_PREFIX = "legacy-"  # a buffer without an id: named by its provenance
 # What every output made from a buffer records: the job_hash is that of the job that made the
 # output (project's job may differ from run's in cameras and channels).
 STAMP_BUFFER = "sensaov/buffer_id"
@@ -380,7 +365,7 @@ def provenance_id(provenance: dict[str, Any]) -> str:
     if isinstance(recorded, str) and recorded:
         return recorded
     text = json.dumps(provenance, sort_keys=True, default=str)
-    return LEGACY_PREFIX + hashlib.sha256(text.encode()).hexdigest()[:16]
+    return "legacy-" + hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def run_version(buf: SensitivityBuffer) -> str | None:

@@ -29,10 +29,10 @@ import zipfile
 import zlib
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import AbstractContextManager, contextmanager, nullcontext
+from contextlib import AbstractContextManager, ExitStack, contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, BinaryIO
+from typing import IO, Any, BinaryIO, TypeVar
 
 import numpy as np
 
@@ -56,30 +56,25 @@ _REGENERATE = "re-run the job to write it again"
 _FOREIGN = "expected a buffer.npz written by sensaov"
 _SHOWN_NAMES = 5
 Guard = Callable[[], AbstractContextManager[object]]  # turns a late read's error into the file's
+_R = TypeVar("_R")
 
 
 def read_buffer(path: Path | str, *, lazy: bool = False) -> SensitivityBuffer:
     """Read a buffer (``lazy``: texture members on first use, see the module docstring); any
     unreadable or inconsistent file raises BufferFormatError."""
     path = Path(path)
-    with _reading(path):
+    with _reading(path), ExitStack() as closing:
         if not stat.S_ISREG(os.stat(path).st_mode):  # a FIFO would block, a device never end
             raise _Malformed("not a regular file", _FOREIGN)
-        file = path.open("rb")
-        try:
-            magic = file.read(4)
-            if magic not in _ZIP_MAGICS:
-                problem = "not an .npz (zip) archive" if magic else "the file is empty"
-                raise _Malformed(f"not a sensaov buffer: {problem}", _FOREIGN)
-            archive = Archive(file)
-            buffer = _read_archive(archive, (lambda: _reading(path)) if lazy else None)
-        except BaseException:
-            file.close()
-            raise
+        file = closing.enter_context(path.open("rb"))
+        magic = file.read(4)
+        if magic not in _ZIP_MAGICS:
+            problem = "not an .npz (zip) archive" if magic else "the file is empty"
+            raise _Malformed(f"not a sensaov buffer: {problem}", _FOREIGN)
+        archive = Archive(file)
+        buffer = _read_archive(archive, (lambda: _reading(path)) if lazy else None)
         if lazy:  # the archive reads its members on demand: the file closes with it
-            weakref.finalize(archive, file.close)
-        else:
-            file.close()
+            weakref.finalize(archive, closing.pop_all().close)
         return buffer
 
 
@@ -201,9 +196,7 @@ def _pack(
 
 
 def _concatenated(arrays: list[np.ndarray]) -> np.ndarray:
-    if not arrays:
-        return np.zeros(0, np.float32)
-    return np.concatenate([np.ravel(a).astype(np.float32, copy=False) for a in arrays])
+    return np.concatenate([np.zeros(0, np.float32), *map(np.ravel, arrays)], dtype=np.float32)
 
 
 # --- the archive -----------------------------------------------------------------------------
@@ -261,22 +254,17 @@ def _reading(path: Path) -> Iterator[None]:
     """Every error of reading ``path`` as one BufferFormatError naming the file."""
     try:
         yield
-    except _Malformed as exc:
-        raise BufferFormatError(str(exc), where=str(path), hint=exc.hint) from exc
-    except SensaovError as exc:  # the arrays read, but construction found them inconsistent
-        raise BufferFormatError(
-            f"inconsistent buffer: {exc.message}", where=str(path), hint=_REGENERATE
-        ) from exc
-    except OSError as exc:
-        raise BufferFormatError(
-            f"cannot read buffer: {exc.strerror or exc}", where=str(path)
-        ) from exc
-    except _READ_ERRORS as exc:
-        raise BufferFormatError(
-            f"corrupt or truncated buffer: {exc or type(exc).__name__}",
-            where=str(path),
-            hint=_REGENERATE,
-        ) from exc
+    except (_Malformed, SensaovError, OSError, *_READ_ERRORS) as exc:
+        hint: str | None = _REGENERATE
+        if isinstance(exc, _Malformed):
+            message, hint = str(exc), exc.hint
+        elif isinstance(exc, SensaovError):  # the arrays read, but construction refused them
+            message = f"inconsistent buffer: {exc.message}"
+        elif isinstance(exc, OSError):
+            message, hint = f"cannot read buffer: {exc.strerror or exc}", None
+        else:
+            message = f"corrupt or truncated buffer: {exc or type(exc).__name__}"
+        raise BufferFormatError(message, where=str(path), hint=hint) from exc
 
 
 # --- reading ---------------------------------------------------------------------------------
@@ -339,8 +327,7 @@ class Archive:
         self._zeros: dict[tuple[int, ...], np.ndarray] = {}
 
     def array(self, name: str, check: Callable[[tuple[int, ...], np.dtype], None]) -> np.ndarray:
-        """A member's array (read-only), its declared shape and dtype ``check``ed before its
-        data is read; zipfile checks its CRC as the last byte is read."""
+        """A member's array (read-only); its declared shape and dtype are ``check``ed first."""
         with self._zip.open(self.members[name]) as stream:
             shape, dtype, fortran = _npy_header(stream)
             check(shape, dtype)
@@ -404,8 +391,8 @@ def _read_archive(archive: Archive, guard: Guard | None) -> SensitivityBuffer:
     if HEADER_MEMBER not in archive.members:
         raise _Malformed(f"not a sensaov buffer: the archive has no {HEADER_MEMBER!r}", _FOREIGN)
     header = _read_header(archive)
-    params = tuple(_param(entry, i) for i, entry in enumerate(header["params"]))
-    objectives = tuple(_objective(e, j) for j, e in enumerate(header["objectives"]))
+    params = _records(header, "params", ParamRecord, _PARAM_FIELDS)
+    objectives = _records(header, "objectives", ObjectiveRecord, _OBJECTIVE_FIELDS)
     names = [o.name for o in objectives]
     with_stderr = header["statistics"] is not None
     slots = _slots(header["storage"], params, len(names), with_stderr)
@@ -414,8 +401,7 @@ def _read_archive(archive: Archive, guard: Guard | None) -> SensitivityBuffer:
     statistics = _read_statistics(archive, header["statistics"], len(params), names, stderr)
     expected = {HEADER_MEMBER} | archive.used
     if set(archive.members) != expected:
-        found = set(archive.members)
-        raise _Malformed(f"inconsistent buffer: {_differences('arrays', expected, found)}")
+        raise _inconsistent(_differences("arrays", expected, set(archive.members)))
     return SensitivityBuffer(
         provenance=header["provenance"],
         objects=tuple(header["objects"]),
@@ -438,15 +424,13 @@ def _arrays(
     with_stderr: bool,
     guard: Guard | None,
 ) -> tuple[Mapping[str, np.ndarray], dict[str, Mapping[str, np.ndarray]], Any]:
-    """Values, gradients and standard errors (or None) by key; every texture member's declared
-    shape is checked now, its data read on first use (now, without a ``guard``)."""
+    """Values, gradients and standard errors (or None) by key, all read now without a ``guard``."""
     size = sum(math.prod(p.shape) for p, slot in zip(params, slots, strict=True)
                if slot.offset is not None)  # fmt: skip
     kinds = [("grads", "texgrad")] + [("stderrs", "texstderr")] * with_stderr
-    members.float32("values", (size,))  # the packed members exist even if empty
-    for kind, _ in kinds:
-        for j in range(len(names)):
-            members.float32(_packed(kind, j), (size,))
+    flat = ["values"] + [_packed(kind, j) for kind, _ in kinds for j in range(len(names))]
+    for name in flat:  # the packed members exist even if empty
+        members.float32(name, (size,))
     at = {p.key: (p.shape, slot) for p, slot in zip(params, slots, strict=True)}
     for shape, slot in at.values():
         if slot.offset is None:
@@ -462,7 +446,8 @@ def _arrays(
         def resolve(key: str) -> np.ndarray:
             shape, slot = at[key]
             if slot.offset is not None:
-                arr = _slice(members.float32(packed, (size,)), slot.offset, shape)
+                flat = members.float32(packed, (size,))
+                arr = flat[slot.offset : slot.offset + math.prod(shape)].reshape(shape)
             elif kind == "values":
                 arr = members.float32(_texture(texture, slot.value), shape)
             else:
@@ -486,10 +471,6 @@ def _arrays(
         values = dict(values)
         made = {kind: {n: dict(a) for n, a in per.items()} for kind, per in made.items()}
     return values, made["grads"], made.get("stderrs")
-
-
-def _slice(flat: np.ndarray, offset: int, shape: tuple[int, ...]) -> np.ndarray:
-    return flat[offset : offset + math.prod(shape)].reshape(shape)
 
 
 def _read_sums(
@@ -582,34 +563,29 @@ _OBJECTIVE_FIELDS: dict[str, _Check] = {
 }  # fmt: skip
 
 
-def _entry(entry: Any, checks: dict[str, _Check], index: int, where: str) -> Any:
-    """A record's fields from the header, each of the type ``checks`` names."""
+def _records(
+    header: dict[str, Any], where: str, kind: Callable[..., _R], checks: dict[str, _Check]
+) -> tuple[_R, ...]:
+    """The header's list ``where`` as records, each field of the type ``checks`` names (a JSON
+    list becomes a tuple)."""
     expected = set(checks) | {"array"}
-    if not isinstance(entry, dict):
-        raise _Malformed(f"malformed header: {where}[{index}] is not a JSON object")
-    if set(entry) != expected:
-        problem = _differences("fields", expected, set(entry))
-        raise _Malformed(f"malformed header: {where}[{index}] has {problem}")
-    if not _is_int(entry["array"]) or entry["array"] != index:
-        raise _Malformed(f"malformed header: {where}[{index}].array is {entry['array']!r}")
-    for name, (ok, kind) in checks.items():
-        if not ok(entry[name]):
-            shown = repr(entry[name])[:60]
-            raise _Malformed(f"malformed header: {where}[{index}].{name} is {shown}, not {kind}")
-    return entry
-
-
-def _param(entry: Any, index: int) -> ParamRecord:
-    e = _entry(entry, _PARAM_FIELDS, index, "params")
-    return ParamRecord(
-        e["key"], e["type"], tuple(e["owners"]), tuple(e["shape"]), e["is_texture"],
-        e["plugin"], tuple(e["flags"]), e["trust"], e["note"], e["estimator"],
-    )  # fmt: skip
-
-
-def _objective(entry: Any, index: int) -> ObjectiveRecord:
-    e = _entry(entry, _OBJECTIVE_FIELDS, index, "objectives")
-    return ObjectiveRecord(e["name"], e["definition"], e["value"], e["grad_seed"])
+    records = []
+    for index, entry in enumerate(header[where]):
+        at = f"malformed header: {where}[{index}]"
+        if not isinstance(entry, dict):
+            raise _Malformed(f"{at} is not a JSON object")
+        if set(entry) != expected:
+            raise _Malformed(f"{at} has {_differences('fields', expected, set(entry))}")
+        if not _is_int(entry["array"]) or entry["array"] != index:
+            raise _Malformed(f"{at}.array is {entry['array']!r}")
+        for name, (ok, what) in checks.items():
+            if not ok(entry[name]):
+                raise _Malformed(f"{at}.{name} is {repr(entry[name])[:60]}, not {what}")
+        fields = {name: entry[name] for name in checks}
+        records.append(
+            kind(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+        )
+    return tuple(records)
 
 
 def _slots(

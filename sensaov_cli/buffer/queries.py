@@ -126,7 +126,6 @@ def aggregate(
     weight: Weight = "value",
 ) -> float:
     """The score of the group ``keys`` for ``objective`` (see the module docstring)."""
-    _choice("aggregation method", method, AGGREGATES)
     return combine(key_stats(buf, objective, keys, weight=weight).values(), method)
 
 

@@ -4,10 +4,6 @@
 the merge of n shards is the estimate one run with ``render.batches: n`` gives, standard errors
 included (each shard is a batch). Shards may also split objectives (``--objective``): every
 (shard, objective) pair must be present exactly once. Anything else is refused with the reason.
-
-What merge relies on in a shard's provenance comes from a file and is checked where it is read
-(:func:`shard_task`): a value of another type or out of range would end in an internal error,
-or in a shard silently left out of (or over-weighted in) the mean.
 """
 
 from __future__ import annotations
@@ -49,8 +45,9 @@ class Shard:
 
 
 def shard_task(path: Path, provenance: Mapping[str, Any]) -> ShardTask:
-    """What merge reads of a shard's provenance; refuses a buffer made without --shard, or
-    one whose provenance lacks what merge reads, or holds it in another form."""
+    """What merge reads of a shard's provenance, checked: a buffer made without --shard is
+    refused, and so is a value missing, of another type or out of range (it would end in an
+    internal error, or in a shard silently left out of, or over-weighted in, the mean)."""
     task = _field(path, provenance, "task", dict)
     shard = task.get("shard")
     if shard is None:
@@ -115,17 +112,22 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
             where=str(first.path.parent),
             hint="run them ('sensaov run JOB --shard I/N') or list every shard file",
         )
-    merged_grads, merged_values, spp, seeds = [], [], [], []
-    for index in range(1, count + 1):
-        shard_grads, values, spps = _one_index(by_index[index], job_objectives, index, count)
-        merged_grads.append(shard_grads)
-        merged_values.append(values)
-        spp.append(spps)
-        seeds.append(by_index[index][0].task.seed)
-    _check_spp_total(shards, sum(spp))
-    keys = first.buffer.keys
+    indices = [by_index[i] for i in range(1, count + 1)]
+    parts = [_one_index(files, job_objectives, i, count) for i, files in enumerate(indices, 1)]
+    merged_grads, merged_values, spp = zip(*parts, strict=True)
+    seeds = [files[0].task.seed for files in indices]
+    # The shards split the job's render.spp (batch_plan): a shard that says it holds more samples
+    # than it does would weigh more in the mean, silently.
+    for shard in shards:
+        if shard.task.job_spp != sum(spp):
+            raise MergeError(
+                f"the shards hold {sum(spp)} spp in all, but their job's render.spp is "
+                f"{shard.task.job_spp}",
+                where=str(shard.path),
+                hint="a shard's provenance spp was changed, or shards of other runs are mixed",
+            )
     grads, objective_values, statistics = combine_batches(
-        keys, first.buffer.values, merged_grads, merged_values, spp, seeds, "shards"
+        first.buffer.keys, first.buffer.values, merged_grads, merged_values, spp, seeds, "shards"
     )
     records = {o.name: o for s in shards for o in s.buffer.objectives}
     objectives = tuple(
@@ -140,7 +142,7 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
         values=dict(first.buffer.values),
         grads=grads,
         statistics=statistics,
-        repairs=_merged_repairs(params, [by_index[i] for i in range(1, count + 1)], spp),
+        repairs=_merged_repairs(params, indices, spp),
     )
 
 
@@ -153,9 +155,8 @@ def _check_alike(shards: Sequence[Shard]) -> None:
         if resolved in seen:
             raise MergeError("the same file is given twice", where=where)
         seen.add(resolved)
-        made, reference = shard.buffer.provenance, first.buffer.provenance
         for field, what in (("scene_fingerprint", "scene"), ("job_hash", "job")):
-            if made.get(field) != reference.get(field):
+            if shard.buffer.provenance.get(field) != first.buffer.provenance.get(field):
                 raise MergeError(
                     f"another {what} than {first.path.name} ({field} differs)", where=where
                 )
@@ -164,31 +165,13 @@ def _check_alike(shards: Sequence[Shard]) -> None:
                 f"shard of {shard.task.count}, {first.path.name} is a shard of {first.task.count}",
                 where=where,
             )
-        _check_parameters(shard, first)
-
-
-def _check_spp_total(shards: Sequence[Shard], total: int) -> None:
-    """The shards split the job's render.spp between them (``batch_plan``): a shard that says
-    it holds more samples than it does would weigh more in the mean, silently."""
-    for shard in shards:
-        wanted = shard.task.job_spp
-        if wanted != total:
-            raise MergeError(
-                f"the shards hold {total} spp in all, but their job's render.spp is {wanted}",
-                where=str(shard.path),
-                hint="a shard's provenance spp was changed, or shards of other runs are mixed",
-            )
-
-
-def _check_parameters(shard: Shard, first: Shard) -> None:
-    where = str(shard.path)
-    if shard.buffer.keys != first.buffer.keys or shard.buffer.objects != first.buffer.objects:
-        raise MergeError(f"other parameters or objects than {first.path.name}", where=where)
-    for key in first.buffer.keys:
-        if not np.array_equal(shard.buffer.values[key], first.buffer.values[key]):
-            raise MergeError(
-                f"parameter {key!r} has another value than in {first.path.name}", where=where
-            )
+        if shard.buffer.keys != first.buffer.keys or shard.buffer.objects != first.buffer.objects:
+            raise MergeError(f"other parameters or objects than {first.path.name}", where=where)
+        for key in first.buffer.keys:
+            if not np.array_equal(shard.buffer.values[key], first.buffer.values[key]):
+                raise MergeError(
+                    f"parameter {key!r} has another value than in {first.path.name}", where=where
+                )
 
 
 def _one_index(
@@ -273,9 +256,12 @@ def _merged_repairs(
     return merged
 
 
+_RECORDED = ("task", "spp", "created_utc", "deterministic")  # of each shard, in merged_from
+
+
 def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:
-    base = dict(shards[0].buffer.provenance)
-    base.update(
+    return dict(
+        shards[0].buffer.provenance,
         spp=spp,
         task={"shard": None, "objectives": None},
         # what each shard (one batch of the merge) rendered; per-shard timings do not add up
@@ -285,14 +271,7 @@ def _provenance(shards: Sequence[Shard], spp: int) -> dict[str, Any]:
         ],
         timings_s={},
         merged_from=[
-            {
-                "file": s.path.name,
-                "task": s.buffer.provenance["task"],
-                "spp": s.buffer.provenance.get("spp"),
-                "created_utc": s.buffer.provenance.get("created_utc"),
-                "deterministic": s.buffer.provenance.get("deterministic"),
-            }
+            {"file": s.path.name} | {k: s.buffer.provenance.get(k) for k in _RECORDED}
             for s in shards
         ],
     )
-    return base

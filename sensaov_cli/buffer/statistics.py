@@ -130,13 +130,12 @@ def combine_batches(
     sums: dict[str, np.ndarray] = {}
     for name in objectives:
         stderr[name] = {}
-        table = np.zeros((len(keys), len(batch_grads), len(COLUMNS)), dtype=np.float64)
+        sums[name] = table = np.zeros((len(keys), len(batch_grads), len(COLUMNS)), np.float64)
         for p, key in enumerate(keys):
             stderr[name][key], table[p] = _key_batches(
                 [b[name][key] for b in batch_grads], grads[name][key],
                 values[key].astype(np.float64), spp,
             )  # fmt: skip
-        sums[name] = table
     statistics = Statistics(
         source=source,
         spp=tuple(int(n) for n in spp),
@@ -195,11 +194,8 @@ def stats_of(grad: np.ndarray, value: np.ndarray | None) -> KeyStats:
     """Σc², Σc and the count of c = value·grad (or grad, without a value)."""
     if not grad.any():  # an untouched texture (no gradient): one cheap pass, no float64 copy
         return KeyStats(sum_sq=0.0, total=0.0, count=grad.size)
-    c = (
-        grad.ravel().astype(np.float64)
-        if value is None
-        else np.multiply(grad.ravel(), value.ravel(), dtype=np.float64)
-    )
+    weight = 1.0 if value is None else value.ravel()  # times 1.0 in float64: exact
+    c = np.multiply(grad.ravel(), weight, dtype=np.float64)
     return KeyStats(sum_sq=float(c @ c), total=float(c.sum()), count=c.size)
 
 
