@@ -59,15 +59,11 @@ def requested() -> bool:
 
 def stop_exit_code() -> int:
     """The first stop signal's exit code (SIGINT's for a KeyboardInterrupt with no signal)."""
-    return STOP_SIGNALS.get(_first(), EXIT_INTERRUPTED)
+    return STOP_SIGNALS[(_signal or [signal.SIGINT])[0]]
 
 
 def signal_name() -> str:
-    return signal.Signals(_first()).name
-
-
-def _first() -> int:
-    return _signal[0] if _signal else signal.SIGINT
+    return signal.Signals((_signal or [signal.SIGINT])[0]).name
 
 
 @contextmanager

@@ -77,6 +77,7 @@ def did_you_mean(word: object, choices: Sequence[str]) -> str | None:
 
 # The error type of a value that picks no member of a union; its context says why.
 UNION = "sensaov_union"
+UNION_MEMBERS: set[str] = set()  # every union's members' names, which stand in error locations
 
 
 class JobFilePath:
@@ -320,35 +321,24 @@ def _resolve(base: Path, relative: str) -> Path:
     return Path(os.path.abspath(base / relative))
 
 
-@dataclass(frozen=True)
-class _Declared:
-    """A field of a dataclass, its type and the markers of its ``Annotated`` type."""
-
-    field: dataclasses.Field[Any]
-    hint: Any
-    metadata: tuple[Any, ...]
-
-
 @cache
-def _declared(cls: type) -> tuple[_Declared, ...]:
+def _hints(cls: type) -> dict[str, Any]:
     # Once per class: each evaluation of the (string) annotations makes new markers, and the
     # shapes of a class compare their keys.
-    hints = get_type_hints(cls, include_extras=True)
-    return tuple(
-        _Declared(each, hints[each.name], getattr(hints[each.name], "__metadata__", ()))
-        for each in dataclasses.fields(cls)
-    )
+    return get_type_hints(cls, include_extras=True)
 
 
 def _keys(cls: type, shape: str | None) -> list[_Key]:
     """The keys ``cls`` takes in ``shape`` (None: a section), in the order of its fields."""
     keys = []
-    for each in _declared(cls):
-        places = [item for item in each.metadata if isinstance(item, In)]
+    for each in dataclasses.fields(cls):
+        hint = _hints(cls)[each.name]
+        markers = getattr(hint, "__metadata__", ())
+        places = [item for item in markers if isinstance(item, In)]
         here = next((place for place in places if shape in place.shapes), None)
-        if JobFilePath in each.metadata or (places and here is None):
+        if JobFilePath in markers or (places and here is None):
             continue
-        keys.append(_key(each.field, each.hint, here))
+        keys.append(_key(each, hint, here))
     return keys
 
 
@@ -384,7 +374,10 @@ def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
 
     fields = {key.name: _field(key, handler) for key in form.keys}
     names = tuple(fields)
-    given = [each.field.name for each in _declared(form.cls) if JobFilePath in each.metadata]
+    hints = _hints(form.cls)
+    given = [
+        name for name, hint in hints.items() if JobFilePath in getattr(hint, "__metadata__", ())
+    ]
 
     def build(values: dict[str, Any], info: core_schema.ValidationInfo) -> Any:
         loaded = {name: (info.context or {})["job"] for name in given}
@@ -426,6 +419,7 @@ def _union(
     stand in error locations, so each has a space: no key is named so."""
     from pydantic_core import core_schema
 
+    UNION_MEMBERS.update(members)
     context: dict[str, int | str | float] = {"field": "", "choices": "", "message": "", **why}
     return core_schema.tagged_union_schema(
         members,

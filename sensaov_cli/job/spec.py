@@ -105,10 +105,6 @@ def _count(n: int, what: str) -> Before:
     return Before(check)
 
 
-def _one_or_many(value: Any) -> Any:
-    return [value] if isinstance(value, str) else value
-
-
 def _only_true(value: Any) -> Any:
     if value is not True:
         raise Problem(f"must be true, got {describe(value)}", hint="leave the key out instead")
@@ -149,7 +145,7 @@ JobDir = Annotated[Path | None, JobPath(_existing("directory", Path.is_dir), nul
 OutputDir = Annotated[Path, JobPath(_output_dir, null_means="out/{stem}")]
 Globs = Annotated[
     tuple[Text, ...],
-    Before(_one_or_many),
+    Before(lambda value: [value] if isinstance(value, str) else value),
     Json(
         {"anyOf": [{"type": "string"}, {"type": "array", "items": {"type": "string"}}]},
         replace=True,
