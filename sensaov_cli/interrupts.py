@@ -18,9 +18,8 @@ from types import FrameType
 
 from sensaov_cli.errors import EXIT_HANGUP, EXIT_INTERRUPTED, EXIT_TERMINATED
 
-# The signals that stop a command, with their exit codes (128 + the signal's number). SIGHUP
-# comes when the terminal closes or an ssh connection drops: a stop like the others, so the
-# outputs stay whole and the line says so (if anything still reads it).
+# The signals that stop a command, with their exit codes. SIGHUP is a stop like the others: the
+# outputs stay whole, and the line says so (if anything still reads it).
 STOP_SIGNALS: dict[int, int] = {
     signal.SIGINT: EXIT_INTERRUPTED,
     signal.SIGTERM: EXIT_TERMINATED,

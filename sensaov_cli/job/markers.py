@@ -143,22 +143,20 @@ class Doc(Json):
         super().__init__({"description": text})
 
 
-class MinItems(After):
-    """At least ``n`` items, counted once every item is valid (``annotated_types.MinLen`` on a
+class NonEmpty(After):
+    """At least one item, counted once every item is valid (``annotated_types.MinLen`` on a
     tuple counts the items that passed, so one bad item would also read as a list too short)."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self) -> None:
         def check(items: tuple[Any, ...]) -> tuple[Any, ...]:
-            if len(items) < n:
-                plural = "" if n == 1 else "s"
-                raise Problem(f"must have at least {n} item{plural}, got {len(items)}")
+            if not items:
+                raise Problem("must have at least 1 item, got 0")
             return items
 
         super().__init__(check)
-        self.n = n
 
     def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> JsonSchemaValue:
-        return {**handler(schema), "minItems": self.n}
+        return {**handler(schema), "minItems": 1}
 
 
 class JobPath:
@@ -338,23 +336,19 @@ def _keys(cls: type, shape: str | None) -> list[_Key]:
         here = next((place for place in places if shape in place.shapes), None)
         if JobFilePath in markers or (places and here is None):
             continue
-        keys.append(_key(each, hint, here))
+        default = each.default
+        if default is MISSING and each.default_factory is not MISSING:
+            default = each.default_factory()  # a mutable default (scene_args: {})
+        if here is not None:
+            if here.required:
+                default = MISSING
+            elif here.default is not MISSING:
+                default = here.default
+            if here.doc is not None:
+                hint = Annotated[hint, Doc(here.doc)]
+        # null is accepted only where it is the default: written null means left out.
+        keys.append(_Key(each.name, hint if default is None else _not_null(hint), default))
     return keys
-
-
-def _key(field: dataclasses.Field[Any], hint: Any, here: In | None) -> _Key:
-    default = field.default
-    if default is MISSING and field.default_factory is not MISSING:
-        default = field.default_factory()  # a mutable default (scene_args: {})
-    if here is not None:
-        if here.required:
-            default = MISSING
-        elif here.default is not MISSING:
-            default = here.default
-        if here.doc is not None:
-            hint = Annotated[hint, Doc(here.doc)]
-    # null is accepted only where it is the default: written null means left out.
-    return _Key(field.name, hint if default is None else _not_null(hint), default)
 
 
 def _ordered(shapes: dict[str, list[_Key]], tag: str | None) -> dict[str, list[_Key]]:

@@ -5,9 +5,6 @@ Every field of the job format is defined here once: name, type and default, and 
 (:mod:`.markers`). Types are strict where YAML makes mistakes easy: ``"64"`` is not an integer
 and ``true`` is not a number, but ``40`` is accepted where a float is expected. Importing this
 module loads neither pydantic nor PyYAML, so views and outputs name its classes freely.
-
-A class written in several shapes keeps one field that tells them apart (``ObjectiveSpec.type``,
-``ChannelSpec.kind``; a camera's kind is the key that picks it).
 """
 
 from __future__ import annotations
@@ -34,7 +31,7 @@ from sensaov_cli.job.markers import (
     JobFilePath,
     JobPath,
     Json,
-    MinItems,
+    NonEmpty,
     Problem,
     Section,
     SensorOrPlaced,
@@ -341,7 +338,7 @@ class RepairSpec(Section):
 class ParameterSpec(Section):
     """Which scene parameters are differentiated."""
 
-    include: Annotated[Globs, MinItems(1), Doc("fnmatch globs over parameter keys to select.")] = (
+    include: Annotated[Globs, NonEmpty(), Doc("fnmatch globs over parameter keys to select.")] = (
         "*",
     )
     exclude: Annotated[Globs, Doc("Globs removed from the selection.")] = ()
@@ -446,7 +443,7 @@ class ChannelSpec:
     name: Annotated[Name, Doc("Unique among channels; the EXR layer name.")]
     kind: vocabulary.ChannelKind
     types: Annotated[
-        Annotated[tuple[Text, ...], MinItems(1)] | None,
+        Annotated[tuple[Text, ...], NonEmpty()] | None,
         In("type"),
         Doc("Parameter types to show; null = all present."),
     ] = None
@@ -527,7 +524,7 @@ class JobSpec(Section):
     ]
     objectives: Annotated[
         tuple[Objective, ...],
-        MinItems(1),
+        NonEmpty(),
         unique_names("objective", "objectives"),
         Doc("What to differentiate; one backward pass each."),
     ]
