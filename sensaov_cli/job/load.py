@@ -134,8 +134,6 @@ def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
         return path, "missing required key", None
     if kind == "literal_error":
         return (path, *_not_one_of(re.findall(r"'([^']*)'", ctx["expected"]), value))
-    if kind == "dict_type":
-        return path, f"must be a mapping, got {describe(value)}", None
     return path, _reword(error), _quoted_number_hint(kind, value)
 
 
@@ -170,9 +168,8 @@ def _reword(error: ErrorDetails) -> str:
         return f"must be {meaning}; got {describe(value)}"
     if kind == "string_too_short" and ctx["min_length"] == 1:
         return "must not be empty"
-    if kind == "tuple_type":
-        # The dataclasses hold a job file's lists as tuples; YAML has only lists.
-        return f"must be a list, got {describe(value)}"
+    if kind in ("tuple_type", "dict_type"):  # the dataclasses hold a job file's lists as tuples
+        return f"must be {'a list' if kind == 'tuple_type' else 'a mapping'}, got {describe(value)}"
     message = error["msg"].replace("Input should be", "must be")
     message = re.sub(r"\ba valid (?=[aeiou])", "an ", message).replace("a valid ", "a ")
     return f"{message}, got {describe(value)}"

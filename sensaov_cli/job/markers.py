@@ -193,7 +193,7 @@ class Section:
 
     @classmethod
     def __get_pydantic_core_schema__(cls, source: Any, handler: GetCoreSchemaHandler) -> Any:
-        return _mapping(_Form(cls, _keys(cls, None), cls.__name__, section=True), handler)
+        return _mapping(_Form(cls, _keys(cls, None), cls.__name__), handler)
 
 
 class Tagged:
@@ -311,7 +311,6 @@ class _Form:
     owner: str = ""  # names the shape in an unknown-key error: " for type python"
     fixed: dict[str, str] = field(default_factory=dict)  # fields the shape does not write
     unknown: Callable[[Any], Problem | None] = lambda key: None  # a better word for a key
-    section: bool = False  # the whole class: its schema takes the class's name and docstring
 
 
 def _resolve(base: Path, relative: str) -> Path:
@@ -387,8 +386,8 @@ def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
                 )
         return data
 
-    # A section's class gives its definition a title and description; load.py titles the rest.
-    cls = form.cls if form.section else None
+    # A section, named after its class, has the class's title and docstring; load.py titles others.
+    cls = form.cls if form.ref == form.cls.__name__ else None
     typed = core_schema.typed_dict_schema(fields, cls=cls, extra_behavior="forbid")
     read = core_schema.with_info_after_validator_function(build, typed)
     return core_schema.no_info_before_validator_function(known, read, ref=form.ref)
