@@ -19,8 +19,7 @@ Cut = Literal["key", "object", "type"]  # what `rank --by` names a grouping (key
 Order = Literal["object,type", "type,object"]  # the sunburst's rings, innermost first
 Untrusted = Literal["apart", "include"]  # headline views (docs/encoding.md, "Trusted numbers")
 ScaleScope = Literal["shared", "tile"]  # display scales (docs/encoding.md, "Display scales")
-# The job's own words (job/spec.py): a Mitsuba variant, an objective's type, a channel's kind,
-# a forward pass's direction, a texel channel's pooling and units.
+# The job's own words: job/spec.py describes each.
 Variant = Literal[
     "auto",
     "llvm_ad_rgb",

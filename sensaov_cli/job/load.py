@@ -48,8 +48,8 @@ def load_job(path: Path) -> JobSpec:
     except ValidationError as exc:
         explained = [_explain(error) for error in exc.errors()]
         # min() keeps the first of equals, so pydantic's order settles ties on one line.
-        path, message, hint = min(explained, key=lambda each: document.line_of(each[0]) or math.inf)
-        raise spec_error(shown, document.line_of(path), path, message, hint) from None
+        keys, message, hint = min(explained, key=lambda each: document.line_of(each[0]) or math.inf)
+        raise spec_error(shown, document.line_of(keys), keys, message, hint) from None
 
 
 def job_schema() -> dict[str, Any]:
@@ -140,7 +140,7 @@ def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
 def _explain_union(path: KeyPath, error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
     """Why no member of a tagged union fits: not a mapping, or a missing or unknown tag."""
     ctx, value = error.get("ctx", {}), error["input"]
-    field, choices = ctx["field"], tuple(ctx["choices"].split(","))
+    field, choices = ctx.get("field"), tuple(ctx.get("choices", "").split(","))
     if not isinstance(value, dict):
         return path, f"must be {ctx['expects']}, got {describe(value)}", None
     if not field:

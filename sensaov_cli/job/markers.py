@@ -413,13 +413,12 @@ def _union(
     from pydantic_core import core_schema
 
     UNION_MEMBERS.update(members)
-    context: dict[str, int | str | float] = {"field": "", "choices": "", "message": "", **why}
     return core_schema.tagged_union_schema(
         members,
         pick,
         custom_error_type=UNION,
         custom_error_message=expects,
-        custom_error_context={**context, "expects": expects},
+        custom_error_context={**why, "expects": expects},
     )
 
 
