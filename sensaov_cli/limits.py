@@ -109,12 +109,9 @@ class _Reading:
 
 
 def memory_budget() -> tuple[int, str]:
-    """Bytes a command may plan to allocate, and where that figure comes from.
-
-    ``SENSAOV_MEMORY_BUDGET`` (e.g. ``8G``, ``512M``, bytes) when set; else 3/4 of the least
-    of the machine's memory, the cgroup's limit (a container, a Slurm allocation) and the
-    address-space limit (``ulimit -v``).
-    """
+    """Bytes a command may plan to allocate, and where that figure comes from: its variable when
+    set, else 3/4 of the least of the machine's memory, the cgroup's limit (a container, a Slurm
+    allocation) and the address-space limit (``ulimit -v``)."""
     text = os.environ.get(MEMORY_BUDGET_VARIABLE)
     if text is not None:
         match = _SIZE.match(text)  # 8G, 512M, 1.5G, 1000000: binary units

@@ -198,11 +198,8 @@ class LookAt(Section):
 
 @dataclass(frozen=True)
 class CameraSpec:
-    """A camera: a scene sensor, a look_at camera, or (inspection only) the objective camera.
-
-    The objective camera is named "objective"; with neither sensor nor look_at it is the
-    scene's first sensor.
-    """
+    """A camera: a scene sensor, a look_at camera, or (inspection only) the objective camera,
+    named "objective"; with neither sensor nor look_at, the scene's first sensor."""
 
     name: Annotated[Name, In(*INSPECTION), Doc("Unique among inspection cameras; the EXR name.")]
     sensor: Annotated[
