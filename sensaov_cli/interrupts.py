@@ -18,9 +18,8 @@ from types import FrameType
 
 from sensaov_cli.errors import EXIT_HANGUP, EXIT_INTERRUPTED, EXIT_TERMINATED
 
-# The signals that stop a command, with their exit codes (128 + the signal's number). SIGHUP
-# comes when the terminal closes or an ssh connection drops: a stop like the others, so the
-# outputs stay whole and the line says so (if anything still reads it).
+# The signals that stop a command, with their exit codes. SIGHUP is a stop like the others: the
+# outputs stay whole, and the line says so (if anything still reads it).
 STOP_SIGNALS: dict[int, int] = {
     signal.SIGINT: EXIT_INTERRUPTED,
     signal.SIGTERM: EXIT_TERMINATED,
@@ -59,15 +58,11 @@ def requested() -> bool:
 
 def stop_exit_code() -> int:
     """The first stop signal's exit code (SIGINT's for a KeyboardInterrupt with no signal)."""
-    return STOP_SIGNALS.get(_first(), EXIT_INTERRUPTED)
+    return STOP_SIGNALS[(_signal or [signal.SIGINT])[0]]
 
 
 def signal_name() -> str:
-    return signal.Signals(_first()).name
-
-
-def _first() -> int:
-    return _signal[0] if _signal else signal.SIGINT
+    return signal.Signals((_signal or [signal.SIGINT])[0]).name
 
 
 @contextmanager

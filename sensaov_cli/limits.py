@@ -8,6 +8,7 @@ anything is allocated. Each refusal is one line naming the file or the setting.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import re
@@ -31,18 +32,13 @@ _KINDS = (
 
 
 def regular_file(
-    path: Path,
-    what: str,
-    *,
-    cap: int | None = None,
-    where: str | None = None,
-    error: type[SensaovError] = InputFileError,
+    path: Path, what: str, *, where: str | None = None, error: type[SensaovError] = InputFileError
 ) -> int:
-    """The size of ``path`` if it is a regular file of at most ``cap`` bytes; else ``error``
-    (located at ``where``, default the path), saying what the file is instead."""
+    """The size of ``path`` if it is a regular file; else ``error`` (located at ``where``,
+    default the path), saying what the file is instead."""
     reading = _Reading(path, what, where, error)
     try:
-        return reading.checked(os.stat(path), cap)
+        return reading.checked(os.stat(path), None)
     except OSError as exc:
         raise reading.unreadable(exc) from None
 
@@ -61,17 +57,15 @@ def read_regular(
     reading = _Reading(path, what, where, error)
     try:
         descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+        try:
+            reading.checked(os.fstat(descriptor), cap)
+            os.set_blocking(descriptor, True)
+            with os.fdopen(descriptor, "rb", closefd=False) as stream:
+                data = stream.read(cap + 1)
+        finally:
+            os.close(descriptor)
     except OSError as exc:
         raise reading.unreadable(exc) from None
-    try:
-        reading.checked(os.fstat(descriptor), cap)
-        os.set_blocking(descriptor, True)
-        with os.fdopen(descriptor, "rb", closefd=False) as stream:
-            data = stream.read(cap + 1)
-    except OSError as exc:
-        raise reading.unreadable(exc) from None
-    finally:
-        os.close(descriptor)
     if len(data) > cap:
         raise reading.refusal(f" grew past {_size(cap)} while it was read")
     return data
@@ -115,12 +109,9 @@ class _Reading:
 
 
 def memory_budget() -> tuple[int, str]:
-    """Bytes a command may plan to allocate, and where that figure comes from.
-
-    ``SENSAOV_MEMORY_BUDGET`` (e.g. ``8G``, ``512M``, bytes) when set; else 3/4 of the least
-    of the machine's memory, the cgroup's limit (a container, a Slurm allocation) and the
-    address-space limit (``ulimit -v``).
-    """
+    """Bytes a command may plan to allocate, and where that figure comes from: its variable when
+    set, else 3/4 of the least of the machine's memory, the cgroup's limit (a container, a Slurm
+    allocation) and the address-space limit (``ulimit -v``)."""
     text = os.environ.get(MEMORY_BUDGET_VARIABLE)
     if text is not None:
         match = _SIZE.match(text)  # 8G, 512M, 1.5G, 1000000: binary units
@@ -135,19 +126,12 @@ def memory_budget() -> tuple[int, str]:
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
     if soft != resource.RLIM_INFINITY:
         limits["ulimit -v"] = soft
-    cgroup = _cgroup_limit()
-    if cgroup is not None:
-        limits["the cgroup's memory.max"] = cgroup
+    with contextlib.suppress(OSError):
+        cgroup = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if cgroup.isdigit():
+            limits["the cgroup's memory.max"] = int(cgroup)
     source, least = min(limits.items(), key=lambda item: item[1])
     return int(least * BUDGET_SHARE), f"3/4 of {source}; {MEMORY_BUDGET_VARIABLE} sets it"
-
-
-def _cgroup_limit() -> int | None:
-    try:
-        text = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-    except OSError:
-        return None
-    return int(text) if text.isdigit() else None
 
 
 def check_memory(

@@ -12,6 +12,7 @@ lines are dropped and the work goes on; only the exit code and the outputs tell 
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from collections.abc import Iterator
@@ -22,12 +23,10 @@ class Progress:
     def __init__(self, quiet: bool = False, stream=None, style: str = "plain"):  # noqa: ANN001
         self.stream = stream if stream is not None else sys.stderr
         self.quiet = quiet or self.stream is None  # None: Python started with stderr closed
+        self.farm = style != "plain"  # auto: unless stderr is a terminal
         if style == "auto":
-            try:
-                style = "plain" if self.stream.isatty() else "farm"
-            except (AttributeError, ValueError):  # no isatty, or a closed stream
-                style = "farm"
-        self.farm = style == "farm"
+            with contextlib.suppress(AttributeError, ValueError):  # no isatty, or a closed stream
+                self.farm = not self.stream.isatty()
         self.timings: dict[str, float] = {}
         self._planned = 0
         self._done = 0

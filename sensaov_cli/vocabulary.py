@@ -17,14 +17,9 @@ Normalize = Literal["none", "channel", "shared"]
 Grouping = Literal["param", "object", "type"]
 Cut = Literal["key", "object", "type"]  # what `rank --by` names a grouping (key = param)
 Order = Literal["object,type", "type,object"]  # the sunburst's rings, innermost first
-# Headline (object and type) views: parameters the tool does not stand behind shown apart, or
-# mixed in with a mark (docs/encoding.md, "Trusted numbers").
-Untrusted = Literal["apart", "include"]
-# Display scales of previews and display layers: one per (objective, channel) across every
-# camera of the job, or each tile its own (docs/encoding.md, "Display scales").
-ScaleScope = Literal["shared", "tile"]
-# The job's own words (job/spec.py): a Mitsuba variant, an objective's type, a channel's kind,
-# a forward pass's direction, a texel channel's pooling and units.
+Untrusted = Literal["apart", "include"]  # headline views (docs/encoding.md, "Trusted numbers")
+ScaleScope = Literal["shared", "tile"]  # display scales (docs/encoding.md, "Display scales")
+# The job's own words: job/spec.py describes each.
 Variant = Literal[
     "auto",
     "llvm_ad_rgb",

@@ -7,6 +7,7 @@ in ``docs/job-spec.md``.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -24,7 +25,7 @@ from pydantic.json_schema import GenerateJsonSchema, JsonSchemaValue
 from pydantic_core import ErrorDetails
 
 from sensaov_cli.errors import SpecError
-from sensaov_cli.job.markers import UNION, Problem, describe, did_you_mean
+from sensaov_cli.job.markers import UNION, UNION_MEMBERS, Problem, describe, did_you_mean
 from sensaov_cli.job.spec import NAME_PATTERN, PATTERN_MEANINGS, CameraSpec, JobSpec
 from sensaov_cli.limits import read_regular
 
@@ -45,7 +46,10 @@ def load_job(path: Path) -> JobSpec:
         # The job file's own path: JobSpec.path, and where its relative paths start.
         return _adapter().validate_python(document.data, context={"job": job_path})
     except ValidationError as exc:
-        raise _first_error(exc, document, shown) from None
+        explained = [_explain(error) for error in exc.errors()]
+        # min() keeps the first of equals, so pydantic's order settles ties on one line.
+        keys, message, hint = min(explained, key=lambda each: document.line_of(each[0]) or math.inf)
+        raise spec_error(shown, document.line_of(keys), keys, message, hint) from None
 
 
 def job_schema() -> dict[str, Any]:
@@ -58,21 +62,6 @@ def job_schema() -> dict[str, Any]:
 @cache
 def _adapter() -> TypeAdapter[JobSpec]:
     return TypeAdapter(JobSpec)
-
-
-@cache
-def _union_tags() -> frozenset[str]:
-    """The tags of the unions' members: they stand in error locations but are no keys."""
-    return frozenset(_tags_in(_adapter().core_schema))
-
-
-def _tags_in(schema: Any) -> set[str]:
-    if isinstance(schema, dict):
-        found = set(schema["choices"]) if schema.get("type") == "tagged-union" else set()
-        return found.union(*(_tags_in(value) for value in schema.values()))
-    if isinstance(schema, list | tuple):
-        return set().union(*(_tags_in(item) for item in schema))
-    return set()
 
 
 class _JobFileSchema(GenerateJsonSchema):
@@ -130,18 +119,10 @@ def _check_top_level(document: YamlDocument, shown: str) -> None:
         raise spec_error(*where, message, f"this sensaov reads versions: {supported}")
 
 
-def _first_error(exc: ValidationError, document: YamlDocument, shown: str) -> SpecError:
-    """The problem written earliest in the file, worded for a person who edits YAML."""
-    explained = [_explain(error) for error in exc.errors()]
-    # min() keeps the first of equals, so pydantic's order settles ties on one line.
-    path, message, hint = min(explained, key=lambda each: document.line_of(each[0]) or math.inf)
-    return spec_error(shown, document.line_of(path), path, message, hint)
-
-
 def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
     # "[key]" is pydantic's marker for a mapping's key (scene_args); the key itself precedes it.
     path: KeyPath = tuple(
-        part for part in error["loc"] if part not in _union_tags() and part != "[key]"
+        part for part in error["loc"] if part not in UNION_MEMBERS and part != "[key]"
     )
     kind, ctx, value = error["type"], error.get("ctx", {}), error["input"]
     if kind == "value_error" and isinstance(ctx.get("error"), Problem):
@@ -153,15 +134,13 @@ def _explain(error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
         return path, "missing required key", None
     if kind == "literal_error":
         return (path, *_not_one_of(re.findall(r"'([^']*)'", ctx["expected"]), value))
-    if kind == "dict_type":
-        return path, f"must be a mapping, got {describe(value)}", None
     return path, _reword(error), _quoted_number_hint(kind, value)
 
 
 def _explain_union(path: KeyPath, error: ErrorDetails) -> tuple[KeyPath, str, str | None]:
     """Why no member of a tagged union fits: not a mapping, or a missing or unknown tag."""
     ctx, value = error.get("ctx", {}), error["input"]
-    field, choices = ctx["field"], tuple(ctx["choices"].split(","))
+    field, choices = ctx.get("field"), tuple(ctx.get("choices", "").split(","))
     if not isinstance(value, dict):
         return path, f"must be {ctx['expects']}, got {describe(value)}", None
     if not field:
@@ -189,9 +168,8 @@ def _reword(error: ErrorDetails) -> str:
         return f"must be {meaning}; got {describe(value)}"
     if kind == "string_too_short" and ctx["min_length"] == 1:
         return "must not be empty"
-    if kind == "tuple_type":
-        # The dataclasses hold a job file's lists as tuples; YAML has only lists.
-        return f"must be a list, got {describe(value)}"
+    if kind in ("tuple_type", "dict_type"):  # the dataclasses hold a job file's lists as tuples
+        return f"must be {'a list' if kind == 'tuple_type' else 'a mapping'}, got {describe(value)}"
     message = error["msg"].replace("Input should be", "must be")
     message = re.sub(r"\ba valid (?=[aeiou])", "an ", message).replace("a valid ", "a ")
     return f"{message}, got {describe(value)}"
@@ -199,11 +177,9 @@ def _reword(error: ErrorDetails) -> str:
 
 def _quoted_number_hint(kind: str, value: Any) -> str | None:
     if kind in ("int_type", "float_type") and isinstance(value, str):
-        try:
+        with contextlib.suppress(ValueError):
             float(value)
-        except ValueError:
-            return None
-        return "write the number without quotes"
+            return "write the number without quotes"
     return None
 
 
@@ -327,8 +303,9 @@ def camera_entry(camera: CameraSpec) -> dict[str, Any]:
     """The mapping a job's ``inspection_cameras`` list takes for a ``look_at`` camera, so the
     view can be projected on a farm."""
     assert camera.look_at is not None and camera.resolution is not None
-    look = camera.look_at
-    rounded = {key: [_round(v) for v in getattr(look, key)] for key in ("origin", "target", "up")}
+    rounded = {
+        k: [_round(v) for v in getattr(camera.look_at, k)] for k in ("origin", "target", "up")
+    }
     return {
         "name": camera.name,
         "look_at": rounded,

@@ -77,6 +77,7 @@ def did_you_mean(word: object, choices: Sequence[str]) -> str | None:
 
 # The error type of a value that picks no member of a union; its context says why.
 UNION = "sensaov_union"
+UNION_MEMBERS: set[str] = set()  # every union's members' names, which stand in error locations
 
 
 class JobFilePath:
@@ -142,22 +143,20 @@ class Doc(Json):
         super().__init__({"description": text})
 
 
-class MinItems(After):
-    """At least ``n`` items, counted once every item is valid (``annotated_types.MinLen`` on a
+class NonEmpty(After):
+    """At least one item, counted once every item is valid (``annotated_types.MinLen`` on a
     tuple counts the items that passed, so one bad item would also read as a list too short)."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self) -> None:
         def check(items: tuple[Any, ...]) -> tuple[Any, ...]:
-            if len(items) < n:
-                plural = "" if n == 1 else "s"
-                raise Problem(f"must have at least {n} item{plural}, got {len(items)}")
+            if not items:
+                raise Problem("must have at least 1 item, got 0")
             return items
 
         super().__init__(check)
-        self.n = n
 
     def __get_pydantic_json_schema__(self, schema: Any, handler: Any) -> JsonSchemaValue:
-        return {**handler(schema), "minItems": self.n}
+        return {**handler(schema), "minItems": 1}
 
 
 class JobPath:
@@ -194,7 +193,7 @@ class Section:
 
     @classmethod
     def __get_pydantic_core_schema__(cls, source: Any, handler: GetCoreSchemaHandler) -> Any:
-        return _mapping(_Form(cls, _keys(cls, None), cls.__name__, section=True), handler)
+        return _mapping(_Form(cls, _keys(cls, None), cls.__name__), handler)
 
 
 class Tagged:
@@ -312,7 +311,6 @@ class _Form:
     owner: str = ""  # names the shape in an unknown-key error: " for type python"
     fixed: dict[str, str] = field(default_factory=dict)  # fields the shape does not write
     unknown: Callable[[Any], Problem | None] = lambda key: None  # a better word for a key
-    section: bool = False  # the whole class: its schema takes the class's name and docstring
 
 
 def _resolve(base: Path, relative: str) -> Path:
@@ -320,51 +318,36 @@ def _resolve(base: Path, relative: str) -> Path:
     return Path(os.path.abspath(base / relative))
 
 
-@dataclass(frozen=True)
-class _Declared:
-    """A field of a dataclass, its type and the markers of its ``Annotated`` type."""
-
-    field: dataclasses.Field[Any]
-    hint: Any
-    metadata: tuple[Any, ...]
-
-
 @cache
-def _declared(cls: type) -> tuple[_Declared, ...]:
+def _hints(cls: type) -> dict[str, Any]:
     # Once per class: each evaluation of the (string) annotations makes new markers, and the
     # shapes of a class compare their keys.
-    hints = get_type_hints(cls, include_extras=True)
-    return tuple(
-        _Declared(each, hints[each.name], getattr(hints[each.name], "__metadata__", ()))
-        for each in dataclasses.fields(cls)
-    )
+    return get_type_hints(cls, include_extras=True)
 
 
 def _keys(cls: type, shape: str | None) -> list[_Key]:
     """The keys ``cls`` takes in ``shape`` (None: a section), in the order of its fields."""
     keys = []
-    for each in _declared(cls):
-        places = [item for item in each.metadata if isinstance(item, In)]
+    for each in dataclasses.fields(cls):
+        hint = _hints(cls)[each.name]
+        markers = getattr(hint, "__metadata__", ())
+        places = [item for item in markers if isinstance(item, In)]
         here = next((place for place in places if shape in place.shapes), None)
-        if JobFilePath in each.metadata or (places and here is None):
+        if JobFilePath in markers or (places and here is None):
             continue
-        keys.append(_key(each.field, each.hint, here))
+        default = each.default
+        if default is MISSING and each.default_factory is not MISSING:
+            default = each.default_factory()  # a mutable default (scene_args: {})
+        if here is not None:
+            if here.required:
+                default = MISSING
+            elif here.default is not MISSING:
+                default = here.default
+            if here.doc is not None:
+                hint = Annotated[hint, Doc(here.doc)]
+        # null is accepted only where it is the default: written null means left out.
+        keys.append(_Key(each.name, hint if default is None else _not_null(hint), default))
     return keys
-
-
-def _key(field: dataclasses.Field[Any], hint: Any, here: In | None) -> _Key:
-    default = field.default
-    if default is MISSING and field.default_factory is not MISSING:
-        default = field.default_factory()  # a mutable default (scene_args: {})
-    if here is not None:
-        if here.required:
-            default = MISSING
-        elif here.default is not MISSING:
-            default = here.default
-        if here.doc is not None:
-            hint = Annotated[hint, Doc(here.doc)]
-    # null is accepted only where it is the default: written null means left out.
-    return _Key(field.name, hint if default is None else _not_null(hint), default)
 
 
 def _ordered(shapes: dict[str, list[_Key]], tag: str | None) -> dict[str, list[_Key]]:
@@ -384,7 +367,10 @@ def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
 
     fields = {key.name: _field(key, handler) for key in form.keys}
     names = tuple(fields)
-    given = [each.field.name for each in _declared(form.cls) if JobFilePath in each.metadata]
+    hints = _hints(form.cls)
+    given = [
+        name for name, hint in hints.items() if JobFilePath in getattr(hint, "__metadata__", ())
+    ]
 
     def build(values: dict[str, Any], info: core_schema.ValidationInfo) -> Any:
         loaded = {name: (info.context or {})["job"] for name in given}
@@ -400,8 +386,8 @@ def _mapping(form: _Form, handler: GetCoreSchemaHandler) -> CoreSchema:
                 )
         return data
 
-    # A section's class gives its definition a title and description; load.py titles the rest.
-    cls = form.cls if form.section else None
+    # A section, named after its class, has the class's title and docstring; load.py titles others.
+    cls = form.cls if form.ref == form.cls.__name__ else None
     typed = core_schema.typed_dict_schema(fields, cls=cls, extra_behavior="forbid")
     read = core_schema.with_info_after_validator_function(build, typed)
     return core_schema.no_info_before_validator_function(known, read, ref=form.ref)
@@ -426,13 +412,13 @@ def _union(
     stand in error locations, so each has a space: no key is named so."""
     from pydantic_core import core_schema
 
-    context: dict[str, int | str | float] = {"field": "", "choices": "", "message": "", **why}
+    UNION_MEMBERS.update(members)
     return core_schema.tagged_union_schema(
         members,
         pick,
         custom_error_type=UNION,
         custom_error_message=expects,
-        custom_error_context={**context, "expects": expects},
+        custom_error_context={**why, "expects": expects},
     )
 
 

@@ -5,9 +5,6 @@ Every field of the job format is defined here once: name, type and default, and 
 (:mod:`.markers`). Types are strict where YAML makes mistakes easy: ``"64"`` is not an integer
 and ``true`` is not a number, but ``40`` is accepted where a float is expected. Importing this
 module loads neither pydantic nor PyYAML, so views and outputs name its classes freely.
-
-A class written in several shapes keeps one field that tells them apart (``ObjectiveSpec.type``,
-``ChannelSpec.kind``; a camera's kind is the key that picks it).
 """
 
 from __future__ import annotations
@@ -34,7 +31,7 @@ from sensaov_cli.job.markers import (
     JobFilePath,
     JobPath,
     Json,
-    MinItems,
+    NonEmpty,
     Problem,
     Section,
     SensorOrPlaced,
@@ -105,10 +102,6 @@ def _count(n: int, what: str) -> Before:
     return Before(check)
 
 
-def _one_or_many(value: Any) -> Any:
-    return [value] if isinstance(value, str) else value
-
-
 def _only_true(value: Any) -> Any:
     if value is not True:
         raise Problem(f"must be true, got {describe(value)}", hint="leave the key out instead")
@@ -149,7 +142,7 @@ JobDir = Annotated[Path | None, JobPath(_existing("directory", Path.is_dir), nul
 OutputDir = Annotated[Path, JobPath(_output_dir, null_means="out/{stem}")]
 Globs = Annotated[
     tuple[Text, ...],
-    Before(_one_or_many),
+    Before(lambda value: [value] if isinstance(value, str) else value),
     Json(
         {"anyOf": [{"type": "string"}, {"type": "array", "items": {"type": "string"}}]},
         replace=True,
@@ -205,11 +198,8 @@ class LookAt(Section):
 
 @dataclass(frozen=True)
 class CameraSpec:
-    """A camera: a scene sensor, a look_at camera, or (inspection only) the objective camera.
-
-    The objective camera is named "objective"; with neither sensor nor look_at it is the
-    scene's first sensor.
-    """
+    """A camera: a scene sensor, a look_at camera, or (inspection only) the objective camera,
+    named "objective"; with neither sensor nor look_at, the scene's first sensor."""
 
     name: Annotated[Name, In(*INSPECTION), Doc("Unique among inspection cameras; the EXR name.")]
     sensor: Annotated[
@@ -345,7 +335,7 @@ class RepairSpec(Section):
 class ParameterSpec(Section):
     """Which scene parameters are differentiated."""
 
-    include: Annotated[Globs, MinItems(1), Doc("fnmatch globs over parameter keys to select.")] = (
+    include: Annotated[Globs, NonEmpty(), Doc("fnmatch globs over parameter keys to select.")] = (
         "*",
     )
     exclude: Annotated[Globs, Doc("Globs removed from the selection.")] = ()
@@ -450,7 +440,7 @@ class ChannelSpec:
     name: Annotated[Name, Doc("Unique among channels; the EXR layer name.")]
     kind: vocabulary.ChannelKind
     types: Annotated[
-        Annotated[tuple[Text, ...], MinItems(1)] | None,
+        Annotated[tuple[Text, ...], NonEmpty()] | None,
         In("type"),
         Doc("Parameter types to show; null = all present."),
     ] = None
@@ -531,7 +521,7 @@ class JobSpec(Section):
     ]
     objectives: Annotated[
         tuple[Objective, ...],
-        MinItems(1),
+        NonEmpty(),
         unique_names("objective", "objectives"),
         Doc("What to differentiate; one backward pass each."),
     ]
