@@ -141,7 +141,9 @@ class _Expansion:
             self.refusals.add(
                 f"<{element.tag}> is not an element Mitsuba 3 reads",
                 where(element),
-                hint=_TAG_HINTS.get(element.tag, "see Mitsuba's scene format documentation"),
+                hint='write <shape type="shapegroup" id="..."> (the 0.6 <shapegroup> tag is gone)'
+                if element.tag == "shapegroup"
+                else "see Mitsuba's scene format documentation",
             )
             parent.remove(element)
             return
@@ -237,11 +239,6 @@ class _Expansion:
         self.ids[alias] = where(element)
 
 
-_TAG_HINTS = {
-    "shapegroup": 'write <shape type="shapegroup" id="..."> (the 0.6 <shapegroup> tag is gone)',
-}
-
-
 def _required(element: ET.Element, attribute: str) -> str:
     value = element.get(attribute)
     if value is None:
@@ -313,7 +310,7 @@ def _refuse_nesting(path: Path, chain: tuple[Path, ...], origin: str) -> None:
 # --- $name arguments: Mitsuba's SortedParameters ---------------------------------------
 
 _SHOWN = 60  # characters of a long value shown in a message
-_PARAMETER_NAME = re.compile(r"[A-Za-z0-9_]*")
+_UNRESOLVED = re.compile(r"(?<!\\)\$([A-Za-z0-9_]*)")  # a "$" not escaped as "\$"
 
 
 def shorten(value: str) -> str:
@@ -386,18 +383,17 @@ class Parameters:
 
 
 def _refuse_unresolved(value: str, origin: str) -> None:
-    for pos, char in enumerate(value):
-        if char != "$" or (pos > 0 and value[pos - 1] == "\\"):
-            continue
-        name = _PARAMETER_NAME.match(value, pos + 1)
-        name_text = shorten(name.group() if name else "")
-        if not name_text:
-            raise SceneError(
-                "a '$' that names no scene argument", where=origin, hint="write \\$ for a '$'"
-            )
+    found = _UNRESOLVED.search(value)
+    if found is None:
+        return
+    name_text = shorten(found.group(1))
+    if not name_text:
         raise SceneError(
-            f"scene argument ${name_text} has no value",
-            where=origin,
-            hint=f"set it in the job (scene_args: {{{name_text}: ...}}) "
-            f'or give the scene a <default name="{name_text}" value="..."/>',
+            "a '$' that names no scene argument", where=origin, hint="write \\$ for a '$'"
         )
+    raise SceneError(
+        f"scene argument ${name_text} has no value",
+        where=origin,
+        hint=f"set it in the job (scene_args: {{{name_text}: ...}}) "
+        f'or give the scene a <default name="{name_text}" value="..."/>',
+    )

@@ -80,7 +80,13 @@ def _nameable(root: ET.Element) -> list[ET.Element]:
 def _instanced_group(element: ET.Element, ids: dict[str, ET.Element]) -> str | None:
     if element.tag != "shape" or element.get("type") != "instance":
         return None
-    return next((g.get("id", "") for g in refs_to(element, "shape", ids)), "") or "instance"
+    return _group_of(element, ids) or "instance"
+
+
+def _group_of(shape: ET.Element, ids: dict[str, ET.Element]) -> str:
+    """The id of the shapegroup an instance instantiates ("" for any other shape)."""
+    groups = refs_to(shape, "shape", ids) if shape.get("type") == "instance" else []
+    return groups[0].get("id", "") if groups else ""
 
 
 def _take_emitter_id(shape: ET.Element, referenced: set[str | None]) -> bool:
@@ -143,12 +149,8 @@ def shapegroups(root: ET.Element) -> dict[str, tuple[str, ...]]:
 def instances(root: ET.Element) -> dict[str, str]:
     """Instance id -> the id of the shapegroup it instantiates."""
     ids = objects_by_id(root)
-    found = {}
-    for shape in root.iter("shape"):
-        groups = refs_to(shape, "shape", ids) if shape.get("type") == "instance" else []
-        if shape.get("id") and groups and groups[0].get("id"):
-            found[shape.get("id", "")] = groups[0].get("id", "")
-    return found
+    shapes = root.iter("shape")
+    return {s.get("id", ""): group for s in shapes if s.get("id") and (group := _group_of(s, ids))}
 
 
 def materials(root: ET.Element) -> dict[str, str]:
