@@ -175,9 +175,8 @@ class _Expansion:
         if identifier is None:
             return
         if identifier in self.ids:
-            first = self.ids[identifier]
             raise SceneError(
-                f"duplicate id {shorten(identifier)!r} (first defined at {first})",
+                f"duplicate id {shorten(identifier)!r} (first defined at {self.ids[identifier]})",
                 where=where(element),
             )
         self.ids[identifier] = where(element)

@@ -322,8 +322,7 @@ def _add_look_at_sensor(
 
 
 def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: Path) -> str:
-    """sha256 over every file the scene reads (the scene, its includes, meshes, textures,
-    envmaps, spectra) and the scene arguments, so an edit to any of them counts."""
+    """sha256 over every file the scene reads and the job's scene arguments: an edit counts."""
     digest = hashlib.sha256()
     for name, value in sorted(scene_args.items()):
         digest.update(f"arg\0{name}\0{value}\0".encode())
