@@ -104,7 +104,13 @@ def prepare_xml(
     materials = naming.materials(root)  # before splitting: copies keep the user's name
     textures = naming.place_textures(root, copies=shared == "split")
     split = naming.split_shared_bsdfs(root) if shared == "split" else {}
-    changes += _sharing_changes(groups, textures, split, shared)
+    placed = _OWN if shared == "split" else _TOP_BITMAP
+    changes += [Change(f"shapegroup {g!r} copied for {', '.join(i)}", _OWN, "")
+                for g, i in groups.items()]  # fmt: skip
+    changes += [Change(f"texture {t!r} written into {', '.join(u)}", placed, "")
+                for t, u in textures.items()]  # fmt: skip
+    changes += [Change(f"bsdf {b!r} copied into {', '.join(s)}", _OWN, "")
+                for b, s in split.items()]  # fmt: skip
     sensor, inspection_ids = _cameras(root, camera, resolution, inspection)
     others = () if job is None else tuple(c for c in job.inspection_cameras if c not in inspection)
     if others:  # cameras this command does not load: placed on a copy, to refuse them early
@@ -137,23 +143,8 @@ def prepare_xml(
 
 _UNNAMED = "Mitsuba keys an unnamed object by its memory address, new on every run"
 _EIGHT_BIT = "format = variant: an 8-bit texture would load as integers, which get no gradient"
-
-
-def _sharing_changes(
-    groups: dict[str, tuple[str, ...]],
-    textures: dict[str, tuple[str, ...]],
-    split: dict[str, tuple[str, ...]],
-    shared: str,
-) -> list[Change]:
-    own = "each use gets its own parameters, so each object its own gradient (shared: split)"
-    placed = own if shared == "split" else "Mitsuba keys a top-level bitmap by memory address"
-    changes = [Change(f"shapegroup {g!r} copied for {', '.join(i)}", own, "")
-               for g, i in groups.items()]  # fmt: skip
-    changes += [Change(f"texture {t!r} written into {', '.join(u)}", placed, "")
-                for t, u in textures.items()]  # fmt: skip
-    changes += [Change(f"bsdf {b!r} copied into {', '.join(s)}", own, "")
-                for b, s in split.items()]  # fmt: skip
-    return changes
+_OWN = "each use gets its own parameters, so each object its own gradient (shared: split)"
+_TOP_BITMAP = "Mitsuba keys a top-level bitmap by memory address"
 
 
 # --- cameras: ids are global in one Mitsuba scene (films, samplers and filters too), so a sensor
