@@ -56,13 +56,15 @@ def name_objects(root: ET.Element) -> dict[str, ET.Element]:
     taken = set(ids)
     position: dict[str, int] = {}  # instances counted per shapegroup, named ones too
     for element in _nameable(root):
-        group = _instanced_group(element, ids)
+        instance = element.tag == "shape" and element.get("type") == "instance"
+        group = (_group_of(element, ids) or "instance") if instance else None
         if group is not None:
             position[group] = position.get(group, -1) + 1
         if element.get("id") or _take_emitter_id(element, referenced):
             continue
         base = f"{group}_{position[group]}" if group is not None else _base_name(element, ids)
-        element.set("id", fresh_id(_sanitize(base), taken))
+        # Parameter keys are dotted paths that start with the id: keep ids to one clean token.
+        element.set("id", fresh_id(re.sub(r"[^A-Za-z0-9_]", "_", base) or "object", taken))
         named[element.get("id", "")] = element
     return named
 
@@ -75,12 +77,6 @@ def _nameable(root: ET.Element) -> list[ET.Element]:
         if element.tag == "shape" and element.get("type") == "shapegroup":
             found.extend(member for member in element if member.tag == "shape")
     return found
-
-
-def _instanced_group(element: ET.Element, ids: dict[str, ET.Element]) -> str | None:
-    if element.tag != "shape" or element.get("type") != "instance":
-        return None
-    return _group_of(element, ids) or "instance"
 
 
 def _group_of(shape: ET.Element, ids: dict[str, ET.Element]) -> str:
@@ -120,11 +116,6 @@ def _base_name(element: ET.Element, ids: dict[str, ET.Element]) -> str:
     if any(child.tag == "emitter" for child in element):  # an area light is written inline
         return f"{kind}_light"
     return f"{material}_{kind}" if material else kind
-
-
-def _sanitize(name: str) -> str:
-    # Parameter keys are dotted paths that start with the id: keep ids to one clean token.
-    return re.sub(r"[^A-Za-z0-9_]", "_", name) or "object"
 
 
 def fresh_id(base: str, taken: set[str]) -> str:
