@@ -325,14 +325,6 @@ class SceneArgument:
     origin: str  # "job", or the file:line of the scene's <default>
 
 
-@dataclass
-class _Parameter:
-    key: str  # "$name"
-    value: str
-    origin: str
-    substituted: bool = False  # a job argument never substituted is an error, a default never
-
-
 class Parameters:
     """Mitsuba's SortedParameters: one table for the main file and all its includes.
 
@@ -343,37 +335,39 @@ class Parameters:
 
     def __init__(self, scene_args: Mapping[str, object]) -> None:
         # Mitsuba turns every keyword argument into text with Python's str().
-        self.table = [_Parameter(f"${k}", str(v), "job") for k, v in scene_args.items()]
-        self.table.sort(key=lambda p: -len(p.key))
+        self.table = {name: SceneArgument(str(v), "job") for name, v in scene_args.items()}
+        self.used: set[str] = set()  # a job argument never used is an error, a default never
 
     def default(self, name: str, value: str, origin: str) -> None:
-        if any(p.key == f"${name}" for p in self.table):
-            return  # job arguments and earlier defaults win
-        self.table.append(_Parameter(f"${name}", value, origin))
-        self.table.sort(key=lambda p: -len(p.key))  # longest names first (a stable sort)
+        self.table.setdefault(name, SceneArgument(value, origin))  # job's and earlier ones win
+
+    def _longest_first(self) -> list[str]:
+        return sorted(self.table, key=len, reverse=True)  # stable: equal lengths in table order
 
     def substitute(self, value: str, origin: str) -> str:
-        for param in self.table:
-            pos = value.find(param.key)
+        for name in self._longest_first():
+            key, replacement = f"${name}", self.table[name].value
+            pos = value.find(key)
             while pos != -1:
                 if pos > 0 and value[pos - 1] == "\\":
-                    pos += len(param.key)
+                    pos += len(key)
                 else:
-                    value = value[:pos] + param.value + value[pos + len(param.key) :]
-                    param.substituted = True
-                    pos += len(param.value)
-                pos = value.find(param.key, pos)
+                    value = value[:pos] + replacement + value[pos + len(key) :]
+                    self.used.add(name)
+                    pos += len(replacement)
+                pos = value.find(key, pos)
         _refuse_unresolved(value, origin)
         return value.replace("\\$", "$")
 
     def arguments(self) -> dict[str, SceneArgument]:
         """The arguments the scene text actually used, with their values."""
-        return {p.key[1:]: SceneArgument(p.value, p.origin) for p in self.table if p.substituted}
+        return {name: self.table[name] for name in self._longest_first() if name in self.used}
 
     def refuse_unused(self, path: Path) -> None:
-        unused = [p.key[1:] for p in self.table if p.origin == "job" and not p.substituted]
+        jobs = [name for name in self._longest_first() if self.table[name].origin == "job"]
+        unused = [name for name in jobs if name not in self.used]
         if unused:
-            known = sorted(p.key[1:] for p in self.table if p.key[1:] not in unused)
+            known = sorted(name for name in self.table if name not in unused)
             raise SceneError(
                 f"scene argument {unused[0]!r} is not used by the scene",
                 where=str(path),
