@@ -162,7 +162,10 @@ class _Expansion:
         if is_object(element):
             self._register(element)
         elif element.tag == "spectrum" and element.get("filename"):
-            self._spectrum_file(element, context)
+            with self.refusals.gathered():
+                resolved = _existing(element.get("filename", ""), context.resolver, where(element))
+                self.files.append(resolved)
+                element.set("filename", str(resolved))
         elif (
             element.tag == "string" and element.get("name") == "filename" and parent.tag != "scene"
         ):
@@ -180,12 +183,6 @@ class _Expansion:
                 where=where(element),
             )
         self.ids[identifier] = where(element)
-
-    def _spectrum_file(self, element: ET.Element, context: _Context) -> None:
-        with self.refusals.gathered():
-            resolved = _existing(element.get("filename", ""), context.resolver, where(element))
-            self.files.append(resolved)
-            element.set("filename", str(resolved))
 
     def _include(self, element: ET.Element, context: _Context) -> list[ET.Element]:
         """The file is looked for next to the including file, then in the folders of the files
