@@ -93,7 +93,8 @@ def prepare_xml(
     expanded = expand_scene(path, scene_args or {})
     root = expanded.root
     named = naming.name_objects(root)
-    own_sensors = sensor_ids(root)
+    ids = (s.get("id", "") for s in root.findall("sensor"))
+    own_sensors = tuple(i for i in ids if not i.startswith("sensaov_"))  # the prefix is sensaov's
     _check_camera_ids(path, own_sensors, camera, job.inspection_cameras if job else inspection, job)
     _refuse_non_finite_numbers(root)
     changes = list(expanded.changes)  # old formats upgraded, each with its line
@@ -200,17 +201,8 @@ def _cameras(
     return sensor, {c.name: add_inspection_sensor(root, c, sensor) for c in inspection}
 
 
-def sensor_ids(root: ET.Element) -> tuple[str, ...]:
-    """The scene's own sensors (not the ones sensaov added), in document order."""
-    return tuple(
-        s.get("id", "")
-        for s in root.findall("sensor")
-        if not s.get("id", "").startswith("sensaov_")
-    )
-
-
 def choose_sensor(root: ET.Element, camera: CameraSpec) -> ET.Element:
-    """The camera's sensor, the first where it names none (prepare.py checked that it exists)."""
+    """The camera's sensor, the first where it names none (_check_camera_ids checked it exists)."""
     sensors = root.findall("sensor")
     if camera.look_at is not None:
         return _add_look_at_sensor(root, camera, sensors[0] if sensors else None)

@@ -94,10 +94,7 @@ def user_attributes(element: ET.Element) -> list[tuple[str, str]]:
 
 def new_element(tag: str, attrib: dict[str, str], like: ET.Element) -> ET.Element:
     """An element sensaov writes; ``like`` lends it the user's line it stands for."""
-    element = ET.Element(tag, attrib)
-    if like.get(_WHERE):
-        element.set(_WHERE, where(like))
-    return element
+    return ET.Element(tag, {**attrib, _WHERE: where(like)} if where(like) else attrib)
 
 
 def detached_copy(element: ET.Element) -> ET.Element:
