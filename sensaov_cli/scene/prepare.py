@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sensaov_cli.errors import SceneError, SpecError
-from sensaov_cli.job.spec import CameraSpec, JobSpec
+from sensaov_cli.job.spec import CameraSpec, JobSpec, LookAt
 from sensaov_cli.scene import naming
 from sensaov_cli.scene.expand import expand_scene
 from sensaov_cli.scene.integrator import IntegratorPlan, plan_integrator
@@ -205,14 +205,14 @@ def choose_sensor(root: ET.Element, camera: CameraSpec) -> ET.Element:
     """The camera's sensor, the first where it names none (_check_camera_ids checked it exists)."""
     sensors = root.findall("sensor")
     if camera.look_at is not None:
-        return _add_look_at_sensor(root, camera, sensors[0] if sensors else None)
+        return _add_look_at_sensor(root, camera, camera.look_at, sensors[0] if sensors else None)
     return next(s for s in sensors if camera.sensor in (None, s.get("id")))
 
 
 def add_inspection_sensor(root: ET.Element, camera: CameraSpec, objective: ET.Element) -> str:
     """A sensor of its own for each inspection camera, so resolution overrides stay local."""
     if camera.look_at is not None:
-        source = _add_look_at_sensor(root, camera, objective)
+        source = _add_look_at_sensor(root, camera, camera.look_at, objective)
     else:
         source = detached_copy(objective if camera.objective else choose_sensor(root, camera))
         root.append(source)
@@ -284,10 +284,8 @@ def _child_object(root: ET.Element, sensor: ET.Element, tag: str) -> ET.Element 
 
 
 def _add_look_at_sensor(
-    root: ET.Element, camera: CameraSpec, template: ET.Element | None
+    root: ET.Element, camera: CameraSpec, look_at: LookAt, template: ET.Element | None
 ) -> ET.Element:
-    look_at = camera.look_at
-    assert look_at is not None
     sensor = ET.SubElement(root, "sensor", {"type": "perspective", "id": OBJECTIVE_SENSOR_ID})
     ET.SubElement(sensor, "float", {"name": "fov", "value": repr(float(camera.fov))})
     transform = ET.SubElement(sensor, "transform", {"name": "to_world"})
@@ -343,11 +341,8 @@ def _bitmaps_as_float(root: ET.Element, changes: list[Change]) -> tuple[str, ...
 
 
 def _bitmap_options(root: ET.Element) -> dict[str, tuple[str, str, str]]:
-    """File base name -> (filter_type, wrap_mode, note) of every bitmap in the scene.
-
-    Matched to a loaded texture by its file's base name (the name the plugin prints); where one
-    file is used with two different settings the first is taken and a note says so.
-    """
+    """File base name (the name the plugin prints) -> filter_type, wrap_mode of every bitmap, and
+    a note where one file is used with several settings (the first is taken)."""
     options: dict[str, tuple[str, str, str]] = {}
     for texture in root.iter("texture"):
         filename = naming.child_value(texture, "filename")
