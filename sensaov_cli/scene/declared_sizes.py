@@ -115,22 +115,16 @@ def _exr(head: bytes) -> Size | None:
         name = head[at:name_end]
         if name == b"dataWindow":
             window = struct.unpack("<iiii", value[:16])
-        elif name == b"channels":
-            channels = _channel_count(value)
+        elif name == b"channels":  # a name, its NUL and 16 bytes each; an empty name ends it
+            channels, entry = 0, 0
+            while entry < len(value) and value[entry] != 0:
+                entry = value.index(b"\0", entry) + 1 + 16
+                channels += 1
         at = kind_end + 5 + length
     if window is None:
         return None
     x0, y0, x1, y1 = window
     return x1 - x0 + 1, y1 - y0 + 1, max(channels, 1)
-
-
-def _channel_count(chlist: bytes) -> int:
-    """Entries of an EXR channel list: a name, its NUL and 16 bytes each; an empty name ends it."""
-    count, at = 0, 0
-    while at < len(chlist) and chlist[at] != 0:
-        at = chlist.index(b"\0", at) + 1 + 16
-        count += 1
-    return count
 
 
 def _rgbe(head: bytes) -> Size | None:

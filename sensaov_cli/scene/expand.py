@@ -141,7 +141,9 @@ class _Expansion:
             self.refusals.add(
                 f"<{element.tag}> is not an element Mitsuba 3 reads",
                 where(element),
-                hint=_TAG_HINTS.get(element.tag, "see Mitsuba's scene format documentation"),
+                hint='write <shape type="shapegroup" id="..."> (the 0.6 <shapegroup> tag is gone)'
+                if element.tag == "shapegroup"
+                else "see Mitsuba's scene format documentation",
             )
             parent.remove(element)
             return
@@ -160,7 +162,10 @@ class _Expansion:
         if is_object(element):
             self._register(element)
         elif element.tag == "spectrum" and element.get("filename"):
-            self._spectrum_file(element, context)
+            with self.refusals.gathered():
+                resolved = _existing(element.get("filename", ""), context.resolver, where(element))
+                self.files.append(resolved)
+                element.set("filename", str(resolved))
         elif (
             element.tag == "string" and element.get("name") == "filename" and parent.tag != "scene"
         ):
@@ -173,18 +178,11 @@ class _Expansion:
         if identifier is None:
             return
         if identifier in self.ids:
-            first = self.ids[identifier]
             raise SceneError(
-                f"duplicate id {shorten(identifier)!r} (first defined at {first})",
+                f"duplicate id {shorten(identifier)!r} (first defined at {self.ids[identifier]})",
                 where=where(element),
             )
         self.ids[identifier] = where(element)
-
-    def _spectrum_file(self, element: ET.Element, context: _Context) -> None:
-        with self.refusals.gathered():
-            resolved = _existing(element.get("filename", ""), context.resolver, where(element))
-            self.files.append(resolved)
-            element.set("filename", str(resolved))
 
     def _include(self, element: ET.Element, context: _Context) -> list[ET.Element]:
         """The file is looked for next to the including file, then in the folders of the files
@@ -235,11 +233,6 @@ class _Expansion:
             )
         self.aliases[alias] = self.aliases.get(source, source)
         self.ids[alias] = where(element)
-
-
-_TAG_HINTS = {
-    "shapegroup": 'write <shape type="shapegroup" id="..."> (the 0.6 <shapegroup> tag is gone)',
-}
 
 
 def _required(element: ET.Element, attribute: str) -> str:
@@ -313,7 +306,7 @@ def _refuse_nesting(path: Path, chain: tuple[Path, ...], origin: str) -> None:
 # --- $name arguments: Mitsuba's SortedParameters ---------------------------------------
 
 _SHOWN = 60  # characters of a long value shown in a message
-_PARAMETER_NAME = re.compile(r"[A-Za-z0-9_]*")
+_UNRESOLVED = re.compile(r"(?<!\\)\$([A-Za-z0-9_]*)")  # a "$" not escaped as "\$"
 
 
 def shorten(value: str) -> str:
@@ -329,14 +322,6 @@ class SceneArgument:
     origin: str  # "job", or the file:line of the scene's <default>
 
 
-@dataclass
-class _Parameter:
-    key: str  # "$name"
-    value: str
-    origin: str
-    substituted: bool = False  # a job argument never substituted is an error, a default never
-
-
 class Parameters:
     """Mitsuba's SortedParameters: one table for the main file and all its includes.
 
@@ -347,37 +332,39 @@ class Parameters:
 
     def __init__(self, scene_args: Mapping[str, object]) -> None:
         # Mitsuba turns every keyword argument into text with Python's str().
-        self.table = [_Parameter(f"${k}", str(v), "job") for k, v in scene_args.items()]
-        self.table.sort(key=lambda p: -len(p.key))
+        self.table = {name: SceneArgument(str(v), "job") for name, v in scene_args.items()}
+        self.used: set[str] = set()  # a job argument never used is an error, a default never
 
     def default(self, name: str, value: str, origin: str) -> None:
-        if any(p.key == f"${name}" for p in self.table):
-            return  # job arguments and earlier defaults win
-        self.table.append(_Parameter(f"${name}", value, origin))
-        self.table.sort(key=lambda p: -len(p.key))  # longest names first (a stable sort)
+        self.table.setdefault(name, SceneArgument(value, origin))  # job's and earlier ones win
+
+    def _longest_first(self) -> list[str]:
+        return sorted(self.table, key=len, reverse=True)  # stable: equal lengths in table order
 
     def substitute(self, value: str, origin: str) -> str:
-        for param in self.table:
-            pos = value.find(param.key)
+        for name in self._longest_first():
+            key, replacement = f"${name}", self.table[name].value
+            pos = value.find(key)
             while pos != -1:
                 if pos > 0 and value[pos - 1] == "\\":
-                    pos += len(param.key)
+                    pos += len(key)
                 else:
-                    value = value[:pos] + param.value + value[pos + len(param.key) :]
-                    param.substituted = True
-                    pos += len(param.value)
-                pos = value.find(param.key, pos)
+                    value = value[:pos] + replacement + value[pos + len(key) :]
+                    self.used.add(name)
+                    pos += len(replacement)
+                pos = value.find(key, pos)
         _refuse_unresolved(value, origin)
         return value.replace("\\$", "$")
 
     def arguments(self) -> dict[str, SceneArgument]:
         """The arguments the scene text actually used, with their values."""
-        return {p.key[1:]: SceneArgument(p.value, p.origin) for p in self.table if p.substituted}
+        return {name: self.table[name] for name in self._longest_first() if name in self.used}
 
     def refuse_unused(self, path: Path) -> None:
-        unused = [p.key[1:] for p in self.table if p.origin == "job" and not p.substituted]
+        jobs = [name for name in self._longest_first() if self.table[name].origin == "job"]
+        unused = [name for name in jobs if name not in self.used]
         if unused:
-            known = sorted(p.key[1:] for p in self.table if p.key[1:] not in unused)
+            known = sorted(name for name in self.table if name not in unused)
             raise SceneError(
                 f"scene argument {unused[0]!r} is not used by the scene",
                 where=str(path),
@@ -386,18 +373,17 @@ class Parameters:
 
 
 def _refuse_unresolved(value: str, origin: str) -> None:
-    for pos, char in enumerate(value):
-        if char != "$" or (pos > 0 and value[pos - 1] == "\\"):
-            continue
-        name = _PARAMETER_NAME.match(value, pos + 1)
-        name_text = shorten(name.group() if name else "")
-        if not name_text:
-            raise SceneError(
-                "a '$' that names no scene argument", where=origin, hint="write \\$ for a '$'"
-            )
+    found = _UNRESOLVED.search(value)
+    if found is None:
+        return
+    name_text = shorten(found.group(1))
+    if not name_text:
         raise SceneError(
-            f"scene argument ${name_text} has no value",
-            where=origin,
-            hint=f"set it in the job (scene_args: {{{name_text}: ...}}) "
-            f'or give the scene a <default name="{name_text}" value="..."/>',
+            "a '$' that names no scene argument", where=origin, hint="write \\$ for a '$'"
         )
+    raise SceneError(
+        f"scene argument ${name_text} has no value",
+        where=origin,
+        hint=f"set it in the job (scene_args: {{{name_text}: ...}}) "
+        f'or give the scene a <default name="{name_text}" value="..."/>',
+    )

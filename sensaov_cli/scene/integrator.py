@@ -53,8 +53,7 @@ def plan_integrator(
 ) -> IntegratorPlan:
     """Put the replay integrator in place of the scene's; what was done and why is appended to
     ``changes``."""
-    found = root.findall("integrator")
-    written = found[0] if found else None
+    written = root.find("integrator")
     user = _unwrapped(written, changes)
     kind = user.get("type", "path") if user is not None else "path"
     has_media = next(root.iter("medium"), None) is not None
@@ -63,7 +62,7 @@ def plan_integrator(
     replay = "prbvolpath" if kind in _VOLUMETRIC or (kind in _LEGACY and has_media) else "prb"
     same = kind in _SAME or kind in _LEGACY or kind == "direct"
     own = _scene_image(replay, scene_depth, user) if same and depth != scene_depth else None
-    for element in found:
+    for element in root.findall("integrator"):
         root.remove(element)
     root.insert(0, _replay_element(replay, depth, user))
     if replay == "prbvolpath":
@@ -96,15 +95,13 @@ def _scene_depth(user: ET.Element | None, kind: str) -> int:
     """The depth the scene renders: its max_depth, or the plugin's default."""
     if kind == "direct":
         return 2  # emitters seen, plus one bounce of direct light: prb at depth 2
-    text = child_value(user, "max_depth") if user is not None else None
-    if text is None:
+    if user is None or (text := child_value(user, "max_depth")) is None:
         return _SAME.get(kind, UNBOUNDED)
     try:
         return int(text)
     except ValueError:
         raise SceneError(
-            f"integrator max_depth {text!r} is not an integer",
-            where=where(user) if user is not None else "",
+            f"integrator max_depth {text!r} is not an integer", where=where(user)
         ) from None
 
 

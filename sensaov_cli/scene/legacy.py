@@ -106,8 +106,7 @@ def _upgrade_object(element: ET.Element, changes: list[Change], refusals: Refusa
     _rename_plugin(element, changes)
     kind = element.get("type", "")
     for name in _DROPPED.get(kind, ()):
-        for child in _named(element, name):
-            element.remove(child)
+        for child in _removed(element, name):
             changes.append(Change(f"{kind} property {name!r} dropped", _NO_EFFECT, where(child)))
     for name in _UNSUPPORTED.get(kind, ()):
         for child in _named(element, name):
@@ -129,14 +128,20 @@ def _rename_plugin(element: ET.Element, changes: list[Change]) -> None:
         off = "sky_scale" if old == "sun" else "sun_scale"
         element.append(new_element("float", {"name": off, "value": "0"}, like=element))
     if element.tag == "film":
-        for child in _named(element, "file_format"):  # ldrfilm's png/jpeg: hdrfilm has neither
-            element.remove(child)
+        _removed(element, "file_format")  # ldrfilm's png/jpeg: hdrfilm has neither
     message = f"{element.tag} {old!r} -> {new!r}"
     changes.append(Change(message, f"{MITSUBA} has no '{old}': {why}", where(element), alters))
 
 
 def _named(element: ET.Element, name: str) -> list[ET.Element]:
     return [child for child in element if child.get("name") == name and child.tag != "ref"]
+
+
+def _removed(element: ET.Element, name: str) -> list[ET.Element]:
+    found = _named(element, name)
+    for child in found:
+        element.remove(child)
+    return found
 
 
 def _bitmap(element: ET.Element, changes: list[Change]) -> None:
@@ -152,9 +157,7 @@ def _bitmap(element: ET.Element, changes: list[Change]) -> None:
 
 
 def _wrap_modes(element: ET.Element, changes: list[Change]) -> None:
-    u, v = _named(element, "wrap_mode_u"), _named(element, "wrap_mode_v")
-    for child in u + v:
-        element.remove(child)
+    u, v = _removed(element, "wrap_mode_u"), _removed(element, "wrap_mode_v")
     if u or v:
         first = (u or v)[0]
         kept = new_element("string", {"name": "wrap_mode", "value": first.get("value", "")}, first)
@@ -202,8 +205,7 @@ def _ior_names(element: ET.Element, changes: list[Change]) -> None:
 
 
 def _conductor(element: ET.Element, changes: list[Change]) -> None:
-    for child in _named(element, "ext_eta"):
-        element.remove(child)
+    for child in _removed(element, "ext_eta"):
         value = (child.get("value") or "").strip().lower()
         air = value in ("vacuum", "air") or _number(value) == 1.0
         why = f"{MITSUBA}'s conductors reflect against air"
@@ -223,20 +225,17 @@ def _distribution(element: ET.Element, changes: list[Change]) -> None:
 
 
 def _sunsky(element: ET.Element, changes: list[Change]) -> None:
-    for child in _named(element, "scale"):
-        element.remove(child)
+    for child in _removed(element, "scale"):
         for name in ("sun_scale", "sky_scale"):
             _scale_float(element, name, child.get("value", "1"), like=child)
         changes.append(Change("sunsky scale -> sun_scale and sky_scale", _SCALES, where(child)))
-    for child in _named(element, "sun_radius_scale"):
-        element.remove(child)
+    for child in _removed(element, "sun_radius_scale"):
         aperture = _SUN_APERTURE * (_number(child.get("value", "1")) or 1.0)
         element.append(new_element("float", {"name": "sun_aperture", "value": f"{aperture:g}"},
                                    like=child))  # fmt: skip
         why = f"{MITSUBA} sizes the sun by its aperture, {_SUN_APERTURE} degrees at scale 1"
         changes.append(Change(f"sun_radius_scale -> sun_aperture {aperture:g}", why, where(child)))
-    for child in _named(element, "stretch"):
-        element.remove(child)
+    for child in _removed(element, "stretch"):
         stretched = _number(child.get("value", "1")) != 1.0
         why = f"{MITSUBA}'s sky ends at the horizon"
         changes.append(Change("sunsky stretch dropped", why, where(child), stretched))
@@ -246,17 +245,14 @@ _SCALES = f"{MITSUBA} scales the sun and the sky separately; 0.5's scale multipl
 
 
 def _scale_float(element: ET.Element, name: str, factor: str, like: ET.Element) -> None:
-    existing = _named(element, name)
+    existing = _removed(element, name)
     base = _number(existing[0].get("value", "1")) if existing else 1.0
     value = (base if base is not None else 1.0) * (_number(factor) or 1.0)
-    for child in existing:
-        element.remove(child)
     element.append(new_element("float", {"name": name, "value": f"{value:g}"}, like=like))
 
 
 def _mesh(element: ET.Element, changes: list[Change]) -> None:
-    for child in _named(element, "max_smooth_angle"):
-        element.remove(child)
+    for child in _removed(element, "max_smooth_angle"):
         why = f"{MITSUBA} does not rebuild smoothed normals: the mesh's own normals are used"
         changes.append(Change("mesh max_smooth_angle dropped", why, where(child), True))
 
@@ -298,8 +294,7 @@ def _heterogeneous(element: ET.Element, changes: list[Change]) -> None:
 
 
 def _envmap(element: ET.Element, changes: list[Change]) -> None:
-    for child in _named(element, "gamma"):
-        element.remove(child)
+    for child in _removed(element, "gamma"):
         value = (child.get("value") or "").strip()
         linear = _number(value) == 1.0
         why = f"{MITSUBA}'s envmap reads HDR files as they are and 8-bit ones with the sRGB curve"

@@ -56,13 +56,15 @@ def name_objects(root: ET.Element) -> dict[str, ET.Element]:
     taken = set(ids)
     position: dict[str, int] = {}  # instances counted per shapegroup, named ones too
     for element in _nameable(root):
-        group = _instanced_group(element, ids)
+        instance = element.tag == "shape" and element.get("type") == "instance"
+        group = (_group_of(element, ids) or "instance") if instance else None
         if group is not None:
             position[group] = position.get(group, -1) + 1
         if element.get("id") or _take_emitter_id(element, referenced):
             continue
         base = f"{group}_{position[group]}" if group is not None else _base_name(element, ids)
-        element.set("id", fresh_id(_sanitize(base), taken))
+        # Parameter keys are dotted paths that start with the id: keep ids to one clean token.
+        element.set("id", fresh_id(re.sub(r"[^A-Za-z0-9_]", "_", base) or "object", taken))
         named[element.get("id", "")] = element
     return named
 
@@ -77,10 +79,10 @@ def _nameable(root: ET.Element) -> list[ET.Element]:
     return found
 
 
-def _instanced_group(element: ET.Element, ids: dict[str, ET.Element]) -> str | None:
-    if element.tag != "shape" or element.get("type") != "instance":
-        return None
-    return next((g.get("id", "") for g in refs_to(element, "shape", ids)), "") or "instance"
+def _group_of(shape: ET.Element, ids: dict[str, ET.Element]) -> str:
+    """The id of the shapegroup an instance instantiates ("" for any other shape)."""
+    groups = refs_to(shape, "shape", ids) if shape.get("type") == "instance" else []
+    return groups[0].get("id", "") if groups else ""
 
 
 def _take_emitter_id(shape: ET.Element, referenced: set[str | None]) -> bool:
@@ -116,11 +118,6 @@ def _base_name(element: ET.Element, ids: dict[str, ET.Element]) -> str:
     return f"{material}_{kind}" if material else kind
 
 
-def _sanitize(name: str) -> str:
-    # Parameter keys are dotted paths that start with the id: keep ids to one clean token.
-    return re.sub(r"[^A-Za-z0-9_]", "_", name) or "object"
-
-
 def fresh_id(base: str, taken: set[str]) -> str:
     """``base``, or ``base_1``, ``base_2``, … : the first not in ``taken``, which now holds it."""
     name, counter = base, 0
@@ -143,12 +140,8 @@ def shapegroups(root: ET.Element) -> dict[str, tuple[str, ...]]:
 def instances(root: ET.Element) -> dict[str, str]:
     """Instance id -> the id of the shapegroup it instantiates."""
     ids = objects_by_id(root)
-    found = {}
-    for shape in root.iter("shape"):
-        groups = refs_to(shape, "shape", ids) if shape.get("type") == "instance" else []
-        if shape.get("id") and groups and groups[0].get("id"):
-            found[shape.get("id", "")] = groups[0].get("id", "")
-    return found
+    shapes = root.iter("shape")
+    return {s.get("id", ""): group for s in shapes if s.get("id") and (group := _group_of(s, ids))}
 
 
 def materials(root: ET.Element) -> dict[str, str]:

@@ -20,11 +20,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sensaov_cli.errors import SceneError, SpecError
-from sensaov_cli.job.spec import CameraSpec, JobSpec
-from sensaov_cli.scene import naming, sensors
+from sensaov_cli.job.spec import CameraSpec, JobSpec, LookAt
+from sensaov_cli.scene import naming
 from sensaov_cli.scene.expand import expand_scene
 from sensaov_cli.scene.integrator import IntegratorPlan, plan_integrator
-from sensaov_cli.scene.source import Change, user_attributes, where, write_xml
+from sensaov_cli.scene.source import Change, detached_copy, user_attributes, where, write_xml
 
 _CHUNK = 1 << 20  # files are hashed a MiB at a time, never read whole
 DEFAULT_FILTER, DEFAULT_WRAP = "bilinear", "repeat"  # a bitmap's lookup when the scene sets none
@@ -93,7 +93,8 @@ def prepare_xml(
     expanded = expand_scene(path, scene_args or {})
     root = expanded.root
     named = naming.name_objects(root)
-    own_sensors = sensors.sensor_ids(root)
+    ids = (s.get("id", "") for s in root.findall("sensor"))
+    own_sensors = tuple(i for i in ids if not i.startswith("sensaov_"))  # the prefix is sensaov's
     _check_camera_ids(path, own_sensors, camera, job.inspection_cameras if job else inspection, job)
     _refuse_non_finite_numbers(root)
     changes = list(expanded.changes)  # old formats upgraded, each with its line
@@ -104,7 +105,13 @@ def prepare_xml(
     materials = naming.materials(root)  # before splitting: copies keep the user's name
     textures = naming.place_textures(root, copies=shared == "split")
     split = naming.split_shared_bsdfs(root) if shared == "split" else {}
-    changes += _sharing_changes(groups, textures, split, shared)
+    placed = _OWN if shared == "split" else _TOP_BITMAP
+    changes += [Change(f"shapegroup {g!r} copied for {', '.join(i)}", _OWN, "")
+                for g, i in groups.items()]  # fmt: skip
+    changes += [Change(f"texture {t!r} written into {', '.join(u)}", placed, "")
+                for t, u in textures.items()]  # fmt: skip
+    changes += [Change(f"bsdf {b!r} copied into {', '.join(s)}", _OWN, "")
+                for b, s in split.items()]  # fmt: skip
     sensor, inspection_ids = _cameras(root, camera, resolution, inspection)
     others = () if job is None else tuple(c for c in job.inspection_cameras if c not in inspection)
     if others:  # cameras this command does not load: placed on a copy, to refuse them early
@@ -125,7 +132,7 @@ def prepare_xml(
         shapegroups=naming.shapegroups(root),
         textures=textures,
         scene_args={name: a.value for name, a in expanded.arguments.items()},
-        sample_count=sensors.sample_count(root, sensor),
+        sample_count=sample_count(root, sensor),
         files=expanded.files,
         search_path=expanded.search_path,
         line_sources=line_sources,
@@ -137,23 +144,21 @@ def prepare_xml(
 
 _UNNAMED = "Mitsuba keys an unnamed object by its memory address, new on every run"
 _EIGHT_BIT = "format = variant: an 8-bit texture would load as integers, which get no gradient"
+_OWN = "each use gets its own parameters, so each object its own gradient (shared: split)"
+_TOP_BITMAP = "Mitsuba keys a top-level bitmap by memory address"
 
 
-def _sharing_changes(
-    groups: dict[str, tuple[str, ...]],
-    textures: dict[str, tuple[str, ...]],
-    split: dict[str, tuple[str, ...]],
-    shared: str,
-) -> list[Change]:
-    own = "each use gets its own parameters, so each object its own gradient (shared: split)"
-    placed = own if shared == "split" else "Mitsuba keys a top-level bitmap by memory address"
-    changes = [Change(f"shapegroup {g!r} copied for {', '.join(i)}", own, "")
-               for g, i in groups.items()]  # fmt: skip
-    changes += [Change(f"texture {t!r} written into {', '.join(u)}", placed, "")
-                for t, u in textures.items()]  # fmt: skip
-    changes += [Change(f"bsdf {b!r} copied into {', '.join(s)}", own, "")
-                for b, s in split.items()]  # fmt: skip
-    return changes
+# --- cameras: ids are global in one Mitsuba scene (films, samplers and filters too), so a sensor
+# copied for an inspection camera (or a film copied for a look-at camera) loses the ids of the
+# objects it carried (its <ref>s keep theirs). A film shared between sensors by <ref> is copied
+# into a sensor before that sensor's film is resized, so resizing one camera never resizes
+# another.
+
+OBJECTIVE_SENSOR_ID = "sensaov_objective"
+MAX_FILM_SIZE = 16384  # the largest width or height a job's resolution may ask for
+_SIZE = ("width", "height")
+_CROP = ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height")
+INSPECTION_PREFIX = "sensaov_inspect_"
 
 
 def _check_camera_ids(
@@ -164,7 +169,7 @@ def _check_camera_ids(
     job: JobSpec | None,
 ) -> None:
     """Refuse cameras that name a sensor the scene lacks, naming the job's key, before any
-    camera is placed (sensors.choose_sensor relies on it)."""
+    camera is placed (choose_sensor relies on it)."""
     if not ids and camera.look_at is None:
         raise SceneError(
             "the scene has no sensor",
@@ -189,16 +194,116 @@ def _cameras(
     inspection: tuple[CameraSpec, ...],
 ) -> tuple[ET.Element, dict[str, str]]:
     """The objective sensor, and each inspection camera's own sensor id."""
-    sensor = sensors.choose_sensor(root, camera)
+    sensor = choose_sensor(root, camera)
     if resolution is not None:
-        sensors.set_film_size(root, sensor, resolution)
-    sensors.check_film_size(root, sensor, "objective camera")
-    return sensor, {c.name: sensors.add_inspection_sensor(root, c, sensor) for c in inspection}
+        set_film_size(root, sensor, resolution)
+    check_film_size(root, sensor, "objective camera")
+    return sensor, {c.name: add_inspection_sensor(root, c, sensor) for c in inspection}
+
+
+def choose_sensor(root: ET.Element, camera: CameraSpec) -> ET.Element:
+    """The camera's sensor, the first where it names none (_check_camera_ids checked it exists)."""
+    sensors = root.findall("sensor")
+    if camera.look_at is not None:
+        return _add_look_at_sensor(root, camera, camera.look_at, sensors[0] if sensors else None)
+    return next(s for s in sensors if camera.sensor in (None, s.get("id")))
+
+
+def add_inspection_sensor(root: ET.Element, camera: CameraSpec, objective: ET.Element) -> str:
+    """A sensor of its own for each inspection camera, so resolution overrides stay local."""
+    if camera.look_at is not None:
+        source = _add_look_at_sensor(root, camera, camera.look_at, objective)
+    else:
+        source = detached_copy(objective if camera.objective else choose_sensor(root, camera))
+        root.append(source)
+        own_film(root, source)
+        if camera.resolution is not None:
+            set_film_size(root, source, camera.resolution)
+    sensor_id = f"{INSPECTION_PREFIX}{camera.name}"
+    source.set("id", sensor_id)
+    check_film_size(root, source, f"inspection camera {camera.name!r}")
+    return sensor_id
+
+
+def sample_count(root: ET.Element, sensor: ET.Element) -> int | None:
+    """The sensor's sampler's ``sample_count`` as the scene sets it (e.g. its ``$spp``)."""
+    sampler = _child_object(root, sensor, "sampler")
+    value = naming.child_value(sampler, "sample_count") if sampler is not None else None
+    return int(value) if value is not None and value.strip().lstrip("-").isdigit() else None
+
+
+def own_film(root: ET.Element, sensor: ET.Element) -> ET.Element:
+    """The sensor's film as an element of its own (a ``<ref>``'d film is copied in)."""
+    film = _child_object(root, sensor, "film")
+    if film is None:
+        return ET.SubElement(sensor, "film", {"type": "hdrfilm"})
+    if sensor.find("film") is None:  # shared by <ref>
+        ref = next(c for c in sensor if c.tag == "ref" and c.get("id") == film.get("id"))
+        film = detached_copy(film)
+        naming.replace_ref(sensor, ref, film)
+    return film
+
+
+def set_film_size(root: ET.Element, sensor: ET.Element, resolution: tuple[int, int]) -> None:
+    """Give the sensor's own film this size; a crop window goes, so the image is the size asked
+    for (a crop would override it, or not fit in it)."""
+    film = own_film(root, sensor)
+    for old in [c for c in film if c.get("name") in (*_SIZE, *_CROP)]:
+        film.remove(old)
+    for name, value in zip(_SIZE, resolution, strict=True):
+        ET.SubElement(film, "integer", {"name": name, "value": str(value)})
+
+
+def check_film_size(root: ET.Element, sensor: ET.Element, what: str) -> None:
+    """Refuse a film larger than a job's ``resolution`` may be (e.g. ``$res`` = 99999): it
+    would only fail at render time, for want of memory."""
+    film = _child_object(root, sensor, "film")
+    if film is None:
+        return
+    for name in _SIZE:
+        prop = next((c for c in film if c.get("name") == name and c.tag == "integer"), None)
+        if prop is None:
+            continue
+        text = (prop.get("value") or "").strip()
+        if text.lstrip("+-").isdigit() and len(text) < 12 and int(text) > MAX_FILM_SIZE:
+            raise SceneError(
+                f"{what}: film {name} {int(text)} is larger than {MAX_FILM_SIZE}",
+                where=where(prop) or where(film),
+                hint="lower it in the scene (or its scene argument), or set the job's "
+                "render.resolution",
+            )
+
+
+def _child_object(root: ET.Element, sensor: ET.Element, tag: str) -> ET.Element | None:
+    inline = sensor.find(tag)
+    if inline is not None:
+        return inline
+    return next(
+        iter(naming.refs_to(sensor, tag, naming.objects_by_id(root))), None
+    )  # shared by <ref>
+
+
+def _add_look_at_sensor(
+    root: ET.Element, camera: CameraSpec, look_at: LookAt, template: ET.Element | None
+) -> ET.Element:
+    sensor = ET.SubElement(root, "sensor", {"type": "perspective", "id": OBJECTIVE_SENSOR_ID})
+    ET.SubElement(sensor, "float", {"name": "fov", "value": repr(float(camera.fov))})
+    transform = ET.SubElement(sensor, "transform", {"name": "to_world"})
+    points = {"origin": look_at.origin, "target": look_at.target, "up": look_at.up}
+    lookat = {key: ", ".join(repr(float(v)) for v in xyz) for key, xyz in points.items()}
+    ET.SubElement(transform, "lookat", lookat)
+    film = _child_object(root, template, "film") if template is not None else None
+    if film is not None:
+        sensor.append(detached_copy(film))
+    else:
+        film = ET.SubElement(sensor, "film", {"type": "hdrfilm"})
+        ET.SubElement(film, "rfilter", {"type": "box"})
+    set_film_size(root, sensor, camera.resolution or (256, 256))
+    return sensor
 
 
 def _fingerprint(files: tuple[Path, ...], scene_args: Mapping[str, str], base: Path) -> str:
-    """sha256 over every file the scene reads (the scene, its includes, meshes, textures,
-    envmaps, spectra) and the scene arguments, so an edit to any of them counts."""
+    """sha256 over every file the scene reads and the job's scene arguments: an edit counts."""
     digest = hashlib.sha256()
     for name, value in sorted(scene_args.items()):
         digest.update(f"arg\0{name}\0{value}\0".encode())
@@ -236,11 +341,8 @@ def _bitmaps_as_float(root: ET.Element, changes: list[Change]) -> tuple[str, ...
 
 
 def _bitmap_options(root: ET.Element) -> dict[str, tuple[str, str, str]]:
-    """File base name -> (filter_type, wrap_mode, note) of every bitmap in the scene.
-
-    Matched to a loaded texture by its file's base name (the name the plugin prints); where one
-    file is used with two different settings the first is taken and a note says so.
-    """
+    """File base name (the name the plugin prints) -> filter_type, wrap_mode of every bitmap, and
+    a note where one file is used with several settings (the first is taken)."""
     options: dict[str, tuple[str, str, str]] = {}
     for texture in root.iter("texture"):
         filename = naming.child_value(texture, "filename")

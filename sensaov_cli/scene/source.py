@@ -94,10 +94,7 @@ def user_attributes(element: ET.Element) -> list[tuple[str, str]]:
 
 def new_element(tag: str, attrib: dict[str, str], like: ET.Element) -> ET.Element:
     """An element sensaov writes; ``like`` lends it the user's line it stands for."""
-    element = ET.Element(tag, attrib)
-    if like.get(_WHERE):
-        element.set(_WHERE, where(like))
-    return element
+    return ET.Element(tag, {**attrib, _WHERE: where(like)} if where(like) else attrib)
 
 
 def detached_copy(element: ET.Element) -> ET.Element:
@@ -114,27 +111,22 @@ def write_xml(root: ET.Element) -> tuple[str, tuple[str | None, ...]]:
     """The scene text, every element on a line of its own, and for each line the user's
     ``file:line`` (None: added), so that a load error Mitsuba reports as ``string (line L, col
     C)`` can be told at the user's file."""
-    lines: list[str] = []
-    sources: list[str | None] = []
-    _write(root, 0, lines, sources)
-    return "\n".join(lines) + "\n", tuple(sources)
+    lines = list(_lines(root, 0))
+    return "".join(f"{line}\n" for line, _ in lines), tuple(origin for _, origin in lines)
 
 
-def _write(element: ET.Element, depth: int, lines: list[str], sources: list[str | None]) -> None:
+def _lines(element: ET.Element, depth: int) -> Iterator[tuple[str, str | None]]:
     attributes = "".join(
         f' {key}="{value.translate(_ATTRIBUTE_ESCAPES)}"' for key, value in user_attributes(element)
     )
-    pad = "  " * depth
-    children = list(element)
-    sources.append(element.get(_WHERE))
-    if not children:
-        lines.append(f"{pad}<{element.tag}{attributes}/>")
+    pad, origin = "  " * depth, element.get(_WHERE)
+    if len(element) == 0:
+        yield f"{pad}<{element.tag}{attributes}/>", origin
         return
-    lines.append(f"{pad}<{element.tag}{attributes}>")
-    for child in children:
-        _write(child, depth + 1, lines, sources)
-    lines.append(f"{pad}</{element.tag}>")
-    sources.append(element.get(_WHERE))
+    yield f"{pad}<{element.tag}{attributes}>", origin
+    for child in element:
+        yield from _lines(child, depth + 1)
+    yield f"{pad}</{element.tag}>", origin
 
 
 def locate_load_error(message: str, sources: tuple[str | None, ...]) -> tuple[str, str | None]:
