@@ -44,8 +44,10 @@ lint: setup
 typecheck: setup
 	$(BIN)/mypy sensaov_cli bench
 
+# Two workers (pytest-xdist) on 2 cores: much of a test's time is Python and JIT work on one
+# core; work stealing keeps the long statistical tests from ending the run alone.
 unit: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist worksteal
 
 test: lint typecheck unit
 
