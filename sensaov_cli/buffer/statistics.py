@@ -260,6 +260,29 @@ def sums_of(
     return ParamSums(tuple(keys), tables, value_means)
 
 
+# A batch whose squared deviation from the mean carries more than this share of the spread makes
+# the spread itself an unreliable error: one batch met a rare, large path (a heavy tail).
+HEAVY_TAIL_SHARE = 0.6
+MIN_BATCHES_FOR_TAILS = 4  # fewer batches cannot tell a tail from ordinary spread
+
+
+def heavy_tail(batch_values: Sequence[float]) -> str | None:
+    """Why the batch estimates ``batch_values`` of one number look heavy-tailed (so their
+    standard error cannot be trusted either), or None. The shared entry point of the views'
+    ``noisy`` label; render/verify routes such parameters to a better estimator."""
+    values = np.asarray(batch_values, dtype=np.float64)
+    if values.size < MIN_BATCHES_FOR_TAILS:
+        return None
+    deviations = (values - values.mean()) ** 2
+    spread = float(deviations.sum())
+    if spread == 0.0:
+        return None
+    share = float(deviations.max()) / spread
+    if share <= HEAVY_TAIL_SHARE:
+        return None
+    return f"one of {values.size} batches carries {share:.0%} of the spread (heavy tail)"
+
+
 def t_cdf(x: float, dof: float) -> float:
     """P(T ≤ x) for Student's t with ``dof`` > 0 degrees of freedom."""
     if not dof > 0:
