@@ -151,7 +151,7 @@ def test_rank_json_agrees_with_the_raw_arrays(
     assert result.exit_code == 0, result.output
     doc = json.loads(result.output)
     assert doc["format"] == "sensaov-ranking" and doc["columns"] == list(COLUMNS)
-    assert doc["format_version"] == 3
+    assert doc["format_version"] == 4
     for objective in doc["objectives"]:
         for part, rows in (("trusted", objective["rows"]), ("untrusted", objective["left_out"])):
             expected = direct(buffer_path, objective["name"], by, method, weight, part)
@@ -189,7 +189,7 @@ def test_csv_carries_the_json_columns_and_numbers(runner: CliRunner, buffer_path
     for line, row in zip(table, doc["objectives"][0]["rows"], strict=True):
         assert line["name"] == row["name"] and line["trust"] == row["trust"]
         assert float(line["score"]) == row["score"] and float(line["share"]) == row["share"]
-        assert float(line["value"]) == row["value"] and line["off_frame"] == ""
+        assert float(line["value"]) == row["value"] and line["not_seen_by"] == ""
 
 
 def test_text_marks_trust_and_lists_no_gradient(runner: CliRunner, buffer_path: Path) -> None:
@@ -254,7 +254,7 @@ DEMO_CAMERAS = [
 ]
 
 
-def test_demo_light_is_off_frame_for_the_overhead_camera(job_writer: Any) -> None:
+def test_demo_light_is_not_seen_by_the_overhead_camera(job_writer: Any) -> None:
     job = job_writer(
         "offframe",
         inspection_cameras=DEMO_CAMERAS,
@@ -269,11 +269,18 @@ def test_demo_light_is_off_frame_for_the_overhead_camera(job_writer: Any) -> Non
     assert result.returncode == 0, result.stderr
     doc = json.loads(result.stdout)
     assert doc["cameras"] == ["objective", "overhead"]
-    off = {r["name"]: r["off_frame"] for r in doc["objectives"][0]["rows"]}
+    off = {r["name"]: r["not_seen_by"] for r in doc["objectives"][0]["rows"]}
     assert off.pop("light") == ["overhead"]
     assert off and all(cameras == [] for cameras in off.values())
+    assert doc["format_version"] == 4 and "off_frame" not in doc["columns"]
     text = sensaov("rank", str(out / "buffer.npz"), "--by", "object", *exrs).stdout
     assert any(line.split()[-2:] == ["light", "overhead"] for line in text.splitlines())
+    # The column says what it holds: the cameras that do not see the row, never "off-frame".
+    (header,) = [line for line in text.splitlines() if line.strip().startswith("#")]
+    assert header.split()[-4:] == ["object", "not", "seen", "by"] and "off-frame" not in text
+    table = sensaov("rank", str(out / "buffer.npz"), "--by", "object", "--csv", *exrs).stdout
+    lights = [row for row in csv.DictReader(io.StringIO(table)) if row["name"] == "light"]
+    assert [row["not_seen_by"] for row in lights] == ["overhead"]
 
 
 def test_a_missing_camera_exr_is_one_line_of_bad_input(buffer_path: Path) -> None:

@@ -244,17 +244,17 @@ def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -
     """Rows of one ranking (columns as docs/rankings.md)."""
     if not rows:
         return '<p class="note">(none)</p>'
-    cameras = any(row.off_frame is not None for row in rows)
+    cameras = any(row.not_seen_by is not None for row in rows)
     errors = r.significance is not None
     trust = any(row.trust != "verified" for row in rows)  # every row verified: said once, below
     headers = ["#", "", r.by, "score", "signed", *(["±", "sign"] * errors), "share",
-               *(["trust"] * trust), *(["off-frame"] * cameras)]  # fmt: skip
+               *(["trust"] * trust), *(["not seen by"] * cameras)]  # fmt: skip
     body = [
         [str(row.rank), tables.trust_mark(row.trust, row.zero_value), row.name,
          f"{row.score:.2e}", f"{row.signed:+.2e}",
          *([tables.se_text(row.signed_se), _SIGN[row.significant]] * errors),
          f"{100 * row.share:.1f}%", *([row.trust] * trust),
-         *([", ".join(row.off_frame or ()) or "-"] * cameras)]
+         *([", ".join(row.not_seen_by or ()) or "-"] * cameras)]
         for row in rows
     ]  # fmt: skip
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "signed", "±", "share")}

@@ -56,7 +56,7 @@ _OWNERS_SHOWN = 3
 CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}  # what a score adds up
 # The columns of a row, in JSON, CSV and text order (CSV puts "objective" first).
 COLUMNS = (
-    "rank", "name", "score", "signed", "share", "sign", "value", "trust", "off_frame",
+    "rank", "name", "score", "signed", "share", "sign", "value", "trust", "not_seen_by",
     "score_se", "signed_se", "significant", "part", "zero_value", "raw_signed", "estimator",
 )  # fmt: skip
 
@@ -389,7 +389,7 @@ def ranking_json(
 
 
 def ranking_csv(found: Sequence[Ranking]) -> str:
-    """One line per row, the objective first; off-frame cameras joined by ``;``, no value ""."""
+    """One line per row, the objective first; ``not_seen_by`` cameras joined by ``;``, no value ""."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(("objective", *COLUMNS))
@@ -401,7 +401,7 @@ def ranking_csv(found: Sequence[Ranking]) -> str:
 
 def _csv_cell(row: RankRow, column: str) -> object:
     value = getattr(row, column)
-    if column == "off_frame":
+    if column == "not_seen_by":
         return "" if value is None else ";".join(value)
     if column in ("value", "score_se", "signed_se", "significant", "raw_signed"):
         return "" if value is None else repr(value)
@@ -428,12 +428,12 @@ def ranking_text(found: Sequence[Ranking], *, method: Aggregate, weight: Weight)
 
 
 def _ranking_table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
-    cameras = any(row.off_frame is not None for row in shown)
+    cameras = any(row.not_seen_by is not None for row in shown)
     values = r.by == "key"  # only a parameter has a value; groups leave the column out
     errors = r.significance is not None or any(row.signed_se is not None for row in r.rows)
     se = ["±"] * errors
     headers = ["#", "", "score", *se, "signed", *se, "sign", "share", *(["value"] * values)]
-    headers += ["estimator", r.by, *(["off-frame"] * cameras)]
+    headers += ["estimator", r.by, *(["not seen by"] * cameras)]
     rows = []
     for row in shown:
         cells = [str(row.rank), trust_mark(row.trust, row.zero_value), f"{row.score:.2e}"]
@@ -441,7 +441,7 @@ def _ranking_table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
         cells += [*[se_text(row.signed_se)] * errors, row.sign + "?" * (row.significant is False)]
         value = "-" if row.value is None else f"{row.value:.4g}"
         cells += [f"{100 * row.share:.1f}%", *[value] * values, row.estimator]
-        rows.append([*cells, row.name, *[", ".join(row.off_frame or ()) or "-"] * cameras])
+        rows.append([*cells, row.name, *[", ".join(row.not_seen_by or ()) or "-"] * cameras])
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "±", "signed", "share")}
     numeric |= {headers.index("value")} if values else set()
     return _indented(headers, rows, numeric)
@@ -466,8 +466,8 @@ def _ranking_legend(r: Ranking) -> list[str]:
             "  ±: a repaired (finite-difference) parameter's standard error over its seeds; "
             "? = sign within Student's t (95 %) of it; others: no error measured (-)"
         )
-    if any(row.off_frame for row in shown):
-        lines.append("  off-frame: the cameras that see none of its objects")
+    if any(row.not_seen_by for row in shown):
+        lines.append("  not seen by: the cameras (--exr) in whose frame none of its objects appears")
     lines += zero_value_legend(r.zero_valued)
     if r.no_gradient:
         lines.append(f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:")

@@ -49,7 +49,7 @@ from sensaov_cli.vocabulary import (
 SUMMARY_FORMAT = "sensaov-summary"
 SUMMARY_VERSION = 3
 RANKING_FORMAT = "sensaov-ranking"
-RANKING_VERSION = 3
+RANKING_VERSION = 4  # 4: off_frame renamed not_seen_by (docs/rankings.md)
 # The grouping each cut reads: a key row is one parameter.
 GROUPING_OF: dict[Cut, Grouping] = {"key": "param", "object": "object", "type": "type"}
 
@@ -260,7 +260,7 @@ class Uncertainty:
 
 @dataclass(frozen=True)
 class RankRow:
-    """One row of a ranking; ``value`` only for key rows, ``off_frame`` only with cameras."""
+    """One row of a ranking; ``value`` only for key rows, ``not_seen_by`` only with cameras."""
 
     rank: int
     name: str
@@ -270,7 +270,7 @@ class RankRow:
     sign: str  # "+", "-" or "0", the sign of ``signed``
     value: float | None  # mean of the parameter's value array at the primal
     trust: Trust  # the parameter's label, or the weakest of the group's parameters
-    off_frame: tuple[str, ...] | None  # cameras that see none of its objects
+    not_seen_by: tuple[str, ...] | None  # cameras that see none of its objects
     score_se: float | None = None  # standard errors, when the buffer has batch statistics
     signed_se: float | None = None
     significant: bool | None = None  # |signed| > t · signed_se: the sign is beyond noise
@@ -314,7 +314,7 @@ def rankings(
     """The ranking of every objective (or of ``objectives``) at the cut ``by``.
 
     ``visible`` maps a camera to the objects it sees; each row then lists the cameras that see
-    none of its objects (a key: of its owners; a key with no owner is off-frame everywhere).
+    none of its objects (a key: of its owners; a key with no owner is seen by no camera).
     """
     check_cut(by, cameras=visible is not None)
     names = [o.name for o in buf.objectives] if objectives is None else list(objectives)
@@ -339,7 +339,7 @@ class _Cut:
 def check_cut(by: Cut, *, cameras: bool) -> None:
     """Refuse cameras with types: a type has no place in a frame."""
     if cameras and by == "type":
-        raise QueryError("off-frame labels need --by key or --by object: a type has no place")
+        raise QueryError("camera labels (--exr) need --by key or --by object: a type has no place")
 
 
 def _ranking(
@@ -410,7 +410,7 @@ class _Table:
             sign="+" if signed > 0 else "-" if signed < 0 else "0",
             value=_mean_value(buf, name) if cut.by == "key" else None,
             trust=weakest_trust(buf, keys),
-            off_frame=None if cut.visible is None else off_frame(objects, cut.visible),
+            not_seen_by=None if cut.visible is None else cameras_not_seeing(objects, cut.visible),
             part=part,
             zero_value=bool(zero),
             raw_signed=zero[0].raw_signed if cut.by == "key" and zero else None,
@@ -480,7 +480,9 @@ def _mean_value(buf: SensitivityBuffer, key: str) -> float | None:
     return mean_value(buf.value(key))
 
 
-def off_frame(objects: Sequence[str], visible: Mapping[str, frozenset[str]]) -> tuple[str, ...]:
+def cameras_not_seeing(
+    objects: Sequence[str], visible: Mapping[str, frozenset[str]]
+) -> tuple[str, ...]:
     """The cameras (in the given order) that see none of ``objects``."""
     return tuple(camera for camera, seen in visible.items() if seen.isdisjoint(objects))
 
