@@ -25,8 +25,7 @@ from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
     "exrs",
     multiple=True,
     type=options.FilePath(path_type=Path),
-    help="A camera's EXR from 'sensaov project' (repeatable): name it on rows it does "
-    "not see.",
+    help="A camera's EXR from 'sensaov project' (repeatable): name it on rows it does not see.",
 )
 @options.top_option(help="Rows per table.")
 @options.aggregate_option

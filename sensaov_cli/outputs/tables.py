@@ -389,7 +389,7 @@ def ranking_json(
 
 
 def ranking_csv(found: Sequence[Ranking]) -> str:
-    """One line per row, the objective first; ``not_seen_by`` cameras joined by ``;``, no value ""."""
+    """One line per row, the objective first; ``not_seen_by`` cameras joined by ``;``, none ""."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(("objective", *COLUMNS))
@@ -467,7 +467,7 @@ def _ranking_legend(r: Ranking) -> list[str]:
             "? = sign within Student's t (95 %) of it; others: no error measured (-)"
         )
     if any(row.not_seen_by for row in shown):
-        lines.append("  not seen by: the cameras (--exr) in whose frame none of its objects appears")
+        lines.append("  not seen by: the cameras (--exr) whose frame shows none of its objects")
     lines += zero_value_legend(r.zero_valued)
     if r.no_gradient:
         lines.append(f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:")
