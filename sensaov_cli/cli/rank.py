@@ -28,6 +28,13 @@ from sensaov_cli.vocabulary import CUTS, Aggregate, Cut, Untrusted, Weight
     help="A camera's EXR from 'sensaov project' (repeatable): name it on rows it does not see.",
 )
 @options.top_option(help="Rows per table.")
+@click.option(
+    "--all",
+    "show_all",
+    is_flag=True,
+    help="List everything not ranked (no gradient, left out, value 0) in the text; past "
+    "--top it is counted in a line per kind. JSON and CSV always hold it all.",
+)
 @options.aggregate_option
 @options.weight_option
 @options.untrusted_option
@@ -39,6 +46,7 @@ def rank(
     as_csv: bool,
     exrs: tuple[Path, ...],
     top: int,
+    show_all: bool,
     aggregate: Aggregate,  # click.Choice gives one of these
     weight: Weight,
     untrusted: Untrusted,
@@ -55,10 +63,13 @@ def rank(
     its 95 % interval (Student's t at batches - 1 degrees of freedom).
     --exr CAMERA.exr labels the objects (or keys) that camera does not see; the
     EXR must come from this very buffer. Columns: docs/rankings.md.
+    What is not ranked (parameters with no gradient, left out as untrusted,
+    of value 0) is listed up to --top entries, then counted: --all lists it.
 
     \b
     Example:
       sensaov rank out/cbox/buffer.npz --top 5
+      sensaov rank out/cbox/buffer.npz --top 5 --all
       sensaov rank out/cbox/buffer.npz --aggregate rms --json
       sensaov rank out/cbox/buffer.npz --by object --exr out/cbox/overhead.exr
       sensaov rank out/cbox/buffer.npz --by key --objective mean_luma --csv > keys.csv
@@ -77,6 +88,7 @@ def rank(
         method=aggregate,
         weight=weight,
         untrusted=untrusted,
+        show_all=show_all,
     )
     # JSON and the summary end without a newline; a table or CSV ends with its own
     click.echo(result, nl=by is None or as_json)

@@ -16,10 +16,10 @@ import csv
 import io
 import json
 import unicodedata
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, SensitivityBuffer, TextureSource
 from sensaov_cli.views.hierarchy import (
@@ -53,6 +53,9 @@ LABEL_MEANINGS = {
 _MARKS = {"unverified": UNVERIFIED_MARK, "biased": UNVERIFIED_MARK, "suspect": SUSPECT_MARK}
 _PROVENANCE_SHOWN = {"scene_path": "scene", "variant": "variant", "spp": "spp"}  # key: label
 _OWNERS_SHOWN = 3
+_REASONS_SHOWN = 3  # distinct reasons a summarised list names
+ALL_HINT = "--all lists them"
+T = TypeVar("T")
 CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}  # what a score adds up
 # The columns of a row, in JSON, CSV and text order (CSV puts "objective" first).
 COLUMNS = (
@@ -97,8 +100,13 @@ def summary_text(
     method: Aggregate = "l2",
     weight: Weight = "value",
     untrusted: Untrusted = "apart",
+    show_all: bool = False,
 ) -> str:
-    """The summary as short aligned tables, one block per objective, for a terminal."""
+    """The summary as short aligned tables, one block per objective, for a terminal.
+
+    A list longer than ``top`` (parameters with no gradient, objects left out, zero values) is
+    summarised in a line per kind unless ``show_all``: a scene of 500 objects stays readable.
+    """
     summary = ranked_summary(buf, top=top, method=method, weight=weight, untrusted=untrusted)
     counts = {"parameter": len(buf.params), "object": len(buf.objects),
               "objective": len(buf.objectives)}  # fmt: skip
@@ -114,7 +122,7 @@ def summary_text(
     lines.append(f"scores: {method} of {CONTRIBUTION[summary.weight]} over each group's components")
     if method != "sum":
         lines.append("signed: their plain sum; > 0 means increasing the parameter raises M")
-    lines += _repairs_lines(prov.get("repairs"))
+    lines += _repairs_lines(prov.get("repairs"), None if show_all else top)
     if buf.statistics is not None and buf.statistics.batches:
         lines.append(
             f"standard errors from {buf.statistics.batches} batches: 'sensaov rank BUFFER --by "
@@ -122,7 +130,8 @@ def summary_text(
         )
     for objective in summary.objectives:
         lines.append("")
-        lines.extend(_objective_lines(objective, method, summary.ranked_parameters))
+        limit = None if show_all else top
+        lines.extend(_objective_lines(objective, method, summary.ranked_parameters, limit))
     return "\n".join(lines) + "\n"
 
 
@@ -213,7 +222,9 @@ def _owners(owners: Sequence[str]) -> str:
     return ", ".join(owners[:_OWNERS_SHOWN]) + f" +{len(owners) - _OWNERS_SHOWN} more"
 
 
-def _objective_lines(summary: ObjectiveSummary, method: str, ranked: int) -> list[str]:
+def _objective_lines(
+    summary: ObjectiveSummary, method: str, ranked: int, limit: int | None
+) -> list[str]:
     signed = method == "sum"
     params, objects, types = summary.parameters, summary.objects, summary.types
     lines = [f"objective {summary.objective.name!r}   M = {summary.objective.value:.4g}"]
@@ -234,18 +245,21 @@ def _objective_lines(summary: ObjectiveSummary, method: str, ranked: int) -> lis
     lines.extend(_group_table("type", types, signed))
     if summary.left_out_objects or summary.left_out_types:
         lines.append("  left out of the objects and types above (not trusted), by object:")
+        shown, held = _cut(summary.left_out_objects, limit)
         lines += [
             printable(f"      {e.name}  {_fmt(e.score, signed)}  {_fmt(e.signed, True)}  "
                       + ", ".join(f"{k} ({t})" for k, t in e.keys))
-            for e in summary.left_out_objects
+            for e in shown
         ]  # fmt: skip
-    lines.extend(_legend(summary))
+        lines += _held_back(held, "object", "with untrusted gradients")
+    lines.extend(_legend(summary, limit))
     lines.extend(_repaired_legend(summary.parameters))
     return lines
 
 
-def _repairs_lines(figures: object) -> list[str]:
-    """What the run repaired by finite differences, and what it left labelled and why."""
+def _repairs_lines(figures: object, limit: int | None) -> list[str]:
+    """What the run repaired by finite differences, and what it left labelled and why (past
+    ``limit`` parameters, how many for each reason)."""
     if not isinstance(figures, dict) or not (
         figures.get("repaired") or figures.get("not_repaired")
     ):
@@ -256,8 +270,14 @@ def _repairs_lines(figures: object) -> list[str]:
         f"differences ({len(figures.get('seeds') or [])} seeds x {figures.get('spp')} spp, "
         f"{figures.get('renders')} renders, {figures.get('seconds', 0):.1f} s)"
     ]
-    for key, why in (figures.get("not_repaired") or {}).items():
-        lines.append(printable(f"  not repaired, still labelled: {key}: {why}"))
+    left = figures.get("not_repaired") or {}
+    if limit is None or len(left) <= limit:
+        for key, why in left.items():
+            lines.append(printable(f"  not repaired, still labelled: {key}: {why}"))
+        return lines
+    for why, n in Counter(map(str, left.values())).most_common():
+        counted = f"{_count(n, 'parameter')} ({ALL_HINT})"
+        lines.append(printable(f"  not repaired, still labelled: {counted}: {why}"))
     return lines
 
 
@@ -301,10 +321,11 @@ def trust_legend(trusts: Sequence[str], *, groups: bool) -> list[str]:
     return lines
 
 
-def zero_value_legend(found: Sequence[ZeroValued]) -> list[str]:
-    """What ``θ0`` means and the raw gradient of every parameter it marks."""
+def zero_value_legend(found: Sequence[ZeroValued], limit: int | None = None) -> list[str]:
+    """What ``θ0`` means and the raw gradient of every parameter it marks (the first ``limit``)."""
     if not found:
         return []
+    found, held = _cut(found, limit)
     lines = [
         f"  {ZERO_VALUE_MARK} = value exactly 0: θ·∂M/∂θ is 0 whatever the gradient; "
         "its raw gradient (Σ ∂M/∂θ, per unit of θ):"
@@ -314,10 +335,10 @@ def zero_value_legend(found: Sequence[ZeroValued]) -> list[str]:
                   f"{'' if z.hidden == z.size else f' ({z.hidden} of {z.size} components 0)'}")
         for z in found
     ]  # fmt: skip
-    return lines
+    return lines + _held_back(held, "parameter", "of value 0")
 
 
-def _legend(summary: ObjectiveSummary) -> list[str]:
+def _legend(summary: ObjectiveSummary, limit: int | None) -> list[str]:
     params = [p.record for p in summary.parameters]
     groups = summary.objects + summary.types
     marked = [p for p in params if p.trust not in ("verified", "no_gradient")]
@@ -325,14 +346,42 @@ def _legend(summary: ObjectiveSummary) -> list[str]:
     lines += [printable(f"      {p.key}: {p.trust}: {p.note}") for p in marked]
     if any(trust_mark(g.trust) for g in groups):
         lines.append("    objects and types so marked include such a parameter")
-    lines += zero_value_legend(summary.zero_valued)
-    if summary.no_gradient:
-        lines.append(f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:")
-        lines += [
-            printable(f"      {p.key} ({', '.join(p.owners) or '-'}): {p.note}")
-            for p in summary.no_gradient
-        ]
+    lines += zero_value_legend(summary.zero_valued, limit)
+    lines += no_gradient_legend(summary.no_gradient, limit)
     return lines
+
+
+def no_gradient_legend(found: Sequence[ParamRecord], limit: int | None = None) -> list[str]:
+    """The parameters no gradient reaches, never ranked: each with its reason, or, past
+    ``limit`` of them, how many there are per reason (the JSON lists every one)."""
+    if not found:
+        return []
+    if limit is None or len(found) <= limit:
+        return [f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:"] + [
+            printable(f"      {p.key} ({', '.join(p.owners) or '-'}): {p.note}") for p in found
+        ]
+    lines = [
+        f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked: {_count(len(found), 'parameter')}"
+        f" ({ALL_HINT}), because:"
+    ]
+    reasons = Counter(p.note or "no reason recorded" for p in found).most_common()
+    lines += [printable(f"      {n}: {note}") for note, n in reasons[:_REASONS_SHOWN]]
+    if len(reasons) > _REASONS_SHOWN:
+        lines.append(f"      {len(reasons) - _REASONS_SHOWN} other reasons")
+    return lines
+
+
+def _cut(entries: Sequence[T], limit: int | None) -> tuple[Sequence[T], int]:
+    """The first ``limit`` entries and how many are held back (all of them with no limit)."""
+    if limit is None or len(entries) <= limit:
+        return entries, 0
+    return entries[:limit], len(entries) - limit
+
+
+def _held_back(held: int, noun: str, what: str) -> list[str]:
+    if not held:
+        return []
+    return [f"      ... {held} more {noun if held == 1 else noun + 's'} {what} ({ALL_HINT})"]
 
 
 def _indented(headers: list[str], rows: list[list[str]], numeric: set[int]) -> list[str]:
@@ -408,7 +457,11 @@ def _csv_cell(row: RankRow, column: str) -> object:
     return value
 
 
-def ranking_text(found: Sequence[Ranking], *, method: Aggregate, weight: Weight) -> str:
+def ranking_text(
+    found: Sequence[Ranking], *, method: Aggregate, weight: Weight, limit: int | None = None
+) -> str:
+    """The tables of ``rank --by``; past ``limit`` rows, what is not ranked (left out, no
+    gradient, zero values) is summarised in a line per kind (the JSON and CSV keep it all)."""
     lines = [
         f"score: {method} of {CONTRIBUTION[weight]} over each row's components",
         "signed: their sum (> 0: increasing it raises M); share: of the total sum of squares",
@@ -422,8 +475,10 @@ def ranking_text(found: Sequence[Ranking], *, method: Aggregate, weight: Weight)
             lines.append(
                 f"  left out of the rows above: parameters sensaov does not stand behind, by {r.by}"
             )
-            lines += _ranking_table(r, r.left_out)
-        lines += _ranking_legend(r)
+            shown, held = _cut(r.left_out, limit)
+            lines += _ranking_table(r, shown)
+            lines += _held_back(held, "row", "left out")
+        lines += _ranking_legend(r, limit)
     return "\n".join(lines) + "\n"
 
 
@@ -447,7 +502,7 @@ def _ranking_table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
     return _indented(headers, rows, numeric)
 
 
-def _ranking_legend(r: Ranking) -> list[str]:
+def _ranking_legend(r: Ranking, limit: int | None) -> list[str]:
     shown = (*r.rows, *r.left_out)
     lines = trust_legend([row.trust for row in shown], groups=r.by != "key")
     if (sig := r.significance) is not None:
@@ -468,10 +523,8 @@ def _ranking_legend(r: Ranking) -> list[str]:
         )
     if any(row.not_seen_by for row in shown):
         lines.append("  not seen by: the cameras (--exr) whose frame shows none of its objects")
-    lines += zero_value_legend(r.zero_valued)
-    if r.no_gradient:
-        lines.append(f"  {NO_GRADIENT_MARK} = no gradient flows, not ranked:")
-        lines += [f"      {p.key} ({', '.join(p.owners) or '-'}): {p.note}" for p in r.no_gradient]
+    lines += zero_value_legend(r.zero_valued, limit)
+    lines += no_gradient_legend(r.no_gradient, limit)
     return lines
 
 

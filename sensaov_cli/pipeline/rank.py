@@ -28,13 +28,16 @@ def summary_of(
     weight: Weight = "value",
     untrusted: Untrusted = "apart",
     files: Mapping[str, str] | None = None,
+    show_all: bool = False,
 ) -> str:
     """A buffer's ranked summary, as text or JSON (``run`` prints it for its buffer, with the
-    ``files`` it wrote in the JSON)."""
+    ``files`` it wrote in the JSON); the text lists all that is not ranked with ``show_all``."""
     if as_json:
         summary = ranked_summary(buffer, top=top, method=method, weight=weight, untrusted=untrusted)
         return summary_json(summary, files)
-    return summary_text(buffer, top=top, method=method, weight=weight, untrusted=untrusted)
+    return summary_text(
+        buffer, top=top, method=method, weight=weight, untrusted=untrusted, show_all=show_all
+    )
 
 
 def rank_buffer(
@@ -48,6 +51,7 @@ def rank_buffer(
     method: Aggregate,
     weight: Weight,
     untrusted: Untrusted = "apart",
+    show_all: bool = False,
 ) -> str:
     """The summary ``sensaov run`` prints (top keys, objects, types) without ``by``, else one
     table per objective at that cut: ``style`` "json", "csv" or "text"."""
@@ -60,6 +64,7 @@ def rank_buffer(
             method=method,
             weight=weight,
             untrusted=untrusted,
+            show_all=show_all,
         )
     check_cut(by, cameras=bool(exrs))
     for name in objectives:
@@ -80,7 +85,7 @@ def rank_buffer(
         return ranking_json(loaded, found, method=method, weight=weight, cameras=cameras)
     if style == "csv":
         return ranking_csv(found)
-    return ranking_text(found, method=method, weight=weight)
+    return ranking_text(found, method=method, weight=weight, limit=None if show_all else top)
 
 
 def refuse_options(
