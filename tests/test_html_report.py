@@ -69,7 +69,8 @@ def test_every_image_is_an_embedded_png(reported: Path) -> None:
     sources = [attrs["src"] or "" for tag, attrs in page.tags if tag == "img"]
     previews = sorted((reported.parent / "previews").rglob("*.png"))
     assert previews
-    assert len(sources) == 1 + 2 + len(previews)  # primal, a sunburst per objective, previews
+    # primal, a sunburst and the objective camera's headline view per objective, previews
+    assert len(sources) == 1 + 2 + 2 + len(previews)
     for src in sources:
         assert src.startswith("data:image/png;base64,")
         width, height = png_size(base64.b64decode(src.split(",", 1)[1]))
@@ -89,6 +90,7 @@ def test_tables_show_rankings_trust_and_provenance(reported: Path) -> None:
     for heading in ("Rankings in full", "Trust of the buffer", "Provenance", "objective centre"):
         assert heading in text
     assert re.search(r"<td>light</td>(<td[^>]*>[^<]*</td>)+<td>overhead</td></tr>", text)
+    assert "<th>not seen by</th>" in text and "off-frame" not in text
 
 
 def test_the_page_reads_summary_cameras_appendix(reported: Path) -> None:
@@ -108,7 +110,13 @@ def test_the_page_reads_summary_cameras_appendix(reported: Path) -> None:
     ]
     assert order == sorted(order)
     summary = text[: text.index('id="camera-objective"')]
-    assert "mean_luma.objects" not in summary  # previews belong to their camera's section
+    # Of the previews, the summary shows each objective's headline view at the objective camera
+    # (beside its sunburst); every other belongs to its camera's section.
+    captions = re.findall(r'<figure class="(?:layer|view|sheet)">.*?<figcaption>(.*?)<', summary)
+    assert captions == [
+        f"{o}.objects (trusted gradients) at the objective camera: where sensitivity lands"
+        for o in ("mean_luma", "centre")
+    ]
     camera = text[text.index('id="camera-objective"') : text.index('id="camera-overhead"')]
     assert "mean_luma.objects (trusted gradients)" in camera  # a headline preview
     assert "<details>" in camera  # every other pass, folded away

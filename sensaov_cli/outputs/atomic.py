@@ -41,6 +41,9 @@ _scratch: list[Path] = []  # private temporary folders (scratch_folder), removed
 MAX_TOKEN = 64  # with a camera and a pass name, a preview's path stays far below NAME_MAX
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
 _HASH_CHARS = 8
+# An absolute path: a "/" that starts the text or follows a space, quote, "=" or "(", up to the
+# next space, quote, comma, semicolon or ")". "dM/dθ" and "3/8" are not paths.
+_ABSOLUTE_PATH = re.compile(r"(?:(?<=^)|(?<=[\s'\"=(]))/[^\s'\",;)]+")
 
 
 def atomic_write(path: Path, write: Callable[[Path], None]) -> None:
@@ -332,6 +335,25 @@ def header_provenance(header: Mapping[str, Any]) -> dict[str, Any] | None:
     return recorded if isinstance(recorded, dict) else None
 
 
-def provenance_attributes(provenance: dict[str, Any]) -> dict[str, str]:
-    """The provenance as the EXR header attribute that carries it (sorted keys, stable text)."""
+def provenance_attributes(
+    provenance: dict[str, Any], *, relative_to: Path | None = None
+) -> dict[str, str]:
+    """The provenance as the one EXR header attribute that carries it (sorted keys, stable
+    text); with ``relative_to`` (the job's output folder), every absolute path in it is written
+    relative to that folder: farm workers and compositing machines mount it elsewhere."""
+    if relative_to is not None:
+        provenance = relative_paths(provenance, relative_to)
     return {PROVENANCE_ATTRIBUTE: json.dumps(provenance, sort_keys=True)}
+
+
+def relative_paths(value: Any, folder: Path) -> Any:
+    """``value`` (JSON data) with every absolute path in its strings, a whole string or a word
+    of one (a command line), written relative to ``folder``."""
+    if isinstance(value, dict):
+        return {key: relative_paths(item, folder) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [relative_paths(item, folder) for item in value]
+    if isinstance(value, str) and "/" in value:
+        base = os.path.abspath(folder)
+        return _ABSOLUTE_PATH.sub(lambda found: os.path.relpath(found.group(0), base), value)
+    return value

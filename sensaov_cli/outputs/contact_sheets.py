@@ -302,7 +302,7 @@ def _attributes(field: TexelField, buffer_path: Path) -> dict[str, str]:
         "notes": list(field.notes),
     }
     return {
-        **provenance_attributes(made),
+        **provenance_attributes(made, relative_to=buffer_path.parent),
         "sensaov/texel": json.dumps(info, sort_keys=True),
     }
 

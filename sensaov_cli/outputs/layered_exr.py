@@ -32,7 +32,7 @@ from sensaov_cli.outputs.previews import diverging_linear, diverging_linear_plan
 from sensaov_cli.views.channels import DisplayScale, clipped_share, signed_pixels
 
 FORMAT_NAME = "sensaov-aov-exr"
-FORMAT_VERSION = 2  # 2: display layers, display scales, trust parts, stamps (exr-layout.md)
+FORMAT_VERSION = 3  # 3: provenance once per file, relative paths (exr-layout.md)
 TOKEN_BYTES = 63  # Blender keeps layer and pass names in 64-byte buffers
 SUFFIX_HEX = 6
 BEAUTY_CHANNELS = ("R", "G", "B", "A")
@@ -257,7 +257,6 @@ def with_display(
         display_name,
         planes.transpose(1, 2, 0),
         {
-            **{k: v for k, v in layer.metadata.items() if k in ("camera", "buffer")},
             "display_of": layer.original_name,
             "encoding": DISPLAY_ENCODING,
         },

@@ -1,10 +1,12 @@
 """The one-page HTML report of a job: every image embedded, no network, no server.
 
 Images are PNG ``data:`` URIs, the style sheet is inline; no script, no external link. It reads
-as an artist would ask: a summary (each objective, its top objects with ± and trust, what was
-left out and why, its sunburst), one section per camera (headline previews, the other passes
-folded away), then an appendix (rankings in full, trust, provenance). Every section records the
-buffer id and job version it was made from. :mod:`sensaov_cli.pipeline.report` gathers the data.
+as an artist would ask: a summary (each objective: where its sensitivity lands, the objective
+camera's headline view, beside its sunburst; its top objects with ± and trust, what was left out
+and why), one section per camera (headline previews, the texel, forward and transport views,
+the other passes folded away), then an appendix (rankings in full, trust, provenance). Every
+section records the buffer id and job version it was made from.
+:mod:`sensaov_cli.pipeline.report` gathers the data.
 
 The previews are read back here (:func:`read_previews`): anything may have happened to them since
 ``project --png``. Special files (a FIFO would block forever) are refused; a file that is not a
@@ -31,7 +33,7 @@ from sensaov_cli.outputs.previews import png_problem
 from sensaov_cli.views.hierarchy import Ranking, RankRow
 
 REPORT_FORMAT = "sensaov-report"
-REPORT_VERSION = 2  # 2: summary first, per-camera sections, appendix; buffer id per section
+REPORT_VERSION = 3  # 3: the headline view beside each sunburst; Fig. 4 and 5 views unfolded
 # The provenance fields shown as a table; the whole record follows as JSON.
 SHOWN_PROVENANCE = ("tool_version", "mitsuba_version", "drjit_version", "variant", "spp",
                     "max_depth", "primal_seed", "gradient_seeds", "resolution", "created_utc",
@@ -68,7 +70,9 @@ class Stamp:
 class Picture:
     caption: str
     png: bytes
-    kind: str = ""  # "primal", "sunburst", "layer", "sheet", "fig4"
+    kind: str = ""  # "primal", "sunburst", "view", "layer", "sheet", "fig4"
+    objective: str = ""
+    part: str = ""  # "trusted", "untrusted", "all" for a layer's preview
 
 
 @dataclass(frozen=True)
@@ -78,6 +82,8 @@ class ObjectiveSection:
     top: Ranking  # by object, trusted parameters only (left_out holds the rest)
     sunburst: Picture
     left_out: Mapping[str, tuple[ParamRecord, ...]]  # object -> its untrusted parameters
+    view: Picture | None = None  # the headline object view at the objective camera
+    view_note: str = ""  # why there is none
 
 
 @dataclass(frozen=True)
@@ -85,9 +91,10 @@ class CameraSection:
     name: str
     visible: frozenset[str] | None  # None: no EXR from project
     headline: tuple[Picture, ...]
-    more: tuple[Picture, ...]
+    more: tuple[Picture, ...]  # folded away
     files: tuple[str, ...]  # the previews shown, relative to the previews folder
     note: str
+    figures: tuple[Picture, ...] = ()  # texel (Fig. 4) and forward/transport (Fig. 5) views
 
 
 @dataclass(frozen=True)
@@ -146,9 +153,15 @@ def _summary(content: ReportContent) -> str:
     for objective in content.objectives:
         top = objective.top
         apart = " (gradients sensaov stands behind)" if top.untrusted == "apart" else ""
+        view = (
+            _figure(objective.view)
+            if objective.view is not None
+            else f'<p class="note">{html.escape(objective.view_note)}</p>'
+        )
+        # Where sensitivity lands (the picture) beside how it splits (the sunburst), first.
         parts += [
             f"<h2>Objective {html.escape(objective.name)}</h2>",
-            f'<div class="row"><div class="col"><h3>Top objects{apart}</h3>'
+            f'<div class="row"><div class="col">{view}<h3>Top objects{apart}</h3>'
             f"{_ranking_table(top, top.rows)}{_left_out_list(top, objective.left_out)}</div>"
             f"{_figure(objective.sunburst)}</div>",
         ]
@@ -172,9 +185,15 @@ def _camera(section: CameraSection, stamp: Stamp) -> str:
     if section.note:
         parts.append(f'<p class="note">{html.escape(section.note)}</p>')
     parts.append('<div class="row">' + "".join(_figure(p) for p in section.headline) + "</div>")
+    if section.figures:  # the paper's Fig. 4 and 5: shown, not folded away
+        parts.append(
+            '<h3>Texel, forward and transport views</h3><div class="row">'
+            + "".join(_figure(p) for p in section.figures)
+            + "</div>"
+        )
     if section.more:
         parts.append(
-            f"<details><summary>every pass of this camera ({len(section.more)} images)"
+            f"<details><summary>every other pass of this camera ({len(section.more)} images)"
             f"</summary>{''.join(_figure(p) for p in section.more)}</details>"
         )
     parts.append("</section>")

@@ -64,7 +64,7 @@ def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> Merge
         primal = _merged_primal(shards)
     interrupts.raise_if_stopped()
     with progress.stage("write_s", f"writing {output.name} and {primal_path.name}"):
-        attributes = provenance_attributes(merged.provenance)
+        attributes = provenance_attributes(merged.provenance, relative_to=output.parent)
         try:
             atomic_write_all(
                 [(output, buffer_writer(merged)), (primal_path, exr_writer(primal, attributes))]

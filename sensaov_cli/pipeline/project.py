@@ -153,10 +153,7 @@ def project_job(
                 write_texture_files(job.output / "textures", texels, buffer_path)
     with progress.stage("visibility_s", f"visibility of {len(every)} camera(s) and scales"):
         traced = {c.name: trace_camera(job, buffer, loaded, c, bool(texels)) for c in every}
-        raw = {
-            c.name: _raw_layers(passes, traced[c.name], buffer_path, c, forward, texels)
-            for c in every
-        }
+        raw = {c.name: _raw_layers(passes, traced[c.name], c, forward, texels) for c in every}
         scales = _scales(job, raw)
     # Not with --force: the scene may have changed since the run (nor is the primal read then).
     reuse = any(camera.objective for camera in chosen) and not force
@@ -323,13 +320,13 @@ def forward_layers(
         if f.data is None:
             progress.note(f"warning: no layer forward.{f.name}: Mitsuba failed: {f.failure}")
             continue
-        meta = _forward_metadata(f, buffer_path, path)
+        meta = _forward_metadata(f)
         group = ScaleGroup(f"forward/{f.name}")
         layers.append(
             SensitivityLayer("forward", f.name, f.data, meta, kind="forward", group=group)
         )
     for t in transport_views(buffer, data):
-        meta = _forward_metadata(t, buffer_path, path)
+        meta = _forward_metadata(t)
         meta.update(
             forward_sum=repr(t.forward_sum),
             reverse=repr(t.reverse),
@@ -352,13 +349,10 @@ def _transport_group(job: JobSpec, source: str, name: str) -> str:
     return name
 
 
-def _forward_metadata(
-    view: ForwardView | TransportView, buffer_path: Path, forward_path: Path
-) -> dict[str, str]:
+def _forward_metadata(view: ForwardView | TransportView) -> dict[str, str]:
+    """A forward or transport layer's own metadata (the sidecar it came from is the file's
+    provenance: ``forward_file``)."""
     return {
-        "buffer": str(buffer_path),
-        "forward_file": str(forward_path),
-        "camera": "objective",
         "keys": json.dumps(list(view.keys)),
         "direction": view.direction,
         "seed": str(view.seed),
@@ -428,9 +422,7 @@ class _TexelPanels:
     layers: list[SensitivityLayer]
 
 
-def _texel_panels(
-    fields: list[TexelField], visibility: VisibilityPass, buffer_path: Path, camera: str
-) -> list[_TexelPanels]:
+def _texel_panels(fields: list[TexelField], visibility: VisibilityPass) -> list[_TexelPanels]:
     """Per field, its three panels and their layers. A panel's display scale is shared by every
     texture of its (objective, channel) and every camera; the joint panel's is fixed at 1, its
     meaning (the object's value spread evenly)."""
@@ -448,9 +440,6 @@ def _texel_panels(
                 "selection": f"texture={field.record.key}",
                 "aggregate": "none (per texel component)",
                 "weight": field.channel.weight,
-                "spp": str(visibility.spp),
-                "buffer": str(buffer_path),
-                "camera": camera,
                 "keys": json.dumps([field.record.key]),
             }
             group = ScaleGroup(
@@ -492,23 +481,21 @@ class _RawLayers:
 def _raw_layers(
     passes: list[ChannelValues],
     visibility: VisibilityPass,
-    buffer_path: Path,
     camera: CameraSpec,
     forward: list[SensitivityLayer],
     texels: list[TexelField],
 ) -> _RawLayers:
-    layers = [_layer(p, visibility, buffer_path, camera) for p in passes]
+    layers = [_layer(p, visibility) for p in passes]
     if camera.objective:
         layers += forward  # its size was checked before any view was written (_check_views)
-    panels = _texel_panels(texels, visibility, buffer_path, camera.name)
+    panels = _texel_panels(texels, visibility)
     layers += [layer for panel in panels for layer in panel.layers]
     return _RawLayers(visibility, layers, panels)
 
 
-def _layer(
-    values: ChannelValues, visibility: VisibilityPass, buffer_path: Path, camera: CameraSpec
-) -> SensitivityLayer:
-    """The encoded pass, in its (objective, channel) display scale group."""
+def _layer(values: ChannelValues, visibility: VisibilityPass) -> SensitivityLayer:
+    """The encoded pass, in its (objective, channel) display scale group. What every layer of
+    the file shares (camera, buffer, visibility samples) is the file's provenance."""
     painted = paint_pass(values, visibility)
     encoding = painted.encoding
     metadata = {
@@ -517,9 +504,6 @@ def _layer(
         "weight": encoding.weight,
         "encoding": encoding.describe(),
         "scale": painted.scale.describe(),
-        "spp": str(visibility.spp),
-        "buffer": str(buffer_path),
-        "camera": camera.name,
         "keys": json.dumps(list(values.keys)),
         "unverified": json.dumps(list(values.unverified)),
         "estimators": json.dumps(values.estimators),
@@ -637,6 +621,7 @@ def _project_camera(
     material = _material_cryptomatte(visibility, loaded.prepared.materials)
     path = job.output / f"{camera.name}.exr"
     made_from = stamp(buffer, job.job_hash())
+    forward = any(layer.kind in ("forward", "transport") for layer in raw.layers)
     attributes = provenance_attributes(
         {
             **made_by("project"),
@@ -645,8 +630,10 @@ def _project_camera(
             "beauty_spp": beauty_spp,
             "beauty": made,
             "buffer": str(buffer_path),
+            **({"forward_file": str(buffer_path.with_name(FORWARD_NAME))} if forward else {}),
             "buffer_provenance": buffer.provenance,
-        }
+        },
+        relative_to=job.output,
     )
     interrupts.raise_if_stopped()
     write_layered_exr(

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +47,7 @@ from sensaov_cli.views.hierarchy import is_trusted, panels, rankings
 REPORT_NAME = "report.html"
 SUMMARY_TOP = 5  # objects per objective in the summary; the appendix ranks them all
 SUNBURST_INCHES = 5.6  # 672 px at 1:1: beside its objective's table on a 1280 px page
+PRIMAL_PIXELS = 160  # the summary's primal at most this wide and high (an integer reduction)
 
 
 def make_report(job: JobSpec, path: Path | None = None) -> Path:
@@ -74,9 +75,10 @@ def make_report(job: JobSpec, path: Path | None = None) -> Path:
         hint="name another file with -o, e.g. report.html",
     )
     cameras = job.projected_cameras()
-    visible = {c.name: _visible(job, buf, c) for c in cameras}
-    seen = {name: objects for name, objects in visible.items() if objects is not None}
-    sections = [_camera_section(job, buf, c, visible[c.name]) for c in cameras]
+    exr = {c.name: _camera_exr(job, buf, c) for c in cameras}
+    seen = {name: found.visible for name, found in exr.items() if found is not None}
+    sections = [_camera_section(job, buf, c, exr[c.name]) for c in cameras]
+    views = _objective_views(job, cameras, sections)
     listed = {f for section in sections for f in section.files}
     names = ", ".join(o.name for o in buf.objectives)
     content = ReportContent(
@@ -84,7 +86,9 @@ def make_report(job: JobSpec, path: Path | None = None) -> Path:
         question=f"Which parts of {job.scene.name} matter for {names}?",
         stamp=_stamp(job, buf),
         primal=_primal(job.output / PRIMAL_NAME, buf),
-        objectives=tuple(_objective(job, buf, o.name, seen) for o in buf.objectives),
+        objectives=tuple(
+            _objective(job, buf, o.name, seen, views.get(o.name)) for o in buf.objectives
+        ),
         cameras=tuple(sections),
         rankings={
             by: rankings(
@@ -113,22 +117,40 @@ def _job_files(job: JobSpec) -> tuple[Path, ...]:
     return (*job.input_files(), *scene)
 
 
-def _visible(job: JobSpec, buf: SensitivityBuffer, camera: CameraSpec) -> frozenset[str] | None:
-    """The objects ``camera``'s EXR shows, after checking it belongs; None without an EXR."""
+@dataclass(frozen=True)
+class _CameraExr:
+    """What the report reads from a camera's EXR: the objects it sees, and what each layer
+    shows (``(objective, pass)`` -> its kind: forward, transport, texel; a buffer channel's
+    is absent)."""
+
+    visible: frozenset[str]
+    kinds: Mapping[tuple[str, str], str]
+
+
+def _camera_exr(job: JobSpec, buf: SensitivityBuffer, camera: CameraSpec) -> _CameraExr | None:
+    """``camera``'s EXR, after checking it belongs; None without one."""
     path = job.output / f"{camera.name}.exr"
     if not path.exists() and not path.is_symlink():  # a FIFO or a device: read_exr refuses it
         return None
     channels, header = read_exr(path)
     remake = f"sensaov project {job.path}"
     check_made_from(header, buf, str(path), remake=remake, job=job)
-    return seen_names(channels, header, where=str(path))
+    kinds = {}
+    for key, kind in header.items():
+        prefix = key.removesuffix("/kind")
+        if key.startswith("sensaov/") and prefix != key and isinstance(kind, str):
+            objective, name = header.get(f"{prefix}/objective"), header.get(f"{prefix}/pass")
+            if isinstance(objective, str) and isinstance(name, str):
+                kinds[(objective, name)] = kind
+    return _CameraExr(seen_names(channels, header, where=str(path)), kinds)
 
 
 def _camera_section(
-    job: JobSpec, buf: SensitivityBuffer, camera: CameraSpec, visible: frozenset[str] | None
+    job: JobSpec, buf: SensitivityBuffer, camera: CameraSpec, exr: _CameraExr | None
 ) -> CameraSection:
     folder = job.output / "previews"
     manifest_path = folder / f"{file_token(camera.name)}.json"
+    visible = None if exr is None else exr.visible
     if not manifest_path.is_file():
         note = "no previews: run 'sensaov project JOB --png'"
         return CameraSection(camera.name, visible, (), (), (), note)
@@ -137,13 +159,43 @@ def _camera_section(
     stamped = {f"sensaov/{key}": manifest.get(key) for key in ("buffer_id", "job_hash")}
     check_made_from(stamped, buf, str(manifest_path), remake=remake, job=job)
     headline: list[Picture] = []
+    figures: list[Picture] = []
     more: list[Picture] = []
     files: list[str] = []
+    kinds = {} if exr is None else exr.kinds
     for entry in map(_Listed.read, manifest["files"]):
         picture = _preview(folder, entry, buf, job, remake)
         files.append(entry.file)
-        (headline if _is_headline(job, entry) else more).append(picture)
-    return CameraSection(camera.name, visible, tuple(headline), tuple(more), tuple(files), "")
+        if _is_headline(job, entry):
+            headline.append(picture)
+        elif _is_figure(entry, kinds):
+            figures.append(picture)
+        else:
+            more.append(picture)
+    return CameraSection(
+        camera.name, visible, tuple(headline), tuple(more), tuple(files), "", tuple(figures)
+    )
+
+
+def _is_figure(entry: _Listed, kinds: Mapping[tuple[str, str], str]) -> bool:
+    """A texel field's Fig. 4 sheet, or a forward or transport layer (Fig. 5): views the paper
+    shows, never folded away (a texel field's single panels are, its sheet holds all three)."""
+    layer = kinds.get((entry.objective, entry.pass_name))
+    return entry.kind == "fig4" or (entry.kind == "layer" and layer in ("forward", "transport"))
+
+
+def _objective_views(
+    job: JobSpec, cameras: tuple[CameraSpec, ...], sections: list[CameraSection]
+) -> dict[str, Picture]:
+    """Each objective's headline object view at the objective camera (its trusted part)."""
+    named = {section.name: section for section in sections}
+    camera = next(c for c in cameras if c.objective)  # projected_cameras always holds one
+    views = {}
+    for picture in named[camera.name].headline:
+        if picture.part != "untrusted" and picture.objective not in views:
+            caption = f"{picture.caption} at the objective camera: where sensitivity lands"
+            views[picture.objective] = replace(picture, caption=caption, kind="view")
+    return views
 
 
 @dataclass(frozen=True)
@@ -190,7 +242,10 @@ def _preview(
         raise StaleInputError(f"cannot read this preview: {error}", where=str(path),
                               hint=f"re-run '{remake}'") from error  # fmt: skip
     check_made_from(text, buf, str(path), remake=remake, job=job)
-    return Picture(_caption(entry), path.read_bytes(), kind=entry.kind)
+    return Picture(
+        _caption(entry), path.read_bytes(), kind=entry.kind, objective=entry.objective,
+        part=entry.part,
+    )  # fmt: skip
 
 
 def _is_headline(job: JobSpec, entry: _Listed) -> bool:
@@ -225,7 +280,11 @@ def _ignored(folder: Path, listed: set[str], broken: dict[str, str]) -> tuple[st
 
 
 def _objective(
-    job: JobSpec, buf: SensitivityBuffer, name: str, seen: dict[str, frozenset[str]]
+    job: JobSpec,
+    buf: SensitivityBuffer,
+    name: str,
+    seen: dict[str, frozenset[str]],
+    view: Picture | None,
 ) -> ObjectiveSection:
     (top,) = rankings(buf, by="object", objectives=[name], top=SUMMARY_TOP,
                       visible=seen or None, untrusted=job.views.untrusted)  # fmt: skip
@@ -239,7 +298,13 @@ def _objective(
         row.name: tuple(p for p in buf.params if row.name in p.owners and not is_trusted(p))
         for row in top.left_out
     }
-    return ObjectiveSection(name, _definition(buf.objective(name).definition), top, sunburst, apart)
+    missing = (
+        "no object channel in this job: no view of where its sensitivity lands (docs/job-spec.md)"
+        if not any(c.kind == "object" for c in job.channels)
+        else "no preview of the objective camera: run 'sensaov project JOB --png'"
+    )
+    definition = _definition(buf.objective(name).definition)
+    return ObjectiveSection(name, definition, top, sunburst, apart, view, "" if view else missing)
 
 
 def _definition(definition: dict[str, Any]) -> str:
@@ -293,5 +358,13 @@ def _primal(path: Path, buf: SensitivityBuffer) -> Picture | None:
     linear = [channels[c] for c in ("R", "G", "B") if c in channels]
     if len(linear) != 3:
         return None
-    rgb = srgb_uint8(np.stack(linear, axis=-1))
-    return Picture(f"{path.name} (clipped to [0, 1], sRGB)", encode_png(rgb), kind="primal")
+    image = np.stack(linear, axis=-1)
+    # A thumbnail: the summary's first screen belongs to the views beside the sunbursts.
+    step = -(-max(image.shape[:2]) // PRIMAL_PIXELS)
+    if step > 1:
+        height, width = (n // step * step for n in image.shape[:2])
+        blocks = image[:height, :width].reshape(height // step, step, width // step, step, 3)
+        image = blocks.mean(axis=(1, 3))
+    scale = f", 1:{step}" if step > 1 else ""
+    caption = f"{path.name} (clipped to [0, 1], sRGB{scale})"
+    return Picture(caption, encode_png(srgb_uint8(image)), kind="primal")

@@ -195,7 +195,8 @@ def run_job(
         buffer = replace(buffer, provenance=timed, _copy_arrays=False)
     interrupts.raise_if_stopped()  # a stop asked for during a kernel must not end in written files
     with progress.stage("write_s", f"writing {buffer_path.name} and {primal_path.name}"):
-        primal = exr_writer(image_channels(result.image), provenance_attributes(buffer.provenance))
+        attributes = provenance_attributes(buffer.provenance, relative_to=job.output)
+        primal = exr_writer(image_channels(result.image), attributes)
         files = [(buffer_path, buffer_writer(buffer)), (primal_path, primal)]
         if forward is not None:  # the forward sidecar is written with its buffer, or neither
             files.append((job.output / FORWARD_NAME, forward_writer(forward)))
