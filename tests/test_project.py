@@ -120,17 +120,18 @@ def test_channel_names_follow_the_rules_and_carry_metadata(projected: Path) -> N
             "weight",
             "encoding",
             "scale",
-            "spp",
-            "buffer",
             "estimators",
         ):
             assert f"{prefix}/{field}" in header, (layer, field)
+        for field in ("spp", "buffer", "camera"):  # the file's provenance, once (format 3)
+            assert f"{prefix}/{field}" not in header, (layer, field)
         estimators = json.loads(header[f"{prefix}/estimators"])
         assert sorted(estimators) == sorted(json.loads(header[f"{prefix}/keys"]))
         if layer == "mean_luma.objects":  # roughplastic's alpha and eta are repaired
             assert estimators["blue_plastic.alpha"] == "finite-difference"
     assert "CryptoObject.R" not in channels  # no deprecated preview layer
-    assert json.loads(header["sensaov/provenance"])["command"] == "project"
+    provenance = json.loads(header["sensaov/provenance"])
+    assert provenance["command"] == "project" and provenance["buffer"] == "buffer.npz"
 
 
 def scale_of(header: dict, layer: str) -> str:
