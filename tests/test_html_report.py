@@ -69,8 +69,8 @@ def test_every_image_is_an_embedded_png(reported: Path) -> None:
     sources = [attrs["src"] or "" for tag, attrs in page.tags if tag == "img"]
     previews = sorted((reported.parent / "previews").rglob("*.png"))
     assert previews
-    # primal, a sunburst and the objective camera's headline view per objective, previews
-    assert len(sources) == 1 + 2 + 2 + len(previews)
+    # per objective the primal, a sunburst and the objective camera's headline view; previews
+    assert len(sources) == 2 * 3 + len(previews)
     for src in sources:
         assert src.startswith("data:image/png;base64,")
         width, height = png_size(base64.b64decode(src.split(",", 1)[1]))

@@ -56,10 +56,11 @@ def _sections(page: str) -> dict[str, str]:
 
 def test_the_summary_shows_each_objectives_view_beside_its_sunburst(rich: Path) -> None:
     summary = _sections((rich / "report.html").read_text(encoding="utf-8"))["summary"]
-    (row,) = re.findall(r'<div class="row"><div class="col">(.*?)</div>(<figure.*?</figure>)'
-                        r"</div>", summary, re.DOTALL)  # fmt: skip
+    (row,) = re.findall(r'<div class="row"><div class="col">(.*?)</div>(<figure[^>]*>)',
+                        summary, re.DOTALL)  # fmt: skip
     column, beside = row
-    assert column.startswith('<figure class="view">')  # the picture comes first
+    assert column.startswith('<div class="pair"><figure class="view">')  # the picture first
+    assert '<figure class="primal">' in column  # and the primal beside it, for reference
     assert "mean_luma.objects (trusted gradients) at the objective camera" in column
     assert column.index('class="view"') < column.index("Top objects")
     assert beside.startswith('<figure class="sunburst">')

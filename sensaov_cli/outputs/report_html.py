@@ -50,6 +50,7 @@ table{border-collapse:collapse;margin:.3em 0 .8em}
 td,th{padding:2px 8px;border-bottom:1px solid #eee;text-align:left}
 td.n{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
 .row{display:flex;flex-wrap:wrap;gap:1.2em;align-items:flex-start}.col{flex:0 1 440px}
+.pair{display:flex;flex-wrap:wrap;align-items:flex-start}
 .cuts{display:flex;flex-wrap:wrap;gap:2em}.stamp{font-size:13px;color:#555}.note{color:#555}
 pre{background:#f6f6f6;padding:1em;overflow:auto;font-size:12px}summary{cursor:pointer}
 """
@@ -147,8 +148,7 @@ def _summary(content: ReportContent) -> str:
         '<section id="summary">',
         f"<p><b>{html.escape(content.question)}</b></p>",
         _stamp_line(content.stamp),
-        f'<div class="row">{primal}<div><p>Objectives (one reverse-mode pass each):</p>'
-        f"<ul>{items}</ul></div></div>",
+        f"<p>Objectives (one reverse-mode pass each):</p><ul>{items}</ul>",
     ]
     for objective in content.objectives:
         top = objective.top
@@ -158,10 +158,12 @@ def _summary(content: ReportContent) -> str:
             if objective.view is not None
             else f'<p class="note">{html.escape(objective.view_note)}</p>'
         )
-        # Where sensitivity lands (the picture) beside how it splits (the sunburst), first.
+        # Where sensitivity lands (the picture, the primal beside it for reference) next to how
+        # it splits (the sunburst), first.
         parts += [
             f"<h2>Objective {html.escape(objective.name)}</h2>",
-            f'<div class="row"><div class="col">{view}<h3>Top objects{apart}</h3>'
+            f'<div class="row"><div class="col"><div class="pair">{view}{primal}</div>'
+            f"<h3>Top objects{apart}</h3>"
             f"{_ranking_table(top, top.rows)}{_left_out_list(top, objective.left_out)}</div>"
             f"{_figure(objective.sunburst)}</div>",
         ]

@@ -47,7 +47,7 @@ from sensaov_cli.views.hierarchy import is_trusted, panels, rankings
 REPORT_NAME = "report.html"
 SUMMARY_TOP = 5  # objects per objective in the summary; the appendix ranks them all
 SUNBURST_INCHES = 5.6  # 672 px at 1:1: beside its objective's table on a 1280 px page
-PRIMAL_PIXELS = 160  # the summary's primal at most this wide and high (an integer reduction)
+PRIMAL_PIXELS = 128  # the primal beside each headline view: at most this wide and high
 
 
 def make_report(job: JobSpec, path: Path | None = None) -> Path:
@@ -359,7 +359,7 @@ def _primal(path: Path, buf: SensitivityBuffer) -> Picture | None:
     if len(linear) != 3:
         return None
     image = np.stack(linear, axis=-1)
-    # A thumbnail: the summary's first screen belongs to the views beside the sunbursts.
+    # A thumbnail beside each headline view: it fits the summary's first screen with them.
     step = -(-max(image.shape[:2]) // PRIMAL_PIXELS)
     if step > 1:
         height, width = (n // step * step for n in image.shape[:2])
