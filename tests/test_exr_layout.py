@@ -307,3 +307,26 @@ def test_exr_bytes_do_not_depend_on_how_many_cores_compress_them(
         assert OpenEXR.global_thread_count() == cores
         written[cores] = (tmp_path / f"{cores}.exr").read_bytes()
     assert written[1] == written[2]
+
+
+def test_header_provenance_paths_are_relative_to_the_output_folder() -> None:
+    """Every absolute path, whole or a word of a command line, is written relative to the
+    output folder; ratios and fractions that merely hold a slash stay as they are."""
+    from sensaov_cli.outputs.atomic import header_provenance, provenance_attributes
+
+    record = {
+        "buffer": "/farm/job/out/buffer.npz",
+        "command": "sensaov run /farm/job/job.yaml --shard 3/8",
+        "scene_files": ["/farm/scenes/room.xml", "x=/farm/job/out/textures/a.exr"],
+        "note": "θ·∂M/∂θ and dM/dtheta, 1/2 of it",
+        "nested": {"quoted": "'/farm/job/out/a b.png'", "count": 3},
+    }
+    written = provenance_attributes(record, relative_to=Path("/farm/job/out"))
+    assert header_provenance(written) == {
+        "buffer": "buffer.npz",
+        "command": "sensaov run ../job.yaml --shard 3/8",
+        "scene_files": ["../../scenes/room.xml", "x=textures/a.exr"],
+        "note": "θ·∂M/∂θ and dM/dtheta, 1/2 of it",
+        "nested": {"quoted": "'a b.png'", "count": 3},
+    }
+    assert header_provenance(provenance_attributes(record)) == record  # no folder: as given
