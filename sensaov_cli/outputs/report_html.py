@@ -36,7 +36,7 @@ REPORT_VERSION = 2  # 2: summary first, per-camera sections, appendix; buffer id
 SHOWN_PROVENANCE = ("tool_version", "mitsuba_version", "drjit_version", "variant", "spp",
                     "max_depth", "primal_seed", "gradient_seeds", "resolution", "created_utc",
                     "wall_time_s", "timings_s", "buffer_id", "run_version")  # fmt: skip
-_SIGN = {None: "-", True: "significant", False: "noise"}  # a row's significance
+_RESOLVED = {None: "no error", True: "resolved", False: "unresolved"}  # a row's resolution
 MAX_PREVIEW_BYTES = 64 << 20  # a preview is a few hundred kB; a page embeds every one
 _STYLE = """
 body{font:15px/1.45 system-ui,sans-serif;max-width:1280px;margin:1.5em auto;padding:0 1em;
@@ -245,23 +245,35 @@ def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -
     if not rows:
         return '<p class="note">(none)</p>'
     cameras = any(row.off_frame is not None for row in rows)
-    errors = r.significance is not None
-    trust = any(row.trust != "verified" for row in rows)  # every row verified: said once, below
-    headers = ["#", "", r.by, "score", "signed", *(["±", "sign"] * errors), "share",
-               *(["trust"] * trust), *(["off-frame"] * cameras)]  # fmt: skip
+    other = tables.other_score(r.method)
+    headers = ["#", "", r.by, "score", "signed", "±", "sign", f"#{other}", "share", "trust",
+               *(["off-frame"] * cameras)]  # fmt: skip
     body = [
         [str(row.rank), tables.trust_mark(row.trust, row.zero_value), row.name,
-         f"{row.score:.2e}", f"{row.signed:+.2e}",
-         *([tables.se_text(row.signed_se), _SIGN[row.significant]] * errors),
-         f"{100 * row.share:.1f}%", *([row.trust] * trust),
+         f"{row.score:.2e}", f"{row.signed:+.2e}", tables.se_text(row.signed_se),
+         _resolution_cell(row), _order_cell(row, other), f"{100 * row.share:.1f}%", row.trust,
          *([", ".join(row.off_frame or ()) or "-"] * cameras)]
         for row in rows
     ]  # fmt: skip
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "signed", "±", "share")}
     if not notes:
         return _table(headers, body, numeric)
-    verified = "" if trust else '<p class="note">every row: verified gradients only.</p>'
-    return _table(headers, body, numeric) + verified + _significance(r)
+    return _table(headers, body, numeric) + _significance(r)
+
+
+def _resolution_cell(row: RankRow) -> str:
+    """The row's sign and whether its batches resolve it, beside its trust (never instead)."""
+    text = f"{tables.sign_text(row)} {_RESOLVED[row.resolved]}"
+    return f"{text}, noisy: {row.noisy}" if row.noisy else text
+
+
+def _order_cell(row: RankRow, other: str) -> str:
+    """Its rank by the other score; where the two orders disagree markedly, said on the row."""
+    if row.other_rank is None:
+        return "-"
+    if row.orders_disagree:
+        return f"{row.other_rank} (#{row.rank} by this score: the orders disagree)"
+    return str(row.other_rank)
 
 
 def _left_out_list(r: Ranking, keys: Mapping[str, tuple[ParamRecord, ...]]) -> str:
@@ -345,16 +357,23 @@ def _provenance_table(provenance: Mapping[str, Any]) -> str:
 
 
 def _significance(r: Ranking) -> str:
-    if r.significance is None:
+    other = tables.other_score(r.method)
+    score = (
+        f"score: {r.method} of the contributions (#{other}: the rank by {other}); trust says "
+        "whether the estimator is unbiased, resolution whether the batches resolve the sign. "
+    )
+    if r.resolution is None:
         return (
-            '<p class="note">no ±: this buffer has one batch; render.batches ≥ 2 (or a merge '
-            "of farm shards) gives standard errors and significance (docs/farm.md).</p>"
+            f'<p class="note">{html.escape(score)}No error: this buffer has one batch, so no '
+            "number has a standard error and no sign is known to be resolved; render.batches "
+            "≥ 2 (or a merge of farm shards) gives them (docs/farm.md).</p>"
         )
-    s = r.significance
+    s = r.resolution
     return (
-        f'<p class="note">± standard error from {s.batches} batches; sign significant when 0 '
-        f"lies outside ±{s.factor:.2f} SE (Student's t, {s.dof} dof, "
-        f"{100 * s.level:.0f} %).</p>"
+        f'<p class="note">{html.escape(score)}± standard error from {s.batches} batches; a sign '
+        f"is resolved when 0 lies outside ±{s.factor:.2f} SE (Student's t, {s.dof} dof, "
+        f"{100 * s.level:.0f} %) and the batches are not heavy-tailed; unresolved rows rank "
+        "after the resolved ones and are drawn neutral (grey).</p>"
     )
 
 
