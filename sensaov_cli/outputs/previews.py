@@ -108,6 +108,13 @@ def hatch(rgb_uint8: np.ndarray, mask: np.ndarray, period: int = 8, width: int =
     return out
 
 
+def neutral_linear() -> np.ndarray:
+    """:data:`NEUTRAL` as (3,) float32 linear Rec. 709, as the EXR's display layers store it."""
+    srgb = np.array(NEUTRAL, np.float64) / 255.0
+    linear = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    return linear.astype(np.float32)
+
+
 def neutral(rgb_uint8: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """``rgb_uint8`` drawn :data:`NEUTRAL` over ``mask``: values whose sign is not resolved."""
     out = rgb_uint8.copy()

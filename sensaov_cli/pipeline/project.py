@@ -48,6 +48,7 @@ from sensaov_cli.outputs.layered_exr import (
     ScaleGroup,
     SensitivityLayer,
     display_background,
+    resolution_metadata,
     with_display,
     write_layered_exr,
 )
@@ -74,7 +75,6 @@ from sensaov_cli.views.channels import (
     forward_views,
     group_scales,
     paint_pass,
-    signed_pixels,
     transport_views,
 )
 from sensaov_cli.views.coverage import VisibilityPass, ranked
@@ -523,6 +523,7 @@ def _layer(
         "keys": json.dumps(list(values.keys)),
         "unverified": json.dumps(list(values.unverified)),
         "estimators": json.dumps(values.estimators),
+        **resolution_metadata(values),
     }
     role = FOLLOWER if values.part == "untrusted" else REFERENCE
     return SensitivityLayer(
@@ -535,6 +536,8 @@ def _layer(
         invisible=painted.invisible,
         left_out=values.left_out or {},
         zero_valued=values.zero_valued or {},
+        neutral=painted.neutral,
+        scale_data=painted.scale_data,
     )
 
 
@@ -542,7 +545,7 @@ def _scales(job: JobSpec, raw: dict[str, _RawLayers]) -> Scales:
     """Every (camera, scale group)'s display scale, under the job's ``views`` settings."""
     entries = {
         camera: [
-            (layer.group.name, layer.group.role or REFERENCE, signed_pixels(layer.data, layer.kind))
+            (layer.group.name, layer.group.role or REFERENCE, layer.scale_pixels())
             for layer in found.layers
         ]
         for camera, found in raw.items()
