@@ -570,7 +570,7 @@ def shared_channel_scale(
             (
                 values.scale_group,
                 FOLLOWER if values.part == "untrusted" else REFERENCE,
-                signed_pixels(paint_pass(values, visibility).data),
+                signed_pixels(_scale_image(paint_pass(values, visibility))),
             )
             for values in passes
         ]  # fmt: skip
@@ -578,6 +578,11 @@ def shared_channel_scale(
     }
     scales = group_scales(layers, percentile=percentile)
     return scales[(next(iter(visibilities)), f"{objective}/{channel.name}")]
+
+
+def _scale_image(painted: PaintedPass) -> np.ndarray:
+    """What a display scale reads of a painted pass: never its unresolved objects."""
+    return painted.data if painted.scale_data is None else painted.scale_data
 
 
 def _painted(images: Sequence[np.ndarray]) -> np.ndarray:
