@@ -188,6 +188,8 @@ def _legend_notes(
     lines = [f"{scope[scale.scope]} ±{scale.value:.3g}: {scale.rule()}"]
     if scale.value == 0:
         lines[0] = f"zero in every camera of the rule: {scale.rule()}"
+        if layer.neutral is not None and layer.neutral.any():
+            lines[0] = f"no resolved value in any camera of the rule: {scale.rule()}"
     elif not values.any():
         lines.append("nothing of it in this view")
     else:
@@ -252,7 +254,8 @@ def _label(layer: SensitivityLayer, scale: DisplayScale) -> str:
     marks += " !" if layer.duality_failed else ""
     tile = " tile" if scale.scope == "tile" else ""
     if scale.value == 0:
-        return f"{layer.pass_name}: 0 everywhere{marks}"
+        grey = layer.neutral is not None and bool(layer.neutral.any())
+        return f"{layer.pass_name}: {'nothing resolved' if grey else '0 everywhere'}{marks}"
     return f"{layer.pass_name} ±{scale.value:.2e}{tile}{marks}"
 
 
