@@ -151,7 +151,7 @@ def test_rank_json_agrees_with_the_raw_arrays(
     assert result.exit_code == 0, result.output
     doc = json.loads(result.output)
     assert doc["format"] == "sensaov-ranking" and doc["columns"] == list(COLUMNS)
-    assert doc["format_version"] == 3
+    assert doc["format_version"] == 4
     for objective in doc["objectives"]:
         for part, rows in (("trusted", objective["rows"]), ("untrusted", objective["left_out"])):
             expected = direct(buffer_path, objective["name"], by, method, weight, part)
