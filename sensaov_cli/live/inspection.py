@@ -161,7 +161,8 @@ def paint_view(
     neutral = np.abs(doubtful_part) > np.abs(resolved_part)
     if look.scale == "view":
         own = view_own_scale(encoding, np.where(neutral, 0.0, resolved_part))
-        scale, rule = own, "p95 of |v| over this view's resolved pixels"
+        which = " (resolved objects only)" if neutral.any() else ""
+        scale, rule = own, f"p95 of |v| over this view's pixels{which}"
     else:  # one scale whatever the camera sees: the colours of project's pictures (Fig. 6)
         scale = choose_scale(replace(encoding, normalize="shared"), {"shared": shared.value})
         rule = f"{shared.rule()}: the job's scale"
