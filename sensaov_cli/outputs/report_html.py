@@ -37,6 +37,7 @@ SHOWN_PROVENANCE = ("tool_version", "mitsuba_version", "drjit_version", "variant
                     "max_depth", "primal_seed", "gradient_seeds", "resolution", "created_utc",
                     "wall_time_s", "timings_s", "buffer_id", "run_version")  # fmt: skip
 _RESOLVED = {None: "no error", True: "resolved", False: "unresolved"}  # a row's resolution
+ORDERS_DISAGREE = "≠"  # on a row whose rank by the other score differs markedly
 MAX_PREVIEW_BYTES = 64 << 20  # a preview is a few hundred kB; a page embeds every one
 _STYLE = """
 body{font:15px/1.45 system-ui,sans-serif;max-width:1280px;margin:1.5em auto;padding:0 1em;
@@ -246,34 +247,48 @@ def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -
         return '<p class="note">(none)</p>'
     cameras = any(row.off_frame is not None for row in rows)
     other = tables.other_score(r.method)
-    headers = ["#", "", r.by, "score", "signed", "±", "sign", f"#{other}", "share", "trust",
-               *(["off-frame"] * cameras)]  # fmt: skip
+    trust = any(row.trust != "verified" for row in rows)  # every row verified: said once, below
+    # one batch and no repair's error: no ± at all, said once below the table
+    errors = r.resolution is not None or any(row.signed_se is not None for row in rows)
+    headers = ["#", "", r.by, "score", "signed", *(["±", "sign"] * errors), f"#{other}", "share",
+               *(["trust"] * trust), *(["off-frame"] * cameras)]  # fmt: skip
     body = [
         [str(row.rank), tables.trust_mark(row.trust, row.zero_value), row.name,
-         f"{row.score:.2e}", f"{row.signed:+.2e}", tables.se_text(row.signed_se),
-         _resolution_cell(row), _order_cell(row, other), f"{100 * row.share:.1f}%", row.trust,
-         *([", ".join(row.off_frame or ()) or "-"] * cameras)]
+         f"{row.score:.2e}", f"{row.signed:+.2e}",
+         *([tables.se_text(row.signed_se), _resolution_cell(row)] * errors),
+         _order_cell(row), f"{100 * row.share:.1f}%",
+         *([row.trust] * trust), *([", ".join(row.off_frame or ()) or "-"] * cameras)]
         for row in rows
     ]  # fmt: skip
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "signed", "±", "share")}
     if not notes:
         return _table(headers, body, numeric)
-    return _table(headers, body, numeric) + _significance(r)
+    verified = "" if trust else '<p class="note">trust: every row verified gradients only.</p>'
+    return _table(headers, body, numeric) + verified + _row_notes(rows, other) + _significance(r)
 
 
 def _resolution_cell(row: RankRow) -> str:
     """The row's sign and whether its batches resolve it, beside its trust (never instead)."""
-    text = f"{tables.sign_text(row)} {_RESOLVED[row.resolved]}"
-    return f"{text}, noisy: {row.noisy}" if row.noisy else text
+    return f"{tables.sign_text(row)} {'noisy' if row.noisy else _RESOLVED[row.resolved]}"
 
 
-def _order_cell(row: RankRow, other: str) -> str:
+def _order_cell(row: RankRow) -> str:
     """Its rank by the other score; where the two orders disagree markedly, said on the row."""
     if row.other_rank is None:
         return "-"
-    if row.orders_disagree:
-        return f"{row.other_rank} (#{row.rank} by this score: the orders disagree)"
-    return str(row.other_rank)
+    return f"{row.other_rank} {ORDERS_DISAGREE}" if row.orders_disagree else str(row.other_rank)
+
+
+def _row_notes(rows: Sequence[RankRow], other: str) -> str:
+    """Why a row is noisy, and what the mark of disagreeing orders means, under its table."""
+    lines = [f"{html.escape(row.name)}: noisy, {html.escape(row.noisy)}" for row in rows
+             if row.noisy]  # fmt: skip
+    if any(row.orders_disagree for row in rows):
+        lines.append(
+            f"{ORDERS_DISAGREE} the rank by {other} differs markedly from the rank by this score "
+            "(a texture's many small same-sign texels: large sum, small l2)"
+        )
+    return "".join(f'<p class="note">{line}</p>' for line in lines)
 
 
 def _left_out_list(r: Ranking, keys: Mapping[str, tuple[ParamRecord, ...]]) -> str:
@@ -358,22 +373,17 @@ def _provenance_table(provenance: Mapping[str, Any]) -> str:
 
 def _significance(r: Ranking) -> str:
     other = tables.other_score(r.method)
-    score = (
-        f"score: {r.method} of the contributions (#{other}: the rank by {other}); trust says "
-        "whether the estimator is unbiased, resolution whether the batches resolve the sign. "
-    )
+    score = f"score: {r.method}; #{other}: rank by {other}. "
     if r.resolution is None:
         return (
-            f'<p class="note">{html.escape(score)}No error: this buffer has one batch, so no '
-            "number has a standard error and no sign is known to be resolved; render.batches "
-            "≥ 2 (or a merge of farm shards) gives them (docs/farm.md).</p>"
+            f'<p class="note">{score}No error: one batch, so no ± and no sign known to be '
+            "resolved (render.batches ≥ 2 gives them).</p>"
         )
     s = r.resolution
     return (
-        f'<p class="note">{html.escape(score)}± standard error from {s.batches} batches; a sign '
-        f"is resolved when 0 lies outside ±{s.factor:.2f} SE (Student's t, {s.dof} dof, "
-        f"{100 * s.level:.0f} %) and the batches are not heavy-tailed; unresolved rows rank "
-        "after the resolved ones and are drawn neutral (grey).</p>"
+        f'<p class="note">{score}± from {s.batches} batches; resolved: 0 outside '
+        f"±{s.factor:.2f} SE (t, {s.dof} dof, {100 * s.level:.0f} %), not noisy; unresolved rows "
+        "rank last, drawn grey.</p>"
     )
 
 
