@@ -222,8 +222,9 @@ def paint_texel(
     (shown,) = [p for p in texel_passes(field, visibility, texture_footprint(field, visibility))
                 if p.panel == panel]  # fmt: skip
     data = shown.data.sum(axis=2) if shown.data.ndim == 3 else shown.data
-    if look.scale == "view":
-        own = robust_scale({"view": [np.asarray(data, np.float64)]}, scope="tile").value
+    if look.scale == "view":  # never set by what is drawn neutral (unresolved)
+        scoped = data if shown.neutral is None else np.where(shown.neutral, 0.0, data)
+        own = robust_scale({"view": [np.asarray(scoped, np.float64)]}, scope="tile").value
         scale = Scale(shown.scale.threshold, own or 1.0)  # the view's p95, in encoded units
     else:
         scale = _panel_scale(field, panel, shown.scale)
@@ -238,7 +239,8 @@ def paint_texel(
     mask = visibility.paint(np.array([doubt if o in field.record.owners else 0.0
                                       for o in visibility.objects]))  # fmt: skip
     values = data.astype(np.float32)
-    return InspectionView(values, display, visibility.coverage_hit, mask, scale, legend)
+    return InspectionView(values, display, visibility.coverage_hit, mask, scale, legend,
+                          shown.neutral)  # fmt: skip
 
 
 def _panel_scale(field: TexelField, panel: str, encoded: Scale) -> Scale:

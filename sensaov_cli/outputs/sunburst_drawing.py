@@ -215,7 +215,7 @@ def _legend(fig: Figure, order: str, encoding: str) -> None:
     bar = fig.colorbar(ScalarMappable(Normalize(-1, 1), cmap), cax=bar_ax, orientation="horizontal")
     bar.set_ticks([-1, 0, 1], labels=["lowers M", "0", "raises M"])
     bar.ax.tick_params(labelsize=FONT_PT)
-    bar.ax.set_title("colour: Σc / largest |Σc| in its ring", fontsize=FONT_PT)
+    bar.ax.set_title("colour: Σc / largest resolved |Σc| in its ring", fontsize=FONT_PT)
     marks = {_HATCH: "not trusted: apart from its group",
              _NOISE_HATCH: "unresolved (grey): sign within noise or heavy-tailed"}  # fmt: skip
     fig.legend(

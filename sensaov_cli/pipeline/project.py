@@ -458,9 +458,13 @@ def _texel_panels(
                 REFERENCE,
                 1.0 if texel_pass.panel == "joint" else None,
             )
+            neutral = texel_pass.neutral
             layers.append(SensitivityLayer(
                 field.objective, texel_pass.pass_name, texel_pass.data, metadata, kind="texel",
-                group=group, invisible=(),
+                group=group, invisible=(), neutral=neutral,
+                scale_data=None if neutral is None else np.where(
+                    neutral if texel_pass.data.ndim == 2 else neutral[..., None], 0.0,
+                    texel_pass.data),
             ))  # fmt: skip
         result.append(_TexelPanels(field, passes, layers))
     return result

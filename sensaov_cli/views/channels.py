@@ -33,7 +33,7 @@ from sensaov_cli.buffer.queries import per_object, select
 from sensaov_cli.errors import EncodingError, NonFiniteError, SpecError
 from sensaov_cli.job.spec import ChannelSpec, ForwardSpec
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.hierarchy import Uncertainty, untrusted_keys, zero_valued
+from sensaov_cli.views.hierarchy import GroupError, Uncertainty, untrusted_keys, zero_valued
 from sensaov_cli.vocabulary import (
     AGGREGATES,
     DEFAULT_AGGREGATE,
@@ -158,15 +158,22 @@ def unresolved_objects(
             owned.setdefault(owner, []).append(key)
     found = {}
     for name, members in owned.items():
-        error = noise.error(members, signed[name])
-        if error.noisy is not None:
-            found[name] = f"noisy: {error.noisy}"
-        elif not error.resolves(signed[name]):
-            found[name] = (
-                f"unresolved: |{signed[name]:+.3g}| within {error.factor:.2f} x "
-                f"{error.signed_se:.2g} (t, {error.dof} dof)"
-            )
+        why = unresolved_reason(noise.error(members, signed[name]), signed[name])
+        if why is not None:
+            found[name] = why
     return found
+
+
+def unresolved_reason(error: GroupError, signed: float) -> str | None:
+    """Why ``signed`` is not resolved under ``error``, in a few words; None when it is."""
+    if error.noisy is not None:
+        return f"noisy: {error.noisy}"
+    if error.resolves(signed):
+        return None
+    return (
+        f"unresolved: |{signed:+.3g}| within {error.factor:.2f} x {error.signed_se:.2g} "
+        f"(t, {error.dof} dof)"
+    )
 
 
 def _selections(
