@@ -37,7 +37,7 @@ SHOWN_PROVENANCE = ("tool_version", "mitsuba_version", "drjit_version", "variant
                     "max_depth", "primal_seed", "gradient_seeds", "resolution", "created_utc",
                     "wall_time_s", "timings_s", "buffer_id", "run_version")  # fmt: skip
 _RESOLVED = {None: "no error", True: "resolved", False: "unresolved"}  # a row's resolution
-ORDERS_DISAGREE = "≠"  # on a row whose rank by the other score differs markedly
+ORDERS_DISAGREE = tables.ORDERS_DISAGREE_MARK  # on a row whose two ranks differ markedly
 MAX_PREVIEW_BYTES = 64 << 20  # a preview is a few hundred kB; a page embeds every one
 _STYLE = """
 body{font:15px/1.45 system-ui,sans-serif;max-width:1280px;margin:1.5em auto;padding:0 1em;

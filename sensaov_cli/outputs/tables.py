@@ -47,6 +47,8 @@ SUSPECT_MARK = "?"  # failed a run-time self-check
 NO_GRADIENT_MARK = "0"
 # After a sign its batches cannot resolve (within its 95 % interval, or heavy-tailed): "+?".
 UNRESOLVED_MARK = "?"
+# After a rank by the other score that differs markedly from the row's own (hierarchy.ORDER_GAP).
+ORDERS_DISAGREE_MARK = "≠"
 ZERO_VALUE_MARK = "θ0"  # θ is 0 where ∂M/∂θ is not: value weighting scores it 0 regardless
 # What each label means, said the same way in every legend (docs/verification.md).
 LABEL_MEANINGS = {
@@ -290,10 +292,10 @@ def sign_text(row: RankRow) -> str:
 
 
 def _other_rank_text(row: RankRow) -> str:
-    """The row's rank by the other score, ``!`` where the two orders disagree markedly."""
+    """The row's rank by the other score, marked where the two orders disagree markedly."""
     if row.other_rank is None:
         return "-"
-    return f"{row.other_rank}{'!' if row.orders_disagree else ''}"
+    return f"{row.other_rank}{ORDERS_DISAGREE_MARK if row.orders_disagree else ''}"
 
 
 def noisy_legend(rows: Sequence[RankRow]) -> list[str]:
@@ -311,7 +313,10 @@ def order_legend(rows: Sequence[RankRow], other: str) -> list[str]:
     apart = [row for row in rows if row.orders_disagree]
     if not apart:
         return []
-    lines = [f"  #{other}: rank by the {other} score; ! = the two orders disagree markedly:"]
+    lines = [
+        f"  #{other}: rank by the {other} score; {ORDERS_DISAGREE_MARK} = the two orders "
+        "disagree markedly:"
+    ]
     lines += [
         printable(f"      {row.name}: #{row.rank} here, #{row.other_rank} by {other}")
         for row in dict.fromkeys(apart)
