@@ -124,7 +124,7 @@ def test_pixels_survive_including_strided_input(synthetic: dict[str, Any]) -> No
 def test_metadata_per_layer(synthetic: dict[str, Any]) -> None:
     attributes = synthetic["attributes"]
     assert attributes["sensaov/format"] == "sensaov-aov-exr"
-    assert attributes["sensaov/format_version"] == "2"
+    assert attributes["sensaov/format_version"] == "3"
     assert attributes["sensaov/provenance"] == '{"seed": 0}'
     expected = {
         "mean_luma.albedo": ("mean_luma", "albedo", "R,G,B"),

@@ -33,7 +33,8 @@ from sensaov_cli.views.channels import ChannelValues, DisplayScale, clipped_shar
 from sensaov_cli.vocabulary import DEFAULT_AGGREGATE
 
 FORMAT_NAME = "sensaov-aov-exr"
-FORMAT_VERSION = 2  # 2: display layers, display scales, trust parts, stamps (exr-layout.md)
+# 2: display layers, display scales, trust parts, stamps; 3: resolution (exr-layout.md)
+FORMAT_VERSION = 3
 TOKEN_BYTES = 63  # Blender keeps layer and pass names in 64-byte buffers
 SUFFIX_HEX = 6
 BEAUTY_CHANNELS = ("R", "G", "B", "A")
