@@ -350,6 +350,7 @@ def _repaired_legend(parameters: Sequence[RankedParameter]) -> list[str]:
     ]
     for p, error in shown:
         sign = "" if error.resolved else "; its seeds do not resolve the sign"
+        sign += f" (noisy: {error.noisy})" if error.noisy else ""
         lines.append(
             printable(f"      {p.record.key}: {p.signed:+.2e} ± {error.signed_se:.1e} "
                       f"({error.seeds} seeds{sign})")

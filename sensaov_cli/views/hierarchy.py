@@ -500,7 +500,7 @@ class _Table:
             "rms": repair.norm_error(objective, theta) / math.sqrt(max(theta.size, 1)),
         }[self.cut.method]
         return replace(row, score_se=score_se, signed_se=repaired.signed_se, dof=repaired.dof,
-                       resolved=repaired.resolved)  # fmt: skip
+                       resolved=repaired.resolved, noisy=repaired.noisy)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -508,9 +508,10 @@ class RepairError:
     """A repaired parameter's own standard error of its signed sum, over its seeds."""
 
     signed_se: float
-    resolved: bool  # the sign of its signed sum is beyond Student's t of that error
+    resolved: bool  # the sign of its signed sum is beyond Student's t of that error, not noisy
     seeds: int
     dof: int  # seeds − 1
+    noisy: str | None = None  # why its seeds' estimates look heavy-tailed
 
 
 def repair_error(
@@ -520,9 +521,13 @@ def repair_error(
     repair = buf.repairs.get(key)
     if repair is None or not repair.has_error:
         return None
-    error = repair.signed_error(objective, _theta(buf, key, weight))
+    theta = _theta(buf, key, weight)
+    error = repair.signed_error(objective, theta)
     seeds = len(repair.seeds)
-    return RepairError(error, repair.significant(signed, error), seeds, seeds - 1)
+    sums = np.asarray(repair.estimates[objective]) @ theta.astype(np.float64).ravel()
+    noisy = heavy_tail(sums.tolist())
+    resolved = noisy is None and repair.significant(signed, error)
+    return RepairError(error, resolved, seeds, seeds - 1, noisy)
 
 
 def _theta(buf: SensitivityBuffer, key: str, weight: Weight) -> np.ndarray:
