@@ -32,7 +32,13 @@ from sensaov_cli.views.channels import (
     robust_scale,
 )
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.hierarchy import Uncertainty, orders_disagree, other_score, weakest_trust
+from sensaov_cli.views.hierarchy import (
+    Uncertainty,
+    orders_disagree,
+    other_score,
+    repair_error,
+    weakest_trust,
+)
 from sensaov_cli.views.texels import TexelField, texel_passes, texture_footprint
 from sensaov_cli.vocabulary import DEFAULT_AGGREGATE, Weight
 
@@ -353,10 +359,9 @@ def object_parameters(
     noise = Uncertainty.of(buf, objective, method, weight)
     other_scores = {key: combine([stats[key]], other) for key in keys}
     other_rank = {key: i for i, (key, _) in enumerate(rank(other_scores), 1)}
-    errors = {key: None if noise is None else noise.error([key], combine([stats[key]], method))
-              for key in keys}  # fmt: skip
+    errors = {key: _judged(buf, objective, key, stats[key].total, weight, noise) for key in keys}
     scored = rank({key: combine([stats[key]], method) for key in keys})
-    unresolved = {k for k, e in errors.items() if e is not None and not e.resolves(stats[k].total)}
+    unresolved = {k for k, e in errors.items() if e is not None and not e.resolved}
     ordered = [(k, s) for k, s in scored if k not in unresolved]
     ordered += [(k, s) for k, s in scored if k in unresolved]
     rows = []
@@ -383,7 +388,7 @@ def object_parameters(
                 note=record.note,
                 shared_with=tuple(o for o in record.owners if o != obj),
                 dof=None if error is None else error.dof,
-                resolved=None if error is None else key not in unresolved,
+                resolved=None if error is None else error.resolved,
                 noisy=None if error is None else error.noisy,
                 method=method,
                 other_score=other_scores[key],
@@ -392,6 +397,34 @@ def object_parameters(
             )
         )
     return rows
+
+
+@dataclass(frozen=True)
+class _Judged:
+    """A parameter's error and resolution: from the batches, or a repair's own seeds."""
+
+    signed_se: float
+    dof: int
+    resolved: bool
+    noisy: str | None
+
+
+def _judged(
+    buf: SensitivityBuffer,
+    objective: str,
+    key: str,
+    signed: float,
+    weight: Weight,
+    noise: Uncertainty | None,
+) -> _Judged | None:
+    """None where nothing measured an error (one batch, and not a repair with seeds)."""
+    if noise is not None:
+        error = noise.error([key], signed)  # the score is the sum: the signed sum is the score
+        return _Judged(error.signed_se, error.dof, error.resolves(signed), error.noisy)
+    repaired = repair_error(buf, objective, key, signed, weight)
+    if repaired is None:
+        return None
+    return _Judged(repaired.signed_se, repaired.dof, repaired.resolved, repaired.noisy)
 
 
 def view_rgb(
