@@ -614,6 +614,10 @@ class LeftOut:
     signed: float
     trust: Trust
     keys: tuple[tuple[str, Trust], ...]
+    signed_se: float | None = None  # as a ranking row's; None: one batch
+    dof: int | None = None
+    resolved: bool | None = None
+    noisy: str | None = None
 
 
 @dataclass(frozen=True)
@@ -693,13 +697,14 @@ def _objective_summary(
 
     part = "all" if untrusted == "include" else "trusted"
 
-    def left_out(grouped: Mapping[str, Sequence[str]]) -> tuple[LeftOut, ...]:
-        """The untrusted part of each group, largest first, with each key and its label."""
-        sums = scores(stats, grouped, "sum")
+    def left_out(grouped: Mapping[str, Sequence[str]], by: Cut) -> tuple[LeftOut, ...]:
+        """The untrusted part of each group, resolved and largest first, with each key and its
+        label and the group's error."""
         return tuple(
-            LeftOut(g, score, sums[g], weakest_trust(buf, grouped[g]),
-                    tuple((k, buf.param(k).trust) for k in grouped[g]))
-            for g, score in rank(scores(stats, grouped, method))
+            LeftOut(r.name, r.score, r.signed, r.trust,
+                    tuple((k, buf.param(k).trust) for k in grouped[r.name]),
+                    r.signed_se, r.dof, r.resolved, r.noisy)
+            for r in table(by).rows(grouped, "untrusted", None)
         )  # fmt: skip
 
     parameters = tuple(
@@ -718,8 +723,8 @@ def _objective_summary(
         parameters,
         tuple(RankedGroup(row) for row in table("object").rows(objects.kept, part, top)),
         tuple(RankedGroup(row) for row in table("type").rows(types.kept, part, None)),
-        left_out(objects.left_out),
-        left_out(types.left_out),
+        left_out(objects.left_out, "object"),
+        left_out(types.left_out, "type"),
         tuple(hidden.values()),
         tuple(p for p in buf.params if p.trust == "no_gradient"),
         objective_se(buf, name),
