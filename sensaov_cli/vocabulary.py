@@ -12,6 +12,11 @@ from typing import Literal, get_args
 Weight = Literal["value", "raw"]  # θ·∂M/∂θ (a proportional change) | ∂M/∂θ
 Sign = Literal["signed", "magnitude"]
 Aggregate = Literal["l2", "rms", "sum"]
+# The one default score of rankings and pictures: the total response Σ θ·∂M/∂θ of a group (the
+# paper's §3 allows it or the per-component ℓ2). Resolution is a property of the signed sum, so
+# with this default what is ranked, what is painted and what is tested against noise are one
+# number (docs/rankings.md, "One score").
+DEFAULT_AGGREGATE: Aggregate = "sum"
 Tonemap = Literal["none", "log", "symlog"]
 Normalize = Literal["none", "channel", "shared"]
 Grouping = Literal["param", "object", "type"]

@@ -202,7 +202,7 @@ def test_rgb_layers_by_luminance_or_by_their_sum() -> None:
 
 def test_the_shared_channel_scale_reads_the_buffer_and_visibility_only() -> None:
     """What `sensaov view` will call: the biased floor left apart, the wall sets the scale."""
-    buf = report_buffer("biased")  # wall 3e-3 l2 (verified), floor 0.5 (biased), lamp 4e-2
+    buf = report_buffer("biased")  # wall 5e-3 sum (verified), floor 0.5 (biased), lamp 4e-2
     objects = buf.objects  # ceiling, floor, lamp, wall
     samples = np.array([[1, 1, 3, 3], [3, 3, 3, 3]], np.int32)  # floor 2 samples, wall 6
     coverage = histogram(samples.reshape(4, 2))
@@ -210,7 +210,8 @@ def test_the_shared_channel_scale_reads_the_buffer_and_visibility_only() -> None
     vis = VisibilityPass(2, 2, 2, objects, None, coverage, index, amount)
     channel = ChannelSpec("objects", "object")
     scale = shared_channel_scale(buf, channel, "brightness", {"cam": vis})
-    wall = per_object(buf, "brightness", keys=["wall.bsdf.reflectance.value"])["wall"]
+    wall_keys = ["wall.bsdf.reflectance.value"]  # scored by the default, the signed sum
+    wall = per_object(buf, "brightness", keys=wall_keys, method="sum")["wall"]
     assert scale.value == pytest.approx(wall)  # not the floor's biased 0.5
     mixed = shared_channel_scale(buf, channel, "brightness", {"cam": vis}, untrusted="include")
     assert mixed.value == pytest.approx(0.5)
@@ -374,16 +375,16 @@ def test_untrusted_parameters_leave_the_headline_layer(demo: Path) -> None:
     biased = [p.key for p in buffer.params if p.trust == "biased" and "tall_box" in p.owners]
     assert biased
     trusted = [p.key for p in buffer.params if p.trust in ("verified", "no_gradient")]
-    expected = per_object(buffer, "mean_luma", keys=trusted)["tall_box"]
-    apart = per_object(buffer, "mean_luma", keys=biased)["tall_box"]
+    expected = per_object(buffer, "mean_luma", keys=trusted, method="sum")["tall_box"]
+    apart = per_object(buffer, "mean_luma", keys=biased, method="sum")["tall_box"]
     channels, meta = layers_of(out / "objective.exr")
     names, coverages, _ = decode_file(out / "objective.exr", "CryptoObject")
     full = (names[0] == "tall_box") & (coverages[0] == 1.0)
     assert full.any()
     headline = np.abs(channels["mean_luma.objects.Y"][full])
-    np.testing.assert_allclose(headline, expected, rtol=1e-5)
-    np.testing.assert_allclose(np.abs(channels["mean_luma.objects_untrusted.Y"][full]), apart,
-                               rtol=1e-5)  # fmt: skip
+    np.testing.assert_allclose(headline, abs(expected), rtol=1e-5)
+    np.testing.assert_allclose(np.abs(channels["mean_luma.objects_untrusted.Y"][full]),
+                               abs(apart), rtol=1e-5)  # fmt: skip
     left = json.loads(meta["mean_luma.objects"]["left_out"])
     assert sorted(left["tall_box"]) == sorted(biased)
 
@@ -408,12 +409,13 @@ def test_the_interior_floor_is_not_painted_by_its_biased_varnish(interior: Path)
     floor = [p for p in buffer.params if "floor" in p.owners]
     assert any(p.trust == "biased" for p in floor)
     trusted = [p.key for p in floor if p.trust in ("verified", "no_gradient")]
-    expected = per_object(buffer, "mean_luma", keys=trusted)["floor"] if trusted else 0.0
+    sums = per_object(buffer, "mean_luma", keys=trusted, method="sum")  # the default score
+    expected = sums["floor"] if trusted else 0.0
     channels, meta = layers_of(interior / "corner.exr")
     names, coverages, _ = decode_file(interior / "corner.exr", "CryptoObject")
     full = (names[0] == "floor") & (coverages[0] == 1.0)
     assert full.any()
-    np.testing.assert_allclose(np.abs(channels["mean_luma.objects.Y"][full]), expected,
+    np.testing.assert_allclose(np.abs(channels["mean_luma.objects.Y"][full]), abs(expected),
                                rtol=1e-5, atol=1e-12)  # fmt: skip
     assert (channels["mean_luma.objects_untrusted.Y"][full] != 0).all()  # the part left out
     assert "floor" in json.loads(meta["mean_luma.objects"]["left_out"])

@@ -225,8 +225,8 @@ def test_encode_refuses_a_bad_scale(scale: float) -> None:
 
 
 def test_describe_is_stable() -> None:
-    assert Encoding().describe() == (
-        "weight=value;sign=signed;aggregate=l2;tonemap=none;normalize=none"
+    assert Encoding().describe() == (  # the default score is the signed sum
+        "weight=value;sign=signed;aggregate=sum;tonemap=none;normalize=none"
     )
     custom = Encoding("raw", "magnitude", "rms", "symlog", "shared")
     assert (

@@ -132,14 +132,19 @@ def test_rank_shows_standard_errors_and_stability(merged: Path) -> None:
     first = document["objectives"][0]
     assert first["batches"] == 4 and 0.0 <= first["stability"] <= 1.0
     row = first["rows"][0]
-    assert row["score_se"] > 0 and row["signed_se"] > 0 and row["significant"] is True
-    # Significance at the batch count: Student's t at 3 degrees of freedom, not 2 SE
-    significance = first["significance"]
-    assert (significance["batches"], significance["dof"]) == (4, 3)
-    assert significance["factor"] == pytest.approx(3.1824463, abs=1e-6)
+    assert row["score_se"] > 0 and row["signed_se"] > 0 and row["dof"] == 3
+    # Resolution at the batch count: Student's t at 3 degrees of freedom, not 2 SE, and no
+    # heavy tail (a noisy row is never resolved, whatever its interval says)
+    resolution = first["resolution"]
+    assert (resolution["batches"], resolution["dof"]) == (4, 3)
+    assert resolution["factor"] == pytest.approx(3.1824463, abs=1e-6)
     rows = first["rows"] + first["left_out"]
     for entry in rows:
-        assert entry["significant"] == (abs(entry["signed"]) > 3.1824463 * entry["signed_se"])
+        beyond = abs(entry["signed"]) > 3.1824463 * entry["signed_se"]
+        assert entry["resolved"] == (beyond and entry["noisy"] is None), entry
+    # the unresolved rows rank after every resolved one
+    flags = [entry["resolved"] for entry in first["rows"]]
+    assert flags == sorted(flags, reverse=True), flags
     text = sensaov("rank", str(merged), "--by", "object").stdout
     assert "standard error from 4 batches" in text and "bootstrap" in text
     assert "within 3.18 standard errors (Student's t, 3 degrees of freedom" in text

@@ -151,7 +151,7 @@ def test_defaults(tmp_path: Path) -> None:
         ("types", "type", None, None),
     ]
     assert {(c.weight, c.sign, c.aggregate, c.tonemap, c.normalize) for c in spec.channels} == {
-        ("value", "signed", "l2", "none", "none")
+        ("value", "signed", "sum", "none", "none")  # sum: the one default score
     }
     assert spec.output == tmp_path / "out" / "job"
     assert SUPPORTED_VERSIONS == (1,)

@@ -79,7 +79,8 @@ def test_object_channel_equals_buffer_aggregate_from_two_cameras(projected: Path
     buffer = read_buffer(projected / "buffer.npz")
     # The headline layer adds up the gradients sensaov stands behind (docs/encoding.md)
     trusted = [p.key for p in buffer.params if p.trust in ("verified", "no_gradient")]
-    expected = per_object(buffer, "mean_luma", method="l2", weight="value", keys=trusted)
+    # painted with the default score, the signed sum (docs/rankings.md, "One score")
+    expected = per_object(buffer, "mean_luma", method="sum", weight="value", keys=trusted)
     checked = 0
     for camera in ("objective", "high"):
         channels, _ = exr(projected, camera)

@@ -84,30 +84,32 @@ def row_of(text: str, key: str) -> str:
 
 # The text of make_buffer() before trust labels existed (with the signed sum and its rank
 # beside each object's and type's score since texel channels, and each parameter's estimator
-# since repairs), read with untrusted parameters mixed in: only the legend changed since, to
-# say the label the table says.
+# since repairs; the sign with its resolution and the rank by the other score, and the line
+# saying a one-batch buffer has no error, since resolution), scored by l2 and read with
+# untrusted parameters mixed in: only the legend changed since, to say the label the table says.
 BEFORE_LABELS = """\
 sensitivity buffer: 3 parameters, 4 objects, 1 objective · scene scenes/cbox.xml · variant llvm_ad_rgb · spp 16
 scores: l2 of theta * dM/dtheta over each group's components
 signed: their plain sum; > 0 means increasing the parameter raises M
+no error: this buffer has one batch, so no number has a standard error and no sign is known to be resolved (render.batches >= 2, or a merge of shards, gives them)
 
 objective 'brightness'   M = 0.125
   parameters (top 3 of 3)
-    #        score     signed  type         estimator  key                          owners
-    1  !  5.00e-01  -5.00e-01  roughness    reverse    floor.bsdf.alpha.value       floor
-    2     4.00e-02  +4.00e-02  radiance     reverse    lamp.emitter.radiance.value  lamp
-    3     3.00e-03  +5.00e-03  reflectance  reverse    wall.bsdf.reflectance.value  wall
+    #        score     signed  sign  #sum  type         estimator  key                          owners
+    1  !  5.00e-01  -5.00e-01  -        1  roughness    reverse    floor.bsdf.alpha.value       floor
+    2     4.00e-02  +4.00e-02  +        2  radiance     reverse    lamp.emitter.radiance.value  lamp
+    3     3.00e-03  +5.00e-03  +        3  reflectance  reverse    wall.bsdf.reflectance.value  wall
   objects (top 4 of 4)
-    #        score     signed  #sum  object
-    1  !  5.00e-01  -5.00e-01     1  floor
-    2     4.00e-02  +4.00e-02     2  lamp
-    3     3.00e-03  +5.00e-03     3  wall
-    4     0.00e+00  +0.00e+00     4  ceiling
+    #        score     signed  sign  #sum  object
+    1  !  5.00e-01  -5.00e-01  -        1  floor
+    2     4.00e-02  +4.00e-02  +        2  lamp
+    3     3.00e-03  +5.00e-03  +        3  wall
+    4     0.00e+00  +0.00e+00  0        4  ceiling
   types
-    #        score     signed  #sum  type
-    1  !  5.00e-01  -5.00e-01     1  roughness
-    2     4.00e-02  +4.00e-02     2  radiance
-    3     3.00e-03  +5.00e-03     3  reflectance
+    #        score     signed  sign  #sum  type
+    1  !  5.00e-01  -5.00e-01  -        1  roughness
+    2     4.00e-02  +4.00e-02  +        2  radiance
+    3     3.00e-03  +5.00e-03  +        3  reflectance
   ! = {meaning}
       floor.bsdf.alpha.value: {trust}: known biased: roughplastic alpha gradient ~5x too small
     objects and types so marked include such a parameter
@@ -116,16 +118,16 @@ objective 'brightness'   M = 0.125
 # The default since: objects and types add up trusted parameters only, the rest apart.
 APART = """\
   objects (trusted parameters only) (top 3 of 3)
-    #       score     signed  #sum  object
-    1    4.00e-02  +4.00e-02     1  lamp
-    2    3.00e-03  +5.00e-03     2  wall
-    3    0.00e+00  +0.00e+00     3  ceiling
+    #        score  sign  #l2  object
+    1    +4.00e-02  +       1  lamp
+    2    +5.00e-03  +       2  wall
+    3    +0.00e+00  0       3  ceiling
   types (trusted parameters only)
-    #       score     signed  #sum  type
-    1    4.00e-02  +4.00e-02     1  radiance
-    2    3.00e-03  +5.00e-03     2  reflectance
+    #        score  sign  #l2  type
+    1    +4.00e-02  +       1  radiance
+    2    +5.00e-03  +       2  reflectance
   left out of the objects and types above (not trusted), by object:
-      floor  5.00e-01  -5.00e-01  floor.bsdf.alpha.value (biased)
+      floor  -5.00e-01  -5.00e-01  floor.bsdf.alpha.value (biased)
   ! = biased: disagrees with finite differences, do not trust the number
       floor.bsdf.alpha.value: biased: known biased: roughplastic alpha gradient ~5x too small
 """
@@ -135,7 +137,7 @@ APART = """\
 def test_text_without_new_labels_is_unchanged_but_for_the_label(trust: str) -> None:
     meaning = LABEL_MEANINGS[trust]
     expected = BEFORE_LABELS.format(meaning=meaning, trust=trust)
-    assert summary_text(make_buffer(trust), untrusted="include") == expected
+    assert summary_text(make_buffer(trust), untrusted="include", method="l2") == expected
 
 
 def test_objects_and_types_leave_untrusted_parameters_apart() -> None:
@@ -162,7 +164,8 @@ def test_labels_are_in_the_dict(buf: SensitivityBuffer) -> None:
     (apart,) = summary_dict(buf)["objectives"]
     assert "floor" not in {o["name"] for o in apart["objects"]}  # its only parameter: biased
     (floor,) = apart["left_out"]["objects"]
-    assert (floor["name"], floor["keys"], floor["score"]) == ("floor", [[ALPHA, "biased"]], 0.5)
+    # scored by the default, the signed sum
+    assert (floor["name"], floor["keys"], floor["score"]) == ("floor", [[ALPHA, "biased"]], -0.5)
 
 
 def test_suspect_parameter_has_its_own_mark_and_legend() -> None:
@@ -189,7 +192,7 @@ def test_zero_gradient_is_listed_apart_not_ranked() -> None:
 
 def test_zero_gradient_in_json_and_out_of_every_score() -> None:
     summary = summary_dict(with_gold_ball(), top=10)
-    assert (summary["format"], summary["format_version"]) == ("sensaov-summary", 3)
+    assert (summary["format"], summary["format_version"]) == ("sensaov-summary", 4)
     assert summary["counts"]["parameters"] == 4 and summary["counts"]["ranked_parameters"] == 3
     (objective,) = summary["objectives"]
     assert [p["key"] for p in objective["no_gradient"]] == [GOLD]
@@ -204,7 +207,8 @@ def test_an_object_keeps_its_flowing_parameters() -> None:
     """A zero-gradient parameter leaves its object only when it was the object's last one."""
     extra = ParamRecord("floor.bsdf.reflectance.value", "reflectance", ("floor",), (3,), False,
                         "diffuse", (), "no_gradient", NO_FLOW)  # fmt: skip
-    (objective,) = summary_dict(make_buffer(extra=(extra,)), untrusted="include")["objectives"]
+    buf = make_buffer(extra=(extra,))
+    (objective,) = summary_dict(buf, untrusted="include", method="l2")["objectives"]
     floor = {o["name"]: o for o in objective["objects"]}["floor"]
     assert floor["score"] == 0.5 and floor["trust"] == "biased"
     types = {t["type"]: t for t in objective["types"]}
@@ -224,15 +228,17 @@ def test_dict_is_json_and_ranked(buf: SensitivityBuffer) -> None:
 
 
 def test_scores_have_three_significant_digits(buf: SensitivityBuffer) -> None:
-    text = summary_text(buf)
-    assert re.search(r"\b3\.00e-03\s+\+5\.00e-03\s+reflectance", text)  # l2 score, signed sum
-    assert re.search(r"\b5\.00e-01\s+-5\.00e-01\s+roughness", text)
+    text = summary_text(buf, method="l2")  # l2 score, signed sum, sign, rank by the sum
+    assert re.search(r"\b3\.00e-03\s+\+5\.00e-03\s+\+\s+\d+\s+reflectance", text)
+    assert re.search(r"\b5\.00e-01\s+-5\.00e-01\s+-\s+\d+\s+roughness", text)
 
 
 def test_signed_method_shows_the_sign(buf: SensitivityBuffer) -> None:
     text = summary_text(buf, method="sum")
-    assert re.search(r"-5\.00e-01\s+roughness\s+reverse\s+floor\.bsdf\.alpha\.value", text)
-    assert re.search(r"\+4\.00e-02\s+radiance", text)
+    assert re.search(
+        r"-5\.00e-01\s+-\s+\d+\s+roughness\s+reverse\s+floor\.bsdf\.alpha\.value", text
+    )
+    assert re.search(r"\+4\.00e-02\s+\+\s+\d+\s+radiance", text)
 
 
 def test_text_names_the_objective_and_provenance(buf: SensitivityBuffer) -> None:

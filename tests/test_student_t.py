@@ -1,4 +1,4 @@
-"""Student's t, the rule behind a ranking's `significant` column (buffer/statistics.py)."""
+"""Student's t, the rule behind a ranking's `resolved` column (buffer/statistics.py)."""
 
 from __future__ import annotations
 

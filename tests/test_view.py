@@ -247,7 +247,8 @@ def test_a_view_paints_the_buffer_values_and_a_pick_lists_the_gradients(
     buffer = read_buffer(session.buffer_path)
     trusted = [p.key for p in buffer.params if is_trusted(p)]
     assert len(trusted) < len(buffer.params)  # the demo holds biased gradients: left out here
-    scores = per_object(buffer, "mean_luma", method="l2", weight="value", keys=trusted)
+    # the objects channel paints the default score, the signed sum (docs/rankings.md, "One score")
+    scores = per_object(buffer, "mean_luma", method="sum", weight="value", keys=trusted)
     sums = per_object(buffer, "mean_luma", method="sum", weight="value", keys=trusted)
     status, _, body = get(server.url + "api/view?channel=objects&format=exr&spp=4&width=64")
     assert status == 200
@@ -264,7 +265,7 @@ def test_a_view_paints_the_buffer_values_and_a_pick_lists_the_gradients(
     for i, name in enumerate(buffer.objects):
         where = full & (index == i)
         if where.any():
-            expected = math.copysign(scores[name], sums[name])
+            expected = math.copysign(abs(scores[name]), sums[name])
             assert layer[where] == pytest.approx(expected, rel=1e-5), name
     assert "normalize=shared" in header["sensaov/encoding"]
     _, _, body = get(server.url + "api/pick?object=right_wall")

@@ -23,7 +23,7 @@ import click
 from sensaov_cli import interrupts
 from sensaov_cli.errors import EXIT_BAD_INPUT, EXIT_JOB_FAILED, EXIT_MEANINGS, SensaovError
 from sensaov_cli.outputs import atomic
-from sensaov_cli.vocabulary import AGGREGATES, UNTRUSTED_MODES, WEIGHTS
+from sensaov_cli.vocabulary import AGGREGATES, DEFAULT_AGGREGATE, UNTRUSTED_MODES, WEIGHTS
 
 # The end of every --help, from the one table of exit codes in errors.py.
 EXIT_CODES_EPILOG = "\b\nExit codes:\n" + "".join(
@@ -63,7 +63,7 @@ progress_option = click.option(
 aggregate_option = click.option(
     "--aggregate",
     type=click.Choice(AGGREGATES),
-    default="l2",
+    default=DEFAULT_AGGREGATE,
     show_default=True,
     help="How a group's contributions become one score (docs/buffer-format.md).",
 )

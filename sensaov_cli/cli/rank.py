@@ -57,10 +57,15 @@ def rank(
     Without --by: the summary `sensaov run` prints (top keys, objects, types).
     With --by key|object|type: one table per objective at that cut; every row
     has its score, signed sum, sign, share of the total, value (keys: the mean
-    of the value array) and trust label. Objects and types add up only the
-    gradients sensaov stands behind; the rest is ranked apart ("left out",
-    --untrusted include mixes it in). A sign is significant when 0 lies outside
-    its 95 % interval (Student's t at batches - 1 degrees of freedom).
+    of the value array) and trust label. The score is the signed sum of
+    theta*dM/dtheta unless --aggregate says otherwise; each row's rank by l2
+    stands beside it (marked ≠ where the two orders disagree). Objects and
+    types add up only the gradients sensaov stands behind; the rest is ranked
+    apart ("left out", --untrusted include mixes it in). With batches, every
+    number has its standard error, and a sign is resolved when 0 lies outside
+    its 95 % interval (Student's t at batches - 1 degrees of freedom) and its
+    batches are not heavy-tailed; an unresolved row is marked ? and ranked
+    after the resolved ones. With one batch, there is no error (null).
     --exr CAMERA.exr labels the objects (or keys) that camera does not see; the
     EXR must come from this very buffer. Columns: docs/rankings.md.
     What is not ranked (parameters with no gradient, left out as untrusted,

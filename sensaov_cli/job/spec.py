@@ -451,7 +451,7 @@ class ChannelSpec:
     ] = None
     weight: vocabulary.Weight = "value"
     sign: vocabulary.Sign = "signed"
-    aggregate: vocabulary.Aggregate = "l2"
+    aggregate: vocabulary.Aggregate = vocabulary.DEFAULT_AGGREGATE  # what rankings score
     tonemap: vocabulary.Tonemap = "none"
     normalize: vocabulary.Normalize = "none"
     top: Annotated[

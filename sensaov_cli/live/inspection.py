@@ -18,8 +18,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
-from sensaov_cli.buffer.queries import combine, key_stats, rank
-from sensaov_cli.outputs.previews import BACKGROUND, diverging_rgb
+from sensaov_cli.buffer.queries import combine, key_stats, per_object, rank
+from sensaov_cli.outputs.previews import BACKGROUND, NEUTRAL, diverging_rgb
 from sensaov_cli.views.channels import (
     ChannelValues,
     DisplayScale,
@@ -32,9 +32,15 @@ from sensaov_cli.views.channels import (
     robust_scale,
 )
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.hierarchy import Uncertainty, weakest_trust
+from sensaov_cli.views.hierarchy import (
+    Uncertainty,
+    orders_disagree,
+    other_score,
+    repair_error,
+    weakest_trust,
+)
 from sensaov_cli.views.texels import TexelField, texel_passes, texture_footprint
-from sensaov_cli.vocabulary import Weight
+from sensaov_cli.vocabulary import DEFAULT_AGGREGATE, Weight
 
 SCALE_MODES = ("shared", "view")
 LEGEND_STOPS = (-1.0, -0.5, 0.0, 0.5, 1.0)
@@ -81,6 +87,8 @@ class InspectionView:
     unverified: np.ndarray  # (H, W) coverage of objects whose value is not verified
     scale: Scale  # what ``display`` was encoded with
     legend: Legend
+    # (H, W) bool: pixels painted mostly by unresolved objects, drawn neutral; None: none
+    neutral: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -97,12 +105,19 @@ class ParameterRow:
     value: tuple[float, ...]  # every component, or (mean,) for a larger array
     gradient: tuple[float, ...]  # ∂M/∂θ per component, or (sum,) for a larger array
     gradient_se: tuple[float, ...] | None  # its standard error per component (listed only)
-    score: float  # l2 of the contributions (how the rows are ranked)
+    score: float  # the default score of its contributions (how the rows are ranked)
     signed: float  # Σ contributions: > 0 when scaling the parameter up raises M
     signed_se: float | None  # standard error of ``signed``; None without batch statistics
     trust: str
     note: str
     shared_with: tuple[str, ...]  # the parameter's other owners
+    dof: int | None = None  # degrees of freedom of ``signed_se``
+    resolved: bool | None = None  # None: no error measured; False: drawn neutral, ranked last
+    noisy: str | None = None  # why its batches look heavy-tailed
+    method: str = DEFAULT_AGGREGATE  # what ``score`` is
+    other_score: float | None = None  # by the other aggregate (hierarchy.OTHER_SCORE)
+    other_rank: int | None = None  # its rank among the object's parameters by that score
+    orders_disagree: bool = False  # the two ranks differ markedly: said on the row
 
 
 @dataclass(frozen=True)
@@ -113,6 +128,13 @@ class ObjectRank:
     object_signed: float
     object_rank: int
     objects_ranked: int  # objects with a non-zero value
+    object_signed_se: float | None = None  # None: the buffer has one batch
+    object_dof: int | None = None
+    object_resolved: bool | None = None  # False: drawn neutral in the channel's pictures
+    object_noisy: str | None = None  # why, when heavy-tailed batches are the reason
+    object_method: str = DEFAULT_AGGREGATE  # what ``object_score`` is
+    object_other_rank: int | None = None  # its rank by the other score among the objects
+    object_orders_disagree: bool = False
 
 
 @dataclass(frozen=True)
@@ -137,8 +159,16 @@ def paint_view(
     encoding = look.encoding(values)
     names = visibility.objects
     per_object, painted = painted_values(values, visibility, encoding.sign)
+    # The unresolved objects' share of each pixel: drawn neutral, never in the view's own scale.
+    doubtful_part = visibility.paint(
+        np.array([per_object[n] if n in values.unresolved else 0.0 for n in names])
+    )
+    resolved_part = painted - doubtful_part
+    neutral = np.abs(doubtful_part) > np.abs(resolved_part)
     if look.scale == "view":
-        scale, rule = view_own_scale(encoding, painted), "p95 of |v| over this view's pixels"
+        own = view_own_scale(encoding, np.where(neutral, 0.0, resolved_part))
+        which = " (resolved objects only)" if neutral.any() else ""
+        scale, rule = own, f"p95 of |v| over this view's pixels{which}"
     else:  # one scale whatever the camera sees: the colours of project's pictures (Fig. 6)
         scale = choose_scale(replace(encoding, normalize="shared"), {"shared": shared.value})
         rule = f"{shared.rule()}: the job's scale"
@@ -148,12 +178,15 @@ def paint_view(
     seen = set(visibility.visible_objects)
     peak = peak_of(scale, encoding.tonemap)
     clipped = f"scale: {rule}; {clipped_share([painted], peak):.1%} of painted pixels above it"
+    unresolved = tuple(f"{name}: {why}" for name, why in sorted(values.unresolved.items()))
+    grey = ("grey: unresolved, neither red nor blue, out of the scale",) if unresolved else ()
     legend = _legend(
         encoding.describe(), look.scale, scale, encoding.tonemap, values.unverified,
         invisible=tuple(sorted(n for n, v in per_object.items() if v and n not in seen)),
-        notes=(clipped,),
+        notes=(clipped, *grey, *unresolved),
     )  # fmt: skip
-    return InspectionView(painted, display, visibility.coverage_hit, mask, scale, legend)
+    return InspectionView(painted, display, visibility.coverage_hit, mask, scale, legend,
+                          neutral if neutral.any() else None)  # fmt: skip
 
 
 def paint_image(
@@ -195,8 +228,9 @@ def paint_texel(
     (shown,) = [p for p in texel_passes(field, visibility, texture_footprint(field, visibility))
                 if p.panel == panel]  # fmt: skip
     data = shown.data.sum(axis=2) if shown.data.ndim == 3 else shown.data
-    if look.scale == "view":
-        own = robust_scale({"view": [np.asarray(data, np.float64)]}, scope="tile").value
+    if look.scale == "view":  # never set by what is drawn neutral (unresolved)
+        scoped = data if shown.neutral is None else np.where(shown.neutral, 0.0, data)
+        own = robust_scale({"view": [np.asarray(scoped, np.float64)]}, scope="tile").value
         scale = Scale(shown.scale.threshold, own or 1.0)  # the view's p95, in encoded units
     else:
         scale = _panel_scale(field, panel, shown.scale)
@@ -211,7 +245,8 @@ def paint_texel(
     mask = visibility.paint(np.array([doubt if o in field.record.owners else 0.0
                                       for o in visibility.objects]))  # fmt: skip
     values = data.astype(np.float32)
-    return InspectionView(values, display, visibility.coverage_hit, mask, scale, legend)
+    return InspectionView(values, display, visibility.coverage_hit, mask, scale, legend,
+                          shown.neutral)  # fmt: skip
 
 
 def _panel_scale(field: TexelField, panel: str, encoded: Scale) -> Scale:
@@ -274,27 +309,61 @@ def object_summary(
     weight = channel.spec.weight if channel is not None else "value"
     rows = object_parameters(buffer, objective, obj, weight)
     trust = weakest_trust(buffer, [r.key for r in rows]) if rows else "verified"
-    standing = None
-    if channel is not None:
-        index = buffer.objects.index(obj)
-        order = sorted(range(len(channel.magnitudes)), key=lambda i: -channel.magnitudes[i])
-        standing = ObjectRank(
-            object_score=float(channel.magnitudes[index]),
-            object_signed=float(channel.signed_sums[index]),
-            object_rank=order.index(index) + 1,
-            objects_ranked=int((channel.magnitudes > 0).sum()),
-        )
+    standing = None if channel is None else object_rank(buffer, objective, obj, channel)
     return ObjectSummary(weight, tuple(rows), trust, standing)
+
+
+def object_rank(
+    buffer: SensitivityBuffer, objective: str, obj: str, channel: ChannelValues
+) -> ObjectRank:
+    """Where ``obj`` stands in ``channel``: its score with its error and resolution, its rank
+    (the unresolved after the resolved, as the rankings order them) and its rank by the other
+    score, flagged where the two disagree markedly."""
+    names = list(buffer.objects)
+    index = names.index(obj)
+    magnitude = np.abs(channel.magnitudes)
+    first = [i for i in range(len(names)) if names[i] not in channel.unresolved]
+    last = [i for i in range(len(names)) if names[i] in channel.unresolved]
+    order = [i for group in (first, last) for i in sorted(group, key=lambda i: -magnitude[i])]
+    method = channel.spec.aggregate
+    other = per_object(buffer, objective, method=other_score(method), weight=channel.spec.weight,
+                       keys=channel.keys)  # fmt: skip
+    other_order = sorted(range(len(names)), key=lambda i: -abs(other[names[i]]))
+    keys = [k for k in channel.keys if obj in buffer.param(k).owners]
+    noise = Uncertainty.of(buffer, objective, "sum", channel.spec.weight)
+    error = None if noise is None or not keys else noise.error(keys, channel.signed_sums[index])
+    rank, by_other = order.index(index) + 1, other_order.index(index) + 1
+    return ObjectRank(
+        object_score=float(channel.magnitudes[index]),
+        object_signed=float(channel.signed_sums[index]),
+        object_rank=rank,
+        objects_ranked=int((magnitude > 0).sum()),
+        object_signed_se=None if error is None else error.signed_se,
+        object_dof=None if error is None else error.dof,
+        object_resolved=None if error is None else obj not in channel.unresolved,
+        object_noisy=None if error is None else error.noisy,
+        object_method=method,
+        object_other_rank=by_other,
+        object_orders_disagree=orders_disagree(rank, by_other),
+    )
 
 
 def object_parameters(
     buf: SensitivityBuffer, objective: str, obj: str, weight: Weight = "value"
 ) -> list[ParameterRow]:
-    """The parameters ``obj`` owns, ranked by the l2 of their contributions to ``objective``."""
+    """The parameters ``obj`` owns, ranked by the default score of their contributions to
+    ``objective`` (the unresolved after the resolved), each with its rank by the other score."""
     keys = [p.key for p in buf.params if obj in p.owners]
     stats = key_stats(buf, objective, keys, weight=weight)
-    noise = Uncertainty.of(buf, objective, "l2", weight)
-    ordered = rank({key: combine([stats[key]], "l2") for key in keys})
+    method, other = DEFAULT_AGGREGATE, other_score(DEFAULT_AGGREGATE)
+    noise = Uncertainty.of(buf, objective, method, weight)
+    other_scores = {key: combine([stats[key]], other) for key in keys}
+    other_rank = {key: i for i, (key, _) in enumerate(rank(other_scores), 1)}
+    errors = {key: _judged(buf, objective, key, stats[key].total, weight, noise) for key in keys}
+    scored = rank({key: combine([stats[key]], method) for key in keys})
+    unresolved = {k for k, e in errors.items() if e is not None and not e.resolved}
+    ordered = [(k, s) for k, s in scored if k not in unresolved]
+    ordered += [(k, s) for k, s in scored if k in unresolved]
     rows = []
     for index, (key, score) in enumerate(ordered, 1):
         record = buf.param(key)
@@ -314,20 +383,63 @@ def object_parameters(
                 gradient_se=None if se is None else tuple(map(float, np.asarray(se).ravel())),
                 score=score,
                 signed=stats[key].total,
-                signed_se=None if noise is None else noise.error([key], score).signed_se,
+                signed_se=None if (error := errors[key]) is None else error.signed_se,
                 trust=record.trust,
                 note=record.note,
                 shared_with=tuple(o for o in record.owners if o != obj),
+                dof=None if error is None else error.dof,
+                resolved=None if error is None else error.resolved,
+                noisy=None if error is None else error.noisy,
+                method=method,
+                other_score=other_scores[key],
+                other_rank=other_rank[key],
+                orders_disagree=orders_disagree(index, other_rank[key]),
             )
         )
     return rows
 
 
-def view_rgb(display: np.ndarray, coverage: np.ndarray, unverified: np.ndarray) -> np.ndarray:
+@dataclass(frozen=True)
+class _Judged:
+    """A parameter's error and resolution: from the batches, or a repair's own seeds."""
+
+    signed_se: float
+    dof: int
+    resolved: bool
+    noisy: str | None
+
+
+def _judged(
+    buf: SensitivityBuffer,
+    objective: str,
+    key: str,
+    signed: float,
+    weight: Weight,
+    noise: Uncertainty | None,
+) -> _Judged | None:
+    """None where nothing measured an error (one batch, and not a repair with seeds)."""
+    if noise is not None:
+        error = noise.error([key], signed)  # the score is the sum: the signed sum is the score
+        return _Judged(error.signed_se, error.dof, error.resolves(signed), error.noisy)
+    repaired = repair_error(buf, objective, key, signed, weight)
+    if repaired is None:
+        return None
+    return _Judged(repaired.signed_se, repaired.dof, repaired.resolved, repaired.noisy)
+
+
+def view_rgb(
+    display: np.ndarray,
+    coverage: np.ndarray,
+    unverified: np.ndarray,
+    neutral: np.ndarray | None = None,
+) -> np.ndarray:
     """(H, W, 3) uint8: ``display`` in [-1, 1] on the previews' diverging map (blue lowers M,
-    red raises it, white is 0), blended into their dark grey by the coverage, and hatched where
-    a value includes a gradient that is not verified (never drawn plain)."""
+    red raises it, white is 0), neutral grey where ``neutral`` (unresolved), blended into their
+    dark grey by the coverage, and hatched where a value includes a gradient that is not
+    verified (never drawn plain)."""
     colour = diverging_rgb(display, 1.0).astype(np.float64)
+    if neutral is not None:
+        colour[neutral & (display != 0)] = NEUTRAL
     height, width = display.shape
     rows, columns = np.indices((height, width))
     stripe = ((rows + columns) % HATCH_PERIOD) < HATCH_PERIOD // 4

@@ -326,7 +326,7 @@ class ViewSession:
             layer = {f"{request.objective}.{token}.Y": shown.values}
             body, kind = encode_exr(layer, self._describe(request, shown)), "image/x-exr"
         else:  # fast to compress: a view lives for one look
-            rgb = view_rgb(shown.display, shown.coverage, shown.unverified)
+            rgb = view_rgb(shown.display, shown.coverage, shown.unverified, shown.neutral)
             body, kind = encode_png(rgb, self._describe(request, shown), level=1), "image/png"
         ms = 1000 * (time.perf_counter() - start)
         return Picture(body, kind, shown.legend, (visibility.width, visibility.height), ms)

@@ -36,7 +36,14 @@ from sensaov_cli.outputs.atomic import (
 )
 from sensaov_cli.outputs.exr import exr_writer
 from sensaov_cli.outputs.layered_exr import SensitivityLayer
-from sensaov_cli.outputs.previews import contact_sheet, diverging_rgb, hatch, underlay, write_png
+from sensaov_cli.outputs.previews import (
+    contact_sheet,
+    diverging_rgb,
+    hatch,
+    neutral,
+    underlay,
+    write_png,
+)
 from sensaov_cli.views.channels import DisplayScale, clipped_share, signed_pixels
 from sensaov_cli.views.coverage import VisibilityPass
 from sensaov_cli.views.hierarchy import TRUSTED
@@ -49,6 +56,7 @@ MANIFEST_FORMAT = "sensaov-previews"
 MANIFEST_VERSION = 1
 SHEET_UNSEEN = 6  # objects a sheet names as not in its view (the single previews name all)
 UNTRUSTED_NOTE = "hatched: gradients sensaov does not stand behind, left out of the headline"
+NEUTRAL_NOTE = "grey: sign not resolved (within 95 % t interval, or noisy); not in the scale"
 TEXEL_FORMAT = "sensaov-texel-exr"
 TEXEL_VERSION = 1
 _UNSAFE = re.compile(r"[^A-Za-z0-9_-]")
@@ -86,6 +94,8 @@ def write_previews(
     for layer, scale in layers:
         values = signed_pixels(layer.data, layer.kind)
         rgb = diverging_rgb(values, scale.value)
+        if layer.neutral is not None:  # unresolved: neither red nor blue
+            rgb = neutral(rgb, layer.neutral & (values != 0))
         if beauty is not None:
             rgb = underlay(rgb, beauty[..., :3], visibility.coverage_hit)
         if layer.untrusted:
@@ -154,7 +164,7 @@ def _layer_entry(
     camera: str, layer: SensitivityLayer, scale: DisplayScale, values: np.ndarray
 ) -> PreviewFile:
     file = f"{file_token(camera)}/{file_token(layer.objective)}.{file_token(layer.pass_name)}.png"
-    here = clipped_share([values], scale.value)
+    here = clipped_share([layer.scale_pixels()], scale.value)
     return PreviewFile(
         file=file,
         kind="layer",
@@ -178,6 +188,8 @@ def _legend_notes(
     lines = [f"{scope[scale.scope]} ±{scale.value:.3g}: {scale.rule()}"]
     if scale.value == 0:
         lines[0] = f"zero in every camera of the rule: {scale.rule()}"
+        if layer.neutral is not None and layer.neutral.any():
+            lines[0] = f"no resolved value in any camera of the rule: {scale.rule()}"
     elif not values.any():
         lines.append("nothing of it in this view")
     else:
@@ -197,6 +209,9 @@ def _legend_notes(
         lines.append(f"theta = 0, scored 0 whatever the gradient: {raw}")
     if layer.invisible:
         lines.append("not in this view: " + ", ".join(layer.invisible))
+    unresolved = json.loads(layer.metadata.get("unresolved", "{}"))
+    if unresolved:
+        lines.append(f"{NEUTRAL_NOTE}: " + ", ".join(sorted(unresolved)))
     if layer.duality_failed:
         lines.append("duality check FAILED: do not trust this layer")
     return lines
@@ -214,6 +229,8 @@ def _sheet_notes(
     ]
     if any(layer.untrusted for layer, _ in mine):
         notes.append(UNTRUSTED_NOTE)
+    if any(layer.neutral is not None and layer.neutral.any() for layer, _ in mine):
+        notes.append(NEUTRAL_NOTE)
     # What the tiles cannot show (a failed check, off-frame objects), the failure first and the
     # objects capped: the sheet draws at most MAX_NOTES wrapped lines.
     failed = [layer.pass_name for layer, _ in mine if layer.duality_failed]
@@ -237,7 +254,8 @@ def _label(layer: SensitivityLayer, scale: DisplayScale) -> str:
     marks += " !" if layer.duality_failed else ""
     tile = " tile" if scale.scope == "tile" else ""
     if scale.value == 0:
-        return f"{layer.pass_name}: 0 everywhere{marks}"
+        grey = layer.neutral is not None and bool(layer.neutral.any())
+        return f"{layer.pass_name}: {'nothing resolved' if grey else '0 everywhere'}{marks}"
     return f"{layer.pass_name} ±{scale.value:.2e}{tile}{marks}"
 
 

@@ -28,11 +28,14 @@ import numpy as np
 
 from sensaov_cli.errors import CameraFileError, CryptomatteError, ExrError
 from sensaov_cli.outputs.exr import read_exr, write_exr
-from sensaov_cli.outputs.previews import diverging_linear, diverging_linear_planes
-from sensaov_cli.views.channels import DisplayScale, clipped_share, signed_pixels
+from sensaov_cli.outputs.previews import diverging_linear, diverging_linear_planes, neutral_linear
+from sensaov_cli.views.channels import ChannelValues, DisplayScale, clipped_share, signed_pixels
+from sensaov_cli.vocabulary import DEFAULT_AGGREGATE
 
 FORMAT_NAME = "sensaov-aov-exr"
-FORMAT_VERSION = 3  # 3: provenance once per file, relative paths (exr-layout.md)
+# 2: display layers, display scales, trust parts, stamps; 3: resolution, and provenance once per
+# file with relative paths (exr-layout.md)
+FORMAT_VERSION = 3
 TOKEN_BYTES = 63  # Blender keeps layer and pass names in 64-byte buffers
 SUFFIX_HEX = 6
 BEAUTY_CHANNELS = ("R", "G", "B", "A")
@@ -97,6 +100,14 @@ class SensitivityLayer:
     duality_agrees: bool | None = None  # a transport layer's duality check
     display: DisplayScale | None = None  # the scale a layer is pictured at
     display_clipped: float = 0.0  # the share of this camera's non-zero pixels above it
+    # (H, W) bool: pixels drawn neutral in every picture (mostly unresolved objects); None: none
+    neutral: np.ndarray | None = None
+    # what display scales read instead of ``data``: the unresolved objects left out
+    scale_data: np.ndarray | None = None
+
+    def scale_pixels(self) -> np.ndarray:
+        """The signed pixels a display scale may read: never an unresolved object's."""
+        return signed_pixels(self.data if self.scale_data is None else self.scale_data, self.kind)
 
     @property
     def original_name(self) -> str:
@@ -245,10 +256,13 @@ def with_display(
     """The raw layer with its display scale, and its display layer (``background``: the
     camera's :func:`display_background`, shown where the layer is zero)."""
     values = signed_pixels(layer.data, layer.kind)
-    clipped = clipped_share([values], scale.value)
+    clipped = clipped_share([layer.scale_pixels()], scale.value)
     # Half keeps the picture's sRGB 8-bit codes (tested); planes make each channel contiguous.
     planes = diverging_linear_planes(values, scale.value, np.float16)
     np.copyto(planes, background, where=(values == 0)[None])
+    if layer.neutral is not None:  # unresolved: neither red nor blue (docs/encoding.md)
+        grey = neutral_linear().astype(np.float16)[:, None, None]
+        np.copyto(planes, grey, where=(layer.neutral & (values != 0))[None])
     display_name = layer.pass_name + DISPLAY_SUFFIX
     metadata = {**layer.metadata, "display_layer": f"{layer.objective}.{display_name}"}
     raw = replace(layer, metadata=metadata, display=scale, display_clipped=clipped)
@@ -257,6 +271,7 @@ def with_display(
         display_name,
         planes.transpose(1, 2, 0),
         {
+            **{k: v for k, v in layer.metadata.items() if k in _DISPLAY_KEPT},
             "display_of": layer.original_name,
             "encoding": DISPLAY_ENCODING,
         },
@@ -268,6 +283,30 @@ def with_display(
         display_clipped=clipped,
     )
     return raw, display
+
+
+# The rule every picture of a buffer channel follows, written on its raw and display layers.
+NEUTRAL_RULE = (
+    "an object whose signed sum lies within its Student-t 95 % interval, or whose batches look "
+    "heavy-tailed, is drawn neutral grey in display layers and previews and never sets a display "
+    "scale; the raw channel keeps its number"
+)
+
+
+def resolution_metadata(values: ChannelValues) -> dict[str, str]:
+    """How a buffer channel's objects stand against noise, for its layer's header: the rule,
+    the objects drawn neutral with why, and the score it paints."""
+    rule = NEUTRAL_RULE if values.measured else "no error: the buffer has one batch"
+    return {
+        "resolution": rule,
+        "unresolved": json.dumps(values.unresolved),
+        "score": f"{values.spec.aggregate} (the rankings' default: {DEFAULT_AGGREGATE})",
+    }
+
+
+# What a display layer repeats of its raw layer's metadata: where it came from, and which objects
+# it draws neutral and why (the rule: docs/encoding.md, "Unresolved values").
+_DISPLAY_KEPT = ("camera", "buffer", "resolution", "unresolved", "score")
 
 
 def _with_suffix(token: str, original: str) -> str:

@@ -37,6 +37,9 @@ RDBU = np.array([list(bytes.fromhex(code)) for code in _RDBU_HEX.split()], dtype
 FONT = "DroidSans"
 FONT_SIZE = 14
 BACKGROUND = (38, 38, 38)  # dark grey: near-white zero sensitivity stays visible against it
+# Unresolved values (a sign within its 95 % interval, or heavy-tailed batches): a mid grey,
+# neither red nor blue, apart from both the map's near-white zero and the dark background.
+NEUTRAL = (150, 150, 150)
 TEXT_COLOUR = (230, 230, 230)
 PAD = 8  # between and around tiles
 LABEL_HEIGHT = 20  # one line of text at FONT_SIZE
@@ -102,6 +105,20 @@ def hatch(rgb_uint8: np.ndarray, mask: np.ndarray, period: int = 8, width: int =
     stripe = ((rows + columns) % period < width) & np.asarray(mask, bool)
     out = rgb_uint8.copy()
     out[stripe] = (out[stripe] * 0.35).astype(np.uint8)
+    return out
+
+
+def neutral_linear() -> np.ndarray:
+    """:data:`NEUTRAL` as (3,) float32 linear Rec. 709, as the EXR's display layers store it."""
+    srgb = np.array(NEUTRAL, np.float64) / 255.0
+    linear = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    return linear.astype(np.float32)
+
+
+def neutral(rgb_uint8: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``rgb_uint8`` drawn :data:`NEUTRAL` over ``mask``: values whose sign is not resolved."""
+    out = rgb_uint8.copy()
+    out[np.asarray(mask, bool)] = NEUTRAL
     return out
 
 

@@ -38,7 +38,8 @@ REPORT_VERSION = 3  # 3: the headline view beside each sunburst; Fig. 4 and 5 vi
 SHOWN_PROVENANCE = ("tool_version", "mitsuba_version", "drjit_version", "variant", "spp",
                     "max_depth", "primal_seed", "gradient_seeds", "resolution", "created_utc",
                     "wall_time_s", "timings_s", "buffer_id", "run_version")  # fmt: skip
-_SIGN = {None: "-", True: "significant", False: "noise"}  # a row's significance
+_RESOLVED = {None: "no error", True: "resolved", False: "unresolved"}  # a row's resolution
+ORDERS_DISAGREE = tables.ORDERS_DISAGREE_MARK  # on a row whose two ranks differ markedly
 MAX_PREVIEW_BYTES = 64 << 20  # a preview is a few hundred kB; a page embeds every one
 _STYLE = """
 body{font:15px/1.45 system-ui,sans-serif;max-width:1280px;margin:1.5em auto;padding:0 1em;
@@ -266,23 +267,49 @@ def _ranking_table(r: Ranking, rows: Sequence[RankRow], *, notes: bool = True) -
     if not rows:
         return '<p class="note">(none)</p>'
     cameras = any(row.not_seen_by is not None for row in rows)
-    errors = r.significance is not None
+    other = tables.other_score(r.method)
     trust = any(row.trust != "verified" for row in rows)  # every row verified: said once, below
-    headers = ["#", "", r.by, "score", "signed", *(["±", "sign"] * errors), "share",
+    # one batch and no repair's error: no ± at all, said once below the table
+    errors = r.resolution is not None or any(row.signed_se is not None for row in rows)
+    headers = ["#", "", r.by, "score", "signed", *(["±", "sign"] * errors), f"#{other}", "share",
                *(["trust"] * trust), *(["not seen by"] * cameras)]  # fmt: skip
     body = [
         [str(row.rank), tables.trust_mark(row.trust, row.zero_value), row.name,
          f"{row.score:.2e}", f"{row.signed:+.2e}",
-         *([tables.se_text(row.signed_se), _SIGN[row.significant]] * errors),
-         f"{100 * row.share:.1f}%", *([row.trust] * trust),
-         *([", ".join(row.not_seen_by or ()) or "-"] * cameras)]
+         *([tables.se_text(row.signed_se), _resolution_cell(row)] * errors),
+         _order_cell(row), f"{100 * row.share:.1f}%",
+         *([row.trust] * trust), *([", ".join(row.not_seen_by or ()) or "-"] * cameras)]
         for row in rows
     ]  # fmt: skip
     numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "signed", "±", "share")}
     if not notes:
         return _table(headers, body, numeric)
-    verified = "" if trust else '<p class="note">every row: verified gradients only.</p>'
-    return _table(headers, body, numeric) + verified + _significance(r)
+    verified = "" if trust else '<p class="note">trust: every row verified gradients only.</p>'
+    return _table(headers, body, numeric) + verified + _row_notes(rows, other) + _significance(r)
+
+
+def _resolution_cell(row: RankRow) -> str:
+    """The row's sign and whether its batches resolve it, beside its trust (never instead)."""
+    return f"{tables.sign_text(row)} {'noisy' if row.noisy else _RESOLVED[row.resolved]}"
+
+
+def _order_cell(row: RankRow) -> str:
+    """Its rank by the other score; where the two orders disagree markedly, said on the row."""
+    if row.other_rank is None:
+        return "-"
+    return f"{row.other_rank} {ORDERS_DISAGREE}" if row.orders_disagree else str(row.other_rank)
+
+
+def _row_notes(rows: Sequence[RankRow], other: str) -> str:
+    """Why a row is noisy, and what the mark of disagreeing orders means, under its table."""
+    lines = [f"{html.escape(row.name)}: noisy, {html.escape(row.noisy)}" for row in rows
+             if row.noisy]  # fmt: skip
+    if any(row.orders_disagree for row in rows):
+        lines.append(
+            f"{ORDERS_DISAGREE} the rank by {other} differs markedly from the rank by this score "
+            "(a texture's many small same-sign texels: large sum, small l2)"
+        )
+    return "".join(f'<p class="note">{line}</p>' for line in lines)
 
 
 def _left_out_list(r: Ranking, keys: Mapping[str, tuple[ParamRecord, ...]]) -> str:
@@ -366,16 +393,18 @@ def _provenance_table(provenance: Mapping[str, Any]) -> str:
 
 
 def _significance(r: Ranking) -> str:
-    if r.significance is None:
+    other = tables.other_score(r.method)
+    score = f"score: {r.method}; #{other}: rank by {other}. "
+    if r.resolution is None:
         return (
-            '<p class="note">no ±: this buffer has one batch; render.batches ≥ 2 (or a merge '
-            "of farm shards) gives standard errors and significance (docs/farm.md).</p>"
+            f'<p class="note">{score}No error: one batch, so no ± and no sign known to be '
+            "resolved (render.batches ≥ 2 gives them).</p>"
         )
-    s = r.significance
+    s = r.resolution
     return (
-        f'<p class="note">± standard error from {s.batches} batches; sign significant when 0 '
-        f"lies outside ±{s.factor:.2f} SE (Student's t, {s.dof} dof, "
-        f"{100 * s.level:.0f} %).</p>"
+        f'<p class="note">{score}± from {s.batches} batches; resolved: 0 outside '
+        f"±{s.factor:.2f} SE (t, {s.dof} dof, {100 * s.level:.0f} %), not noisy; unresolved rows "
+        "rank last, drawn grey.</p>"
     )
 
 

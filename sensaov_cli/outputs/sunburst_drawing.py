@@ -3,7 +3,8 @@
 :mod:`sensaov_cli.views.hierarchy` computes every angle; this module only draws.
 Colour is the wedge's signed sum Σc on the previews' RdBu relative to the largest |Σc| in its
 ring, so a pale wedge is a small one or one whose parameters pull both ways. Unverified wedges
-are hatched. matplotlib is imported lazily, with the Agg backend: no display is needed.
+are hatched; unresolved ones (a sign within noise, or heavy-tailed) are grey and dotted, and never
+set their ring's scale. matplotlib is imported lazily, with the Agg backend: no display is needed.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 
 from sensaov_cli.errors import OutputError
 from sensaov_cli.outputs.atomic import atomic_write_bytes, scratch_folder
-from sensaov_cli.outputs.previews import RDBU, diverging_rgb
+from sensaov_cli.outputs.previews import NEUTRAL, RDBU, diverging_rgb
 from sensaov_cli.views.hierarchy import Panel, Wedge
 
 if TYPE_CHECKING:
@@ -39,7 +40,8 @@ MIN_TEXT_PX = 11.0
 MIN_LABEL_ARC_IN = 0.17  # a wedge narrower than this at mid-radius gets no label
 _VIEW = 1.12  # axes limits: the disc plus a margin
 _HATCH = "////"
-_NOISE_HATCH = "...."  # the sign is within its 95 % t interval (buffers with statistics)
+_NOISE_HATCH = "...."  # unresolved: within its 95 % t interval, or heavy-tailed batches
+NEUTRAL_RGB = tuple(c / 255.0 for c in NEUTRAL)  # an unresolved wedge: neither red nor blue
 _RING_NAMES = {
     "object,type": "objects → types → parameters",
     "type,object": "types → objects → parameters",
@@ -120,10 +122,12 @@ def _draw_panel(ax: Axes, panel: Panel, inches: float) -> None:
     rings = [w for w in panel.wedges if w.ring > 0]
     for ring in sorted({w.ring for w in rings}):
         members = [w for w in rings if w.ring == ring]
-        scale = max(abs(w.signed) for w in members)
+        # An unresolved wedge is drawn neutral and never sets its ring's colour scale.
+        resolved = [abs(w.signed) for w in members if not w.unresolved]
+        scale = max(resolved, default=0.0)
         colours = diverging_rgb(np.array([w.signed for w in members]), scale) / 255.0
         for wedge, colour in zip(members, colours, strict=True):
-            _draw_wedge(ax, wedge, tuple(colour), inches)
+            _draw_wedge(ax, wedge, NEUTRAL_RGB if wedge.unresolved else tuple(colour), inches)
     notes = []
     if panel.no_gradient:
         shown = ", ".join(panel.no_gradient[:4]) + (" …" if len(panel.no_gradient) > 4 else "")
@@ -149,7 +153,7 @@ def _draw_wedge(ax: Axes, wedge: Wedge, colour: tuple[float, ...], inches: float
         WedgePatch, (0, 0), outer, _degrees(wedge.stop), _degrees(wedge.start), width=outer - inner
     )
     ax.add_patch(ring(facecolor=colour, edgecolor="white", linewidth=0.8))
-    hatches = _HATCH * (wedge.trust != "verified") + _NOISE_HATCH * (wedge.significant is False)
+    hatches = _HATCH * (wedge.trust != "verified") + _NOISE_HATCH * wedge.unresolved
     if hatches:  # a second, unfilled patch: matplotlib hatches in the edge colour
         ax.add_patch(ring(fill=False, hatch=hatches, edgecolor="#444444", linewidth=0))
     _label(ax, wedge, (inner, outer), colour, bool(hatches), inches)
@@ -211,9 +215,9 @@ def _legend(fig: Figure, order: str, encoding: str) -> None:
     bar = fig.colorbar(ScalarMappable(Normalize(-1, 1), cmap), cax=bar_ax, orientation="horizontal")
     bar.set_ticks([-1, 0, 1], labels=["lowers M", "0", "raises M"])
     bar.ax.tick_params(labelsize=FONT_PT)
-    bar.ax.set_title("colour: Σc / largest |Σc| in its ring", fontsize=FONT_PT)
+    bar.ax.set_title("colour: Σc / largest resolved |Σc| in its ring", fontsize=FONT_PT)
     marks = {_HATCH: "not trusted: apart from its group",
-             _NOISE_HATCH: "sign within noise (95 %, Student t)"}  # fmt: skip
+             _NOISE_HATCH: "unresolved (grey): sign within noise or heavy-tailed"}  # fmt: skip
     fig.legend(
         handles=[
             Patch(facecolor="white", edgecolor="#444444", hatch=h, label=marks[h]) for h in marks

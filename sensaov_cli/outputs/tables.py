@@ -32,17 +32,23 @@ from sensaov_cli.views.hierarchy import (
     RankedParameter,
     Ranking,
     RankRow,
+    Resolution,
     Summary,
     ZeroValued,
+    other_score,
     ranked_summary,
 )
-from sensaov_cli.vocabulary import Aggregate, Untrusted, Weight
+from sensaov_cli.vocabulary import DEFAULT_AGGREGATE, Aggregate, Untrusted, Weight
 
 # Marks in the mark column of a ranking, one per label that is not "verified"; a parameter
 # with no gradient is never ranked: it is listed under its objective behind NO_GRADIENT_MARK.
 UNVERIFIED_MARK = "!"  # unverified or known biased
 SUSPECT_MARK = "?"  # failed a run-time self-check
 NO_GRADIENT_MARK = "0"
+# After a sign its batches cannot resolve (within its 95 % interval, or heavy-tailed): "+?".
+UNRESOLVED_MARK = "?"
+# After a rank by the other score that differs markedly from the row's own (hierarchy.ORDER_GAP).
+ORDERS_DISAGREE_MARK = "≠"
 ZERO_VALUE_MARK = "θ0"  # θ is 0 where ∂M/∂θ is not: value weighting scores it 0 regardless
 # What each label means, said the same way in every legend (docs/verification.md).
 LABEL_MEANINGS = {
@@ -60,8 +66,12 @@ CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}  # what a scor
 # The columns of a row, in JSON, CSV and text order (CSV puts "objective" first).
 COLUMNS = (
     "rank", "name", "score", "signed", "share", "sign", "value", "trust", "not_seen_by",
-    "score_se", "signed_se", "significant", "part", "zero_value", "raw_signed", "estimator",
+    "score_se", "signed_se", "dof", "resolved", "noisy", "other_score", "other_rank",
+    "orders_disagree", "part", "zero_value", "raw_signed", "estimator",
 )  # fmt: skip
+# What a row of the summary's parameters, objects and types adds to its own fields.
+_ROW_ERRORS = ("score_se", "signed_se", "dof", "resolved", "noisy", "other_score", "other_rank",
+               "orders_disagree")  # fmt: skip
 
 
 def format_table(
@@ -97,7 +107,7 @@ def summary_text(
     buf: SensitivityBuffer,
     *,
     top: int = 8,
-    method: Aggregate = "l2",
+    method: Aggregate = DEFAULT_AGGREGATE,
     weight: Weight = "value",
     untrusted: Untrusted = "apart",
     show_all: bool = False,
@@ -123,11 +133,10 @@ def summary_text(
     if method != "sum":
         lines.append("signed: their plain sum; > 0 means increasing the parameter raises M")
     lines += _repairs_lines(prov.get("repairs"), None if show_all else top)
-    if buf.statistics is not None and buf.statistics.batches:
-        lines.append(
-            f"standard errors from {buf.statistics.batches} batches: 'sensaov rank BUFFER --by "
-            "object' (or key, type) shows them beside every score"
-        )
+    lines += resolution_lines(
+        buf.statistics.batches if buf.statistics is not None else None,
+        summary.objectives[0].resolution if summary.objectives else None,
+    )
     for objective in summary.objectives:
         lines.append("")
         limit = None if show_all else top
@@ -159,7 +168,28 @@ def summary_json(summary: Summary, files: Mapping[str, str] | None = None) -> st
 
 
 def _aggregation(method: Aggregate, weight: Weight) -> dict[str, str]:
-    return {"method": method, "weight": weight, "contribution": CONTRIBUTION[weight]}
+    return {"method": method, "weight": weight, "contribution": CONTRIBUTION[weight],
+            "other": other_score(method), "default": DEFAULT_AGGREGATE}  # fmt: skip
+
+
+def resolution_lines(batches: int | None, rule: Resolution | None) -> list[str]:
+    """What ± and ``?`` mean under a buffer's statistics, or plainly that there is no error."""
+    if rule is None:
+        return [
+            "no error: this buffer has one batch, so no number has a standard error and no sign "
+            "is known to be resolved (render.batches >= 2, or a merge of shards, gives them)"
+        ]
+    return [
+        f"±: standard error from {batches} batches; {UNRESOLVED_MARK} = unresolved: |signed| "
+        f"within {rule.factor:.2f} standard errors (Student's t, {rule.dof} degrees of freedom, "
+        f"{100 * rule.level:.0f} % two-sided) or heavy-tailed batches (noisy); ranked after the "
+        "resolved rows, drawn neutral"
+    ]
+
+
+def value_text(value: float, se: float | None) -> str:
+    """M with its standard error, or with none measured."""
+    return f"{value:.4g}" if se is None else f"{value:.4g} ± {se:.2g}"
 
 
 def _objective_json(summary: ObjectiveSummary) -> object:
@@ -167,6 +197,8 @@ def _objective_json(summary: ObjectiveSummary) -> object:
     return {
         "name": objective.name,
         "value": objective.value,
+        "value_se": summary.objective_se,
+        "resolution": None if summary.resolution is None else asdict(summary.resolution),
         "definition": objective.definition,
         "grad_seed": objective.grad_seed,
         "untrusted": summary.untrusted,
@@ -192,15 +224,17 @@ def _parameter_json(entry: RankedParameter) -> object:
         "key": p.key, "type": p.type, "owners": p.owners, "plugin": p.plugin,
         "shape": p.shape, "score": entry.score, "signed": entry.signed,
         "verified": p.verified, "trust": p.trust, "note": p.note, "estimator": p.estimator,
-        **({} if entry.repaired is None else asdict(entry.repaired)),
+        **{c: getattr(entry.row, c) for c in _ROW_ERRORS},
+        "seeds": None if entry.repaired is None else entry.repaired.seeds,
         "zero_value": entry.zero_value, "raw_signed": entry.raw_signed,
     }  # fmt: skip
 
 
 def _group_json(field: str, group: RankedGroup) -> object:
     return {field: group.name, "score": group.score, "signed": group.signed,
-            "signed_rank": group.signed_rank, "verified": group.trust == "verified",
-            "trust": group.trust, "zero_value": group.zero_value}  # fmt: skip
+            **{c: getattr(group.row, c) for c in _ROW_ERRORS},
+            "verified": group.trust == "verified", "trust": group.trust,
+            "zero_value": group.zero_value}  # fmt: skip
 
 
 def _count(n: int, noun: str) -> str:
@@ -223,37 +257,83 @@ def _owners(owners: Sequence[str]) -> str:
 
 
 def _objective_lines(
-    summary: ObjectiveSummary, method: str, ranked: int, limit: int | None
+    summary: ObjectiveSummary, method: Aggregate, ranked: int, limit: int | None
 ) -> list[str]:
     signed = method == "sum"
     params, objects, types = summary.parameters, summary.objects, summary.types
-    lines = [f"objective {summary.objective.name!r}   M = {summary.objective.value:.4g}"]
+    errors = summary.resolution is not None or any(p.row.signed_se is not None for p in params)
+    value = value_text(summary.objective.value, summary.objective_se)
+    lines = [f"objective {summary.objective.name!r}   M = {value}"]
     lines.append(f"  parameters (top {len(params)} of {ranked})")
-    headers = ["#", "", "score", *([] if signed else ["signed"]), "type", "estimator", "key",
-               "owners"]  # fmt: skip
+    other = other_score(method)
+    headers = ["#", "", "score", *(["±"] * errors), *([] if signed else ["signed"]), "sign",
+               f"#{other}", "type", "estimator", "key", "owners"]  # fmt: skip
     rows = [
-        [str(i), trust_mark(p.record.trust, p.zero_value), _fmt(p.score, signed),
-         *([] if signed else [_fmt(p.signed, True)]), p.record.type, p.record.estimator,
+        [str(p.row.rank), trust_mark(p.record.trust, p.zero_value), _fmt(p.score, signed),
+         *([se_text(p.row.score_se)] * errors), *([] if signed else [_fmt(p.signed, True)]),
+         sign_text(p.row), _other_rank_text(p.row), p.record.type, p.record.estimator,
          p.record.key, _owners(p.record.owners)]
-        for i, p in enumerate(params, 1)
+        for p in params
     ]  # fmt: skip
-    lines.extend(_indented(headers, rows, numeric={0, 2} if signed else {0, 2, 3}))
+    numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "±", "signed", f"#{other}")}
+    lines.extend(_indented(headers, rows, numeric=numeric))
     trusted = " (trusted parameters only)" if summary.untrusted == "apart" else ""
     lines.append(f"  objects{trusted} (top {len(objects)} of {summary.ranked_objects})")
-    lines.extend(_group_table("object", objects, signed))
+    lines.extend(_group_table("object", objects, method, errors))
     lines.append(f"  types{trusted}")
-    lines.extend(_group_table("type", types, signed))
+    lines.extend(_group_table("type", types, method, errors))
     if summary.left_out_objects or summary.left_out_types:
         lines.append("  left out of the objects and types above (not trusted), by object:")
-        shown, held = _cut(summary.left_out_objects, limit)
+        listed, held = _cut(summary.left_out_objects, limit)
         lines += [
             printable(f"      {e.name}  {_fmt(e.score, signed)}  {_fmt(e.signed, True)}  "
                       + ", ".join(f"{k} ({t})" for k, t in e.keys))
-            for e in shown
+            for e in listed
         ]  # fmt: skip
         lines += _held_back(held, "object", "with untrusted gradients")
     lines.extend(_legend(summary, limit))
+    shown = [p.row for p in params] + [g.row for g in (*objects, *types)]
+    lines.extend(noisy_legend(shown))
+    lines.extend(order_legend(shown, other))
     lines.extend(_repaired_legend(summary.parameters))
+    return lines
+
+
+def sign_text(row: RankRow) -> str:
+    """``+``, ``-`` or ``0``, and ``?`` when the batches cannot resolve it."""
+    return row.sign + UNRESOLVED_MARK * row.unresolved
+
+
+def _other_rank_text(row: RankRow) -> str:
+    """The row's rank by the other score, marked where the two orders disagree markedly."""
+    if row.other_rank is None:
+        return "-"
+    return f"{row.other_rank}{ORDERS_DISAGREE_MARK if row.orders_disagree else ''}"
+
+
+def noisy_legend(rows: Sequence[RankRow]) -> list[str]:
+    """Every heavy-tailed row with its reason: shown unresolved whatever its interval says."""
+    noisy = [row for row in rows if row.noisy]
+    if not noisy:
+        return []
+    lines = ["  noisy (heavy-tailed batches: unresolved, drawn neutral, kept out of scales):"]
+    lines += [printable(f"      {row.name}: {row.noisy}") for row in dict.fromkeys(noisy)]
+    return lines
+
+
+def order_legend(rows: Sequence[RankRow], other: str) -> list[str]:
+    """Where the score's order and the other score's disagree (a ``!`` on the rank)."""
+    apart = [row for row in rows if row.orders_disagree]
+    if not apart:
+        return []
+    lines = [
+        f"  #{other}: rank by the {other} score; {ORDERS_DISAGREE_MARK} = the two orders "
+        "disagree markedly:"
+    ]
+    lines += [
+        printable(f"      {row.name}: #{row.rank} here, #{row.other_rank} by {other}")
+        for row in dict.fromkeys(apart)
+    ]
     return lines
 
 
@@ -289,7 +369,8 @@ def _repaired_legend(parameters: Sequence[RankedParameter]) -> list[str]:
         "  finite-difference = repaired (reverse mode is known wrong there), ± its seeds' error:"
     ]
     for p, error in shown:
-        sign = "" if error.significant else "; sign not significant"
+        sign = "" if error.resolved else "; its seeds do not resolve the sign"
+        sign += f" (noisy: {error.noisy})" if error.noisy else ""
         lines.append(
             printable(f"      {p.record.key}: {p.signed:+.2e} ± {error.signed_se:.1e} "
                       f"({error.seeds} seeds{sign})")
@@ -297,15 +378,21 @@ def _repaired_legend(parameters: Sequence[RankedParameter]) -> list[str]:
     return lines
 
 
-def _group_table(title: str, entries: Sequence[RankedGroup], signed: bool) -> list[str]:
-    # Unless the score is the signed sum, the signed sum and its rank stand beside it.
-    sums = [] if signed else ["signed", "#sum"]
+def _group_table(
+    title: str, entries: Sequence[RankedGroup], method: Aggregate, errors: bool
+) -> list[str]:
+    signed = method == "sum"
+    other = other_score(method)
+    headers = ["#", "", "score", *(["±"] * errors), *([] if signed else ["signed"]), "sign",
+               f"#{other}", title]  # fmt: skip
     rows = [
-        [str(i), trust_mark(e.trust, e.zero_value), _fmt(e.score, signed),
-         *([] if signed else [_fmt(e.signed, True), str(e.signed_rank)]), e.name]
-        for i, e in enumerate(entries, 1)
+        [str(e.row.rank), trust_mark(e.trust, e.zero_value), _fmt(e.score, signed),
+         *([se_text(e.row.score_se)] * errors), *([] if signed else [_fmt(e.signed, True)]),
+         sign_text(e.row), _other_rank_text(e.row), e.name]
+        for e in entries
     ]  # fmt: skip
-    return _indented(["#", "", "score", *sums, title], rows, {0, 2} if signed else {0, 2, 3, 4})
+    numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "±", "signed", f"#{other}")}
+    return _indented(headers, rows, numeric)
 
 
 def trust_legend(trusts: Sequence[str], *, groups: bool) -> list[str]:
@@ -416,13 +503,14 @@ def ranking_json(
             {
                 "name": r.objective,
                 "value": r.objective_value,
+                "value_se": r.objective_se,
                 "ranked": r.ranked,
                 "total_signed": r.total_signed,
-                "batches": None if r.significance is None else r.significance.batches,
+                "batches": None if r.resolution is None else r.resolution.batches,
                 "stability": r.stability,
                 "stability_top": r.stability_top,
                 "untrusted": r.untrusted,
-                "significance": None if r.significance is None else asdict(r.significance),
+                "resolution": None if r.resolution is None else asdict(r.resolution),
                 "rows": [{c: getattr(row, c) for c in COLUMNS} for row in r.rows],
                 "left_out": [{c: getattr(row, c) for c in COLUMNS} for row in r.left_out],
                 "zero_valued": [asdict(z) for z in r.zero_valued],
@@ -452,7 +540,17 @@ def _csv_cell(row: RankRow, column: str) -> object:
     value = getattr(row, column)
     if column == "not_seen_by":
         return "" if value is None else ";".join(value)
-    if column in ("value", "score_se", "signed_se", "significant", "raw_signed"):
+    if column in (
+        "value",
+        "score_se",
+        "signed_se",
+        "dof",
+        "resolved",
+        "noisy",
+        "other_score",
+        "other_rank",
+        "raw_signed",
+    ):
         return "" if value is None else repr(value)
     return value
 
@@ -467,7 +565,8 @@ def ranking_text(
         "signed: their sum (> 0: increasing it raises M); share: of the total sum of squares",
     ]
     for r in found:
-        lines += ["", f"objective {r.objective!r}   M = {r.objective_value:.4g}"]
+        value = value_text(r.objective_value, r.objective_se)
+        lines += ["", f"objective {r.objective!r}   M = {value}"]
         trusted = " (trusted parameters only)" if r.untrusted == "apart" and r.by != "key" else ""
         lines.append(f"  by {r.by}{trusted} (top {len(r.rows)} of {r.ranked})")
         lines += _ranking_table(r, r.rows)
@@ -485,19 +584,23 @@ def ranking_text(
 def _ranking_table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
     cameras = any(row.not_seen_by is not None for row in shown)
     values = r.by == "key"  # only a parameter has a value; groups leave the column out
-    errors = r.significance is not None or any(row.signed_se is not None for row in r.rows)
+    errors = r.resolution is not None or any(row.signed_se is not None for row in r.rows)
     se = ["±"] * errors
-    headers = ["#", "", "score", *se, "signed", *se, "sign", "share", *(["value"] * values)]
+    other = f"#{other_score(r.method)}"
+    headers = ["#", "", "score", *se, "signed", *se, "sign", other, "share",
+               *(["value"] * values)]  # fmt: skip
     headers += ["estimator", r.by, *(["not seen by"] * cameras)]
     rows = []
     for row in shown:
         cells = [str(row.rank), trust_mark(row.trust, row.zero_value), f"{row.score:.2e}"]
         cells += [*[se_text(row.score_se)] * errors, f"{row.signed:+.2e}"]
-        cells += [*[se_text(row.signed_se)] * errors, row.sign + "?" * (row.significant is False)]
+        cells += [*[se_text(row.signed_se)] * errors, sign_text(row), _other_rank_text(row)]
         value = "-" if row.value is None else f"{row.value:.4g}"
         cells += [f"{100 * row.share:.1f}%", *[value] * values, row.estimator]
         rows.append([*cells, row.name, *[", ".join(row.not_seen_by or ()) or "-"] * cameras])
-    numeric = {i for i, h in enumerate(headers) if h in ("#", "score", "±", "signed", "share")}
+    numeric = {
+        i for i, h in enumerate(headers) if h in ("#", "score", "±", "signed", "share", other)
+    }
     numeric |= {headers.index("value")} if values else set()
     return _indented(headers, rows, numeric)
 
@@ -505,12 +608,8 @@ def _ranking_table(r: Ranking, shown: Sequence[RankRow]) -> list[str]:
 def _ranking_legend(r: Ranking, limit: int | None) -> list[str]:
     shown = (*r.rows, *r.left_out)
     lines = trust_legend([row.trust for row in shown], groups=r.by != "key")
-    if (sig := r.significance) is not None:
-        lines.append(
-            f"  ±: standard error from {sig.batches} batches; ? = sign not significant: |signed| "
-            f"within {sig.factor:.2f} standard errors (Student's t, {sig.dof} degrees of "
-            f"freedom, {100 * sig.level:.0f} % two-sided)"
-        )
+    if r.resolution is not None:
+        lines += ["  " + line for line in resolution_lines(r.resolution.batches, r.resolution)]
         if r.stability is not None:
             lines.append(
                 f"  the top {r.stability_top} keep their order in {100 * r.stability:.0f}% "
@@ -519,8 +618,13 @@ def _ranking_legend(r: Ranking, limit: int | None) -> list[str]:
     elif any(row.signed_se is not None for row in shown):
         lines.append(
             "  ±: a repaired (finite-difference) parameter's standard error over its seeds; "
-            "? = sign within Student's t (95 %) of it; others: no error measured (-)"
+            f"{UNRESOLVED_MARK} = sign within Student's t (95 %) of it; others: no error "
+            "(one batch: -)"
         )
+    else:
+        lines += ["  " + line for line in resolution_lines(None, None)]
+    lines += noisy_legend(shown)
+    lines += order_legend(shown, other_score(r.method))
     if any(row.not_seen_by for row in shown):
         lines.append("  not seen by: the cameras (--exr) whose frame shows none of its objects")
     lines += zero_value_legend(r.zero_valued, limit)

@@ -48,6 +48,7 @@ from sensaov_cli.outputs.layered_exr import (
     ScaleGroup,
     SensitivityLayer,
     display_background,
+    resolution_metadata,
     with_display,
     write_layered_exr,
 )
@@ -74,7 +75,6 @@ from sensaov_cli.views.channels import (
     forward_views,
     group_scales,
     paint_pass,
-    signed_pixels,
     transport_views,
 )
 from sensaov_cli.views.coverage import VisibilityPass, ranked
@@ -447,9 +447,13 @@ def _texel_panels(fields: list[TexelField], visibility: VisibilityPass) -> list[
                 REFERENCE,
                 1.0 if texel_pass.panel == "joint" else None,
             )
+            neutral = texel_pass.neutral
             layers.append(SensitivityLayer(
                 field.objective, texel_pass.pass_name, texel_pass.data, metadata, kind="texel",
-                group=group, invisible=(),
+                group=group, invisible=(), neutral=neutral,
+                scale_data=None if neutral is None else np.where(
+                    neutral if texel_pass.data.ndim == 2 else neutral[..., None], 0.0,
+                    texel_pass.data),
             ))  # fmt: skip
         result.append(_TexelPanels(field, passes, layers))
     return result
@@ -507,6 +511,7 @@ def _layer(values: ChannelValues, visibility: VisibilityPass) -> SensitivityLaye
         "keys": json.dumps(list(values.keys)),
         "unverified": json.dumps(list(values.unverified)),
         "estimators": json.dumps(values.estimators),
+        **resolution_metadata(values),
     }
     role = FOLLOWER if values.part == "untrusted" else REFERENCE
     return SensitivityLayer(
@@ -519,6 +524,8 @@ def _layer(values: ChannelValues, visibility: VisibilityPass) -> SensitivityLaye
         invisible=painted.invisible,
         left_out=values.left_out or {},
         zero_valued=values.zero_valued or {},
+        neutral=painted.neutral,
+        scale_data=painted.scale_data,
     )
 
 
@@ -526,7 +533,7 @@ def _scales(job: JobSpec, raw: dict[str, _RawLayers]) -> Scales:
     """Every (camera, scale group)'s display scale, under the job's ``views`` settings."""
     entries = {
         camera: [
-            (layer.group.name, layer.group.role or REFERENCE, signed_pixels(layer.data, layer.kind))
+            (layer.group.name, layer.group.role or REFERENCE, layer.scale_pixels())
             for layer in found.layers
         ]
         for camera, found in raw.items()

@@ -16,7 +16,7 @@ from sensaov_cli.outputs.tables import (
     summary_text,
 )
 from sensaov_cli.views.hierarchy import check_cut, ranked_summary, rankings
-from sensaov_cli.vocabulary import Aggregate, Cut, Untrusted, Weight
+from sensaov_cli.vocabulary import DEFAULT_AGGREGATE, Aggregate, Cut, Untrusted, Weight
 
 
 def summary_of(
@@ -24,7 +24,7 @@ def summary_of(
     *,
     as_json: bool,
     top: int,
-    method: Aggregate = "l2",
+    method: Aggregate = DEFAULT_AGGREGATE,
     weight: Weight = "value",
     untrusted: Untrusted = "apart",
     files: Mapping[str, str] | None = None,

@@ -10,6 +10,11 @@ Under ``untrusted: apart`` (the default, :mod:`.hierarchy`) each selection becom
 parameters the tool stands behind, and, when the selection holds others, ``<pass>_untrusted``,
 so a biased gradient never paints a headline layer. Both share the scale group
 ``<objective>/<channel>``.
+
+With batch statistics, an object whose signed sum over the pass's keys its batches cannot resolve
+(within its Student-t 95 % interval, or heavy-tailed: :mod:`.hierarchy`) is *unresolved*: its
+pixels are drawn neutral in every picture and never set a display scale (the raw data keep its
+number: they are data).
 """
 
 from __future__ import annotations
@@ -28,8 +33,16 @@ from sensaov_cli.buffer.queries import per_object, select
 from sensaov_cli.errors import EncodingError, NonFiniteError, SpecError
 from sensaov_cli.job.spec import ChannelSpec, ForwardSpec
 from sensaov_cli.views.coverage import VisibilityPass
-from sensaov_cli.views.hierarchy import untrusted_keys, zero_valued
-from sensaov_cli.vocabulary import AGGREGATES, NORMALIZES, SIGNS, TONEMAPS, WEIGHTS, Untrusted
+from sensaov_cli.views.hierarchy import GroupError, Uncertainty, untrusted_keys, zero_valued
+from sensaov_cli.vocabulary import (
+    AGGREGATES,
+    DEFAULT_AGGREGATE,
+    NORMALIZES,
+    SIGNS,
+    TONEMAPS,
+    WEIGHTS,
+    Untrusted,
+)
 
 UNTRUSTED_PASS = "_untrusted"  # the suffix of a selection's untrusted part
 LeftOut = dict[str, tuple[str, ...]]  # object -> its keys in the untrusted pass
@@ -51,6 +64,10 @@ class ChannelValues:
     left_out: LeftOut | None = None  # on both parts: left out of one, held by the other
     zero_valued: dict[str, float] | None = None  # key -> raw Σ ∂M/∂θ, θ = 0 (weight value)
     estimators: dict[str, str] = field(default_factory=dict)  # key -> what computed its gradient
+    # object -> why its value is unresolved (drawn neutral, out of display scales); empty when
+    # every object is resolved or the buffer has one batch (``measured`` False: no error at all)
+    unresolved: dict[str, str] = field(default_factory=dict)
+    measured: bool = False  # the buffer has batch statistics: resolution is known
 
     @property
     def scale_group(self) -> str:
@@ -105,6 +122,8 @@ def _parts(
             left_out,
             {key: z.raw_signed for key, z in hidden.items() if key in chosen},
             {k: buf.param(k).estimator for k in chosen},
+            unresolved_objects(buf, objective, chosen, signed, weight),
+            buf.statistics is not None,
         )
 
     if untrusted == "include":
@@ -119,6 +138,42 @@ def _parts(
         name, where = pass_name + UNTRUSTED_PASS, f"{selection};untrusted"
         passes.append(values(name, where, apart, "untrusted", left_out))
     return passes
+
+
+def unresolved_objects(
+    buf: SensitivityBuffer,
+    objective: str,
+    keys: Sequence[str],
+    signed: Mapping[str, float],
+    weight: str,
+) -> dict[str, str]:
+    """Each object whose signed sum over ``keys`` its batches cannot resolve, with the reason:
+    heavy-tailed batches, or |Σc| within t standard errors. Empty without statistics."""
+    noise = Uncertainty.of(buf, objective, "sum", "raw" if weight == "raw" else "value")
+    if noise is None:
+        return {}
+    owned: dict[str, list[str]] = {}
+    for key in keys:
+        for owner in buf.param(key).owners:
+            owned.setdefault(owner, []).append(key)
+    found = {}
+    for name, members in owned.items():
+        why = unresolved_reason(noise.error(members, signed[name]), signed[name])
+        if why is not None:
+            found[name] = why
+    return found
+
+
+def unresolved_reason(error: GroupError, signed: float) -> str | None:
+    """Why ``signed`` is not resolved under ``error``, in a few words; None when it is."""
+    if error.noisy is not None:
+        return f"noisy: {error.noisy}"
+    if error.resolves(signed):
+        return None
+    return (
+        f"unresolved: |{signed:+.3g}| within {error.factor:.2f} x {error.signed_se:.2g} "
+        f"(t, {error.dof} dof)"
+    )
 
 
 def _selections(
@@ -158,6 +213,10 @@ class PaintedPass:
     scale: Scale  # how ``data`` was encoded (recorded with the layer)
     data: np.ndarray  # (H, W) float32, encoded
     invisible: tuple[str, ...]  # objects with a non-zero value that this camera does not see
+    # (H, W) bool: pixels whose value comes mostly from unresolved objects (drawn neutral)
+    neutral: np.ndarray | None = None
+    # (H, W) float32: ``data`` with the unresolved objects left out: what display scales read
+    scale_data: np.ndarray | None = None
 
 
 def painted_values(
@@ -177,11 +236,25 @@ def paint_pass(values: ChannelValues, visibility: VisibilityPass) -> PaintedPass
     """One pass painted into one camera: per-object values through the coverage, encoded."""
     encoding = Encoding.from_channel(values.spec)
     per_object, painted = painted_values(values, visibility, encoding.sign)
-    scale = choose_scale(encoding, per_object, painted if encoding.normalize == "channel" else None)
-    data = encode_image(painted, encoding, scale.threshold, scale.scale)
     seen = set(visibility.visible_objects)
     invisible = tuple(sorted(n for n, value in per_object.items() if value and n not in seen))
-    return PaintedPass(encoding, scale, data, invisible)
+    if not values.unresolved:
+        scale = choose_scale(encoding, per_object,
+                             painted if encoding.normalize == "channel" else None)  # fmt: skip
+        data = encode_image(painted, encoding, scale.threshold, scale.scale)
+        return PaintedPass(encoding, scale, data, invisible)
+    # The unresolved objects' share of each pixel, painted apart: they never set a scale.
+    doubtful = visibility.paint(
+        np.array([per_object[n] if n in values.unresolved else 0.0 for n in visibility.objects])
+    )
+    resolved = painted - doubtful
+    kept = {n: v for n, v in per_object.items() if n not in values.unresolved}
+    scale = choose_scale(encoding, kept, resolved if encoding.normalize == "channel" else None)
+    data = encode_image(painted, encoding, scale.threshold, scale.scale)
+    neutral = np.abs(doubtful) > np.abs(resolved)
+    scale_data = encode_image(np.where(neutral, 0.0, resolved), encoding, scale.threshold,
+                              scale.scale)  # fmt: skip
+    return PaintedPass(encoding, scale, data, invisible, neutral, scale_data)
 
 
 # Encoding (§3, "Encoding"): per-object sensitivities turned into the values a channel stores,
@@ -203,7 +276,7 @@ class Encoding:
 
     weight: str = "value"  # "value" (θ·∂M/∂θ) | "raw" (∂M/∂θ); applied by the query
     sign: str = "signed"  # "signed" | "magnitude"
-    aggregate: str = "l2"  # "l2" | "rms" | "sum"; applied by the query
+    aggregate: str = DEFAULT_AGGREGATE  # "l2" | "rms" | "sum"; applied by the query
     tonemap: str = "none"  # "none" | "log" | "symlog"
     normalize: str = "none"  # "none" | "channel" | "shared"
 
@@ -504,7 +577,7 @@ def shared_channel_scale(
             (
                 values.scale_group,
                 FOLLOWER if values.part == "untrusted" else REFERENCE,
-                signed_pixels(paint_pass(values, visibility).data),
+                signed_pixels(_scale_image(paint_pass(values, visibility))),
             )
             for values in passes
         ]  # fmt: skip
@@ -512,6 +585,11 @@ def shared_channel_scale(
     }
     scales = group_scales(layers, percentile=percentile)
     return scales[(next(iter(visibilities)), f"{objective}/{channel.name}")]
+
+
+def _scale_image(painted: PaintedPass) -> np.ndarray:
+    """What a display scale reads of a painted pass: never its unresolved objects."""
+    return painted.data if painted.scale_data is None else painted.scale_data
 
 
 def _painted(images: Sequence[np.ndarray]) -> np.ndarray:
@@ -655,9 +733,10 @@ def reverse_along(
 
 
 def top_objects(buffer: SensitivityBuffer, objective: str, k: int, weight: str) -> list[str]:
-    """The ``k`` objects with the largest l2 sensitivity (zeros never ranked)."""
-    scores = per_object(buffer, objective, method="l2", weight=weight)  # type: ignore[arg-type]
-    ranked = sorted((name for name in scores if scores[name] > 0), key=lambda n: -scores[n])
+    """The ``k`` objects with the largest |score| by the default score, the rankings' (zeros
+    never ranked)."""
+    scores = per_object(buffer, objective, method=DEFAULT_AGGREGATE, weight=weight)  # type: ignore[arg-type]
+    ranked = sorted((n for n in scores if scores[n] != 0), key=lambda n: -abs(scores[n]))
     return ranked[:k]
 
 

@@ -11,6 +11,12 @@ gradient. :mod:`sensaov_cli.outputs.tables` writes text, JSON and CSV from these
 A row's share is of Σc² over every ranked parameter, whatever ``--aggregate`` says: Σc² adds
 up over disjoint groups, so the shares of keys and of types each sum to 1 (object shares may
 sum past 1: a shared parameter counts for each owner).
+
+One score by default (:data:`~sensaov_cli.vocabulary.DEFAULT_AGGREGATE`, the signed sum Σc),
+the one the pictures paint; every row also carries its rank by the other score (ℓ2 beside the
+sum, the sum beside ℓ2 or rms), flagged where the two orders disagree markedly. With batch
+statistics every row is *resolved* or not (its signed sum outside its Student-t 95 % interval,
+and batches that do not look heavy-tailed); the unresolved rows rank after the resolved ones.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ from sensaov_cli.buffer.statistics import (
     SIGNIFICANCE_LEVEL,
     SUM_RAW,
     SUM_VALUE,
+    heavy_tail,
     hidden_by_zero,
     interval_factor,
     mean_value,
@@ -36,6 +43,7 @@ from sensaov_cli.buffer.statistics import (
 )
 from sensaov_cli.errors import QueryError
 from sensaov_cli.vocabulary import (
+    DEFAULT_AGGREGATE,
     ESTIMATORS,
     Aggregate,
     Cut,
@@ -47,11 +55,24 @@ from sensaov_cli.vocabulary import (
 )
 
 SUMMARY_FORMAT = "sensaov-summary"
-SUMMARY_VERSION = 3
+SUMMARY_VERSION = 4
 RANKING_FORMAT = "sensaov-ranking"
-RANKING_VERSION = 4  # 4: off_frame renamed not_seen_by (docs/rankings.md)
+RANKING_VERSION = 4  # 4: resolved, dof, other score; not_seen_by (docs/rankings.md)
 # The grouping each cut reads: a key row is one parameter.
 GROUPING_OF: dict[Cut, Grouping] = {"key": "param", "object": "object", "type": "type"}
+# The score shown beside a ranking's own: the per-component ℓ2 beside the total, else the total.
+OTHER_SCORE: dict[Aggregate, Aggregate] = {"sum": "l2", "l2": "sum", "rms": "sum"}
+# A row whose rank by the other score is this many places or more from its own is flagged: the
+# two scores tell a reader different things about it (a texture's many small same-sign texels).
+ORDER_GAP = 3
+
+
+def other_score(method: Aggregate) -> Aggregate:
+    return OTHER_SCORE[method]
+
+
+def orders_disagree(rank: int, other_rank: int) -> bool:
+    return abs(rank - other_rank) >= ORDER_GAP
 
 
 # Trusted numbers (docs/encoding.md). A headline view (the ``objects`` and ``types`` layers,
@@ -178,22 +199,25 @@ RESAMPLES = 1000  # bootstrap resamples of the batches (seeded: the figure is re
 class GroupError:
     score_se: float
     signed_se: float
-    factor: float  # standard errors in the two-sided 95 % interval: Student's t at k - 1 dof
+    dof: int  # degrees of freedom of the error: batches − 1
+    factor: float  # standard errors in the two-sided 95 % interval: Student's t at ``dof``
+    noisy: str | None = None  # why the batch estimates look heavy-tailed; None: they do not
 
-    def significant(self, signed: float) -> bool:
-        """Whether the sign of ``signed`` is beyond noise: |Σc| > factor · SE, i.e. 0 lies
-        outside the 95 % interval (t with k − 1 degrees of freedom, docs/rankings.md)."""
-        return abs(signed) > self.factor * self.signed_se
+    def resolves(self, signed: float) -> bool:
+        """Whether the sign of ``signed`` is resolved: |Σc| > factor · SE (0 lies outside the
+        95 % interval, t with ``dof`` degrees of freedom) and the error itself can be trusted
+        (no heavy tail: then the spread understates the error, docs/rankings.md)."""
+        return self.noisy is None and abs(signed) > self.factor * self.signed_se
 
 
 @dataclass(frozen=True)
-class Significance:
-    """The rule a ranking's ``significant`` column applies, recorded beside it."""
+class Resolution:
+    """The rule a ranking's ``resolved`` column applies, recorded beside it."""
 
     level: float  # two-sided coverage of the interval
     batches: int
     dof: int  # batches - 1
-    factor: float  # the t quantile: |Σc| > factor · SE is significant
+    factor: float  # the t quantile: |Σc| > factor · SE (and no heavy tail) is resolved
 
 
 class Uncertainty:
@@ -208,7 +232,7 @@ class Uncertainty:
         self.counts = {p.key: math.prod(p.shape) for p in buf.params}  # no texel is read
         self.method, self.weight = method, weight
         batches = len(self.spp)
-        self.significance = Significance(
+        self.resolution = Resolution(
             SIGNIFICANCE_LEVEL, batches, batches - 1, interval_factor(batches)
         )
 
@@ -236,7 +260,9 @@ class Uncertainty:
         return GroupError(
             float(pooled_stderr(scores, self.spp)),
             float(pooled_stderr(signed, self.spp)),
-            self.significance.factor,
+            self.resolution.dof,
+            self.resolution.factor,
+            heavy_tail(signed.tolist()),
         )
 
     def stability(
@@ -258,6 +284,14 @@ class Uncertainty:
         return float(held.mean()), top
 
 
+def objective_se(buf: SensitivityBuffer, objective: str) -> float | None:
+    """The standard error of the objective value M from its batches; None with one batch."""
+    if buf.statistics is None:
+        return None
+    values = np.asarray(buf.statistics.objective_values[objective], np.float64)
+    return float(pooled_stderr(values, buf.statistics.spp))
+
+
 @dataclass(frozen=True)
 class RankRow:
     """One row of a ranking; ``value`` only for key rows, ``not_seen_by`` only with cameras."""
@@ -273,12 +307,27 @@ class RankRow:
     not_seen_by: tuple[str, ...] | None  # cameras that see none of its objects
     score_se: float | None = None  # standard errors, when the buffer has batch statistics
     signed_se: float | None = None
-    significant: bool | None = None  # |signed| > t · signed_se: the sign is beyond noise
+    dof: int | None = None  # degrees of freedom of the errors (batches − 1, or seeds − 1)
+    resolved: bool | None = None  # |signed| > t · signed_se and no heavy tail; None: no error
+    noisy: str | None = None  # why its batch estimates look heavy-tailed (never resolved then)
+    other_score: float | None = None  # the score by the other aggregate (OTHER_SCORE)
+    other_rank: int | None = None  # the row's rank by the other score among the same rows
     part: str = "all"  # "trusted" / "untrusted" (left out) under untrusted: apart
     zero_value: bool = False  # θ is 0 where ∂M/∂θ is not (a group: in one of its keys)
     raw_signed: float | None = None  # Σ ∂M/∂θ, for a zero-valued key under weight "value"
     # what produced the gradients: a key's estimator, a group's distinct ones joined by "+"
     estimator: str = "reverse"
+
+    @property
+    def orders_disagree(self) -> bool:
+        """Whether its rank by the other score differs markedly from its rank here."""
+        return self.other_rank is not None and orders_disagree(self.rank, self.other_rank)
+
+    @property
+    def unresolved(self) -> bool:
+        """Drawn neutral, marked ``?``, ranked after the resolved rows: measured and either
+        within its interval or heavy-tailed."""
+        return self.resolved is False
 
 
 @dataclass(frozen=True)
@@ -296,8 +345,10 @@ class Ranking:
     stability_top: int | None = None
     left_out: tuple[RankRow, ...] = ()  # untrusted parts of objects or types, ranked apart
     untrusted: Untrusted = "include"  # how untrusted parameters were treated
-    significance: Significance | None = None  # the rule behind ``significant``; None: 1 batch
+    resolution: Resolution | None = None  # the rule behind ``resolved``; None: 1 batch
     zero_valued: tuple[ZeroValued, ...] = ()  # every key value weighting hides
+    objective_se: float | None = None  # standard error of M; None: one batch
+    method: Aggregate = DEFAULT_AGGREGATE  # the score rows are ranked by
 
 
 def rankings(
@@ -306,7 +357,7 @@ def rankings(
     by: Cut,
     objectives: Sequence[str] | None = None,
     top: int | None = None,
-    method: Aggregate = "l2",
+    method: Aggregate = DEFAULT_AGGREGATE,
     weight: Weight = "value",
     visible: Mapping[str, frozenset[str]] | None = None,
     untrusted: Untrusted = "apart",
@@ -356,7 +407,8 @@ def _ranking(
     noise = Uncertainty.of(buf, objective, cut.method, cut.weight)
     total_sq = math.fsum(s.sum_sq for s in stats.values())
     table = _Table(buf, objective, cut, stats, total_sq, hidden, noise)
-    stable = None if noise is None else noise.stability(rank(scores(stats, split.kept)), split.kept)
+    ordered = rank(scores(stats, split.kept, cut.method))
+    stable = None if noise is None else noise.stability(ordered, split.kept)
     return Ranking(
         objective=objective,
         objective_value=buf.objective(objective).value,
@@ -369,8 +421,10 @@ def _ranking(
         stability_top=None if stable is None else stable[1],
         left_out=table.rows(split.left_out, "untrusted", None),
         untrusted=cut.untrusted,
-        significance=None if noise is None else noise.significance,
+        resolution=None if noise is None else noise.resolution,
         zero_valued=tuple(hidden.values()),
+        objective_se=objective_se(buf, objective),
+        method=cut.method,
     )
 
 
@@ -389,12 +443,22 @@ class _Table:
     def rows(
         self, groups: Mapping[str, Sequence[str]], part: str, limit: int | None
     ) -> tuple[RankRow, ...]:
-        ordered = rank(scores(self.stats, groups, self.cut.method))[:limit]
+        """Every row by |score|, the unresolved after the resolved (each by |score|), then cut:
+        a sign the batches cannot resolve never heads a ranking."""
+        other = OTHER_SCORE[self.cut.method]
+        other_scores = scores(self.stats, groups, other)
+        other_rank = {name: i for i, (name, _) in enumerate(rank(other_scores), 1)}
+        made = [
+            self.row(name, s, groups[name], part)
+            for name, s in rank(scores(self.stats, groups, self.cut.method))
+        ]
+        ordered = [r for r in made if not r.unresolved] + [r for r in made if r.unresolved]
         return tuple(
-            self.row(i, name, s, groups[name], part) for i, (name, s) in enumerate(ordered, 1)
+            replace(r, rank=i, other_score=other_scores[r.name], other_rank=other_rank[r.name])
+            for i, r in enumerate(ordered[:limit], 1)
         )
 
-    def row(self, index: int, name: str, score: float, keys: Sequence[str], part: str) -> RankRow:
+    def row(self, name: str, score: float, keys: Sequence[str], part: str) -> RankRow:
         buf, cut = self.buf, self.cut
         group = [self.stats[k] for k in keys]
         signed = math.fsum(s.total for s in group)
@@ -402,7 +466,7 @@ class _Table:
         objects = buf.param(name).owners if cut.by == "key" else (name,)
         zero = [self.hidden[k] for k in keys if k in self.hidden]
         row = RankRow(
-            rank=index,
+            rank=0,  # set once the rows are ordered
             name=name,
             score=score,
             signed=signed,
@@ -418,10 +482,8 @@ class _Table:
         )
         if self.noise is not None:
             error = self.noise.error(keys, score)
-            significant = error.significant(signed)
-            return replace(
-                row, score_se=error.score_se, signed_se=error.signed_se, significant=significant
-            )
+            return replace(row, score_se=error.score_se, signed_se=error.signed_se, dof=error.dof,
+                           resolved=error.resolves(signed), noisy=error.noisy)  # fmt: skip
         if cut.by == "key":  # without batches, a repaired parameter has its own seeds' error
             return self.with_repair_error(row)
         return row
@@ -437,9 +499,8 @@ class _Table:
             "l2": repair.norm_error(objective, theta),
             "rms": repair.norm_error(objective, theta) / math.sqrt(max(theta.size, 1)),
         }[self.cut.method]
-        return replace(
-            row, score_se=score_se, signed_se=repaired.signed_se, significant=repaired.significant
-        )
+        return replace(row, score_se=score_se, signed_se=repaired.signed_se, dof=repaired.dof,
+                       resolved=repaired.resolved, noisy=repaired.noisy)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -447,8 +508,10 @@ class RepairError:
     """A repaired parameter's own standard error of its signed sum, over its seeds."""
 
     signed_se: float
-    significant: bool  # the sign of its signed sum is beyond Student's t of that error
+    resolved: bool  # the sign of its signed sum is beyond Student's t of that error, not noisy
     seeds: int
+    dof: int  # seeds − 1
+    noisy: str | None = None  # why its seeds' estimates look heavy-tailed
 
 
 def repair_error(
@@ -458,8 +521,13 @@ def repair_error(
     repair = buf.repairs.get(key)
     if repair is None or not repair.has_error:
         return None
-    error = repair.signed_error(objective, _theta(buf, key, weight))
-    return RepairError(error, repair.significant(signed, error), len(repair.seeds))
+    theta = _theta(buf, key, weight)
+    error = repair.signed_error(objective, theta)
+    seeds = len(repair.seeds)
+    sums = np.asarray(repair.estimates[objective]) @ theta.astype(np.float64).ravel()
+    noisy = heavy_tail(sums.tolist())
+    resolved = noisy is None and repair.significant(signed, error)
+    return RepairError(error, resolved, seeds, seeds - 1, noisy)
 
 
 def _theta(buf: SensitivityBuffer, key: str, weight: Weight) -> np.ndarray:
@@ -489,13 +557,21 @@ def cameras_not_seeing(
 
 @dataclass(frozen=True)
 class RankedParameter:
-    """One of an objective's top parameters in the summary."""
+    """One of an objective's top parameters in the summary: its ranking row (score, errors,
+    resolution, its rank by the other score) and its record."""
 
     record: ParamRecord
-    score: float
-    signed: float  # Σc
+    row: RankRow
     repaired: RepairError | None  # a repaired parameter's own error; None for the others
     raw_signed: float | None  # Σ ∂M/∂θ where θ is 0 and ∂M/∂θ is not (weight "value")
+
+    @property
+    def score(self) -> float:
+        return self.row.score
+
+    @property
+    def signed(self) -> float:
+        return self.row.signed
 
     @property
     def zero_value(self) -> bool:
@@ -504,14 +580,31 @@ class RankedParameter:
 
 @dataclass(frozen=True)
 class RankedGroup:
-    """An object or a type in the summary, with its signed sum and that sum's own rank."""
+    """An object or a type in the summary: its ranking row (score, signed sum, errors,
+    resolution, its rank by the other score: a texture's ℓ2 is about 1/sqrt(texels) of its sum,
+    so the two orders can differ)."""
 
-    name: str
-    score: float
-    signed: float
-    signed_rank: int  # a texture's l2 is about 1/sqrt(texels) of its sum: the two can differ
-    trust: Trust
-    zero_value: bool  # one of its parameters is valued exactly 0
+    row: RankRow
+
+    @property
+    def name(self) -> str:
+        return self.row.name
+
+    @property
+    def score(self) -> float:
+        return self.row.score
+
+    @property
+    def signed(self) -> float:
+        return self.row.signed
+
+    @property
+    def trust(self) -> Trust:
+        return self.row.trust
+
+    @property
+    def zero_value(self) -> bool:
+        return self.row.zero_value
 
 
 @dataclass(frozen=True)
@@ -523,6 +616,10 @@ class LeftOut:
     signed: float
     trust: Trust
     keys: tuple[tuple[str, Trust], ...]
+    signed_se: float | None = None  # as a ranking row's; None: one batch
+    dof: int | None = None
+    resolved: bool | None = None
+    noisy: str | None = None
 
 
 @dataclass(frozen=True)
@@ -539,6 +636,8 @@ class ObjectiveSummary:
     left_out_types: tuple[LeftOut, ...]
     zero_valued: tuple[ZeroValued, ...]
     no_gradient: tuple[ParamRecord, ...]  # listed apart, never ranked
+    objective_se: float | None = None  # standard error of M; None: one batch
+    resolution: Resolution | None = None  # the rule behind ``resolved``; None: one batch
 
 
 @dataclass(frozen=True, eq=False)
@@ -557,7 +656,7 @@ def ranked_summary(
     buf: SensitivityBuffer,
     *,
     top: int = 8,
-    method: Aggregate = "l2",
+    method: Aggregate = DEFAULT_AGGREGATE,
     weight: Weight = "value",
     untrusted: Untrusted = "apart",
 ) -> Summary:
@@ -585,50 +684,53 @@ def _objective_summary(
     weight: Weight,
     untrusted: Untrusted,
 ) -> ObjectiveSummary:
-    stats = key_stats(buf, objective.name, ranked["param"], weight=weight)  # one pass, 3 groupings
-    hidden = zero_valued(buf, objective.name, list(ranked["param"])) if weight == "value" else {}
+    name = objective.name
+    stats = key_stats(buf, name, ranked["param"], weight=weight)  # one pass, 3 groupings
+    hidden = zero_valued(buf, name, list(ranked["param"])) if weight == "value" else {}
     objects = split_groups(buf, ranked["object"], untrusted)
     types = split_groups(buf, ranked["type"], untrusted)
+    noise = Uncertainty.of(buf, name, method, weight)
+    total_sq = math.fsum(s.sum_sq for s in stats.values())
 
-    def scored(grouped: Mapping[str, Sequence[str]], top: int | None) -> tuple[RankedGroup, ...]:
-        sums = scores(stats, grouped, "sum")
-        sum_rank = {name: i for i, (name, _) in enumerate(rank(sums), 1)}
-        return tuple(
-            RankedGroup(name, score, sums[name], sum_rank[name], weakest_trust(buf, grouped[name]),
-                        any(k in hidden for k in grouped[name]))
-            for name, score in rank(scores(stats, grouped, method), top)
-        )  # fmt: skip
+    def table(by: Cut) -> _Table:
+        mode: Untrusted = "include" if by == "key" else untrusted
+        return _Table(buf, name, _Cut(by, method, weight, None, mode), stats, total_sq, hidden,
+                      noise)  # fmt: skip
 
-    def left_out(grouped: Mapping[str, Sequence[str]]) -> tuple[LeftOut, ...]:
-        """The untrusted part of each group, largest first, with each key and its label."""
-        sums = scores(stats, grouped, "sum")
+    part = "all" if untrusted == "include" else "trusted"
+
+    def left_out(grouped: Mapping[str, Sequence[str]], by: Cut) -> tuple[LeftOut, ...]:
+        """The untrusted part of each group, resolved and largest first, with each key and its
+        label and the group's error."""
         return tuple(
-            LeftOut(name, score, sums[name], weakest_trust(buf, grouped[name]),
-                    tuple((k, buf.param(k).trust) for k in grouped[name]))
-            for name, score in rank(scores(stats, grouped, method))
+            LeftOut(r.name, r.score, r.signed, r.trust,
+                    tuple((k, buf.param(k).trust) for k in grouped[r.name]),
+                    r.signed_se, r.dof, r.resolved, r.noisy)
+            for r in table(by).rows(grouped, "untrusted", None)
         )  # fmt: skip
 
     parameters = tuple(
         RankedParameter(
-            buf.param(key),
-            score,
-            stats[key].total,
-            repair_error(buf, objective.name, key, stats[key].total, weight),
-            hidden[key].raw_signed if key in hidden else None,
+            buf.param(row.name),
+            row,
+            repair_error(buf, name, row.name, row.signed, weight),
+            hidden[row.name].raw_signed if row.name in hidden else None,
         )
-        for key, score in rank(scores(stats, ranked["param"], method), top)
+        for row in table("key").rows(ranked["param"], "all", top)
     )
     return ObjectiveSummary(
         objective,
         untrusted,
         len(objects.kept),
         parameters,
-        scored(objects.kept, top),
-        scored(types.kept, None),
-        left_out(objects.left_out),
-        left_out(types.left_out),
+        tuple(RankedGroup(row) for row in table("object").rows(objects.kept, part, top)),
+        tuple(RankedGroup(row) for row in table("type").rows(types.kept, part, None)),
+        left_out(objects.left_out, "object"),
+        left_out(types.left_out, "type"),
         tuple(hidden.values()),
         tuple(p for p in buf.params if p.trust == "no_gradient"),
+        objective_se(buf, name),
+        None if noise is None else noise.resolution,
     )
 
 
@@ -661,7 +763,13 @@ class Wedge:
     score: float  # the aggregate of the wedge's keys
     signed: float  # Σc of its keys: its sign colours the wedge
     trust: Trust  # the weakest label among its keys
-    significant: bool | None = None  # sign beyond t standard errors; None: no statistics
+    resolved: bool | None = None  # sign beyond t standard errors, no heavy tail; None: 1 batch
+    noisy: str | None = None  # why its batch estimates look heavy-tailed
+
+    @property
+    def unresolved(self) -> bool:
+        """Drawn neutral: its sign is measured and not resolved (or heavy-tailed)."""
+        return self.resolved is False
 
     @property
     def label(self) -> str:
@@ -688,7 +796,7 @@ def panels(
     objectives: Sequence[str] | None = None,
     *,
     order: Order = "object,type",
-    method: Aggregate = "l2",
+    method: Aggregate = DEFAULT_AGGREGATE,
     weight: Weight = "value",
     untrusted: Untrusted = "apart",
 ) -> tuple[Panel, ...]:
@@ -744,7 +852,7 @@ def sunburst_wedges(
     objective: str,
     *,
     order: Order = "object,type",
-    method: Aggregate = "l2",
+    method: Aggregate = DEFAULT_AGGREGATE,
     weight: Weight = "value",
     untrusted: Untrusted = "apart",
 ) -> tuple[Wedge, ...]:
@@ -767,7 +875,7 @@ class _Rings:
     buf: SensitivityBuffer
     stats: Mapping[str, KeyStats]
     method: Aggregate
-    noise: Uncertainty | None  # None: no statistics, no significance
+    noise: Uncertainty | None  # None: no statistics, no resolution
 
     def wedge(
         self, keys: Sequence[str], ring: int, path: tuple[str, ...], start: float, stop: float
@@ -777,7 +885,8 @@ class _Rings:
         error = None if self.noise is None else self.noise.error(keys, score)
         return Wedge(ring=ring, path=path, start=start, stop=stop, score=score, signed=signed,
                      trust=weakest_trust(self.buf, keys),
-                     significant=None if error is None else error.significant(signed))  # fmt: skip
+                     resolved=None if error is None else error.resolves(signed),
+                     noisy=None if error is None else error.noisy)  # fmt: skip
 
 
 def _children(
