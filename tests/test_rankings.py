@@ -276,7 +276,7 @@ def test_demo_light_is_not_seen_by_the_overhead_camera(job_writer: Any) -> None:
     text = sensaov("rank", str(out / "buffer.npz"), "--by", "object", *exrs).stdout
     assert any(line.split()[-2:] == ["light", "overhead"] for line in text.splitlines())
     # The column says what it holds: the cameras that do not see the row, never "off-frame".
-    (header,) = [line for line in text.splitlines() if line.strip().startswith("#")]
+    (header,) = [line for line in text.splitlines() if line.split()[:1] == ["#"]]
     assert header.split()[-4:] == ["object", "not", "seen", "by"] and "off-frame" not in text
     table = sensaov("rank", str(out / "buffer.npz"), "--by", "object", "--csv", *exrs).stdout
     lights = [row for row in csv.DictReader(io.StringIO(table)) if row["name"] == "light"]
