@@ -55,7 +55,13 @@ from sensaov_cli.render.adjoint import (
     integrator_plan,
     run_adjoint,
 )
-from sensaov_cli.render.loading import LoadedScene, check_render, load_scene, refuse_non_finite
+from sensaov_cli.render.loading import (
+    LoadedScene,
+    check_gradients,
+    check_render,
+    load_scene,
+    refuse_non_finite,
+)
 from sensaov_cli.render.objectives import Objective, build_objectives
 from sensaov_cli.render.runtime import library_versions
 from sensaov_cli.render.verify.repair import repair
@@ -179,6 +185,10 @@ def run_task(
     if task.shard is not None:  # shard i of n: batch i-1 of the job's n-batch plan, one batch
         spp, seed = batch_plan(spp, seed, task.shard[1])[task.shard[0] - 1]
         batches = 1
+    # A large texture's gradients outweigh the passes: refused here, before any pass runs.
+    check_gradients(
+        loaded.selected, objectives=len(objectives), batches=batches, where=str(job.path)
+    )
     passes = len(integrator_plan(loaded)) * len(objectives)
     # Every pass counts: a transport channel's top objects are only known after the backward
     # passes, so its passes are planned at their most and the ones not needed skipped then.
