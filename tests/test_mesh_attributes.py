@@ -74,3 +74,47 @@ def test_the_gradient_of_vertex_colours_agrees_with_finite_differences(
     rows = [line for line in done.stdout.splitlines() if ".vertex_color" in line]
     rows += [line for line in done.stdout.splitlines() if ".face_color" in line]
     assert len(rows) >= 4 and all("agrees" in row for row in rows), done.stdout
+
+
+SHARED = """<scene version="3.0.0">
+    <sensor type="perspective" id="sensor">
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+    </sensor>
+    <emitter type="constant" id="sky"/>
+    <bsdf type="diffuse" id="vertex_paint">
+        <texture type="mesh_attribute" name="reflectance">
+            <string name="name" value="vertex_color"/>
+        </texture>
+    </bsdf>
+    <shape type="ply" id="left">
+        <string name="filename" value="{ply}"/>
+        <transform name="to_world"><translate x="-1.2"/></transform>
+        <ref id="vertex_paint"/>
+    </shape>
+    <shape type="ply" id="right">
+        <string name="filename" value="{ply}"/>
+        <transform name="to_world"><translate x="1.2"/></transform>
+        <ref id="vertex_paint"/>
+    </shape>
+</scene>
+"""
+
+
+@pytest.mark.parametrize("shared", ["keep", "split"])
+def test_a_shared_vertex_paint_colours_every_mesh_it_paints(
+    job_writer: Callable[..., Path], shared: str
+) -> None:
+    path = job_writer(f"mesh_attributes_{shared}", parameters={"shared": shared})
+    scene = path.parent / "shared.xml"
+    ply = ROOT / "tests" / "scenes" / "vertex_colour_quad.ply"
+    scene.write_text(SHARED.format(ply=ply))
+    path.write_text(
+        path.read_text().replace(str(ROOT / "scenes" / "cbox" / "scene.xml"), str(scene))
+    )
+    done = sensaov("params", str(path), "--json")
+    assert done.returncode == 0, done.stderr
+    selected = {p["key"]: p for p in json.loads(done.stdout)["selected"]}
+    for mesh in ("left", "right"):
+        record = selected[f"{mesh}.vertex_color"]
+        assert record["type"] == "reflectance" and record["owners"] == [mesh]

@@ -192,28 +192,28 @@ def _explicitly_included(key: str, include: tuple[str, ...]) -> bool:
 def _mesh_colours(mi: ModuleType, params: Any) -> dict[str, _Colour]:
     """The mesh attributes a ``mesh_attribute`` texture reads (``vertex_color`` of a PLY), by
     key: a texture of the mesh's colour, whose gradient is the slot's (the texture reads the
-    attribute linearly), not the mesh's geometry."""
-    attributes: dict[tuple[int, str], str] = {}  # (id(mesh), attribute name) -> key
-    slots: dict[int, str] = {}  # id(mesh_attribute texture) -> the slot it fills
+    attribute linearly), not the mesh's geometry. Each mesh's own subtree is searched, so a
+    BSDF shared by several meshes (``shared: keep``) colours each of them."""
+    meshes: dict[int, tuple[Any, str]] = {}  # id(mesh) -> the mesh, its keys' prefix
     for key in params.keys():
         node = params.properties[key][2]
         if isinstance(node, mi.Mesh):
-            attributes[(id(node), key.rsplit(".", 1)[-1])] = key
-        elif node.class_name() == "MeshAttribute" and key.count(".") >= 1:
-            slots[id(node)] = key.split(".")[-2]  # painted.bsdf.reflectance.scale
+            meshes.setdefault(id(node), (node, key.rsplit(".", 1)[0]))
+    keys = set(params.keys())
     colours = {}
-    for node, _ in params.hierarchy.items():
-        if node.class_name() != "MeshAttribute":
-            continue
-        match = re.search(r'name = "([^"]*)"', str(node))
-        levels, holder = _above_textures(mi, node, params.hierarchy)
-        mesh = holder
-        while mesh is not None and not isinstance(mesh, mi.Mesh):
-            parent = params.hierarchy.get(mesh)
-            mesh = parent[0] if parent is not None else None
-        key = attributes.get((id(mesh), match.group(1))) if match and mesh is not None else None
-        if key is not None:
-            colours[key] = _Colour(slots.get(id(node), "mesh_attribute"), holder)
+    for mesh, prefix in meshes.values():
+        inner = mi.traverse(mesh)
+        for node, _ in inner.hierarchy.items():
+            if node.class_name() != "MeshAttribute":
+                continue
+            match = re.search(r'name = "([^"]*)"', str(node))
+            key = f"{prefix}.{match.group(1)}" if match else None
+            if key not in keys:
+                continue
+            # The slot it fills: its own key's parent (bsdf.reflectance.scale -> reflectance).
+            own = next((k for k in inner.keys() if inner.properties[k][2] is node), None)
+            slot = own.split(".")[-2] if own and "." in own else "mesh_attribute"
+            colours[str(key)] = _Colour(slot, _above_textures(mi, node, inner.hierarchy)[1])
     return colours
 
 
@@ -286,7 +286,8 @@ def _describe(
     shape = shape[:1] if len(shape) == 2 and shape[1] == 1 else shape  # colours: (3, 1) -> (3,)
     if is_texture_node and "spectral" in mi.variant() and shape[-1:] == (3,):
         trust, note = "unverified", SPECTRAL_COEFFICIENTS_NOTE
-    flag_names = ("discontinuous",) if flags & int(mi.ParamFlags.Discontinuous) else ()
+    flag_names: tuple[str, ...] = ()
+    flag_names += ("discontinuous",) if flags & int(mi.ParamFlags.Discontinuous) else ()
     flag_names += ("mesh_attribute",) if colour is not None else ()  # a colour, per vertex
     record = ParamRecord(
         key=key,
