@@ -78,8 +78,13 @@ def test_the_gradient_of_vertex_colours_agrees_with_finite_differences(
 
 SHARED = """<scene version="3.0.0">
     <sensor type="perspective" id="sensor">
-        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+        <transform name="to_world">
+            <lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/>
+        </transform>
+        <film type="hdrfilm">
+            <integer name="width" value="8"/>
+            <integer name="height" value="8"/>
+        </film>
     </sensor>
     <emitter type="constant" id="sky"/>
     <bsdf type="diffuse" id="vertex_paint">
