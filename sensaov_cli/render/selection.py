@@ -240,7 +240,7 @@ def _exclusion_reason(
     is_geometry = not colour and (
         isinstance(node, mi.Shape) or field in GEOMETRY_FIELDS or field.startswith("vertex_")
     )
-    attribute = isinstance(node, mi.Mesh) and field not in MESH_GEOMETRY
+    attribute = field.startswith(("vertex_", "face_")) and field not in MESH_GEOMETRY
     if is_geometry and attribute and not _explicitly_included(key, parameters.include):
         return "a mesh attribute no mesh_attribute texture reads: it changes nothing rendered"
     if is_geometry and not _explicitly_included(key, parameters.include):
