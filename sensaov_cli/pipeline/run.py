@@ -61,6 +61,7 @@ from sensaov_cli.render.loading import (
     check_render,
     load_scene,
     refuse_non_finite,
+    render_bytes,
 )
 from sensaov_cli.render.objectives import Objective, build_objectives
 from sensaov_cli.render.runtime import library_versions
@@ -187,7 +188,11 @@ def run_task(
         batches = 1
     # A large texture's gradients outweigh the passes: refused here, before any pass runs.
     check_gradients(
-        loaded.selected, objectives=len(objectives), batches=batches, where=str(job.path)
+        loaded.selected,
+        objectives=len(objectives),
+        batches=batches,
+        passes=render_bytes(width * height, spp, objectives=len(objectives)),
+        where=str(job.path),
     )
     passes = len(integrator_plan(loaded)) * len(objectives)
     # Every pass counts: a transport channel's top objects are only known after the backward

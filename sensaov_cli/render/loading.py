@@ -180,10 +180,17 @@ def check_render(
     pixels: int, spp: int, *, objectives: int, setting: str, where: str | None = None
 ) -> None:
     """The objective camera's passes: a sub-pass's samples and one adjoint per objective."""
-    samples = max(pixels, min(pixels * spp, SUBPASS_SAMPLES))
-    need = samples * RENDER_BYTES_PER_SAMPLE
-    need += pixels * RENDER_BYTES_PER_PIXEL_AND_OBJECTIVE * objectives
+    need = render_bytes(pixels, spp, objectives=objectives)
     check_memory(need, "the primal and backward passes", setting=setting, where=where)
+
+
+def render_bytes(pixels: int, spp: int, *, objectives: int) -> int:
+    """What the objective camera's passes allocate: a sub-pass's samples, the adjoint images."""
+    samples = max(pixels, min(pixels * spp, SUBPASS_SAMPLES))
+    return (
+        samples * RENDER_BYTES_PER_SAMPLE
+        + pixels * RENDER_BYTES_PER_PIXEL_AND_OBJECTIVE * objectives
+    )
 
 
 def gradient_bytes(components: int, *, objectives: int, batches: int) -> int:
@@ -197,14 +204,20 @@ def gradient_bytes(components: int, *, objectives: int, batches: int) -> int:
 
 
 def check_gradients(
-    selected: tuple[ParamRecord, ...], *, objectives: int, batches: int, where: str | None = None
+    selected: tuple[ParamRecord, ...],
+    *,
+    objectives: int,
+    batches: int,
+    passes: int,
+    where: str | None = None,
 ) -> None:
-    """The selected parameters' gradients (a large texture's dominate), before any pass runs;
-    the refusal names the largest parameter and what to change."""
+    """The selected parameters' gradients (a large texture's dominate) with the ``passes``'
+    bytes (:func:`render_bytes`) on top of what the process holds, before any pass runs; the
+    refusal names the largest parameter and what to change."""
     sizes = {info.key: int(np.prod(info.shape, dtype=np.int64)) for info in selected}
     components = sum(sizes.values())
     need = gradient_bytes(components, objectives=objectives, batches=batches)
-    held = resident_bytes()  # the renderer and the loaded scene: the peak comes on top of them
+    held = resident_bytes() + passes  # the renderer, the loaded scene, then the passes' arrays
     largest = max(sizes, key=sizes.__getitem__, default=None)
     named = ""
     if largest is not None:
@@ -214,7 +227,7 @@ def check_gradients(
         need + held,
         f"the gradients of {components:,} parameter components{named}, for {objectives} "
         f"objective(s) in {batches} batch(es) ({size_text(need)}), beside the "
-        f"{size_text(held)} the process holds,",
+        f"{size_text(held)} the process holds and its passes take,",
         setting="parameters",
         where=where,
         hint="leave large textures out (parameters: exclude), or use fewer render.batches or "
