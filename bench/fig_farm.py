@@ -125,6 +125,7 @@ def _adjoint(
 
 
 def _merge(ws: Workspace, s: Settings) -> Row:
+    from sensaov_cli.buffer.shards import batch_plan, pixels_digest
     from sensaov_cli.outputs.exr import write_exr
     from sensaov_cli.pipeline.merge import merge_files
     from sensaov_cli.progress import Progress
@@ -132,13 +133,16 @@ def _merge(ws: Workspace, s: Settings) -> Row:
     folder = ws.root / "merge"
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
-    for i in range(1, 5):
+    primal = {"Y": np.zeros((8, 8), np.float32)}
+    for i, (spp, seed) in enumerate(batch_plan(64, 0, 4), 1):
         shard = make_buffer(s.io_texture)
-        provenance = {
-            "job_hash": "bench", "scene_fingerprint": "bench", "spp": 16, "job_spp": 64,
-            "primal_seed": i, "resolution": [8, 8],  # what merge checks a shard records
-            "job": {"objectives": [{"name": "mean_luma"}]},
+        provenance = {  # what merge checks a shard records: its batch of the plan, its primal
+            "job_hash": "bench", "scene_fingerprint": "bench", "spp": spp, "job_spp": 64,
+            "primal_seed": seed, "resolution": [8, 8],
+            "job": {"objectives": [{"name": "mean_luma"}], "render": {"spp": 64, "seed": 0}},
             "task": {"shard": {"index": i, "count": 4}, "objectives": None},
+            "mitsuba_version": "bench", "drjit_version": "bench", "variant": "bench",
+            "primal": {"file": f"primal.shard-{i}-of-4.exr", "sha256": pixels_digest(primal)},
         }  # fmt: skip
         grads = {"mean_luma": {k: g * (1 + 0.1 * i) for k, g in shard.grads["mean_luma"].items()}}
         shard = type(shard)(
@@ -146,7 +150,7 @@ def _merge(ws: Workspace, s: Settings) -> Row:
         )
         path = folder / f"buffer.shard-{i}-of-4.npz"
         atomic_write(path, buffer_writer(shard))
-        write_exr(path.with_name(f"primal.shard-{i}-of-4.exr"), {"Y": np.zeros((8, 8))}, {})
+        write_exr(path.with_name(f"primal.shard-{i}-of-4.exr"), primal, {})
         paths.append(path)
     size = paths[0].stat().st_size / MB
 

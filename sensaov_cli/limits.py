@@ -67,7 +67,7 @@ def read_regular(
     except OSError as exc:
         raise reading.unreadable(exc) from None
     if len(data) > cap:
-        raise reading.refusal(f" grew past {_size(cap)} while it was read")
+        raise reading.refusal(f" grew past {size_text(cap)} while it was read")
     return data
 
 
@@ -95,7 +95,7 @@ class _Reading:
             )
         if cap is not None and info.st_size > cap:
             raise self.refusal(
-                f" is {_size(info.st_size)}, over the {_size(cap)} sensaov reads",
+                f" is {size_text(info.st_size)}, over the {size_text(cap)} sensaov reads",
                 f"is this the right file? a {self.what} is far smaller",
             )
         return info.st_size
@@ -134,6 +134,17 @@ def memory_budget() -> tuple[int, str]:
     return int(least * BUDGET_SHARE), f"3/4 of {source}; {MEMORY_BUDGET_VARIABLE} sets it"
 
 
+def resident_bytes() -> int:
+    """The memory this process holds now (its resident set): what a check of a long command's
+    next allocations adds them to, so that its peak stays within the budget. The peak so far
+    where /proc is absent (macOS: ru_maxrss counts bytes there)."""
+    with contextlib.suppress(OSError, ValueError, IndexError):
+        pages = int(Path("/proc/self/statm").read_text().split()[1])
+        return pages * os.sysconf("SC_PAGE_SIZE")
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak if os.uname().sysname == "Darwin" else peak * 1024
+
+
 def check_memory(
     need: int,
     what: str,
@@ -148,7 +159,7 @@ def check_memory(
     budget, source = memory_budget()
     if need <= budget:
         return
-    message = f"{what} needs about {_size(need)}, over the memory budget of {_size(budget)}"
+    message = f"{what} needs about {size_text(need)}, over the memory budget of {size_text(budget)}"
     instead = hint or (f"lower {setting.split(' = ')[0]}" if setting else "")
     raise MemoryBudgetError(
         f"{setting}: {message} ({source})" if setting else f"{message} ({source})",
@@ -158,7 +169,8 @@ def check_memory(
     )
 
 
-def _size(count: float) -> str:
+def size_text(count: float) -> str:
+    """A byte count as people read it: 200.0 MiB, 1.5 GiB."""
     value, unit = float(count), "bytes"
     for larger in ("KiB", "MiB", "GiB", "TiB"):
         if value < 1024:

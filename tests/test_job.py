@@ -274,6 +274,58 @@ def test_yaml_anchors_and_merge_keys_read_as_safe_load_does(tmp_path: Path) -> N
     assert [camera.vis_spp for camera in spec.inspection_cameras] == [3, 3]
 
 
+@pytest.mark.parametrize(
+    ("written", "value"),
+    [("1e-3", 1e-3), ("1E-2", 1e-2), ("+1e-3", 1e-3), (".5", 0.5), ("2.5e+1", 25.0),
+     ("1.0e1", 10.0), ("5E0", 5.0), ("-0.0e0", 0.0), ("1.", 1.0), ("2", 2.0)],
+)  # fmt: skip
+def test_numbers_read_as_yaml_1_2_writes_them(tmp_path: Path, written: str, value: float) -> None:
+    """PyYAML reads YAML 1.1, where '1e-3' is a string; a job file reads numbers as YAML 1.2."""
+    step = written.lstrip("-") if 0 < value <= 0.5 else "null"  # 0 < step <= 0.5
+    text = MINIMAL_JOB + f"repair:\n  budget: {written}\n  step: {step}\n"
+    spec = load_job(write_fixture(tmp_path, text))
+    assert spec.repair.budget == value and isinstance(spec.repair.budget, float)
+    assert spec.repair.step == (value if step != "null" else None)
+
+
+@pytest.mark.parametrize("written", ['"1e-3"', "'.5'", '"1E3"'])
+def test_a_quoted_number_is_still_refused(tmp_path: Path, written: str) -> None:
+    text = MINIMAL_JOB + f"repair:\n  budget: {written}\n"
+    with pytest.raises(SpecError, match="repair.budget") as caught:
+        load_job(write_fixture(tmp_path, text))
+    assert caught.value.hint == "write the number without quotes"
+
+
+@pytest.mark.parametrize("written", ["1e", "e3", "1e-", "1.2.3", "0x1p3", "1e3e3"])
+def test_what_is_no_number_in_yaml_1_2_stays_a_string(tmp_path: Path, written: str) -> None:
+    text = MINIMAL_JOB + f"repair:\n  budget: {written}\n"
+    with pytest.raises(SpecError, match="must be a number"):
+        load_job(write_fixture(tmp_path, text))
+
+
+def test_an_exponent_integer_is_a_float_and_refused_where_an_integer_is_meant(
+    tmp_path: Path,
+) -> None:
+    """YAML 1.2 reads 1e3 as a float: render.spp keeps its strict integer."""
+    with pytest.raises(SpecError, match="render.spp: must be an integer, got 1000.0"):
+        load_job(write_fixture(tmp_path, MINIMAL_JOB + "render:\n  spp: 1e3\n"))
+
+
+def test_yaml_1_2_numbers_do_not_change_other_yaml_readers(tmp_path: Path) -> None:
+    load_job(write_fixture(tmp_path, MINIMAL_JOB + "repair:\n  budget: 1e-3\n"))
+    assert yaml.safe_load("a: 1e-3") == {"a": "1e-3"}  # PyYAML's own loader is left alone
+
+
+def test_a_saved_job_copy_keeps_yaml_1_2_numbers_numbers(tmp_path: Path) -> None:
+    """The copy 'sensaov view' writes re-reads the job file: 1e-3 must not come back quoted."""
+    from sensaov_cli.job.load import job_copy_text
+
+    job = load_job(write_fixture(tmp_path, MINIMAL_JOB + "repair:\n  budget: 1e-3\n"))
+    copy = tmp_path / "copy.yaml"
+    copy.write_text(job_copy_text(job, job.path, (), copy, job.output / "buffer.npz"))
+    assert load_job(copy).repair.budget == 1e-3
+
+
 def test_the_documented_example_is_valid(tmp_path: Path) -> None:
     docs = Path(__file__).resolve().parents[1] / "docs" / "job-spec.md"
     example = docs.read_text().split("```yaml\n")[1].split("```")[0]

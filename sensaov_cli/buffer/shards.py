@@ -3,11 +3,15 @@
 ``sensaov run --shard i/n`` renders batch i-1 of the job's n-batch plan (render/adjoint.py), so
 the merge of n shards is the estimate one run with ``render.batches: n`` gives, standard errors
 included (each shard is a batch). Shards may also split objectives (``--objective``): every
-(shard, objective) pair must be present exactly once. Anything else is refused with the reason.
+(shard, objective) pair must be present exactly once. Anything else is refused with the reason:
+a shard whose samples or seed are not its batch's in the plan, one rendered by another Mitsuba,
+Dr.Jit or variant than the others, and (pipeline/merge.py) a primal that is not the one the
+shard recorded writing (:func:`pixels_digest`).
 """
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -23,6 +27,34 @@ from sensaov_cli.errors import MergeError
 _SEVERITY = ("verified", "unverified", "suspect", "biased")
 MAX_SHARDS = 1 << 20  # far above any farm; a count beyond it is a damaged file
 _HINT = "the file is not a shard as 'sensaov run --shard I/N' writes it: run that shard again"
+# What renders a shard: shards made by other builds or variants are not batches of one estimate.
+RENDERED_BY = ("mitsuba_version", "drjit_version", "variant")
+PRIMAL = "primal"  # provenance: {"file": its name, "sha256": pixels_digest of what was written}
+
+
+def derived_seed(seed: int, purpose: str, index: int) -> int:
+    """A reproducible 31-bit seed for (seed, purpose, index), independent of its neighbours."""
+    tag = int.from_bytes(purpose.encode()[:8].ljust(8, b"\0"), "little")
+    return int(np.random.SeedSequence([seed, tag, index]).generate_state(1)[0]) % 2**31
+
+
+def batch_plan(spp: int, seed: int, batches: int) -> list[tuple[int, int]]:
+    """(spp, primal seed) of each of ``batches`` independent batches; batch 0 has ``seed``.
+    Shard i of n is batch i-1, so a merge of n shards equals a run with ``render.batches: n``."""
+    sizes = [spp // batches + (1 if i < spp % batches else 0) for i in range(batches)]
+    return [(n, seed if i == 0 else derived_seed(seed, "batch", i)) for i, n in enumerate(sizes)]
+
+
+def pixels_digest(channels: Mapping[str, np.ndarray]) -> str:
+    """sha256 of an image's channels as an EXR stores them (names, shapes, float32 bits): what a
+    buffer records of the primal written with it, so a primal put in its place is recognised.
+    The file's bytes cannot serve: its header carries the buffer's provenance, this included."""
+    digest = hashlib.sha256()
+    for name in sorted(channels):
+        data = np.ascontiguousarray(channels[name], np.float32)
+        digest.update(f"{name}\0{data.shape}\0".encode())
+        digest.update(data.tobytes())
+    return digest.hexdigest()
 
 
 @dataclass(frozen=True)
@@ -34,7 +66,9 @@ class ShardTask:
     spp: int
     job_spp: int
     seed: int  # primal_seed
+    job_seed: int  # the job's render.seed, the plan's batch 0
     objectives: tuple[str, ...]  # the whole job's, in job order
+    primal_digest: str  # pixels_digest of the primal the shard wrote
 
 
 @dataclass(frozen=True)
@@ -59,14 +93,20 @@ def shard_task(path: Path, provenance: Mapping[str, Any]) -> ShardTask:
     spp = _integer(path, provenance, "spp", "spp", 1, 2**32 - 1)
     job_spp = _integer(path, provenance, "job_spp", "job_spp", 1, 2**32 - 1)
     seed = _integer(path, provenance, "primal_seed", "primal_seed", 0, 2**32 - 1)
-    objectives = _field(path, _field(path, provenance, "job", dict), "objectives", list)
+    job = _field(path, provenance, "job", dict)
+    job_seed = _integer(path, _field(path, job, "render", dict), "seed", "job.render.seed", 0,
+                        2**32 - 1)  # fmt: skip
+    objectives = _field(path, job, "objectives", list)
     names = [entry.get("name") if isinstance(entry, dict) else None for entry in objectives]
     if not names or not all(isinstance(name, str) for name in names):
         raise _bad(path, "job.objectives", objectives, "a list of objectives with names")
     size = provenance.get("resolution")
     if not (isinstance(size, list) and len(size) == 2 and all(_is_int(n, 1) for n in size)):
         raise _bad(path, "resolution", size, "[width, height]")
-    return ShardTask(index, count, spp, job_spp, seed, tuple(map(str, names)))
+    digest = _field(path, provenance, PRIMAL, dict).get("sha256")
+    if not (isinstance(digest, str) and len(digest) == 64):
+        raise _bad(path, "primal.sha256", digest, "the sha256 of the shard's primal")
+    return ShardTask(index, count, spp, job_spp, seed, job_seed, tuple(map(str, names)), digest)
 
 
 def _field(path: Path, mapping: Mapping[str, Any], key: str, kind: type) -> Any:
@@ -116,16 +156,7 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
     parts = [_one_index(files, job_objectives, i, count) for i, files in enumerate(indices, 1)]
     merged_grads, merged_values, spp = zip(*parts, strict=True)
     seeds = [files[0].task.seed for files in indices]
-    # The shards split the job's render.spp (batch_plan): a shard that says it holds more samples
-    # than it does would weigh more in the mean, silently.
-    for shard in shards:
-        if shard.task.job_spp != sum(spp):
-            raise MergeError(
-                f"the shards hold {sum(spp)} spp in all, but their job's render.spp is "
-                f"{shard.task.job_spp}",
-                where=str(shard.path),
-                hint="a shard's provenance spp was changed, or shards of other runs are mixed",
-            )
+    _check_plan(shards)
     grads, objective_values, statistics = combine_batches(
         first.buffer.keys, first.buffer.values, merged_grads, merged_values, spp, seeds, "shards"
     )
@@ -146,6 +177,32 @@ def merge_shards(shards: Sequence[Shard]) -> SensitivityBuffer:
     )
 
 
+def _check_plan(shards: Sequence[Shard]) -> None:
+    """Each shard holds the samples and seed of its batch in the job's plan (batch_plan): a
+    shard that claims more samples than it rendered would weigh more in the mean, and shrink
+    the standard errors, silently; one at another seed is not the batch the merge stands for."""
+    for shard in shards:
+        task, provenance = shard.task, shard.buffer.provenance
+        job_render = provenance["job"]["render"]  # checked by shard_task: a mapping
+        if job_render.get("spp") != task.job_spp:
+            raise MergeError(
+                f"provenance job_spp {task.job_spp} is not its job's render.spp "
+                f"{job_render.get('spp')!r}",
+                where=str(shard.path),
+                hint=_HINT,
+            )
+        spp, seed = batch_plan(task.job_spp, task.job_seed, task.count)[task.index - 1]
+        if (task.spp, task.seed) != (spp, seed):
+            said = f"{task.spp} spp at seed {task.seed}"
+            raise MergeError(
+                f"shard {task.index}/{task.count} claims {said}; the job's plan "
+                f"({task.job_spp} spp in {task.count} batches) renders it with {spp} spp at "
+                f"seed {seed}",
+                where=str(shard.path),
+                hint="its provenance was changed, or it is not this plan's shard: run it again",
+            )
+
+
 def _check_alike(shards: Sequence[Shard]) -> None:
     first = shards[0]
     seen: set[Path] = set()
@@ -159,6 +216,22 @@ def _check_alike(shards: Sequence[Shard]) -> None:
             if shard.buffer.provenance.get(field) != first.buffer.provenance.get(field):
                 raise MergeError(
                     f"another {what} than {first.path.name} ({field} differs)", where=where
+                )
+        # The job's paths are absolute (nodes mount the project elsewhere), its render is not.
+        if shard.buffer.provenance["job"].get("render") != first.buffer.provenance["job"].get(
+            "render"
+        ):
+            raise MergeError(f"another job.render than {first.path.name}", where=where)
+        for field in RENDERED_BY:
+            mine, theirs = shard.buffer.provenance.get(field), first.buffer.provenance.get(field)
+            if not isinstance(mine, str):
+                raise _bad(shard.path, field, mine, "a string")
+            if mine != theirs:
+                raise MergeError(
+                    f"rendered with {field} {mine!r}, {first.path.name} with {theirs!r}: "
+                    "shards of one merge are batches of one estimate",
+                    where=where,
+                    hint="render every shard with the same Mitsuba, Dr.Jit and variant",
                 )
         if shard.task.count != first.task.count:
             raise MergeError(

@@ -68,24 +68,27 @@ def run(
     """
     from sensaov_cli.job.load import load_job
     from sensaov_cli.pipeline.rank import summary_of
-    from sensaov_cli.pipeline.run import Task, run_job
+    from sensaov_cli.pipeline.run import Task, run_task
     from sensaov_cli.progress import Progress
 
     spec = load_job(job)
     task = Task(shard, tuple(dict.fromkeys(objective)))
     with options.stdout_to_stderr():  # an objective's print() must not end up in the summary
-        buffer = run_job(
+        result = run_task(
             spec,
             allow_python=allow_python,
             progress=Progress(quiet=quiet, style=progress_style),
             task=task,
             resume=resume,
         )
+    buffer = result.buffer
     buffer_path, primal_path = (spec.output / name for name in task.file_names())
     files = {"buffer": str(buffer_path), "primal": str(primal_path)}
     summary = summary_of(
         buffer, as_json=as_json, top=top, untrusted=spec.views.untrusted, files=files
     )
     click.echo(summary)
-    if not as_json:
+    if not as_json and result.skipped:  # say only what happened: nothing was written
+        click.echo(f"kept {buffer_path} and {primal_path} (complete: --resume rendered nothing)")
+    elif not as_json:
         click.echo(f"wrote {buffer_path} and {primal_path}")

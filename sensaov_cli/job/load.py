@@ -34,6 +34,25 @@ MAX_JOB_BYTES = 16 << 20
 KeyPath = tuple[Any, ...]
 _MERGE_TAG = "tag:yaml.org,2002:merge"
 _PLAIN_KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+# YAML 1.2's plain floats: PyYAML reads YAML 1.1, where an exponent needs a dot and a sign
+# ("1e-3" would be the string '1e-3'); people write 1e-3, 1E3, +1e-3 and .5.
+_FLOAT_12 = re.compile(r"[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?\Z")
+
+
+class _JobLoader(yaml.SafeLoader):
+    """PyYAML's SafeLoader, reading plain numbers as YAML 1.2 does (integers as before)."""
+
+
+# A copy: add_implicit_resolver would otherwise change every SafeLoader of the process.
+_JobLoader.yaml_implicit_resolvers = {
+    first: list(resolvers) for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_JobLoader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
+
+
+def _safe_load(text: str) -> Any:
+    """``yaml.safe_load`` with YAML 1.2's numbers, as every job file is read."""
+    return yaml.load(text, Loader=_JobLoader)  # noqa: S506 -- a SafeLoader subclass
 
 
 def load_job(path: Path) -> JobSpec:
@@ -250,10 +269,10 @@ def _parse(raw: bytes, shown: str) -> YamlDocument:
     """The data and the line of every key and item; a duplicate key is refused.
 
     yaml.safe_load forgets where things were and silently keeps the last of two equal keys, so
-    the node tree is composed with the same SafeLoader, walked, then constructed: the data is
+    the node tree is composed with the same (safe) loader, walked, then constructed: the data is
     exactly what safe_load returns.
     """
-    loader = yaml.SafeLoader(raw)  # reads the encoding: may raise
+    loader = _JobLoader(raw)  # reads the encoding: may raise
     lines: dict[KeyPath, int] = {}
     seen: set[int] = set()
 
@@ -337,7 +356,7 @@ def job_copy_text(
     """The job file ``base`` (the job itself, or an earlier copy of it, as safe_load reads it:
     without comments) with ``cameras`` appended, its paths rewritten for a file at ``copy`` so
     it names the same files; ``buffer`` is named in its header."""
-    data = yaml.safe_load(base.read_text())
+    data = _safe_load(base.read_text())
     folder = copy.parent
     data["scene"] = _relative(job.scene, folder)
     data["output"] = _relative(job.output, folder)
@@ -360,7 +379,7 @@ def job_copy_text(
 
 def camera_names(path: Path) -> tuple[str, ...]:
     """The names of the inspection cameras a job file lists (read as written)."""
-    data = yaml.safe_load(path.read_text()) or {}
+    data = _safe_load(path.read_text()) or {}
     listed = data.get("inspection_cameras") or []
     return tuple(str(c.get("name")) for c in listed if isinstance(c, dict))
 

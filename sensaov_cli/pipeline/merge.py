@@ -14,7 +14,7 @@ import numpy as np
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import BUFFER_ID, SensitivityBuffer, new_buffer_id
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer
-from sensaov_cli.buffer.shards import Shard, merge_shards, shard_task
+from sensaov_cli.buffer.shards import PRIMAL, Shard, merge_shards, pixels_digest, shard_task
 from sensaov_cli.buffer.statistics import weighted_mean
 from sensaov_cli.errors import MergeError, SensaovError
 from sensaov_cli.outputs.atomic import (
@@ -62,6 +62,7 @@ def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> Merge
         # A merge is a new buffer: outputs made from a shard (or an earlier merge) are not its.
         merged.provenance.update(made_by("merge"), **{BUFFER_ID: new_buffer_id()})
         primal = _merged_primal(shards)
+        merged.provenance[PRIMAL] = {"file": primal_path.name, "sha256": pixels_digest(primal)}
     interrupts.raise_if_stopped()
     with progress.stage("write_s", f"writing {output.name} and {primal_path.name}"):
         attributes = provenance_attributes(merged.provenance, relative_to=output.parent)
@@ -89,6 +90,13 @@ def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:
         channels, _ = read_exr(path, "shard's primal")
         if not channels or any(c.shape != (height, width) for c in channels.values()):
             raise MergeError(f"the primal is not the shard's {width}x{height}", where=str(path))
+        if pixels_digest(channels) != shard.task.primal_digest:
+            raise MergeError(
+                f"not the primal {shard.path.name} was written with (its pixels differ from "
+                "the ones the shard records): another job's or another shard's file",
+                where=str(path),
+                hint="run that shard again ('sensaov run JOB --shard I/N')",
+            )
         images.append(channels)
     for image, shard in zip(images, ordered, strict=True):
         if list(image) != list(images[0]):

@@ -33,7 +33,8 @@ from sensaov_cli.buffer.model import (
     new_buffer_id,
 )
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer
-from sensaov_cli.errors import SensaovError, SpecError
+from sensaov_cli.buffer.shards import PRIMAL, pixels_digest
+from sensaov_cli.errors import InputFileError, SensaovError, SpecError
 from sensaov_cli.job.spec import ChannelSpec, JobSpec
 from sensaov_cli.outputs.atomic import (
     atomic_write_all,
@@ -54,7 +55,14 @@ from sensaov_cli.render.adjoint import (
     integrator_plan,
     run_adjoint,
 )
-from sensaov_cli.render.loading import LoadedScene, check_render, load_scene, refuse_non_finite
+from sensaov_cli.render.loading import (
+    LoadedScene,
+    check_gradients,
+    check_render,
+    load_scene,
+    refuse_non_finite,
+    render_bytes,
+)
 from sensaov_cli.render.objectives import Objective, build_objectives
 from sensaov_cli.render.runtime import library_versions
 from sensaov_cli.render.verify.repair import repair
@@ -85,6 +93,14 @@ class Task:
         return {"shard": shard, "objectives": list(self.objectives) or None}
 
 
+@dataclass(frozen=True)
+class TaskResult:
+    """What one task came to: its buffer, written now or found complete."""
+
+    buffer: SensitivityBuffer
+    skipped: bool  # --resume found the task's files complete: nothing was rendered or written
+
+
 def run_job(
     job: JobSpec,
     *,
@@ -94,6 +110,19 @@ def run_job(
     resume: bool = False,
 ) -> SensitivityBuffer:
     """Render the task of ``job`` and write its files (``task.file_names()`` in its output)."""
+    done = run_task(job, allow_python=allow_python, progress=progress, task=task, resume=resume)
+    return done.buffer
+
+
+def run_task(
+    job: JobSpec,
+    *,
+    allow_python: bool,
+    progress: Progress,
+    task: Task = Task(),
+    resume: bool = False,
+) -> TaskResult:
+    """:func:`run_job`, and whether ``resume`` skipped the task (its files were complete)."""
     started = time.perf_counter()
     whole, job = job, task_job(job, task)  # provenance records the whole job: shards compare
     buffer_name, primal_name = task.file_names()
@@ -103,7 +132,7 @@ def run_job(
         done = completed(whole, task, buffer_path, primal_path, prepared.fingerprint)
         if done is not None:
             progress.note(f"{buffer_path.name} is complete for this job: skipped (--resume)")
-            return done
+            return TaskResult(done, skipped=True)
     # Duality needs the forward pass at the backward's samples: one batch, the whole job.
     single = task.shard is None and not task.objectives and job.render.batches == 1
     forward_wanted = job.wants_forward and single
@@ -157,6 +186,14 @@ def run_job(
     if task.shard is not None:  # shard i of n: batch i-1 of the job's n-batch plan, one batch
         spp, seed = batch_plan(spp, seed, task.shard[1])[task.shard[0] - 1]
         batches = 1
+    # A large texture's gradients outweigh the passes: refused here, before any pass runs.
+    check_gradients(
+        loaded.selected,
+        objectives=len(objectives),
+        batches=batches,
+        passes=render_bytes(width * height, spp, objectives=len(objectives)),
+        where=str(job.path),
+    )
     passes = len(integrator_plan(loaded)) * len(objectives)
     # Every pass counts: a transport channel's top objects are only known after the backward
     # passes, so its passes are planned at their most and the ones not needed skipped then.
@@ -183,6 +220,9 @@ def run_job(
     )  # fmt: skip
     provenance = _provenance(whole, loaded, result, progress.timings, time.perf_counter() - started)
     provenance["task"] = task.describe()
+    # What primal this buffer was written with: --resume and merge recognise one put in its place.
+    primal_channels = image_channels(result.image)
+    provenance[PRIMAL] = {"file": primal_name, "sha256": pixels_digest(primal_channels)}
     provenance["image_effects"] = [asdict(effect) for effect in effects]
     buffer = _make_buffer(job, loaded, result, provenance)
     forward = None
@@ -196,7 +236,7 @@ def run_job(
     interrupts.raise_if_stopped()  # a stop asked for during a kernel must not end in written files
     with progress.stage("write_s", f"writing {buffer_path.name} and {primal_path.name}"):
         attributes = provenance_attributes(buffer.provenance, relative_to=job.output)
-        primal = exr_writer(image_channels(result.image), attributes)
+        primal = exr_writer(primal_channels, attributes)
         files = [(buffer_path, buffer_writer(buffer)), (primal_path, primal)]
         if forward is not None:  # the forward sidecar is written with its buffer, or neither
             files.append((job.output / FORWARD_NAME, forward_writer(forward)))
@@ -206,7 +246,7 @@ def run_job(
             raise SensaovError(
                 f"cannot write outputs: {exc.strerror or exc}", where=str(job.output)
             ) from exc
-    return buffer
+    return TaskResult(buffer, skipped=False)
 
 
 def _depth(depth: int) -> str:
@@ -287,7 +327,9 @@ def completed(
     job: JobSpec, task: Task, buffer_path: Path, primal_path: Path, fingerprint: str
 ) -> SensitivityBuffer | None:
     """The task's buffer if it and its primal (an EXR of the whole film: a cut one is rendered
-    again) are complete and made by this very job from the scene whose ``fingerprint`` is given."""
+    again) are complete and made by this very job from the scene whose ``fingerprint`` is given.
+    A whole primal other than the one the buffer records writing is refused (exit 2): another
+    job's file was put in its place, and rendering over it would hide that."""
     if not (buffer_path.is_file() and primal_path.is_file()):
         return None
     try:
@@ -301,7 +343,19 @@ def completed(
     resolution = made.get("resolution")
     shape = tuple(reversed(resolution)) if isinstance(resolution, list) else None
     whole = bool(channels) and all(c.shape == shape for c in channels.values())
-    return buffer if same and whole else None
+    if not (same and whole):
+        return None
+    recorded = made.get(PRIMAL)
+    if not isinstance(recorded, dict) or recorded.get("sha256") is None:
+        return None  # written before buffers recorded their primal: render it again
+    if recorded.get("file") != primal_path.name or recorded["sha256"] != pixels_digest(channels):
+        raise InputFileError(
+            f"not the primal {buffer_path.name} was written with (its pixels differ from the "
+            "ones the buffer records): another job's or another shard's file",
+            where=str(primal_path),
+            hint=f"delete it and {buffer_path.name}, then run the task again",
+        )
+    return buffer
 
 
 def _provenance(

@@ -21,6 +21,7 @@ import numpy as np
 
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.model import ParamRecord, Repair
+from sensaov_cli.buffer.shards import batch_plan, derived_seed  # merge checks shards by the plan
 from sensaov_cli.buffer.statistics import Statistics, combine_batches, weighted_mean
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene, value_like
@@ -239,12 +240,6 @@ def chunk_seed(seed: int, index: int) -> int:
     return seed if index == 0 else derived_seed(seed, "chunk", index)
 
 
-def derived_seed(seed: int, purpose: str, index: int) -> int:
-    """A reproducible 31-bit seed for (seed, purpose, index), independent of its neighbours."""
-    tag = int.from_bytes(purpose.encode()[:8].ljust(8, b"\0"), "little")
-    return int(np.random.SeedSequence([seed, tag, index]).generate_state(1)[0]) % 2**31
-
-
 def image_like_backward(loaded: LoadedScene, route: str, spp: int, seed: int) -> Any:
     """The image a backward pass through ``route`` ("prb" or "path") at ``seed`` replays: the
     primal, or path's chunks, each its share of spp (as :func:`backward_pass`)."""
@@ -274,13 +269,6 @@ def reproducible(loaded: LoadedScene, enabled: bool) -> Iterator[bool]:
         yield True
     finally:
         dr.set_thread_count(threads)
-
-
-def batch_plan(spp: int, seed: int, batches: int) -> list[tuple[int, int]]:
-    """(spp, primal seed) of each of ``batches`` independent batches; batch 0 has ``seed``.
-    Shard i of n is batch i-1, so a merge of n shards equals a run with ``render.batches: n``."""
-    sizes = [spp // batches + (1 if i < spp % batches else 0) for i in range(batches)]
-    return [(n, seed if i == 0 else derived_seed(seed, "batch", i)) for i, n in enumerate(sizes)]
 
 
 def run_adjoint(

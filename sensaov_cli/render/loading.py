@@ -15,7 +15,7 @@ import numpy as np
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, TextureSource
 from sensaov_cli.errors import MemoryBudgetError, SceneError
 from sensaov_cli.job.spec import CameraSpec, JobSpec, ParameterSpec
-from sensaov_cli.limits import check_memory
+from sensaov_cli.limits import check_memory, resident_bytes, size_text
 from sensaov_cli.render.runtime import import_mitsuba
 from sensaov_cli.render.selection import ownership_of, select_parameters
 from sensaov_cli.render.verify.trust import Context
@@ -164,16 +164,75 @@ TEXEL_BYTES_PER_SAMPLE = 48
 LAYER_BYTES_PER_PIXEL = 64  # each painted layer: float32 channels, its EXR copy, its preview
 # Dr.Jit indexes a pass's samples with 32-bit integers.
 MAX_SAMPLES = 2**32 - 1
+# Bytes per selected parameter component (a texel's channel counts one), measured as peak RSS
+# over a tiny texture's run (a 512² and a 1024² RGB texture, 1-4 objectives, 1-16 batches; CPU
+# backend) and rounded up. One batch: the scene's value, Dr.Jit's gradient leaf and its copy to
+# numpy, the self-checks'. Several: each batch keeps its gradients per objective (and Dr.Jit
+# holds its pass's arrays) until the float64 mean and the statistics are taken.
+GRADIENT_BYTES = 48
+GRADIENT_BYTES_PER_OBJECTIVE = 8
+BATCHED_GRADIENT_BYTES = 64  # more than one batch: the float64 mean and its statistics
+BATCH_GRADIENT_BYTES = 36
+BATCH_GRADIENT_BYTES_PER_OBJECTIVE = 4
 
 
 def check_render(
     pixels: int, spp: int, *, objectives: int, setting: str, where: str | None = None
 ) -> None:
     """The objective camera's passes: a sub-pass's samples and one adjoint per objective."""
-    samples = max(pixels, min(pixels * spp, SUBPASS_SAMPLES))
-    need = samples * RENDER_BYTES_PER_SAMPLE
-    need += pixels * RENDER_BYTES_PER_PIXEL_AND_OBJECTIVE * objectives
+    need = render_bytes(pixels, spp, objectives=objectives)
     check_memory(need, "the primal and backward passes", setting=setting, where=where)
+
+
+def render_bytes(pixels: int, spp: int, *, objectives: int) -> int:
+    """What the objective camera's passes allocate: a sub-pass's samples, the adjoint images."""
+    samples = max(pixels, min(pixels * spp, SUBPASS_SAMPLES))
+    return (
+        samples * RENDER_BYTES_PER_SAMPLE
+        + pixels * RENDER_BYTES_PER_PIXEL_AND_OBJECTIVE * objectives
+    )
+
+
+def gradient_bytes(components: int, *, objectives: int, batches: int) -> int:
+    """What the gradients of ``components`` parameter components take in a run of ``objectives``
+    objectives in ``batches`` batches, at their peak (module constants: measured)."""
+    per = GRADIENT_BYTES + GRADIENT_BYTES_PER_OBJECTIVE * objectives
+    if batches > 1:
+        per = BATCHED_GRADIENT_BYTES + GRADIENT_BYTES_PER_OBJECTIVE * objectives
+        per += batches * (BATCH_GRADIENT_BYTES + BATCH_GRADIENT_BYTES_PER_OBJECTIVE * objectives)
+    return components * per
+
+
+def check_gradients(
+    selected: tuple[ParamRecord, ...],
+    *,
+    objectives: int,
+    batches: int,
+    passes: int,
+    where: str | None = None,
+) -> None:
+    """The selected parameters' gradients (a large texture's dominate) with the ``passes``'
+    bytes (:func:`render_bytes`) on top of what the process holds, before any pass runs; the
+    refusal names the largest parameter and what to change."""
+    sizes = {info.key: int(np.prod(info.shape, dtype=np.int64)) for info in selected}
+    components = sum(sizes.values())
+    need = gradient_bytes(components, objectives=objectives, batches=batches)
+    held = resident_bytes() + passes  # the renderer, the loaded scene, then the passes' arrays
+    largest = max(sizes, key=sizes.__getitem__, default=None)
+    named = ""
+    if largest is not None:
+        shape = "x".join(map(str, next(i.shape for i in selected if i.key == largest)))
+        named = f"; the largest, {largest!r}, has {sizes[largest]:,} ({shape})"
+    check_memory(
+        need + held,
+        f"the gradients of {components:,} parameter components{named}, for {objectives} "
+        f"objective(s) in {batches} batch(es) ({size_text(need)}), beside the "
+        f"{size_text(held)} the process holds and its passes take,",
+        setting="parameters",
+        where=where,
+        hint="leave large textures out (parameters: exclude), or use fewer render.batches or "
+        "objectives",
+    )
 
 
 def check_view(

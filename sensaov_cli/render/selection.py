@@ -75,6 +75,17 @@ PLUGIN_NAMES = {
     "RayleighPhaseFunction": "rayleigh",
 }
 GEOMETRY_FIELDS = ("to_world", "position", "direction", "faces")
+# A mesh's own arrays that place it; its other vertex_*/face_* arrays are attributes.
+MESH_GEOMETRY = ("faces", "vertex_positions", "vertex_normals", "vertex_texcoords")
+
+
+@dataclass(frozen=True)
+class _Colour:
+    """Where a ``mesh_attribute`` texture reads a mesh's attribute: the slot it fills and the
+    plugin holding that slot. The attribute is that texture's data, not geometry."""
+
+    slot: str
+    holder: Any
 
 
 @dataclass(frozen=True)
@@ -143,6 +154,7 @@ def select_parameters(
     renders media, else that integrator (whose media parameters are left out)."""
     selected, excluded, textures, routes, composition = [], [], {}, {}, {}
     children = _bsdf_children(mi, params.hierarchy)
+    colours = _mesh_colours(mi, params)
     for key in params.keys():
         _, _, node, flags = params.properties[key]
         try:
@@ -150,7 +162,7 @@ def select_parameters(
         except Exception as exc:  # noqa: BLE001 - Mitsuba's own read fails (hair's unset sigma_a)
             excluded.append(ExcludedParam(key, f"Mitsuba cannot read its value ({exc!s:.80})"))
             continue
-        reason = _exclusion_reason(mi, parameters, key, value, node, flags)
+        reason = _exclusion_reason(mi, parameters, key, value, node, flags, key in colours)
         holder = _above_textures(mi, node, params.hierarchy)[1] if media is not None else None
         if reason is None and isinstance(holder, mi.Medium | mi.PhaseFunction):  # or in one
             reason = f"medium parameter: the scene's '{media}' integrator renders no media"
@@ -158,7 +170,7 @@ def select_parameters(
         if reason is None and not owners:
             reason = "owned by no object in the scene"
         if reason is None:
-            record, contexts = _describe(mi, key, params, owners, children)
+            record, contexts = _describe(mi, key, params, owners, children, colours.get(key))
             selected.append(record)
             routes[key] = gradient_integrator(record.plugin, contexts)
             composition[key] = contexts
@@ -177,8 +189,42 @@ def _explicitly_included(key: str, include: tuple[str, ...]) -> bool:
     )
 
 
+def _mesh_colours(mi: ModuleType, params: Any) -> dict[str, _Colour]:
+    """The mesh attributes a ``mesh_attribute`` texture reads (``vertex_color`` of a PLY), by
+    key: a texture of the mesh's colour, whose gradient is the slot's (the texture reads the
+    attribute linearly), not the mesh's geometry. Each mesh's own subtree is searched, so a
+    BSDF shared by several meshes (``shared: keep``) colours each of them."""
+    meshes: dict[int, tuple[Any, str]] = {}  # id(mesh) -> the mesh, its keys' prefix
+    for key in params.keys():
+        node = params.properties[key][2]
+        if isinstance(node, mi.Mesh):
+            meshes.setdefault(id(node), (node, key.rsplit(".", 1)[0]))
+    keys = set(params.keys())
+    colours = {}
+    for mesh, prefix in meshes.values():
+        inner = mi.traverse(mesh)
+        for node, _ in inner.hierarchy.items():
+            if node.class_name() != "MeshAttribute":
+                continue
+            match = re.search(r'name = "([^"]*)"', str(node))
+            key = f"{prefix}.{match.group(1)}" if match else None
+            if key not in keys:
+                continue
+            # The slot it fills: its own key's parent (bsdf.reflectance.scale -> reflectance).
+            own = next((k for k in inner.keys() if inner.properties[k][2] is node), None)
+            slot = own.split(".")[-2] if own and "." in own else "mesh_attribute"
+            colours[str(key)] = _Colour(slot, _above_textures(mi, node, inner.hierarchy)[1])
+    return colours
+
+
 def _exclusion_reason(
-    mi: ModuleType, parameters: ParameterSpec, key: str, value: Any, node: Any, flags: int
+    mi: ModuleType,
+    parameters: ParameterSpec,
+    key: str,
+    value: Any,
+    node: Any,
+    flags: int,
+    colour: bool = False,
 ) -> str | None:
     import drjit as dr
 
@@ -191,9 +237,12 @@ def _exclusion_reason(
     if isinstance(node, mi.Sensor | mi.Film | mi.Sampler):
         return "camera parameter (prb gives cameras no gradient)"
     field = key.rsplit(".", 1)[-1]
-    is_geometry = (
+    is_geometry = not colour and (
         isinstance(node, mi.Shape) or field in GEOMETRY_FIELDS or field.startswith("vertex_")
     )
+    attribute = field.startswith(("vertex_", "face_")) and field not in MESH_GEOMETRY
+    if is_geometry and attribute and not _explicitly_included(key, parameters.include):
+        return "a mesh attribute no mesh_attribute texture reads: it changes nothing rendered"
     if is_geometry and not _explicitly_included(key, parameters.include):
         return "geometry (excluded by default; include it by naming the field, e.g. '*.to_world')"
     if not any(fnmatch.fnmatchcase(key, glob) for glob in parameters.include):
@@ -210,6 +259,7 @@ def _describe(
     params: Any,
     owners: tuple[str, ...],
     children: dict[int, list[Any]],
+    colour: _Colour | None = None,
 ) -> tuple[ParamRecord, tuple[Context, ...]]:
     _, _, node, flags = params.properties[key]
     parts = key.split(".")
@@ -220,6 +270,8 @@ def _describe(
     if len(parts) <= levels:
         levels, holder = 0, node
     slot = parts[-1 - levels]
+    if colour is not None:  # a mesh's vertex colours: the slot its mesh_attribute texture fills
+        slot, holder = colour.slot, colour.holder
     plugin = _plugin_name(holder)
     ptype = _EMITTER_SLOT_TYPES.get(slot, slot) if isinstance(holder, mi.Emitter) else slot
     ptype = TYPE_ALIASES.get(ptype, ptype)
@@ -234,7 +286,9 @@ def _describe(
     shape = shape[:1] if len(shape) == 2 and shape[1] == 1 else shape  # colours: (3, 1) -> (3,)
     if is_texture_node and "spectral" in mi.variant() and shape[-1:] == (3,):
         trust, note = "unverified", SPECTRAL_COEFFICIENTS_NOTE
-    flag_names = ("discontinuous",) if flags & int(mi.ParamFlags.Discontinuous) else ()
+    flag_names: tuple[str, ...] = ()
+    flag_names += ("discontinuous",) if flags & int(mi.ParamFlags.Discontinuous) else ()
+    flag_names += ("mesh_attribute",) if colour is not None else ()  # a colour, per vertex
     record = ParamRecord(
         key=key,
         type=ptype,
