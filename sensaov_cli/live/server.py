@@ -35,6 +35,7 @@ from sensaov_cli.job.load import (
     load_job,
 )
 from sensaov_cli.job.spec import CameraSpec, JobSpec
+from sensaov_cli.live.legend_words import legend_words
 from sensaov_cli.live.session import (
     CAMERA_KEYS,
     PICK_KEYS,
@@ -51,6 +52,7 @@ from sensaov_cli.live.session import (
 from sensaov_cli.live.view_memory import Busy
 from sensaov_cli.outputs.atomic import atomic_write, check_writable, made_by, refuse_unsafe_outputs
 from sensaov_cli.outputs.previews import RDBU
+from sensaov_cli.outputs.sunburst_drawing import wedge_caption
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.views.hierarchy import Panel
 
@@ -60,6 +62,7 @@ LOCALHOST = ("127.0.0.1", "::1")  # the addresses the name "localhost" reaches
 SAVE_HEADER = "X-Sensaov"
 SAVED_VIS_SPP = 16  # project's default for an inspection camera
 _TABLE_MARK = "/*RDBU*/[]"
+PAGE_LABEL_CHARS = 12  # of a wedge's label on the page's sunburst
 
 
 @dataclass(frozen=True)
@@ -290,8 +293,9 @@ def _meta(session: ViewSession) -> Answer:
 
 def _picture(picture: Picture) -> Answer:
     """A view's bytes; its legend, size and cost in headers (the page reads them)."""
+    legend = {**asdict(picture.legend), "said": legend_words(picture.legend)}
     headers = {
-        "X-Sensaov-Legend": json.dumps(asdict(picture.legend), ensure_ascii=True),
+        "X-Sensaov-Legend": json.dumps(legend, ensure_ascii=True),
         "X-Sensaov-Size": f"{picture.size[0]}x{picture.size[1]}",
         "X-Sensaov-Ms": f"{picture.ms:.1f}",
     }
@@ -325,7 +329,8 @@ def _sunburst(panel: Panel) -> Answer:
     return _json({
         "objective": panel.objective,
         "value": panel.value,
-        "wedges": [asdict(w) for w in panel.wedges],
+        "wedges": [{**asdict(w), "caption": wedge_caption(w, PAGE_LABEL_CHARS)}
+                   for w in panel.wedges],  # fmt: skip
         "no_gradient": panel.no_gradient,
     })  # fmt: skip
 
