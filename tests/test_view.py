@@ -540,3 +540,88 @@ def test_a_save_never_replaces_an_input_or_opens_a_special_file(
         copy.unlink()
         if kept.exists():
             kept.rename(copy)
+
+
+# Every pointer event the stage sees, with the buttons held and the camera the page shows right
+# after the page's own handlers ran (this listener is added after them).
+_RECORD_EVENTS = """
+window.seen = [];
+const stage = document.getElementById('stage');
+const camera = () => document.getElementById('camera-text').textContent;
+for (const type of ['pointerdown', 'pointermove', 'pointerup', 'pointercancel', 'dragstart',
+                    'lostpointercapture'])
+  stage.addEventListener(type, (e) => window.seen.push([type, e.buttons, camera()]));
+"""
+_STATUS = "return document.getElementById('status').textContent"
+_CAMERA = "return document.getElementById('camera-text').textContent"
+
+
+@pytest.mark.skipif(browser_missing() is not None, reason=str(browser_missing()))
+def test_a_drag_of_small_steps_orbits_at_every_step_and_a_hover_moves_nothing(
+    server: ViewServer,
+) -> None:
+    """As a person drags in Chromium (real pointer events): the browser's own image drag never
+    takes the pointer (no dragstart, no pointercancel), every step of the drag turns the
+    camera, and moving the mouse after the release, no button down, leaves it where it is."""
+    steps = 24
+    browser = Browser()
+    try:
+        browser.get(server.url)
+        browser.wait_for(_STATUS + ".includes('16 spp')")
+        browser.script(_RECORD_EVENTS)
+        browser.drag("#stage", (-60, 0), [(5, 1)] * steps, step_ms=16)
+        seen = browser.script("return window.seen")
+        types = [event[0] for event in seen]
+        assert "dragstart" not in types and "pointercancel" not in types, types
+        seen = seen[types.index("pointerdown") :]  # from the press on (the pointer came first)
+        types = [event[0] for event in seen]
+        assert "pointerup" in types, types
+        held = [i for i, event in enumerate(seen) if event[0] == "pointermove" and event[1] == 1]
+        assert len(held) >= steps, types
+        unchanged = [i for i in held if seen[i][2] == seen[i - 1][2]]
+        assert not unchanged, [seen[i] for i in unchanged]
+        after_drag = browser.script(_CAMERA)
+        assert "(moved)" in after_drag
+        browser.script("window.seen = []")
+        browser.hover("#stage", (40, 20), [(-6, -2)] * 20, step_ms=16)
+        hovered = browser.script("return window.seen")
+        assert len(hovered) >= 20 and all(event[1] == 0 for event in hovered), hovered
+        assert {event[2] for event in hovered} == {after_drag}
+        assert browser.script(_CAMERA) == after_drag
+    finally:
+        browser.close()
+
+
+@pytest.mark.skipif(browser_missing() is not None, reason=str(browser_missing()))
+def test_the_pick_panel_follows_the_objective_and_the_legend_speaks_words(
+    server: ViewServer,
+) -> None:
+    """A clicked object's panel is redrawn for the objective switched to (its rank there,
+    never the old objective's), and the legend says its encoding in words (the exact string
+    stays as their tooltip)."""
+    browser = Browser()
+    rank = "const r = document.getElementById('pick-rank'); return r && r.textContent"
+    try:
+        browser.get(server.url)
+        browser.wait_for(_STATUS + ".includes('16 spp')")
+        browser.click("#stage", (0, -60))  # the back wall
+        first = browser.wait_for(rank)
+        picked = browser.script("return document.getElementById('pick-object').textContent")
+        assert first.startswith("in mean_luma · objects:"), first
+        browser.script(
+            "const o = document.getElementById('objective'); o.value = 'back_wall_luma';"
+            "o.dispatchEvent(new Event('change'));"
+        )
+        shown = browser.wait_for(
+            rank + " && r.textContent.includes('back_wall_luma') && r.textContent"
+        )
+        _, _, body = get(server.url + f"api/pick?objective=back_wall_luma&object={picked}")
+        expected = json.loads(body)
+        assert shown.startswith("in back_wall_luma · objects:")
+        assert f"rank {expected['object_rank']} of {expected['objects_ranked']}" in shown
+        words = browser.script("return document.getElementById('legend-words').textContent")
+        exact = browser.script("return document.getElementById('legend-words').title")
+        assert exact.startswith("weight=value;sign=signed;aggregate=l2")
+        assert "=" not in words and "θ·∂M/∂θ" in words and "root of the sum of squares" in words
+    finally:
+        browser.close()

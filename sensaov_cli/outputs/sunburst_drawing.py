@@ -209,11 +209,12 @@ def wedge_caption(wedge: Wedge, fits: int) -> str:
             label = shorter
     if len(label) <= fits:
         return label
-    words = _WORD.findall(label)  # each word with the separator that follows it
+    words: list[str] = _WORD.findall(label)  # each word with the separator that follows it
     lines = [("".join(words[:i]), "".join(words[i:])) for i in range(1, len(words))]
-    fitting = [pair for pair in lines if max(map(len, pair)) <= fits]
+    fitting = [(first, second) for first, second in lines if max(len(first), len(second)) <= fits]
     if fitting:  # two lines, as even as they come
-        return "\n".join(min(fitting, key=lambda pair: abs(len(pair[0]) - len(pair[1]))))
+        first, second = min(fitting, key=lambda pair: abs(len(pair[0]) - len(pair[1])))
+        return f"{first}\n{second}"
     keep_end = wedge.ring >= len(RADII) - 1  # a parameter's last words name it; a group's first
     for count in range(len(words) - 1, 0, -1):
         part = "".join(words[-count:]) if keep_end else "".join(words[:count]).rstrip("._")
