@@ -43,7 +43,7 @@ from sensaov_cli.live.inspection import (
     paint_view,
     view_rgb,
 )
-from sensaov_cli.live.view_memory import MemoryLedger, request_bytes
+from sensaov_cli.live.view_memory import MemoryLedger, request_bytes, return_freed_memory
 from sensaov_cli.outputs.atomic import made_by
 from sensaov_cli.outputs.exr import encode_exr
 from sensaov_cli.outputs.previews import encode_png
@@ -472,6 +472,7 @@ def open_session(
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     check_objects(buffer, loaded, buffer_path)
     session = ViewSession(job, buffer, buffer_path, loaded)
+    return_freed_memory()
     with progress.stage("warm_s", "compiling the visibility kernel"):
         first = session.objective_camera
         width, height = first.size

@@ -11,6 +11,7 @@ figures are the measured bounds of ``render.loading`` (peak RSS, CPU backend), n
 
 from __future__ import annotations
 
+import ctypes
 import threading
 import time
 from collections import OrderedDict
@@ -51,6 +52,24 @@ def pass_bytes(visibility: VisibilityPass) -> int:
     arrays = [coverage.pixel, coverage.obj, coverage.count, visibility.rank_index,
               visibility.rank_coverage, visibility.sample_uv, visibility.sample_object]  # fmt: skip
     return sum(a.nbytes for a in arrays if a is not None)
+
+
+def return_freed_memory() -> None:
+    """Let freed arrays go back to the system (glibc): by default glibc raises its mmap
+    threshold each time a large block is freed, so later arrays of that size come from the
+    heap and stay resident after they are freed, and a server that paints view after view,
+    from several threads, grows past what it holds. A fixed threshold (glibc's initial one)
+    keeps the resident memory that of the ledger. Elsewhere nothing is changed."""
+    try:
+        libc = ctypes.CDLL(None)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):  # not glibc: its allocator has no such knob
+        return
+    mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD)
+
+
+_M_MMAP_THRESHOLD = -3  # glibc's malloc.h
+_MMAP_THRESHOLD = 128 << 10  # glibc's default, made fixed
 
 
 class MemoryLedger:
