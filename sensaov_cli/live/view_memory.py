@@ -6,7 +6,7 @@ the pick or id map that follows; both are counted against the memory budget
 request over the whole budget is refused (HTTP 400, one line) before anything is traced; one
 that fits waits while other requests hold the rest (kept passes are dropped first, oldest
 first), and is refused with HTTP 503 if they hold it for longer than :data:`WAIT_S`. The
-figures are the measured bounds of ``render.loading`` (peak RSS, CPU backend), not exact.
+figures are measured bounds (peak RSS above the serving process's, CPU backend), not exact.
 """
 
 from __future__ import annotations
@@ -20,16 +20,15 @@ from contextlib import contextmanager
 
 from sensaov_cli.errors import RequestError
 from sensaov_cli.limits import check_memory, memory_budget
-from sensaov_cli.render.loading import (
-    LAYER_BYTES_PER_PIXEL,
-    TEXEL_BYTES_PER_SAMPLE,
-    VISIBILITY_BYTES_PER_SAMPLE,
-)
+from sensaov_cli.render.loading import TEXEL_BYTES_PER_SAMPLE
 from sensaov_cli.views.coverage import VisibilityPass
 
-# A request paints one layer: its values, its display values, its masks, the RGB and the
-# encoded image, besides the pass it reads.
-PAINT_LAYERS = 3
+# One view: the live tracer keeps an object index per sample (Dr.Jit's and numpy's copies, the
+# histogram's sort): measured 4.5 to 6.5 bytes a sample; texel channels add UVs (run's figure).
+# Per pixel the pass's ranked coverage and the painting (values, display values, masks, RGB,
+# encoded image): measured 190 bytes at 1024² and 1 spp.
+VIEW_BYTES_PER_SAMPLE = 8
+VIEW_BYTES_PER_PIXEL = 224
 KEPT_PASSES = 8  # at most, within the budget: a pick or an id map reuses the view's own pass
 WAIT_S = 120.0  # a request waits this long at most for others to free the budget
 
@@ -42,8 +41,8 @@ class Busy(RequestError):
 
 def request_bytes(pixels: int, spp: int, *, with_uv: bool) -> int:
     """What tracing and painting one view of ``pixels`` at ``spp`` allocates at its peak."""
-    per_sample = TEXEL_BYTES_PER_SAMPLE if with_uv else VISIBILITY_BYTES_PER_SAMPLE
-    return pixels * spp * per_sample + pixels * LAYER_BYTES_PER_PIXEL * PAINT_LAYERS
+    per_sample = TEXEL_BYTES_PER_SAMPLE if with_uv else VIEW_BYTES_PER_SAMPLE
+    return pixels * spp * per_sample + pixels * VIEW_BYTES_PER_PIXEL
 
 
 def pass_bytes(visibility: VisibilityPass) -> int:
