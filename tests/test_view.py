@@ -795,6 +795,8 @@ def test_view_listens_on_the_ipv6_loopback_or_says_why_not(session: ViewSession)
     from sensaov_cli.errors import ServerError
     from sensaov_cli.live.server import listen
 
+    with pytest.raises(ServerError, match=r"192\.0\.2\.1:0: .*\(choose another --host"):
+        listen("192.0.2.1", 0, on_save=lambda text: None)  # an address this machine lacks
     if not _ipv6_loopback():  # this machine has no ::1: the line says so, and of the host
         with pytest.raises(
             ServerError, match=r"cannot listen on \[::1\]:0: .*choose another --host"

@@ -78,13 +78,14 @@ def test_wedge_labels_are_whole_words_and_never_a_bare_repeat(
     assert caption.count("\n") <= 1
 
 
-def test_a_parameter_named_object_dot_type_keeps_its_object() -> None:
+def test_a_parameter_wedge_keeps_its_object() -> None:
     wedge = _wedge("back_wall", "reflectance", "back_wall.reflectance.value")
     assert wedge_caption(wedge, 30) == "back_wall.reflectance"
     assert wedge_caption(wedge, 12) == "back_wall.\nreflectance"
-    assert wedge_caption(_wedge("light", "radiance", "light.emitter.radiance.value"), 30) == (
-        "emitter.radiance"
-    )
+    light = _wedge("light", "radiance", "light.emitter.radiance.value")
+    assert wedge_caption(light, 30) == "light.emitter.radiance"
+    assert wedge_caption(light, 14) == "light.emitter.\nradiance"
+    assert wedge_caption(_wedge("floor", "reflectance", "floor.bsdf.reflectance.value"), 8) == ""
 
 
 def test_the_drawn_sunburst_shows_no_word_cut_in_two() -> None:

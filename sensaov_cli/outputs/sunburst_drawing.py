@@ -195,18 +195,13 @@ def _label(
 
 def wedge_caption(wedge: Wedge, fits: int) -> str:
     """The wedge's name in lines of at most ``fits`` characters, in whole words (a key's parts
-    between dots and underscores), or "" where even a shortened one does not fit. What a ring
-    inside already says is left out (the object's name in front, ``.value``/``.data`` behind),
-    unless all that would be left is such a name: a parameter wedge never reads as its type
-    alone, without its object."""
+    between dots and underscores), or "" where even a shortened one does not fit. A parameter
+    is named by its key (``.value``/``.data`` left out), object and all: read on its own, its
+    wedge never shows a type without the object it belongs to."""
     inner = wedge.path[:-1]
     label = wedge.label
     for tail in (".value", ".data"):
         label = label.removesuffix(tail)
-    for name in inner:
-        shorter = label.removeprefix(f"{name}.")
-        if shorter and shorter not in inner:
-            label = shorter
     if len(label) <= fits:
         return label
     words: list[str] = _WORD.findall(label)  # each word with the separator that follows it
