@@ -15,6 +15,7 @@ import errno
 import ipaddress
 import json
 import socket
+import sys
 import threading
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -106,8 +107,6 @@ class ViewServer(ThreadingHTTPServer):
         """A connection that failed outside a request's answer (a client gone while its request
         was read): one line under --log, never a traceback."""
         if self.log is not None:
-            import sys
-
             error = sys.exc_info()[1]
             self.log(_printable(f"{client_address[0]}: connection dropped ({error!r})"))
 
