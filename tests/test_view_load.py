@@ -21,12 +21,14 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
 from sensaov_cli import interrupts
 from sensaov_cli.errors import EXIT_TERMINATED
 from sensaov_cli.job.load import load_job
+from sensaov_cli.views.coverage import Coverage, VisibilityPass
 
 from .conftest import ROOT, sensaov
 
@@ -153,7 +155,7 @@ def test_the_memory_budget_holds_for_kept_passes_and_concurrent_views(small_job:
     env = {"SENSAOV_MEMORY_BUDGET": f"{budget >> 20}M"}
     with serving([sys.executable, "-m", "sensaov_cli", "view", str(small_job), "--port", "0",
                   "-q"], env) as (process, url, _):  # fmt: skip
-        assert fetch(url + "api/view?width=384&spp=4")[0] == 200  # every kernel compiled
+        assert fetch(url + "api/view?width=16&spp=4")[0] == 200  # compiled; its pass is tiny
         base = _memory(process.pid, "VmRSS")
         Path(f"/proc/{process.pid}/clear_refs").write_text("5")  # VmHWM := VmRSS
         view = "api/view?width=384&spp=4&origin={},1,3"
@@ -241,3 +243,43 @@ def test_deferred_blocks_in_several_threads_leave_signals_raising(
             interrupts._stop(signal.SIGTERM, None)  # recorded only
         assert interrupts.requested()  # an inner block's end does not raise yet
     assert json.dumps(interrupts._signal) == json.dumps([int(signal.SIGTERM)])
+
+
+def _pass(pixels: int) -> VisibilityPass:
+    """A pass of ``pixels`` pixels (64 bytes each, kept arrays), for the ledger."""
+    coverage = Coverage(np.arange(pixels, dtype=np.int64), np.zeros(pixels, np.int32),
+                        np.ones(pixels, np.int32))  # fmt: skip
+    ranks = np.zeros((1, pixels, 6), np.int32)
+    return VisibilityPass(pixels, 1, 1, ("a",), None, coverage, ranks, ranks.astype(np.float32))
+
+
+def test_the_ledger_drops_kept_passes_for_a_request_and_refuses_past_the_budget(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Kept passes give way to a request, oldest first; a request over the whole budget is a
+    400 naming its setting; one that finds the budget held past the wait is a 503."""
+    from sensaov_cli.errors import MemoryBudgetError
+    from sensaov_cli.live import view_memory
+    from sensaov_cli.live.view_memory import Busy, MemoryLedger, pass_bytes
+
+    monkeypatch.setenv("SENSAOV_MEMORY_BUDGET", "100K")
+    ledger = MemoryLedger()
+    old, new = _pass(512), _pass(512)  # 32 KiB each
+    assert pass_bytes(old) == 512 * 64
+    ledger.keep("old", old)
+    ledger.keep("new", new)
+    assert ledger.kept("old") is old and ledger.kept("new") is new  # "new" now the newest
+    with ledger.reserved(50 << 10, "small"):  # 100 KiB - 50 KiB: one pass must go, the oldest
+        assert ledger.kept("old") is None and ledger.kept("new") is new
+        monkeypatch.setattr(view_memory, "WAIT_S", 0.0)
+        with pytest.raises(Busy, match="other views hold the memory budget") as busy:
+            with ledger.reserved(60 << 10, "second"):
+                pass
+        assert busy.value.status == 503
+    with pytest.raises(MemoryBudgetError, match="huge: .* over the memory budget of 100.0 KiB"):
+        with ledger.reserved(200 << 10, "huge"):
+            pass
+    ledger.keep("again", _pass(512))
+    assert ledger.kept_bytes == 512 * 64
+    with ledger.reserved(90 << 10, "alone"):  # the kept pass gives way, nothing waits
+        assert ledger.kept_bytes == 0

@@ -78,6 +78,7 @@ class MemoryLedger:
         self._changed = threading.Condition()
         self._reserved = 0
         self._kept: OrderedDict[Hashable, tuple[VisibilityPass, int]] = OrderedDict()
+        self._own = threading.local()  # the bytes this thread's request reserved
 
     @property
     def kept_bytes(self) -> int:
@@ -105,9 +106,11 @@ class MemoryLedger:
                         hint="try again when they are answered",
                     )
             self._reserved += need
+        self._own.bytes = need
         try:
             yield
         finally:
+            self._own.bytes = 0
             with self._changed:
                 self._reserved -= need
                 self._changed.notify_all()
@@ -122,14 +125,16 @@ class MemoryLedger:
 
     def keep(self, key: Hashable, visibility: VisibilityPass) -> None:
         """Keep ``visibility`` for later requests if the budget has room (the oldest kept
-        passes go first); a pass that does not fit is not kept."""
+        passes go first); a pass that does not fit is not kept. A pass traced by this thread's
+        request is already held in its reservation: it needs room only once that ends."""
         size = pass_bytes(visibility)
+        extra = size - min(size, getattr(self._own, "bytes", 0))
         with self._changed:
             budget, _ = memory_budget()
             self._kept.pop(key, None)
             while self._kept and (
-                len(self._kept) >= KEPT_PASSES or self._reserved + self.kept_bytes + size > budget
+                len(self._kept) >= KEPT_PASSES or self._reserved + self.kept_bytes + extra > budget
             ):
                 self._kept.popitem(last=False)
-            if self._reserved + self.kept_bytes + size <= budget:
+            if self._reserved + self.kept_bytes + extra <= budget:
                 self._kept[key] = (visibility, size)
