@@ -283,3 +283,23 @@ def test_the_ledger_drops_kept_passes_for_a_request_and_refuses_past_the_budget(
     assert ledger.kept_bytes == 512 * 64
     with ledger.reserved(90 << 10, "alone"):  # the kept pass gives way, nothing waits
         assert ledger.kept_bytes == 0
+
+
+def test_a_stop_during_a_save_names_the_copy_it_replaced(small_job: Path, tmp_path: Path) -> None:
+    """SIGTERM lands while a save renames the job's copy (signals held in that thread, so the
+    handler only records it): the server still stops, after the rename, and its line names the
+    copy, which holds the camera."""
+    copy = load_job(small_job).output / "job_view.yaml"
+    copy.unlink(missing_ok=True)
+    args = [sys.executable, str(DRIVER), "rename", "TERM", str(tmp_path / "stamp"), "view",
+            str(small_job), "--port", "0", "-q"]  # fmt: skip
+    with serving(args) as (process, url, _):
+        saver = threading.Thread(target=fetch, args=(url + "api/camera?name=last", "POST"))
+        saver.start()
+        _, err = process.communicate(timeout=BOUND_S)
+        saver.join()
+    assert process.returncode == EXIT_TERMINATED, err
+    assert err.strip().splitlines() == [
+        f"sensaov: error: stopped by SIGTERM; replaced: {copy}; no other output was touched"
+    ]
+    assert "last" in {c.name for c in load_job(copy).inspection_cameras}

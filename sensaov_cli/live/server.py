@@ -439,7 +439,10 @@ def serve(
             threading.Thread(target=opener, name="open-page", daemon=True).start()
         server.serve_forever(poll_interval=0.2)
     finally:
-        server.server_close()
+        # A stop waits for a save in flight to rename or drop the job's copy (milliseconds), so
+        # that the line saying what was replaced is true of the disk when it is printed.
+        with server.save_lock:
+            server.server_close()
 
 
 def _open_when_serving(server: ViewServer, open_page: Callable[[str], None]) -> None:
