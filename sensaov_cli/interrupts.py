@@ -12,6 +12,7 @@ records the request (:func:`deferred`), and the next :func:`raise_if_stopped` ac
 from __future__ import annotations
 
 import signal
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
@@ -28,12 +29,17 @@ STOP_SIGNALS: dict[int, int] = {
 
 _signal: list[int] = []  # the first stop signal received: a stop was requested
 _raising = [False]  # False: record only (start-up, imports); True: also raise
+# Blocks of :func:`deferred` now open, in any thread: a server's threads may open them at once,
+# and each must not undo another's (a stop then only recorded, for good).
+_deferring = [0]
+_count_lock = threading.Lock()
+_nested = threading.local()  # this thread's open blocks: only the outermost raises at its end
 
 
 def _stop(signum: int, frame: FrameType | None) -> None:
     if not _signal:
         _signal.append(signum)
-    if _raising[0]:
+    if _raising[0] and not _deferring[0]:
         raise KeyboardInterrupt
 
 
@@ -67,12 +73,18 @@ def signal_name() -> str:
 
 @contextmanager
 def deferred() -> Iterator[None]:
-    """Within the block a stop is only recorded; it is raised right after the block ends."""
-    before = _raising[0]
-    _raising[0] = False
+    """Within the block a stop is only recorded; it is raised right after the block ends (in the
+    main thread, where the handler would have raised it; another thread's caller polls
+    :func:`requested`)."""
+    depth = getattr(_nested, "depth", 0)
+    _nested.depth = depth + 1
+    with _count_lock:
+        _deferring[0] += 1
     try:
         yield
     finally:
-        _raising[0] = before
-    if before:
+        with _count_lock:
+            _deferring[0] -= 1
+        _nested.depth = depth
+    if _raising[0] and not depth and threading.current_thread() is threading.main_thread():
         raise_if_stopped()

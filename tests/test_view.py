@@ -21,6 +21,7 @@ import threading
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +45,7 @@ from sensaov_cli.live.session import ViewSession, open_session, single_values, v
 from sensaov_cli.outputs.exr import read_exr
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.visibility import Pose, ViewTracer, sensor_pose
+from sensaov_cli.views.channels import ChannelValues
 from sensaov_cli.views.hierarchy import is_trusted
 
 from .conftest import ROOT, sensaov
@@ -541,3 +543,308 @@ def test_a_save_never_replaces_an_input_or_opens_a_special_file(
         copy.unlink()
         if kept.exists():
             kept.rename(copy)
+
+
+# Every pointer event the stage sees, with the buttons held and the camera the page shows right
+# after the page's own handlers ran (this listener is added after them).
+_RECORD_EVENTS = """
+window.seen = [];
+const stage = document.getElementById('stage');
+const camera = () => document.getElementById('camera-text').textContent;
+for (const type of ['pointerdown', 'pointermove', 'pointerup', 'pointercancel', 'dragstart',
+                    'lostpointercapture'])
+  stage.addEventListener(type, (e) => window.seen.push([type, e.buttons, camera()]));
+"""
+_STATUS = "return document.getElementById('status').textContent"
+_CAMERA = "return document.getElementById('camera-text').textContent"
+
+
+@pytest.mark.skipif(browser_missing() is not None, reason=str(browser_missing()))
+def test_a_drag_of_small_steps_orbits_at_every_step_and_a_hover_moves_nothing(
+    server: ViewServer,
+) -> None:
+    """As a person drags in Chromium (real pointer events): the browser's own image drag never
+    takes the pointer (no dragstart, no pointercancel), every step of the drag turns the
+    camera, and moving the mouse after the release, no button down, leaves it where it is."""
+    steps = 24
+    browser = Browser()
+    try:
+        browser.get(server.url)
+        browser.wait_for(_STATUS + ".includes('16 spp')")
+        browser.script(_RECORD_EVENTS)
+        browser.drag("#stage", (-60, 0), [(5, 1)] * steps, step_ms=16)
+        seen = browser.script("return window.seen")
+        types = [event[0] for event in seen]
+        assert "dragstart" not in types and "pointercancel" not in types, types
+        seen = seen[types.index("pointerdown") :]  # from the press on (the pointer came first)
+        types = [event[0] for event in seen]
+        assert "pointerup" in types, types
+        held = [i for i, event in enumerate(seen) if event[0] == "pointermove" and event[1] == 1]
+        assert len(held) >= steps, types
+        unchanged = [i for i in held if seen[i][2] == seen[i - 1][2]]
+        assert not unchanged, [seen[i] for i in unchanged]
+        after_drag = browser.script(_CAMERA)
+        assert "(moved)" in after_drag
+        browser.script("window.seen = []")
+        browser.hover("#stage", (40, 20), [(-6, -2)] * 20, step_ms=16)
+        hovered = browser.script("return window.seen")
+        assert len(hovered) >= 20 and all(event[1] == 0 for event in hovered), hovered
+        assert {event[2] for event in hovered} == {after_drag}
+        assert browser.script(_CAMERA) == after_drag
+    finally:
+        browser.close()
+
+
+@pytest.mark.skipif(browser_missing() is not None, reason=str(browser_missing()))
+def test_the_pick_panel_follows_the_objective_and_the_legend_speaks_words(
+    server: ViewServer,
+) -> None:
+    """A clicked object's panel is redrawn for the objective switched to (its rank there,
+    never the old objective's), and the legend says its encoding in words (the exact string
+    stays as their tooltip)."""
+    browser = Browser()
+    rank = "const r = document.getElementById('pick-rank'); return r && r.textContent"
+    try:
+        browser.get(server.url)
+        browser.wait_for(_STATUS + ".includes('16 spp')")
+        browser.click("#stage", (0, -60))  # the back wall
+        first = browser.wait_for(rank)
+        picked = browser.script("return document.getElementById('pick-object').textContent")
+        assert first.startswith("in mean_luma · objects:"), first
+        browser.script(
+            "const o = document.getElementById('objective'); o.value = 'back_wall_luma';"
+            "o.dispatchEvent(new Event('change'));"
+        )
+        shown = browser.wait_for(
+            rank + " && r.textContent.includes('back_wall_luma') && r.textContent"
+        )
+        _, _, body = get(server.url + f"api/pick?objective=back_wall_luma&object={picked}")
+        expected = json.loads(body)
+        assert shown.startswith("in back_wall_luma · objects:")
+        assert f"rank {expected['object_rank']} of {expected['objects_ranked']}" in shown
+        words = browser.script("return document.getElementById('legend-words').textContent")
+        exact = browser.script("return document.getElementById('legend-words').title")
+        assert exact.startswith("weight=value;sign=signed;aggregate=sum")  # the default score
+        assert "=" not in words and "θ·∂M/∂θ" in words and "summed per object" in words
+    finally:
+        browser.close()
+
+
+def test_concurrent_saves_keep_every_camera(server: ViewServer, session: ViewSession) -> None:
+    """Many pages save at once: every save answered 200 is in the job's copy, none lost to
+    another's read-modify-write."""
+    copy = copy_path(session.job)
+    before = load_job(copy if copy.exists() else session.job.path).inspection_cameras
+    names = [f"crowd_{i}" for i in range(12)]
+    start = threading.Barrier(len(names))
+    answers: dict[str, int] = {}
+
+    def save(name: str) -> None:
+        start.wait()
+        url = server.url + f"api/camera?name={name}&origin=2,1,{2 + len(answers) * 0.01}"
+        answers[name] = get(url, {"X-Sensaov": "1"}, "POST")[0]
+
+    threads = [threading.Thread(target=save, args=(name,)) for name in names]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert answers == dict.fromkeys(names, 200)
+    saved = {c.name for c in load_job(copy).inspection_cameras} - {c.name for c in before}
+    assert saved == set(names)
+
+
+@pytest.mark.parametrize(
+    ("query", "reason"),
+    [
+        ("width=%C2%B2", "width must be an integer, got '²'"),
+        ("width=--5", "width must be an integer, got '--5'"),
+        ("width=" + "9" * 5000, "width '9999999999"),
+        ("spp=%D9%A1", "spp must be an integer, got '١'"),
+        ("fov=%D9%A3%D9%A0", "fov must be a number, got '٣٠'"),
+        ("fov=1_0", "fov must be a number, got '1_0'"),
+        ("fov=" + "4" * 5000, "fov must be a number, got '4444"),
+        ("fov=inf", "fov must be finite, got 'inf'"),
+        ("fov=1e999", "fov must be finite, got '1e999'"),
+        ("origin=1,2," + "3" * 5000, "origin must be three finite numbers x,y,z, got '1,2,333"),
+        ("sign=" + "x" * 5000, "sign must be one of signed, magnitude, got 'xxxx"),
+        ("%FF=1", "unknown parameter '\ufffd'"),
+    ],
+)
+def test_hostile_numbers_get_400_and_one_short_line(
+    server: ViewServer, query: str, reason: str
+) -> None:
+    """Numbers are ASCII digits of a bounded length: other scripts' digits, doubled signs and
+    numbers of thousands of digits are refused as bad values, never a 500 with Python's error,
+    and the line quotes only the start of a long value."""
+    status, headers, body = get(server.url + "api/view?" + query)
+    text = body.decode()
+    assert status == 400 and headers["Content-Type"].startswith("text/plain"), text
+    assert text.startswith(reason) and text.count("\n") == 1 and len(text) < 400, text
+    status, _, body = get(server.url + "api/pick?x=" + "1" * 5000 + "&y=1")
+    assert status == 400 and body.decode().startswith("x '1111"), body
+
+
+@contextmanager
+def _closing_server(
+    session: ViewSession, log: list[str], on_save: Any = None, host: str = "127.0.0.1"
+) -> Iterator[ViewServer]:
+    running = ViewServer((host, 0), on_save or (lambda text: None), log.append)
+    running.attach(session)
+    thread = threading.Thread(target=running.serve_forever, kwargs={"poll_interval": 0.05})
+    thread.start()
+    try:
+        yield running
+    finally:
+        running.shutdown()
+        running.server_close()
+        thread.join()
+
+
+def test_a_client_gone_mid_render_costs_one_log_line_and_no_traceback(
+    session: ViewSession, capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The client resets its connection while its view is painted: the answer cannot be
+    written, the server says so in one --log line and keeps answering."""
+    gone, painting = threading.Event(), threading.Event()
+    paint = session.view
+
+    def slow_view(request: Any) -> Any:
+        painting.set()
+        gone.wait(60)
+        return paint(request)
+
+    monkeypatch.setattr(session, "view", slow_view)
+    log: list[str] = []
+    with _closing_server(session, log) as running:
+        host, port = running.server_address[:2]
+        client = socket.create_connection((str(host), port))
+        client.sendall(f"GET /api/view?width=16 HTTP/1.1\r\nHost: {host}:{port}\r\n\r\n".encode())
+        assert painting.wait(60)
+        client.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\1\0\0\0\0\0\0\0")  # reset
+        client.close()
+        gone.set()
+        monkeypatch.setattr(session, "view", paint)
+        assert get(running.url + "api/view?width=16")[0] == 200  # answered after the loss
+    left = [line for line in log if "left before its answer" in line]
+    assert len(left) == 1 and left[0].startswith("/api/view?width=16:"), log
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_a_save_stands_when_stdout_is_gone_and_its_error_names_the_copy(
+    session: ViewSession, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A saved camera is in the copy and the page is told so (200) even when stdout, where it
+    is echoed, is a closed pipe; a copy that fails validation is refused naming the copy, not
+    the temporary file it was checked in."""
+    import sensaov_cli.live.server as live_server
+
+    def closed(text: str) -> None:
+        raise BrokenPipeError(32, "Broken pipe")
+
+    log: list[str] = []
+    copy = copy_path(session.job)
+    with _closing_server(session, log, on_save=closed) as running:
+        status, _, body = get(running.url + "api/camera?name=piped", {"X-Sensaov": "1"}, "POST")
+        assert status == 200 and json.loads(body)["path"] == str(copy), body
+        assert "piped" in {c.name for c in load_job(copy).inspection_cameras}
+        assert any("not printed on stdout" in line for line in log), log
+        original = live_server.job_copy_text
+        monkeypatch.setattr(
+            live_server, "job_copy_text", lambda *a: original(*a) + "no_such_key: 1\n"
+        )
+        before = copy.read_bytes()
+        status, _, body = get(running.url + "api/camera?name=broken", {"X-Sensaov": "1"}, "POST")
+        line = body.decode()
+        assert status == 400 and line.startswith(f"{copy}:") and ".tmp" not in line, line
+        assert "no_such_key" in line and copy.read_bytes() == before
+        assert not list(copy.parent.glob(f".{copy.name}.*"))  # no temporary left behind
+
+
+def test_the_host_check_names_exactly_the_served_address(session: ViewSession) -> None:
+    """On another loopback address only that address is a valid Host; on 127.0.0.1 the
+    address and localhost; a foreign name never (DNS rebinding)."""
+    port = free_port()
+    other = ViewServer(("127.0.0.2", port), lambda text: None, None)
+    try:
+        assert other.host_allowed(f"127.0.0.2:{port}")
+        for refused in ("localhost", "127.0.0.1", "evil.example", "[::1]", "127.0.0.2"):
+            assert not other.host_allowed(f"{refused}:{port}" if refused != "127.0.0.2" else
+                                          refused), refused  # fmt: skip
+        assert not other.host_allowed(None)
+    finally:
+        other.server_close()
+    first = ViewServer(("127.0.0.1", 0), lambda text: None, None)
+    try:
+        port = first.server_address[1]
+        assert first.host_allowed(f"127.0.0.1:{port}") and first.host_allowed(f"LOCALHOST:{port}")
+        assert not first.host_allowed(f"[::1]:{port}") and not first.host_allowed(f"x:{port}")
+    finally:
+        first.server_close()
+
+
+def _ipv6_loopback() -> bool:
+    try:
+        with socket.socket(socket.AF_INET6) as probe:
+            probe.bind(("::1", 0))
+        return True
+    except OSError:
+        return False
+
+
+def test_view_listens_on_the_ipv6_loopback_or_says_why_not(session: ViewSession) -> None:
+    from sensaov_cli.errors import ServerError
+    from sensaov_cli.live.server import listen
+
+    with pytest.raises(ServerError, match=r"192\.0\.2\.1:0: .*\(choose another --host"):
+        listen("192.0.2.1", 0, on_save=lambda text: None)  # an address this machine lacks
+    if not _ipv6_loopback():  # this machine has no ::1: the line says so, and of the host
+        with pytest.raises(
+            ServerError, match=r"cannot listen on \[::1\]:0: .*choose another --host"
+        ):
+            listen("::1", 0, on_save=lambda text: None)
+        return
+    log: list[str] = []
+    with _closing_server(session, log, host="::1") as running:
+        assert running.url.startswith("http://[::1]:")
+        status, _, body = get(running.url + "api/meta")
+        assert status == 200 and json.loads(body)["format"] == "sensaov-view"
+
+
+def test_request_lines_are_logged_with_control_characters_escaped(session: ViewSession) -> None:
+    log: list[str] = []
+    with _closing_server(session, log) as running:
+        host, port = running.server_address[:2]
+        with socket.create_connection((str(host), port)) as client:
+            line = f"GET /\x1b[2J\x1b]0;pwned\x07 HTTP/1.1\r\nHost: {host}:{port}\r\n"
+            client.sendall(line.encode() + b"Connection: close\r\n\r\n")
+            assert client.recv(100).startswith(b"HTTP/1.1 404")
+    logged = "\n".join(log)
+    assert "\x1b" not in logged and "\x07" not in logged
+    assert "\\x1b[2J\\x1b]0;pwned\\x07" in logged
+
+
+def test_shared_scales_are_kept_by_what_a_channel_means_not_its_name(
+    session: ViewSession,
+) -> None:
+    """A typed query and a job channel that share a name (a job may name a channel like an
+    automatic one) never share a scale; the same selection under two names shares one."""
+    from dataclasses import replace
+
+    from sensaov_cli.views.channels import shared_channel_scale
+
+    walls = session.sources.find("mean_luma", "walls")
+    query = session.sources.find("mean_luma", "select:*.alpha*")
+    assert isinstance(walls, ChannelValues) and isinstance(query, ChannelValues)
+    disguised = replace(query, spec=replace(query.spec, name="walls"))
+    ours = session.scales.of(walls, "signed")
+    theirs = session.scales.of(disguised, "signed")
+    expected = shared_channel_scale(
+        session.buffer, replace(query.spec, tonemap="none", normalize="none"), "mean_luma",
+        session.scales._visibilities(), untrusted=session.job.views.untrusted,
+        percentile=session.job.views.percentile,
+    )  # fmt: skip
+    assert theirs == expected and theirs.value != ours.value
+    same = session.sources.find("mean_luma", "select:*reflectance*")
+    assert isinstance(same, ChannelValues)
+    assert session.scales.of(same, "signed") == ours

@@ -93,21 +93,38 @@ class Browser:
     def element(self, css: str) -> dict[str, str]:
         return dict(self._session("POST", "/element", {"using": "css selector", "value": css}))
 
-    def drag(self, css: str, start: tuple[int, int], moves: list[tuple[int, int]]) -> None:
+    def drag(
+        self, css: str, start: tuple[int, int], moves: list[tuple[int, int]], step_ms: int = 30
+    ) -> None:
         """Press the left button at ``start`` (from the element's centre) and move by each
-        step of ``moves`` in turn, then release."""
+        step of ``moves`` in turn, ``step_ms`` each, then release."""
         origin = self.element(css)
         actions: list[dict[str, Any]] = [
             {"type": "pointerMove", "origin": origin, "x": start[0], "y": start[1]},
             {"type": "pointerDown", "button": 0},
+            *self._steps(origin, start, moves, step_ms),
+            {"type": "pointerUp", "button": 0},
         ]
+        self._perform(actions)
+
+    def hover(
+        self, css: str, start: tuple[int, int], moves: list[tuple[int, int]], step_ms: int = 30
+    ) -> None:
+        """Move the pointer, no button pressed, from ``start`` by each step of ``moves``."""
+        origin = self.element(css)
+        first = {"type": "pointerMove", "origin": origin, "x": start[0], "y": start[1]}
+        self._perform([first, *self._steps(origin, start, moves, step_ms)])
+
+    @staticmethod
+    def _steps(
+        origin: dict[str, str], start: tuple[int, int], moves: list[tuple[int, int]], ms: int
+    ) -> list[dict[str, Any]]:
+        steps: list[dict[str, Any]] = []
         x, y = start
         for dx, dy in moves:
             x, y = x + dx, y + dy
-            actions.append({"type": "pointerMove", "origin": origin, "x": x, "y": y,
-                            "duration": 30})  # fmt: skip
-        actions.append({"type": "pointerUp", "button": 0})
-        self._perform(actions)
+            steps.append({"type": "pointerMove", "origin": origin, "x": x, "y": y, "duration": ms})
+        return steps
 
     def click(self, css: str, at: tuple[int, int]) -> None:
         origin = self.element(css)

@@ -167,7 +167,8 @@ def _written(earlier: int) -> str:
     done = atomic.replaced()[earlier:]
     if not done:
         return _NOTHING_REPLACED
-    return f"; replaced: {', '.join(map(str, done))}; no other output was touched"
+    named = dict.fromkeys(map(str, done))  # a file replaced twice (view's saves) named once
+    return f"; replaced: {', '.join(named)}; no other output was touched"
 
 
 # Failures of the machine or the file system that are no bug: errno -> (what, exit code).

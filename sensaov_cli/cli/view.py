@@ -81,10 +81,19 @@ def view(
 
     def ready(url: str) -> None:
         click.echo(url)  # stdout: the one thing a script needs
+        sys.stdout.flush()
         progress.note(f"serving {url} (Ctrl-C stops)")
-        if open_browser:
-            import webbrowser
 
-            webbrowser.open(url)
+    def open_page(url: str) -> None:  # called once the server answers (a browser fetches at once)
+        import webbrowser
 
-    serve(server, session, ready=ready)
+        try:
+            opened = webbrowser.open(url)
+        except Exception as error:  # noqa: BLE001 - a browser that fails leaves the server up
+            opened, why = False, f": {error}"
+        else:
+            why = ""
+        if not opened:
+            click.echo(f"sensaov view: could not open a browser{why}; open {url}", err=True)
+
+    serve(server, session, ready=ready, open_page=open_page if open_browser else None)

@@ -11,17 +11,23 @@ and picture cannot disagree. A saved viewpoint is appended to ``<output>/<job st
 
 from __future__ import annotations
 
+import errno
+import ipaddress
 import json
+import socket
+import sys
+import threading
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from functools import cache
+from functools import cache, partial
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from sensaov_cli.errors import RequestError, SensaovError, ServerError
+from sensaov_cli import interrupts
+from sensaov_cli.errors import RequestError, SensaovError, ServerError, SpecError
 from sensaov_cli.job.load import (
     camera_names,
     camera_yaml,
@@ -30,6 +36,7 @@ from sensaov_cli.job.load import (
     load_job,
 )
 from sensaov_cli.job.spec import CameraSpec, JobSpec
+from sensaov_cli.live.legend_words import legend_words
 from sensaov_cli.live.session import (
     CAMERA_KEYS,
     PICK_KEYS,
@@ -43,17 +50,20 @@ from sensaov_cli.live.session import (
     pick_request,
     single_values,
 )
+from sensaov_cli.live.view_memory import Busy
 from sensaov_cli.outputs.atomic import atomic_write, check_writable, made_by, refuse_unsafe_outputs
 from sensaov_cli.outputs.previews import RDBU
+from sensaov_cli.outputs.sunburst_drawing import wedge_caption
 from sensaov_cli.pipeline.run import FORWARD_NAME
 from sensaov_cli.views.hierarchy import Panel
 
 META_FORMAT = "sensaov-view"
 META_VERSION = 1
-LOOPBACK = ("127.0.0.1", "localhost", "::1", "[::1]")
+LOCALHOST = ("127.0.0.1", "::1")  # the addresses the name "localhost" reaches
 SAVE_HEADER = "X-Sensaov"
 SAVED_VIS_SPP = 16  # project's default for an inspection camera
 _TABLE_MARK = "/*RDBU*/[]"
+PAGE_LABEL_CHARS = 12  # of a wedge's label on the page's sunburst
 
 
 @dataclass(frozen=True)
@@ -76,7 +86,38 @@ class ViewServer(ThreadingHTTPServer):
         log: Callable[[str], None] | None,
     ):
         self.on_save, self.log = on_save, log
+        # Saves read the job's copy, append, and replace it: one at a time, or concurrent
+        # saves each append to the same old copy and all but the last camera are lost.
+        self.save_lock = threading.Lock()
+        self.serving = threading.Event()  # set once the loop answers (--open waits for it)
+        self.address_family = _family(address[0])  # an IPv6 address binds an IPv6 socket
         super().__init__(address, _Handler)
+
+    def serve_forever(self, poll_interval: float = 0.5) -> None:
+        self.serving.set()  # from here on, a connection waiting in the backlog is answered
+        super().serve_forever(poll_interval)
+
+    def service_actions(self) -> None:
+        """Each turn of the loop: a stop that was only recorded (it came while a request's
+        thread held signals for a save) ends the loop here, in the main thread."""
+        super().service_actions()
+        interrupts.raise_if_stopped()
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """A connection that failed outside a request's answer (a client gone while its request
+        was read): one line under --log, never a traceback."""
+        if self.log is not None:
+            error = sys.exc_info()[1]
+            self.log(_printable(f"{client_address[0]}: connection dropped ({error!r})"))
+
+    def echo_saved(self, text: str) -> None:
+        """Print a saved camera's YAML on stdout: a courtesy; the save stands when stdout is
+        gone (its reader closed the pipe), and the page is told it succeeded."""
+        try:
+            self.on_save(text)
+        except (OSError, ValueError) as error:
+            if self.log is not None:
+                self.log(f"the saved camera was not printed on stdout: {error}")
 
     def attach(self, session: ViewSession) -> None:
         """Answer from ``session`` (the server listens before the scene loads: a taken port
@@ -90,11 +131,17 @@ class ViewServer(ThreadingHTTPServer):
         return f"http://{shown}:{port}/"
 
     def host_allowed(self, header: str | None) -> bool:
-        """Whether a request's Host header names this server (DNS rebinding defence)."""
+        """Whether a request's Host header names this server (DNS rebinding defence): on a
+        loopback address, the address itself, or ``localhost`` where that name leads here."""
         host, port = str(self.server_address[0]), self.server_address[1]
-        if host not in LOOPBACK:  # bound to a public address on purpose: any name may reach it
+        if not ipaddress.ip_address(host).is_loopback:  # a public address on purpose: any name
             return True
-        allowed = {f"{name}:{port}" for name in LOOPBACK}
+        names = [f"[{host}]" if ":" in host else host]
+        if host in LOCALHOST:
+            names.append("localhost")
+        allowed = {f"{name}:{port}" for name in names}
+        if port == 80:  # a browser leaves the default port out
+            allowed.update(names)
         return header is not None and header.lower() in allowed
 
 
@@ -138,9 +185,10 @@ class _Handler(BaseHTTPRequestHandler):
         if "name" not in values:
             return _refuse(400, "a saved camera needs a name")
         request = session.request(values)
-        copy = save_viewpoint(session, request, values["name"])
-        text = viewpoint_yaml(request, values["name"])
-        self.server.on_save(text)
+        with self.server.save_lock:
+            copy = save_viewpoint(session, request, values["name"])
+            text = viewpoint_yaml(request, values["name"])
+            self.server.echo_saved(text)
         return _json({"path": str(copy), "yaml": text})
 
     def _answer(self, route: Callable[[str, dict[str, list[str]]], Answer]) -> None:
@@ -151,24 +199,57 @@ class _Handler(BaseHTTPRequestHandler):
             try:
                 answer = route(parts.path, parse_qs(parts.query, keep_blank_values=True))
             except SensaovError as error:  # a bad value: one line, never a traceback
-                answer = _refuse(400, str(error))
+                answer = _refuse(error.status if isinstance(error, Busy) else 400, str(error))
+            except KeyboardInterrupt:  # a stop came while this request traced: the main
+                answer = _refuse(503, "the server is stopping")  # thread ends the process
             except Exception as error:  # noqa: BLE001 - the server outlives a failed request
                 answer = _refuse(500, f"internal error: {type(error).__name__}: {error}")
         self._send(answer)
 
     def _send(self, answer: Answer) -> None:
-        self.send_response(answer.status)
-        self.send_header("Content-Type", answer.content_type)
-        self.send_header("Content-Length", str(len(answer.body)))
-        self.send_header("Cache-Control", "no-store")
-        for key, value in answer.headers.items():
-            self.send_header(key, value)
-        self.end_headers()
-        self.wfile.write(answer.body)
+        try:
+            self.send_response(answer.status)
+            self.send_header("Content-Type", answer.content_type)
+            self.send_header("Content-Length", str(len(answer.body)))
+            self.send_header("Cache-Control", "no-store")
+            for key, value in answer.headers.items():
+                self.send_header(key, value)
+            self.end_headers()
+            self.wfile.write(answer.body)
+            self.wfile.flush()
+        except OSError as error:  # the client went away before its answer: nothing to tell it
+            self.close_connection = True
+            self.log_message("%s: the client left before its answer (%s)", self.path, error)
 
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - the stdlib's name
         if self.server.log is not None:
-            self.server.log(format % args)
+            self.server.log(_printable(format % args))
+
+
+def _printable(text: str) -> str:
+    """``text`` with control characters escaped: a request line is a stranger's bytes, and
+    raw escape codes on a terminal could rewrite what it shows."""
+    return "".join(
+        c if c.isprintable() or c == " " else c.encode("unicode_escape").decode("ascii")
+        for c in text
+    )
+
+
+def _family(host: str) -> socket.AddressFamily:
+    """The socket family of the address ``host`` names (IPv4 for a name that resolves to both)."""
+    try:
+        return socket.AF_INET6 if ipaddress.ip_address(host).version == 6 else socket.AF_INET
+    except ValueError:  # a name: what it resolves to
+        pass
+    try:
+        found = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+    except OSError as error:
+        raise ServerError(
+            f"cannot listen on {host}: the name does not resolve ({error.strerror or error})",
+            hint="give --host an address, e.g. 127.0.0.1 or ::1",
+        ) from None
+    families = [entry[0] for entry in found]
+    return socket.AF_INET if socket.AF_INET in families else families[0]
 
 
 @cache
@@ -211,8 +292,9 @@ def _meta(session: ViewSession) -> Answer:
 
 def _picture(picture: Picture) -> Answer:
     """A view's bytes; its legend, size and cost in headers (the page reads them)."""
+    legend = {**asdict(picture.legend), "said": legend_words(picture.legend)}
     headers = {
-        "X-Sensaov-Legend": json.dumps(asdict(picture.legend), ensure_ascii=True),
+        "X-Sensaov-Legend": json.dumps(legend, ensure_ascii=True),
         "X-Sensaov-Size": f"{picture.size[0]}x{picture.size[1]}",
         "X-Sensaov-Ms": f"{picture.ms:.1f}",
     }
@@ -246,7 +328,8 @@ def _sunburst(panel: Panel) -> Answer:
     return _json({
         "objective": panel.objective,
         "value": panel.value,
-        "wedges": [asdict(w) for w in panel.wedges],
+        "wedges": [{**asdict(w), "caption": wedge_caption(w, PAGE_LABEL_CHARS)}
+                   for w in panel.wedges],  # fmt: skip
         "no_gradient": panel.no_gradient,
     })  # fmt: skip
 
@@ -302,10 +385,19 @@ def save_viewpoint(session: ViewSession, request: ViewRequest, name: str) -> Pat
 
     def write(tmp: Path) -> None:
         tmp.write_text(text)
-        load_job(tmp)  # a copy that is not a valid job never replaces anything
+        try:
+            load_job(tmp)  # a copy that is not a valid job never replaces anything
+        except SpecError as error:  # said of the copy: the temporary is gone when it is read
+            named = partial(_renamed, str(tmp), str(copy))
+            where = named(error.where) if error.where else None
+            raise SpecError(named(error.message), where=where, hint=error.hint) from None
 
     atomic_write(copy, write)
     return copy
+
+
+def _renamed(old: str, new: str, text: str) -> str:
+    return text.replace(old, new)
 
 
 def listen(
@@ -319,17 +411,40 @@ def listen(
     try:
         return ViewServer((host, port), on_save, log)
     except OSError as error:
+        shown = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+        port_problem = error.errno in (errno.EADDRINUSE, errno.EACCES)
         raise ServerError(
-            f"cannot listen on {host}:{port}: {error.strerror or error}",
-            hint="choose another --port (0 picks a free one)",
+            f"cannot listen on {shown}: {error.strerror or error}",
+            hint="choose another --port (0 picks a free one)"
+            if port_problem
+            else "choose another --host: an address of this machine (127.0.0.1 or ::1)",
         ) from None
 
 
-def serve(server: ViewServer, session: ViewSession, *, ready: Callable[[str], None]) -> None:
-    """Answer from ``session`` until the main thread is interrupted; ``ready`` gets the URL."""
+def serve(
+    server: ViewServer,
+    session: ViewSession,
+    *,
+    ready: Callable[[str], None],
+    open_page: Callable[[str], None] | None = None,
+) -> None:
+    """Answer from ``session`` until the main thread is interrupted; ``ready`` gets the URL;
+    ``open_page`` (a browser) gets it once the loop answers, from a thread of its own (a
+    console browser that waits for its page to load must not wait on this loop)."""
     server.attach(session)
     try:
         ready(server.url)
+        if open_page is not None:
+            opener = partial(_open_when_serving, server, open_page)
+            threading.Thread(target=opener, name="open-page", daemon=True).start()
         server.serve_forever(poll_interval=0.2)
     finally:
-        server.server_close()
+        # A stop waits for a save in flight to rename or drop the job's copy (milliseconds), so
+        # that the line saying what was replaced is true of the disk when it is printed.
+        with server.save_lock:
+            server.server_close()
+
+
+def _open_when_serving(server: ViewServer, open_page: Callable[[str], None]) -> None:
+    server.serving.wait()
+    open_page(server.url)

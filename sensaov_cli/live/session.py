@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import threading
 import time
-from collections import OrderedDict
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import cast
@@ -42,6 +43,7 @@ from sensaov_cli.live.inspection import (
     paint_view,
     view_rgb,
 )
+from sensaov_cli.live.view_memory import MemoryLedger, request_bytes, return_freed_memory
 from sensaov_cli.outputs.atomic import made_by
 from sensaov_cli.outputs.exr import encode_exr
 from sensaov_cli.outputs.previews import encode_png
@@ -71,7 +73,6 @@ from sensaov_cli.views.texels import PANELS, TexelField, texture_token
 from sensaov_cli.vocabulary import SIGNS, Sign
 
 REST_SPP = 16  # what the page asks for once the mouse rests
-CACHED_PASSES = 8  # visibility passes kept: a pick or an id map reuses the view's own pass
 OBJECTIVE_POSE = "objective"  # the name project gives the objective camera too
 SAME_POSE = 1e-4  # relative: a camera this close to the objective camera is that camera
 SELECT_PREFIX = "select:"
@@ -93,6 +94,12 @@ CAMERA_KEYS = (*VIEW_KEYS, "name")  # a viewpoint shown or saved as a job's came
 SUNBURST_KEYS = ("objective",)
 
 Query = Mapping[str, Sequence[str]]
+# A number in a query is ASCII digits (str.isdigit and float accept '²' and other scripts' digits)
+# and short: what no camera needs is refused before Python converts it.
+_INTEGER = re.compile(r"[+-]?[0-9]+", re.ASCII)
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", re.ASCII)
+MAX_NUMBER_CHARS = 32
+SHOWN_CHARS = 40  # of a refused value, in the one line that refuses it
 
 
 @dataclass(frozen=True)
@@ -122,7 +129,9 @@ def single_values(query: Query, known: Sequence[str]) -> dict[str, str]:
     values = {}
     for key, given in query.items():
         if key not in known:
-            raise RequestError(f"unknown parameter {key!r}", hint=f"known: {', '.join(known)}")
+            raise RequestError(
+                f"unknown parameter {_shown(key)}", hint=f"known: {', '.join(known)}"
+            )
         if len(given) != 1:
             raise RequestError(f"parameter {key!r} is given {len(given)} times")
         values[key] = given[0]
@@ -189,17 +198,19 @@ def _vector(
     try:
         x, y, z = (_finite(key, part) for part in given.split(","))
     except (RequestError, ValueError):
-        raise RequestError(f"{key} must be three finite numbers x,y,z, got {given!r}") from None
+        raise RequestError(
+            f"{key} must be three finite numbers x,y,z, got {_shown(given)}"
+        ) from None
     return (x, y, z)
 
 
 def _finite(key: str, text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise RequestError(f"{key} must be a number, got {text!r}") from None
+    if len(text) > MAX_NUMBER_CHARS or not _NUMBER.fullmatch(text):
+        word = text.lower().lstrip("+-") in ("nan", "inf", "infinity")
+        raise RequestError(f"{key} must be {'finite' if word else 'a number'}, got {_shown(text)}")
+    value = float(text)
     if not math.isfinite(value):
-        raise RequestError(f"{key} must be finite, got {text!r}")
+        raise RequestError(f"{key} must be finite, got {_shown(text)}")
     return value
 
 
@@ -207,8 +218,10 @@ def _integer(values: Mapping[str, str], key: str, default: int, low: int, high: 
     if key not in values:
         return default
     text = values[key]
-    if not text.strip().lstrip("+-").isdigit():
-        raise RequestError(f"{key} must be an integer, got {text!r}")
+    if not _INTEGER.fullmatch(text):
+        raise RequestError(f"{key} must be an integer, got {_shown(text)}")
+    if len(text.lstrip("+-0")) > len(str(high)):  # far out of range: never converted
+        raise RequestError(f"{key} {_shown(text)} is outside [{low}, {high}]")
     value = int(text)
     if not low <= value <= high:
         raise RequestError(f"{key} {value} is outside [{low}, {high}]")
@@ -218,8 +231,15 @@ def _integer(values: Mapping[str, str], key: str, default: int, low: int, high: 
 def _choice(values: Mapping[str, str], key: str, default: str, valid: Sequence[str]) -> str:
     value = values.get(key, default)
     if value not in valid:
-        raise RequestError(f"{key} must be one of {', '.join(valid)}, got {value!r}")
+        raise RequestError(f"{key} must be one of {', '.join(valid)}, got {_shown(value)}")
     return value
+
+
+def _shown(text: str) -> str:
+    """A stranger's value as a refusal quotes it: its start only when it is long."""
+    if len(text) <= SHOWN_CHARS:
+        return repr(text)
+    return f"{text[:SHOWN_CHARS]!r}… ({len(text):,} characters)"
 
 
 @dataclass(frozen=True)
@@ -300,7 +320,7 @@ class ViewSession:
         self.buffer_id = buffer_id(buffer)  # the id project, report and rank --exr check
         self._lock = threading.Lock()
         self.scales = JobScales(job, buffer, loaded, self._lock)
-        self._passes: OrderedDict[tuple[Pose, int, int, int, bool], VisibilityPass] = OrderedDict()
+        self.memory = MemoryLedger()
 
     @property
     def objective_camera(self) -> NamedPose:
@@ -316,6 +336,10 @@ class ViewSession:
         return view_request(values, first.pose, first.size[0] / first.size[1], objective, channel)
 
     def view(self, request: ViewRequest) -> Picture:
+        with self._reserved(request):
+            return self._view(request)
+
+    def _view(self, request: ViewRequest) -> Picture:
         start = time.perf_counter()
         visibility, shown = self._paint(request)
         if request.format == "ids":  # per pixel, the most covering object's index (-1: none)
@@ -338,15 +362,16 @@ class ViewSession:
             if found not in self.buffer.objects:
                 raise UnknownNameError("object", found, self.buffer.objects)
             return self._picked(request, found, None)
-        visibility, shown = self._paint(request)
-        with self._lock:
-            hit = self.tracer.hit(request.pose, request.width, request.height, pick.x, pick.y)
-        index = visibility.rank_index[pick.y, pick.x]
-        amount = visibility.rank_coverage[pick.y, pick.x]
+        with self._reserved(request):
+            visibility, shown = self._paint(request)
+            with self._lock:
+                hit = self.tracer.hit(request.pose, request.width, request.height, pick.x, pick.y)
+            index = visibility.rank_index[pick.y, pick.x]
+            amount = visibility.rank_coverage[pick.y, pick.x]
+            value = float(shown.values[pick.y, pick.x])
         coverage = tuple(
             (self.buffer.objects[i], float(c)) for i, c in zip(index, amount, strict=True) if i >= 0
         )
-        value = float(shown.values[pick.y, pick.x])
         pixel = Pixel(pick.x, pick.y, coverage, hit.position, hit.distance, value)
         return self._picked(request, coverage[0][0] if coverage else None, pixel)
 
@@ -384,25 +409,30 @@ class ViewSession:
         shared = self.scales.of(source, request.look.sign)
         return visibility, paint_view(self.buffer, source, visibility, request.look, shared)
 
+    @contextmanager
+    def _reserved(self, request: ViewRequest) -> Iterator[None]:
+        """The request's memory held in the budget while it traces and paints (a request is a
+        stranger's numbers: one over the budget is refused, 400, before anything is traced)."""
+        with_uv = isinstance(self.sources.find(request.objective, request.channel), TexelPanel)
+        pixels = request.width * request.height
+        need = request_bytes(pixels, request.spp, with_uv=with_uv)
+        setting = f"width x height = {request.width}x{request.height} at spp = {request.spp}"
+        with self.memory.reserved(need, setting):
+            yield
+
     def visibility(self, request: ViewRequest, with_uv: bool = False) -> VisibilityPass:
-        """The visibility pass of a request's camera, traced once and kept for picks (a pass
-        with UVs serves a request without them too)."""
+        """The visibility pass of a request's camera, traced once and kept for picks while the
+        memory budget has room (a pass with UVs serves a request without them too)."""
         key = (request.pose, request.width, request.height, request.spp)
         with self._lock:
             for uv in (True, False) if not with_uv else (True,):
-                if (*key, uv) in self._passes:
-                    self._passes.move_to_end((*key, uv))
-                    return self._passes[(*key, uv)]
+                kept = self.memory.kept((*key, uv))
+                if kept is not None:
+                    return kept
             size = (request.width, request.height, request.spp)
-            check_view(  # a request is a stranger's numbers: refused (400) before allocating
-                request.width * request.height, request.spp, layers=1, texels=with_uv,
-                setting=f"width x height = {request.width}x{request.height} at spp = {request.spp}",
-            )  # fmt: skip
             traced = self.tracer.trace(request.pose, *size, with_uv=with_uv)
-            self._passes[(*key, with_uv)] = traced
-            while len(self._passes) > CACHED_PASSES:
-                self._passes.popitem(last=False)
-            return traced
+        self.memory.keep((*key, with_uv), traced)
+        return traced
 
     def is_objective_pose(self, pose: Pose) -> bool:
         first = self.objective_camera.pose
@@ -442,6 +472,7 @@ def open_session(
         loaded = load_scene(prepared, variant=job.variant, parameters=job.parameters)
     check_objects(buffer, loaded, buffer_path)
     session = ViewSession(job, buffer, buffer_path, loaded)
+    return_freed_memory()
     with progress.stage("warm_s", "compiling the visibility kernel"):
         first = session.objective_camera
         width, height = first.size
@@ -532,7 +563,7 @@ class Sources:
                 f"select query {glob!r} matches no parameter of the buffer",
                 hint="globs match keys such as 'white.reflectance.value' or '*.alpha'",
             )
-        spec = ChannelSpec(f"select_{len(self.painted)}", "select", select=glob)
+        spec = ChannelSpec(channel, "select", select=glob)  # a name no job channel can have
         for values in channel_values(self.buffer, (spec,), untrusted=self.untrusted):
             part = values.pass_name[len(spec.name) :]  # "" or the untrusted part's suffix
             self.painted[(values.objective, channel + part)] = replace(
@@ -578,12 +609,14 @@ class JobScales:
     ):
         self.job, self.buffer, self.loaded, self._lock = job, buffer, loaded, lock
         self._passes: dict[str, VisibilityPass] = {}
-        self._scales: dict[tuple[str, str, str], DisplayScale] = {}
+        self._scales: dict[tuple[str, ChannelSpec, str], DisplayScale] = {}
 
     def of(self, values: ChannelValues, sign: str) -> DisplayScale:
         """The shared scale of ``values``' (objective, channel), its pixels painted ``sign``
-        (signed or magnitude), linear: the job's own encoding when it is the default one."""
-        key = (values.objective, values.spec.name, sign)
+        (signed or magnitude), linear: the job's own encoding when it is the default one.
+        Kept by what the channel is (its selection, weight, aggregate), never by its name: a
+        job's channel and a typed query may share a name, not a scale."""
+        key = (values.objective, replace(values.spec, name=""), sign)
         with self._lock:  # the renderer is not re-entrant
             if key not in self._scales:
                 linear = replace(

@@ -13,6 +13,7 @@ import io
 import json
 import math
 import os
+import re
 import warnings
 from collections.abc import Sequence
 from functools import partial
@@ -172,7 +173,9 @@ def _label(
     if wedge.span * 2 * math.pi * radius * inches_per_unit < MIN_LABEL_ARC_IN:
         return
     fits = int((radii[1] - radii[0]) * 0.9 * inches_per_unit * 72 / (0.5 * FONT_PT))
-    text = _short(wedge, fits)
+    text = wedge_caption(wedge, fits)
+    if not text:
+        return
     middle = math.radians(_degrees((wedge.start + wedge.stop) / 2))
     rotation = math.degrees(middle)
     if math.cos(middle) < 0:  # keep text upright on the left half
@@ -194,15 +197,33 @@ def _label(
     )
 
 
-def _short(wedge: Wedge, fits: int) -> str:
-    """The wedge's name, cut to ``fits`` characters, without what the rings inside already say
-    (its object's name in front) or ``.value``/``.data`` behind."""
+def wedge_caption(wedge: Wedge, fits: int) -> str:
+    """The wedge's name in lines of at most ``fits`` characters, in whole words (a key's parts
+    between dots and underscores), or "" where even a shortened one does not fit. A parameter
+    is named by its key (``.value``/``.data`` left out), object and all: read on its own, its
+    wedge never shows a type without the object it belongs to."""
+    inner = wedge.path[:-1]
     label = wedge.label
-    for inner in wedge.path[:-1]:
-        label = label.removeprefix(f"{inner}.")
     for tail in (".value", ".data"):
         label = label.removesuffix(tail)
-    return label if len(label) <= fits else label[: max(fits - 1, 1)] + "…"
+    if len(label) <= fits:
+        return label
+    words: list[str] = _WORD.findall(label)  # each word with the separator that follows it
+    lines = [("".join(words[:i]), "".join(words[i:])) for i in range(1, len(words))]
+    fitting = [(first, second) for first, second in lines if max(len(first), len(second)) <= fits]
+    if fitting:  # two lines, as even as they come
+        first, second = min(fitting, key=lambda pair: abs(len(pair[0]) - len(pair[1])))
+        return f"{first}\n{second}"
+    keep_end = wedge.ring >= len(RADII) - 1  # a parameter's last words name it; a group's first
+    for count in range(len(words) - 1, 0, -1):
+        part = "".join(words[-count:]) if keep_end else "".join(words[:count]).rstrip("._")
+        shown = f"…{part}" if keep_end else f"{part}…"
+        if len(shown) <= fits and part.strip("._") not in inner:
+            return shown
+    return ""
+
+
+_WORD = re.compile(r"[^._]+[._]?|[._]")
 
 
 def _legend(fig: Figure, order: str, encoding: str) -> None:
