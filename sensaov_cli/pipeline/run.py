@@ -272,7 +272,7 @@ def sample_until(
         if not more:
             break
         progress.note(
-            f"render.until: {len(found.open)} of the top {until.resolved} still open after "
+            f"render.until: {len(found.open)} signs or orders of the top {until.resolved} open after "
             f"{result.spp} spp; adding {len(more)} batches ({sum(n for n, _ in more)} spp)"
         )
         progress.plan(len(more) * (1 + passes) + after)
