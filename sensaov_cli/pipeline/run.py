@@ -272,8 +272,9 @@ def sample_until(
         if not more:
             break
         progress.note(
-            f"render.until: {len(found.open)} signs or orders of the top {until.resolved} open after "
-            f"{result.spp} spp; adding {len(more)} batches ({sum(n for n, _ in more)} spp)"
+            f"render.until: {len(found.open)} signs or orders of the top {until.resolved} "
+            f"open after {result.spp} spp; adding {len(more)} batches "
+            f"({sum(n for n, _ in more)} spp)"
         )
         progress.plan(len(more) * (1 + passes) + after)
         numbered = (len(rendered) + 1, len(rendered) + len(more))
