@@ -73,12 +73,6 @@ class Statistics:
                 raise BufferContentError(f"objective {name!r} has {len(values)} batch values")
 
 
-def single_pass(provenance: Mapping[str, Any]) -> bool:
-    """Whether a buffer holds one backward pass per objective over the whole job's samples:
-    a whole run (:func:`whole_run`) of one batch."""
-    return whole_run(provenance) and len(provenance.get("batches", ())) <= 1
-
-
 def whole_run(provenance: Mapping[str, Any]) -> bool:
     """Whether a buffer was written by one ``sensaov run`` of the whole job, in any number of
     batches: not a merge, not a shard or an objective task. Only such a buffer can be replayed
