@@ -29,7 +29,7 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import render_primal
 from sensaov_cli.render.loading import assign, load_job_scene
 from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
-from sensaov_cli.render.verify.repair import TEXTURE_REASON, plan
+from sensaov_cli.render.verify.repair import TEXTURE_REASON, plan, sign_resolved
 from tests.conftest import use_scene
 
 SCENE = Path(__file__).parent / "scenes" / "repair_mix.xml"
@@ -233,3 +233,25 @@ def test_batches_give_repaired_gradients_their_statistics(job_writer: Callable[.
     np.testing.assert_allclose(
         buffer.grad("mean_luma", key).ravel(), np.mean(batch_means, axis=0), rtol=1e-5
     )
+
+
+def test_repairs_add_seeds_while_their_sign_is_unresolved(repaired: SensitivityBuffer) -> None:
+    """Within repair.budget, a whole run adds rounds of seeds (one per batch) to each repair
+    whose sign its seeds cannot resolve; what stays unresolved is named."""
+    figures = repaired.provenance["repairs"]
+    batches = len(repaired.provenance["batches"])
+    assert figures["samples"] <= figures["budget_samples"]
+    for key, fixed in repaired.repairs.items():
+        added = figures["added_seeds"].get(key, 0)
+        assert len(fixed.seeds) == len(figures["seeds"]) + added == len(set(fixed.seeds))
+        assert added % batches == 0
+        assert (key in figures["unresolved"]) == (not sign_resolved(fixed))
+        if added:  # a round was added only while the sign was unresolved: the last one was
+            before = dataclasses.replace(
+                fixed,
+                spp=fixed.spp[:-batches],
+                seeds=fixed.seeds[:-batches],
+                estimates={n: e[:-batches] for n, e in fixed.estimates.items()},
+            )
+            assert not sign_resolved(before)
+    assert figures["added_seeds"], "the budget of 50 leaves room for rounds: some must be added"
