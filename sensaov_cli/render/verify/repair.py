@@ -129,10 +129,13 @@ def plan(
     spp: int,
     passes: int,
     seeds: Sequence[int],
+    batches: int = 1,
 ) -> RepairPlan:
     """The targets that fit ``settings.budget``, and why the others were left out."""
-    # the run's own cost in samples: a primal and ``passes`` backward passes of ~2 renders each
-    run = pixels * spp * (1 + 2 * passes) + RENDER_OVERHEAD + BACKWARD_OVERHEAD * passes
+    # the run's own cost in samples: a primal and ``passes`` backward passes of ~2 renders each,
+    # each pass's fixed cost once per batch
+    fixed = RENDER_OVERHEAD + BACKWARD_OVERHEAD * passes
+    run = pixels * spp * (1 + 2 * passes) + fixed * batches
     budget = int(settings.budget * run)
     by_key = {r.key: r for r in records}
     skipped, targets = {}, []
@@ -205,7 +208,7 @@ def repair(
         reasons, result.params, result.values, result.grads, settings,
         pixels=width * height, spp=spp,
         passes=passes or len(integrator_plan(loaded)) * len(objectives),
-        seeds=[derived_seed(seed, "repair", i) for i in range(count)],
+        seeds=[derived_seed(seed, "repair", i) for i in range(count)], batches=batches,
     )  # fmt: skip
     chosen = whole if shard is None else replace(whole, seeds=whole.seeds[shard::batches])
     progress.plan(len(chosen.targets) + stages_after)
