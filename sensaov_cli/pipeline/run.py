@@ -186,7 +186,7 @@ def run_job(
         batches=task.shard[1] if task.shard else batches,
         shard=task.shard[0] - 1 if task.shard else None,
         passes=len(integrator_plan(loaded)) * len(whole.objectives),
-        progress=progress, stages_after=planned_forward + 1,
+        progress=progress, stages_after=planned_forward + 1, until_resolved=until is not None,
     )  # fmt: skip
     provenance = _provenance(whole, loaded, result, progress.timings, time.perf_counter() - started)
     provenance["task"] = task.describe()

@@ -194,12 +194,14 @@ def repair(
     passes: int | None = None,
     progress: Progress,
     stages_after: int = 0,
+    until_resolved: bool = False,
 ) -> AdjointResult:
     """``result`` with every known-wrong gradient the budget allows computed again.
 
     ``seed``, ``spp``, ``batches`` and ``passes`` (backward passes per batch) are the whole
     job's, so shard i (``shard``: its 0-based batch index) renders exactly the seeds of batch
-    i-1 of the whole run and their merge is that run's buffer."""
+    i-1 of the whole run and their merge is that run's buffer. ``until_resolved`` (a whole run
+    with render.until): rounds of seeds are added while a repaired sign is unresolved."""
     zeros = result.checks.zero_components if result.checks is not None else {}
     reasons = candidates(loaded, result.params, zeros)
     count = max(settings.seeds, batches)  # with batches, at least one seed each
@@ -221,7 +223,7 @@ def repair(
         with progress.stage(f"repair_{index}_s", label):
             repairs[target.key] = _differences(loaded, objectives, result, chosen, target)
     extra = Extra()
-    if shard is None:  # shards cannot know whether the others' seeds resolved the sign
+    if until_resolved and shard is None:  # a shard cannot know what the others resolved
         more = Rounds(seed, count, batches if batches > 1 else len(chosen.seeds), width * height)
         for target in chosen.targets:
             repairs[target.key] = _until_resolved(
