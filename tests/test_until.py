@@ -96,7 +96,7 @@ def test_until_stops_when_the_top_is_resolved(resolved_run: tuple[Path, str]) ->
 def test_until_names_what_the_budget_left_open(open_run: tuple[Path, str]) -> None:
     job, stderr = open_run
     until = _check_recorded(job, 9)
-    assert until["outcome"] == "max_spp reached" and until["spp_spent"] == 8
+    assert until["outcome"] == "open" and until["spp_spent"] == 8
     assert until["rounds"] == 2 and until["batches"] == 8
     assert until["open"]
     assert "render.until: max_spp 8 reached at 8 spp (8 batches); still open: " in stderr

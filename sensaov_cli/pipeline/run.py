@@ -189,6 +189,8 @@ def run_job(
         progress=progress, stages_after=planned_forward + 1, until_resolved=until is not None,
     )  # fmt: skip
     provenance = _provenance(whole, loaded, result, progress.timings, time.perf_counter() - started)
+    if outcome is not None:
+        outcome = until_outcome(job, loaded, result, outcome, progress)
     provenance["task"] = task.describe()
     provenance["batches_setting"] = job.render.batches  # "auto" or the job's count
     if outcome is not None:
@@ -235,7 +237,7 @@ class UntilOutcome:
             "spp_spent": self.spp,
             "rounds": self.rounds,
             "batches": self.resolution.batches,
-            "outcome": "resolved" if self.resolution.done else "max_spp reached",
+            "outcome": "resolved" if self.resolution.done else "open",
             "resolved_objects": [list(pair) for pair in self.resolution.resolved],
             "open": [
                 {"objective": o.objective, "name": o.name, "what": o.what}
@@ -284,21 +286,34 @@ def sample_until(
         result = combine(loaded, objectives, rendered)
         rounds += 1
         found = resolution(_make_buffer(job, loaded, result, {}), until.resolved)
-    outcome = UntilOutcome(until, result.spp, rounds, found)
+    return result, UntilOutcome(until, result.spp, rounds, found)
+
+
+def until_outcome(
+    job: JobSpec,
+    loaded: LoadedScene,
+    result: AdjointResult,
+    outcome: UntilOutcome,
+    progress: Progress,
+) -> UntilOutcome:
+    """What the finished run resolved, repairs in place (the rounds judged reverse mode's
+    gradients: a repair is too costly to repeat each round), said and returned."""
+    found = resolution(_make_buffer(job, loaded, result, {}), outcome.setting.resolved)
     names = ", ".join(f"{o}: {n}" for o, n in found.resolved) or "none"
     progress.note(f"render.until: resolved signs: {names}")
     if found.done:
         progress.note(
-            f"render.until: the top {until.resolved} objects of every objective are resolved "
-            f"(signs and order) at {result.spp} spp in {found.batches} batches"
+            f"render.until: the top {outcome.setting.resolved} objects of every objective are "
+            f"resolved (signs and order) at {outcome.spp} spp in {found.batches} batches"
         )
     else:
+        reached = outcome.spp + job.render.spp // job.render.batch_count > outcome.setting.max_spp
+        why = f"max_spp {outcome.setting.max_spp} reached" if reached else "repairs reopened"
         progress.note(
-            f"render.until: max_spp {until.max_spp} reached at {result.spp} spp "
-            f"({found.batches} batches); still open: "
+            f"render.until: {why} at {outcome.spp} spp ({found.batches} batches); still open: "
             + "; ".join(item.describe() for item in found.open)
         )
-    return result, outcome
+    return replace(outcome, resolution=found)
 
 
 def _depth(depth: int) -> str:
