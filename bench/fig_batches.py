@@ -12,6 +12,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from bench import notes
 from bench.jobs import REPO, Workspace
 from bench.results import Figure, Goal, Row, fmt
 from bench.settings import Settings
@@ -42,6 +43,7 @@ def batches_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
         "with `batches: 1` (one pass, no errors) at the same spp, interleaved after one "
         "warm-up round.",
     )
+    figure.why_missed = notes.BATCHES
     render = {"resolution": [32, 32], "spp": 8} if s.quick else {}
     for name in ("cbox", "interior"):
         config = REPO / "configs" / f"{name}.yaml"
