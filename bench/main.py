@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from bench import (
+    fig_batches,
     fig_buffer,
     fig_farm,
     fig_forward,
@@ -112,6 +113,7 @@ def plan(
         (14, lambda: [fig_interior.interior(ws, s, log)]),
         (15, lambda: [fig_repairs.repair_cost(ws, s, log)]),
         (16, lambda: [fig_repairs.check_cost(ws, s, log)]),
+        (17, lambda: [fig_batches.batches_cost(ws, s, log)]),
     ]
 
 

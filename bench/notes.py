@@ -167,3 +167,16 @@ INTERIOR = (
     "(compare the in-process 'lazy' read row) or a buffer without sums (another writer), which "
     "is ranked from its arrays."
 )
+
+BATCHES = (
+    "The default splits render.spp into 8 batches: the same samples, but every pass (a primal, "
+    "a backward pass per objective, a forward pass per batch) is traced again by Mitsuba for "
+    "each batch, a fixed cost per call that compiled kernels do not remove; and repairs take "
+    "one seed per batch (8 instead of repair.seeds' 4), each render with its own fixed cost. "
+    "One-off stage timings when this figure was written (2 shared cores, llvm): "
+    "configs/cbox.yaml backward passes 11.1 s against 8.0 s, primals 1.8 s against 1.4 s, "
+    "forward passes unchanged (22.2 s against 21.7 s); configs/interior.yaml backward 6.2 s "
+    "against 5.6 s, repairs 11.9 s against 6.5 s (192 renders against 96). Fix: frozen "
+    "functions (dr.freeze) for the passes, so that a batch costs its kernels only; or "
+    "`batches: 1` where error bars are not wanted."
+)

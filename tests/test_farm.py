@@ -8,6 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import OpenEXR
 import pytest
 
 from sensaov_cli.buffer.npz import read_buffer
@@ -357,11 +358,11 @@ def test_texel_fields_carry_standard_errors_and_what_pooling_cut(
     assert raw.max() > 0 and np.all(raw >= 0)
 
 
-def test_forward_channels_are_skipped_with_a_note_for_batched_buffers(
+def test_forward_channels_are_rendered_by_batched_runs_and_skipped_by_shards(
     job_writer: Callable[..., Path],
 ) -> None:
-    """Duality needs the backward pass's own samples: a batched run renders no forward pass,
-    says so, and project writes the other layers, naming what it left out."""
+    """A batched run pushes each batch at its own seeds, so it writes the forward sidecar and
+    project its layers; a shard renders none, says so, and project names what it left out."""
     forward = [{"name": "light", "object": "light"}]
     job = job_writer(
         "forward_batches", objectives=OBJECTIVES[:1], render={**RENDER, "batches": 2},
@@ -369,8 +370,16 @@ def test_forward_channels_are_skipped_with_a_note_for_batched_buffers(
     )  # fmt: skip
     done = sensaov("run", str(job))
     assert done.returncode == 0, done.stderr
-    assert "rendered by single-batch runs only" in done.stderr
-    assert not (job.parent / "out" / "forward.npz").exists()
+    assert "rendered by whole runs only" not in done.stderr
+    assert (job.parent / "out" / "forward.npz").is_file()
     done = sensaov("project", str(job))
+    assert done.returncode == 0, done.stderr
+    assert "no forward or transport layers" not in done.stderr
+    assert "forward.light" in OpenEXR.File(str(job.parent / "out" / "objective.exr")).channels()
+    done = sensaov("run", str(job), "--shard", "1/2")
+    assert done.returncode == 0, done.stderr
+    assert "rendered by whole runs only" in done.stderr
+    shard = job.parent / "out" / "buffer.shard-1-of-2.npz"
+    done = sensaov("project", str(job), "--buffer", str(shard))
     assert done.returncode == 0, done.stderr
     assert "no forward or transport layers" in done.stderr

@@ -53,9 +53,10 @@ def test_run_reports_the_cost_of_every_forward_pass(cbox_forward: tuple) -> None
 
 
 def test_forward_channel_matches_same_seed_central_differences(cbox_forward: tuple) -> None:
-    """J·v of the green wall's reflectance against (I(θ+εv) − I(θ−εv)) / 2ε at its seed."""
+    """J·v of the green wall's reflectance against (I(θ+εv) − I(θ−εv)) / 2ε at its seeds: the
+    run has the default batches, each pushed at its own (spp, gradient seed), spp-weighted."""
     from sensaov_cli.job.load import load_job
-    from sensaov_cli.render.adjoint import render_primal
+    from sensaov_cli.render.adjoint import gradient_seed, render_primal
     from sensaov_cli.render.loading import assign, load_job_scene
     from sensaov_cli.render.visibility import trace
 
@@ -66,10 +67,19 @@ def test_forward_channel_matches_same_seed_central_differences(cbox_forward: tup
     loaded = load_job_scene(load_job(job))
     theta = buffer.value(GREEN)
     eps = 1e-2
+    batches = [(b["spp"], b["seed"]) for b in buffer.provenance["batches"]]
+    assert len(batches) == 8 and view.seed == gradient_seed(batches[0][1], 0)
+    total = sum(spp for spp, _ in batches)
     sides = []
     for sign in (1, -1):
         assign(loaded, GREEN, theta + sign * eps * theta)
-        sides.append(np.array(render_primal(loaded, 16, view.seed), np.float64)[..., :3])
+        sides.append(
+            sum(
+                np.array(render_primal(loaded, spp, gradient_seed(seed, 0)), np.float64)[..., :3]
+                * (spp / total)
+                for spp, seed in batches
+            )
+        )
     assign(loaded, GREEN, theta)
     central = (sides[0] - sides[1]) / (2 * eps)
     forward = view.data.astype(np.float64)
@@ -226,4 +236,5 @@ def test_progress_counts_every_pass_and_provenance_times_them(cbox_forward: tupl
     timings = buffer.provenance["timings_s"]
     forward = [seconds for stage, seconds in timings.items() if stage.startswith("forward_")]
     assert len(forward) >= 4
-    assert buffer.provenance["wall_time_s"] >= sum(forward) + timings["primal_s"]
+    primal = sum(seconds for stage, seconds in timings.items() if stage.startswith("primal"))
+    assert buffer.provenance["wall_time_s"] >= sum(forward) + primal

@@ -22,14 +22,14 @@ import pytest
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer
 from sensaov_cli.job.load import load_job
-from sensaov_cli.job.spec import RepairSpec
+from sensaov_cli.job.spec import RepairSpec, UntilSpec
 from sensaov_cli.outputs.tables import summary_text
 from sensaov_cli.pipeline.run import run_job
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import render_primal
 from sensaov_cli.render.loading import assign, load_job_scene
 from sensaov_cli.render.objectives import build_objectives, value_and_adjoint
-from sensaov_cli.render.verify.repair import TEXTURE_REASON, plan
+from sensaov_cli.render.verify.repair import TEXTURE_REASON, plan, sign_resolved
 from tests.conftest import use_scene
 
 SCENE = Path(__file__).parent / "scenes" / "repair_mix.xml"
@@ -233,3 +233,38 @@ def test_batches_give_repaired_gradients_their_statistics(job_writer: Callable[.
     np.testing.assert_allclose(
         buffer.grad("mean_luma", key).ravel(), np.mean(batch_means, axis=0), rtol=1e-5
     )
+
+
+def test_repairs_add_seeds_while_their_sign_is_unresolved(job_writer: Callable[..., Path]) -> None:
+    """Under render.until (here at its first spp: no batch is added), the repairs add rounds
+    of seeds, one per batch, within repair.budget, while a repaired sign is unresolved; what
+    stays unresolved is named. Without until nothing is added (the repaired fixture)."""
+    render = {"spp": 8, "max_depth": 5, "seed": 0, "resolution": [16, 16]}
+    job = _job(job_writer, "repair_until", repair={"budget": 50, "seeds": 4})
+    spec = load_job(job)
+    until = {"until": UntilSpec(resolved=1, max_spp=8)}
+    spec = dataclasses.replace(spec, render=dataclasses.replace(spec.render, **render, **until))
+    buffer = run_job(spec, allow_python=False, progress=Progress(quiet=True))
+    figures = buffer.provenance["repairs"]
+    batches = len(buffer.provenance["batches"])
+    assert batches == 8 and figures["samples"] <= figures["budget_samples"]
+    for key, fixed in buffer.repairs.items():
+        added = figures["added_seeds"].get(key, 0)
+        assert len(fixed.seeds) == len(figures["seeds"]) + added == len(set(fixed.seeds))
+        assert added % batches == 0
+        assert (key in figures["unresolved"]) == (not sign_resolved(fixed))
+        if added:  # a round was added only while the sign was unresolved: the last one was
+            before = dataclasses.replace(
+                fixed,
+                spp=fixed.spp[:-batches],
+                seeds=fixed.seeds[:-batches],
+                estimates={n: e[:-batches] for n, e in fixed.estimates.items()},
+            )
+            assert not sign_resolved(before)
+    assert figures["added_seeds"], "a budget of 50 leaves room for rounds: some must be added"
+
+
+def test_without_until_repairs_keep_their_planned_seeds(repaired: SensitivityBuffer) -> None:
+    figures = repaired.provenance["repairs"]
+    assert figures["added_seeds"] == {}
+    assert all(len(r.seeds) == len(figures["seeds"]) for r in repaired.repairs.values())

@@ -30,7 +30,9 @@ from sensaov_cli.outputs.exr import read_exr
 from .conftest import ROOT, sensaov, write_job
 
 DRIVER = Path(__file__).with_name("signal_driver.py")
-RENDER = {"spp": 4, "max_depth": 3, "seed": 0, "resolution": [16, 16]}
+# One batch: a stop is held at the second chunk of a pass, and the driver's lowered chunk limits
+# give a 16x16 pass of 4 spp several (a batch of 1 spp would have one).
+RENDER = {"spp": 4, "max_depth": 3, "seed": 0, "resolution": [16, 16], "batches": 1}
 
 
 @pytest.fixture(scope="module")

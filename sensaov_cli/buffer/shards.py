@@ -38,11 +38,14 @@ def derived_seed(seed: int, purpose: str, index: int) -> int:
     return int(np.random.SeedSequence([seed, tag, index]).generate_state(1)[0]) % 2**31
 
 
-def batch_plan(spp: int, seed: int, batches: int) -> list[tuple[int, int]]:
+def batch_plan(spp: int, seed: int, batches: int, first: int = 0) -> list[tuple[int, int]]:
     """(spp, primal seed) of each of ``batches`` independent batches; batch 0 has ``seed``.
-    Shard i of n is batch i-1, so a merge of n shards equals a run with ``render.batches: n``."""
+    Shard i of n is batch i-1, so a merge of n shards equals a run with ``render.batches: n``.
+    ``first``: the plan's batches are numbered from there (render.until's later rounds: the
+    same split of spp at seeds no earlier round used)."""
     sizes = [spp // batches + (1 if i < spp % batches else 0) for i in range(batches)]
-    return [(n, seed if i == 0 else derived_seed(seed, "batch", i)) for i, n in enumerate(sizes)]
+    numbered = enumerate(sizes, first)
+    return [(n, seed if i == 0 else derived_seed(seed, "batch", i)) for i, n in numbered]
 
 
 def pixels_digest(channels: Mapping[str, np.ndarray]) -> str:

@@ -1,8 +1,9 @@
 """Standard errors of the stored gradients, from independent batches (or farm shards) (§7).
 
-A run with ``render.batches: k`` renders k independent batches of spp/k samples each (their own
-primal and backward passes at seeds derived from the job's); ``sensaov merge`` treats each shard
-as one batch. The buffer keeps the spp-weighted mean, and from the k batch means:
+A run with ``render.batches: k`` (``auto`` by default: 8, at most spp) renders k independent
+batches of spp/k samples each (their own primal and backward passes at seeds derived from the
+job's); ``sensaov merge`` treats each shard as one batch. The buffer keeps the spp-weighted
+mean, and from the k batch means:
 
 - per element, the standard error of the mean: with n_b samples in batch b, N = Σ n_b and
   x̄ = Σ n_b x_b / N, the per-sample variance is σ² = Σ n_b (x_b − x̄)² / (k − 1) and the
@@ -72,14 +73,13 @@ class Statistics:
                 raise BufferContentError(f"objective {name!r} has {len(values)} batch values")
 
 
-def single_pass(provenance: Mapping[str, Any]) -> bool:
-    """Whether a buffer holds one backward pass per objective over the whole job's samples:
-    not a mean of batches, not a merge, not a shard or an objective task. Only such a buffer
-    can be replayed seed for seed (forward channels, transport duality, ``check``)."""
+def whole_run(provenance: Mapping[str, Any]) -> bool:
+    """Whether a buffer was written by one ``sensaov run`` of the whole job, in any number of
+    batches: not a merge, not a shard or an objective task. Only such a buffer can be replayed
+    batch for batch, seed for seed (forward channels, transport duality, ``check``)."""
     task = provenance.get("task") or {}
     return (
-        len(provenance.get("batches", ())) <= 1
-        and not provenance.get("merged_from")
+        not provenance.get("merged_from")
         and task.get("shard") is None
         and not task.get("objectives")
     )

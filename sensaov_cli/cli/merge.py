@@ -41,3 +41,5 @@ def merge(shards: tuple[Path, ...], output: Path, quiet: bool, progress_style: s
         f"merged {result.shards} shard file(s), {result.buffer.provenance['spp']} spp: "
         f"wrote {output} and {primal_beside(output)}"
     )
+    for line in result.hint:
+        click.echo(line)

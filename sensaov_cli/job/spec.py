@@ -254,6 +254,57 @@ InspectionCamera = Annotated[
 # --- how run renders (render:) and repairs what Mitsuba gets wrong (repair:) ---
 
 
+# Batches of an automatic split: enough degrees of freedom for a Student-t interval (t(0.975, 7)
+# = 2.36), few enough that a batch keeps most of its kernels' fixed cost shared (bench/).
+AUTO_BATCHES = 8
+MAX_BATCHES = 1024
+
+
+def _batches(value: Any) -> Any:
+    """One message for both shapes of ``batches`` (pydantic would word each member's failure)."""
+    number = isinstance(value, int) and not isinstance(value, bool)
+    if value != "auto" and not (number and 1 <= value <= MAX_BATCHES):
+        hint = "write the number without quotes" if str(value).strip().isdigit() else None
+        raise Problem(
+            f"must be 'auto' or an integer from 1 to {MAX_BATCHES}, got {describe(value)}",
+            hint=hint,
+        )
+    return value
+
+
+Batches = Annotated[
+    int | Literal["auto"],
+    Before(_batches),
+    Json(
+        {"anyOf": [{"type": "integer", "minimum": 1, "maximum": MAX_BATCHES}, {"const": "auto"}]},
+        replace=True,
+    ),
+]
+
+
+@dataclass(frozen=True)
+class UntilSpec(Section):
+    """Sampling until the answer is resolved: batches are added at new seeds while it is not."""
+
+    resolved: Annotated[
+        int,
+        STRICT,
+        Ge(1),
+        Le(1000),
+        Doc(
+            "The top objects of every objective (by the ranking's score) whose signs and order "
+            "must be resolved (Student-t 95 %) before the run stops."
+        ),
+    ]
+    max_spp: Annotated[
+        int,
+        STRICT,
+        Ge(1),
+        Lt(2**32),
+        Doc("Samples per pixel the run may spend in all, the first render.spp included."),
+    ]
+
+
 @dataclass(frozen=True)
 class RenderSpec(Section):
     """How the objective camera's image is rendered and differentiated."""
@@ -281,21 +332,39 @@ class RenderSpec(Section):
         ),
     ] = False
     batches: Annotated[
-        int,
-        STRICT,
-        Ge(1),
-        Le(1024),
+        Batches,
         Doc(
             "Independent batches of spp/batches samples, each with its own primal and backward "
-            "passes; with 2 or more the buffer stores standard errors (docs/farm.md)."
+            f"passes, from whose spread the buffer's standard errors come; auto = "
+            f"{AUTO_BATCHES} (at most spp; spp 1 gives 1), an integer exactly that many "
+            "(1: no standard errors) (docs/job-spec.md)."
         ),
-    ] = 1
+    ] = "auto"
+    until: Annotated[
+        UntilSpec | None,
+        Doc(
+            "Keep adding batches at new seeds until the top objects of every objective are "
+            "resolved, or max_spp is spent; null = render spp once."
+        ),
+    ] = None
 
     def __post_init__(self) -> None:
-        if self.batches > self.spp:
+        if isinstance(self.batches, int) and self.batches > self.spp:
             raise Problem(
                 f"batches ({self.batches}) cannot exceed spp ({self.spp})", at=("batches",)
             )
+        if self.until is not None and self.until.max_spp < self.spp:
+            raise Problem(
+                f"max_spp ({self.until.max_spp}) cannot be less than spp ({self.spp})",
+                at=("until", "max_spp"),
+                hint="max_spp counts every sample of the run, the first spp included",
+            )
+
+    @property
+    def batch_count(self) -> int:
+        """How many batches render.spp is split into: ``auto`` resolved, at most spp."""
+        wanted = AUTO_BATCHES if self.batches == "auto" else self.batches
+        return max(1, min(wanted, self.spp))
 
 
 @dataclass(frozen=True)

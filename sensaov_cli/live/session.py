@@ -27,7 +27,7 @@ from sensaov_cli.buffer.forward_sidecar import check_belongs, read_forward
 from sensaov_cli.buffer.model import SensitivityBuffer, buffer_id
 from sensaov_cli.buffer.npz import read_buffer
 from sensaov_cli.buffer.queries import select
-from sensaov_cli.buffer.statistics import single_pass
+from sensaov_cli.buffer.statistics import whole_run
 from sensaov_cli.errors import RequestError, UnknownNameError
 from sensaov_cli.job.markers import Problem
 from sensaov_cli.job.spec import ChannelSpec, JobSpec, LookAt
@@ -577,7 +577,7 @@ def _stored_images(
 ) -> dict[tuple[str, str], StoredImage]:
     """The forward and transport layers of the sidecar, under every objective they apply to."""
     path = buffer_path.with_name(FORWARD_NAME)
-    if not job.wants_forward or not single_pass(buffer.provenance) or not path.exists():
+    if not job.wants_forward or not whole_run(buffer.provenance) or not path.exists():
         return {}
     data = read_forward(path)
     check_belongs(data, buffer, path)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
-from sensaov_cli.buffer.statistics import single_pass
+from sensaov_cli.buffer.statistics import whole_run
 from sensaov_cli.errors import EXIT_JOB_FAILED, EXIT_OK, FingerprintMismatch
 from sensaov_cli.job.spec import JobSpec
 from sensaov_cli.outputs.tables import format_table
@@ -108,12 +108,12 @@ def _checkable_buffer(job: JobSpec, path: Path) -> SensitivityBuffer:
             where=str(path),
             hint="re-run 'sensaov run' first: the check replays the buffer's own passes",
         )
-    if not single_pass(buffer.provenance):
+    if not whole_run(buffer.provenance):
         raise FingerprintMismatch(
-            "the duality check replays one backward pass; this buffer is a shard, an objective "
-            "task or the mean of several batches or shards",
+            "the duality check replays the run's batches; this buffer is a shard, an objective "
+            "task or a merge of shards",
             where=str(path),
-            hint="check a single-batch run of the job (render.batches: 1, no --shard)",
+            hint="check a buffer 'sensaov run JOB' wrote (no --shard, no --objective)",
         )
     return buffer
 

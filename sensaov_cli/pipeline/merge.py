@@ -26,13 +26,17 @@ from sensaov_cli.outputs.atomic import (
     refuse_unsafe_outputs,
 )
 from sensaov_cli.outputs.exr import exr_writer, read_exr
+from sensaov_cli.pipeline.resolution import resolution, shards_hint
 from sensaov_cli.progress import Progress
+
+HINT_TOP = 5  # the top objects the hint speaks of, unless the job's render.until names its own
 
 
 @dataclass(frozen=True)
 class MergeOutputs:
     buffer: SensitivityBuffer  # written to the output, its primal to primal_beside(output)
     shards: int
+    hint: tuple[str, ...] = ()  # what is still open, and about how many more shards resolve it
 
 
 def primal_beside(buffer_path: Path) -> Path:
@@ -74,7 +78,14 @@ def merge_files(paths: list[Path], output: Path, *, progress: Progress) -> Merge
             raise SensaovError(
                 f"cannot write outputs: {exc.strerror or exc}", where=str(output.parent)
             ) from exc
-    return MergeOutputs(merged, len(shards))
+    return MergeOutputs(merged, len(shards), tuple(shards_hint(resolution(merged, _top(merged)))))
+
+
+def _top(buffer: SensitivityBuffer) -> int:
+    """The job's render.until top count when it set one, else HINT_TOP."""
+    until = ((buffer.provenance.get("job") or {}).get("render") or {}).get("until")
+    top = until.get("resolved") if isinstance(until, dict) else None
+    return top if isinstance(top, int) and top >= 1 else HINT_TOP
 
 
 def _merged_primal(shards: list[Shard]) -> dict[str, np.ndarray]:

@@ -31,7 +31,7 @@ from sensaov_cli.buffer.model import (
     stamp,
 )
 from sensaov_cli.buffer.npz import read_buffer
-from sensaov_cli.buffer.statistics import single_pass
+from sensaov_cli.buffer.statistics import whole_run
 from sensaov_cli.errors import FingerprintMismatch, SensaovError, SpecError, StaleInputError
 from sensaov_cli.job.spec import CameraSpec, JobSpec
 from sensaov_cli.outputs.atomic import (
@@ -299,11 +299,10 @@ def forward_layers(
     top objects per (objective, channel)."""
     if not job.wants_forward:
         return []
-    if not single_pass(buffer.provenance):
+    if not whole_run(buffer.provenance):
         progress.note(
-            "no forward or transport layers: this buffer is a shard, an objective task or the "
-            "mean of several batches or shards; those are rendered by single-batch runs only "
-            "(docs/farm.md)"
+            "no forward or transport layers: this buffer is a shard, an objective task or a "
+            "merge; those are rendered by whole runs only (docs/farm.md)"
         )
         return []
     path = buffer_path.with_name(FORWARD_NAME)

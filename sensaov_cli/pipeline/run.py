@@ -15,8 +15,6 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from sensaov_cli import interrupts
 from sensaov_cli.buffer.forward_sidecar import (
     ForwardData,
@@ -35,7 +33,7 @@ from sensaov_cli.buffer.model import (
 from sensaov_cli.buffer.npz import buffer_writer, read_buffer
 from sensaov_cli.buffer.shards import PRIMAL, pixels_digest
 from sensaov_cli.errors import InputFileError, SensaovError, SpecError
-from sensaov_cli.job.spec import ChannelSpec, JobSpec
+from sensaov_cli.job.spec import ChannelSpec, JobSpec, UntilSpec
 from sensaov_cli.outputs.atomic import (
     atomic_write_all,
     check_writable,
@@ -44,16 +42,18 @@ from sensaov_cli.outputs.atomic import (
     refuse_unsafe_outputs,
 )
 from sensaov_cli.outputs.exr import exr_writer, image_channels, read_exr
+from sensaov_cli.pipeline.resolution import Resolution, resolution
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import (
     AdjointResult,
     ImageEffect,
     adjoint_images,
     batch_plan,
+    batches_forward_image,
+    combine,
     depth_effect,
-    forward_image,
     integrator_plan,
-    run_adjoint,
+    render_batches,
 )
 from sensaov_cli.render.loading import (
     LoadedScene,
@@ -66,6 +66,7 @@ from sensaov_cli.render.loading import (
 from sensaov_cli.render.objectives import Objective, build_objectives
 from sensaov_cli.render.runtime import library_versions
 from sensaov_cli.render.verify.repair import repair
+from sensaov_cli.render.verify.selfcheck import LINEAR_OBJECTIVES
 from sensaov_cli.scene import PreparedScene, prepare_scene
 from sensaov_cli.views.channels import direction_values, group_keys, top_objects, transport_views
 
@@ -133,9 +134,8 @@ def run_task(
         if done is not None:
             progress.note(f"{buffer_path.name} is complete for this job: skipped (--resume)")
             return TaskResult(done, skipped=True)
-    # Duality needs the forward pass at the backward's samples: one batch, the whole job.
-    single = task.shard is None and not task.objectives and job.render.batches == 1
-    forward_wanted = job.wants_forward and single
+    # Duality needs the forward passes at the backward's samples: every batch of the whole job.
+    forward_wanted = job.wants_forward and task.shard is None and not task.objectives
     check_writable(job.output, [buffer_name, primal_name] + [FORWARD_NAME] * forward_wanted)
     outputs = [buffer_path, primal_path] + [job.output / FORWARD_NAME] * forward_wanted
     inputs = (*job.input_files(), *prepared.files)
@@ -165,7 +165,7 @@ def run_task(
     check_render(  # the objective camera's passes, at the film the scene gave
         width * height,
         job.render.spp,
-        objectives=len(job.objectives) * job.render.batches,
+        objectives=len(job.objectives) * job.render.batch_count,
         setting=f"render.spp = {job.render.spp} at {width}x{height}",
         where=str(job.path),
     )
@@ -179,18 +179,23 @@ def run_task(
     plan_forward(job, loaded)  # an entry selecting nothing fails here, before any render
     if job.wants_forward and not forward_wanted:
         progress.note(
-            "forward channels and transport layers are rendered by single-batch runs only, "
-            "not by a shard, an --objective task or render.batches > 1 (docs/farm.md)"
+            "forward channels and transport layers are rendered by whole runs only, "
+            "not by a shard or an --objective task (docs/farm.md)"
         )
-    spp, seed, batches = job.render.spp, job.render.seed, min(job.render.batches, job.render.spp)
+    spp, seed, batches = job.render.spp, job.render.seed, job.render.batch_count
     if task.shard is not None:  # shard i of n: batch i-1 of the job's n-batch plan, one batch
         spp, seed = batch_plan(spp, seed, task.shard[1])[task.shard[0] - 1]
         batches = 1
-    # A large texture's gradients outweigh the passes: refused here, before any pass runs.
+    until = job.render.until if task.shard is None and not task.objectives else None
+    if job.render.until is not None and until is None:
+        progress.note("render.until is ignored by a shard or an --objective task (docs/farm.md)")
+    # A large texture's gradients outweigh the passes: refused here, before any pass runs
+    # (render.until's rounds keep every batch until the combine: counted at their most).
+    rounds = 1 if until is None else -(-until.max_spp // spp)
     check_gradients(
         loaded.selected,
         objectives=len(objectives),
-        batches=batches,
+        batches=batches * rounds,
         passes=render_bytes(width * height, spp, objectives=len(objectives)),
         where=str(job.path),
     )
@@ -201,33 +206,42 @@ def run_task(
     measured = prepared.integration.scene_image is not None  # the depth effect's pass
     progress.plan(batches * (1 + passes) + planned_forward + 1 + measured)
     effects = _note_depth_effect(prepared, loaded, objectives, job.render.seed, progress)
-    result = run_adjoint(
-        loaded,
-        objectives,
-        spp=spp,
-        seed=seed,
-        deterministic=job.render.deterministic,
-        progress=progress,
-        batches=batches,
-    )
+    plan = batch_plan(spp, seed, batches)
+    determinism = job.render.deterministic
+    rendered = render_batches(loaded, objectives, plan, determinism, progress)
+    result = combine(loaded, objectives, rendered)
+    outcome = None
+    if until is not None:
+        result, outcome = sample_until(
+            job, until, loaded, objectives, rendered, result, progress,
+            after=planned_forward + 1,
+        )  # fmt: skip
+        batches = len(result.provenance["batches"])
+    del rendered  # every batch's arrays: the mean is all that is kept
     # The repairs' plan is the whole job's: a shard renders its batch's share of the seeds.
     result = repair(
-        loaded, objectives, result, job.repair, seed=job.render.seed, spp=job.render.spp,
+        loaded, objectives, result, job.repair, seed=job.render.seed,
+        spp=job.render.spp if task.shard else result.spp,
         batches=task.shard[1] if task.shard else batches,
         shard=task.shard[0] - 1 if task.shard else None,
         passes=len(integrator_plan(loaded)) * len(whole.objectives),
-        progress=progress, stages_after=planned_forward + 1,
+        progress=progress, stages_after=planned_forward + 1, until_resolved=until is not None,
     )  # fmt: skip
     provenance = _provenance(whole, loaded, result, progress.timings, time.perf_counter() - started)
+    if outcome is not None:
+        outcome = until_outcome(job, loaded, result, outcome, progress)
     provenance["task"] = task.describe()
     # What primal this buffer was written with: --resume and merge recognise one put in its place.
     primal_channels = image_channels(result.image)
     provenance[PRIMAL] = {"file": primal_name, "sha256": pixels_digest(primal_channels)}
+    provenance["batches_setting"] = job.render.batches  # "auto" or the job's count
+    if outcome is not None:
+        provenance["until"] = outcome.figures()
     provenance["image_effects"] = [asdict(effect) for effect in effects]
     buffer = _make_buffer(job, loaded, result, provenance)
     forward = None
     if forward_wanted:
-        forward = run_forward(job, loaded, objectives, buffer, result.image, progress)
+        forward = run_forward(job, loaded, objectives, buffer, result, progress)
         progress.skip(planned_forward - len(forward.passes))
         # The buffer's times cover every pass of the run, forward passes included.
         timed = {**buffer.provenance, "timings_s": dict(progress.timings),
@@ -247,6 +261,102 @@ def run_task(
                 f"cannot write outputs: {exc.strerror or exc}", where=str(job.output)
             ) from exc
     return TaskResult(buffer, skipped=False)
+
+
+@dataclass(frozen=True)
+class UntilOutcome:
+    """What ``render.until`` did: the samples spent and what they resolved."""
+
+    setting: UntilSpec
+    spp: int  # spent in all, the first render.spp included
+    rounds: int
+    resolution: Resolution
+
+    def figures(self) -> dict[str, Any]:
+        """The buffer's provenance record (docs/job-spec.md, render.until)."""
+        return {
+            "resolved": self.setting.resolved,
+            "max_spp": self.setting.max_spp,
+            "spp_spent": self.spp,
+            "rounds": self.rounds,
+            "batches": self.resolution.batches,
+            "outcome": "resolved" if self.resolution.done else "open",
+            "resolved_objects": [list(pair) for pair in self.resolution.resolved],
+            "open": [
+                {"objective": o.objective, "name": o.name, "what": o.what}
+                for o in self.resolution.open
+            ],
+        }
+
+
+def sample_until(
+    job: JobSpec,
+    until: UntilSpec,
+    loaded: LoadedScene,
+    objectives: list[Objective],
+    rendered: list[AdjointResult],
+    result: AdjointResult,
+    progress: Progress,
+    *,
+    after: int,
+) -> tuple[AdjointResult, UntilOutcome]:
+    """Add rounds of batches (render.spp split as the first, at seeds no round used) until the
+    top ``until.resolved`` objects of every objective are resolved or ``until.max_spp`` is
+    spent; ``rendered`` (the first round's batches) grows. ``after``: stages planned after."""
+    spp, seed, count = job.render.spp, job.render.seed, job.render.batch_count
+    passes = len(integrator_plan(loaded)) * len(objectives)
+    rounds, spent = 1, result.spp
+    found = resolution(_make_buffer(job, loaded, result, {}), until.resolved)
+    while not found.done:
+        more = []
+        for batch in batch_plan(spp, seed, count, first=rounds * count):
+            if spent + batch[0] > until.max_spp:
+                break
+            more.append(batch)
+            spent += batch[0]
+        if not more:
+            break
+        progress.note(
+            f"render.until: {len(found.open)} signs or orders of the top {until.resolved} "
+            f"open after {result.spp} spp; adding {len(more)} batches "
+            f"({sum(n for n, _ in more)} spp)"
+        )
+        progress.plan(len(more) * (1 + passes) + after)
+        numbered = (len(rendered) + 1, len(rendered) + len(more))
+        rendered += render_batches(
+            loaded, objectives, more, job.render.deterministic, progress, numbered
+        )
+        result = combine(loaded, objectives, rendered)
+        rounds += 1
+        found = resolution(_make_buffer(job, loaded, result, {}), until.resolved)
+    return result, UntilOutcome(until, result.spp, rounds, found)
+
+
+def until_outcome(
+    job: JobSpec,
+    loaded: LoadedScene,
+    result: AdjointResult,
+    outcome: UntilOutcome,
+    progress: Progress,
+) -> UntilOutcome:
+    """What the finished run resolved, repairs in place (the rounds judged reverse mode's
+    gradients: a repair is too costly to repeat each round), said and returned."""
+    found = resolution(_make_buffer(job, loaded, result, {}), outcome.setting.resolved)
+    names = ", ".join(f"{o}: {n}" for o, n in found.resolved) or "none"
+    progress.note(f"render.until: resolved signs: {names}")
+    if found.done:
+        progress.note(
+            f"render.until: the top {outcome.setting.resolved} objects of every objective are "
+            f"resolved (signs and order) at {outcome.spp} spp in {found.batches} batches"
+        )
+    else:
+        reached = outcome.spp + job.render.spp // job.render.batch_count > outcome.setting.max_spp
+        why = f"max_spp {outcome.setting.max_spp} reached" if reached else "repairs reopened"
+        progress.note(
+            f"render.until: {why} at {outcome.spp} spp ({found.batches} batches); still open: "
+            + "; ".join(item.describe() for item in found.open)
+        )
+    return replace(outcome, resolution=found)
 
 
 def _depth(depth: int) -> str:
@@ -441,37 +551,70 @@ def forward_bound(job: JobSpec, objectives: int) -> int:
     return entries + tops
 
 
+def batch_seeds(result: AdjointResult) -> dict[str, tuple[tuple[int, int], ...]]:
+    """Objective -> (spp, gradient seed) of each batch: where its forward passes replay."""
+    spps = [int(batch["spp"]) for batch in result.provenance["batches"]]
+    names = result.batch_grad_seeds[0] if result.batch_grad_seeds else result.grad_seeds
+    return {
+        name: tuple(
+            (n, seeds[name]) for n, seeds in zip(spps, result.batch_grad_seeds, strict=True)
+        )
+        for name in names
+    }
+
+
+def transport_objectives(objectives: list[Objective], batches: int) -> list[str]:
+    """The objectives whose transport layers keep duality: all with one batch; with several,
+    those linear in the image (one dM/dI for every batch: the sidecar stores one)."""
+    return [o.spec.name for o in objectives if batches == 1 or o.spec.type in LINEAR_OBJECTIVES]
+
+
 def run_forward(
     job: JobSpec,
     loaded: LoadedScene,
     objectives: list[Objective],
     buffer: SensitivityBuffer,
-    primal: np.ndarray,
+    result: AdjointResult,
     progress: Progress,
 ) -> ForwardData:
-    """Render every forward pass the job asks for."""
-    seeds = {o.name: o.grad_seed for o in buffer.objectives}
+    """Render every forward pass the job asks for, each batch at its own seeds."""
+    primal = result.image
+    seeds = batch_seeds(result)
     first = buffer.objectives[0].name
-    backward_s = progress.timings.get(f"backward_{first}_s", 0.0)
+    number = "" if len(seeds[first]) == 1 else "_batch1"
+    backward_s = progress.timings.get(f"backward_{first}{number}_s", 0.0) * len(seeds[first])
+    transported = transport_objectives(objectives, len(seeds[first]))
+    if len(transported) < len(objectives) and (
+        any(g.transport for g in plan_forward(job, loaded))
+        or any(c.kind == "transport" for c in job.channels)
+    ):
+        skipped = ", ".join(o.spec.name for o in objectives if o.spec.name not in transported)
+        progress.note(
+            f"no transport layers for {skipped}: an objective non-linear in the image has one "
+            "dM/dI per batch, so its layers' duality cannot hold against the batch mean; "
+            "render.batches: 1 renders them (docs/farm.md)"
+        )
     layers: list[ForwardLayer] = []
     runner = _Passes(loaded, buffer, job, primal.shape, progress, backward_s)
     for group in plan_forward(job, loaded):
         index = runner.get(group, seeds[first])
         layers.append(ForwardLayer("forward", group.name, None, index, group.source))
         if group.transport:
-            for objective in seeds:
+            for objective in transported:
                 index = runner.get(group, seeds[objective])
                 name = f"transport_{group.name}"
                 layers.append(ForwardLayer("transport", name, objective, index, group.source))
     for position, channel in enumerate(job.channels):
         if channel.kind == "transport":
-            layers += _top_layers(runner, seeds, channel, position)
+            chosen = {name: seeds[name] for name in transported}
+            layers += _top_layers(runner, chosen, channel, position)
     data = ForwardData(
         ties=ties_of(buffer),
         provenance={
             **made_by(" ".join(sys.argv)),
             "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-            "spp": job.render.spp,
+            "spp": result.spp,
+            "batches": len(seeds[first]),
             "max_depth": loaded.prepared.integration.max_depth,
             "backward_s": backward_s,
             "forward_s": [round(p.seconds, 4) for p in runner.passes],
@@ -504,7 +647,10 @@ def _unique_layers(layers: list[ForwardLayer]) -> tuple[ForwardLayer, ...]:
 
 
 def _top_layers(
-    runner: _Passes, seeds: dict[str, int], channel: ChannelSpec, position: int
+    runner: _Passes,
+    seeds: dict[str, tuple[tuple[int, int], ...]],
+    channel: ChannelSpec,
+    position: int,
 ) -> list[ForwardLayer]:
     """``<objective>.<channel>_<object>`` for the channel's top objects of every objective."""
     direction = "value" if channel.weight == "value" else "ones"
@@ -531,18 +677,24 @@ class _Passes:
     progress: Progress
     backward_s: float
     passes: list[ForwardPass] = field(default_factory=list)
-    index: dict[tuple[tuple[str, ...], str, int], int] = field(default_factory=dict)
+    index: dict[tuple[tuple[str, ...], str, tuple[tuple[int, int], ...]], int] = field(
+        default_factory=dict
+    )
 
-    def get(self, group: _ForwardGroup, seed: int) -> int:
-        key = (tuple(sorted(group.keys)), group.direction, seed)
+    def get(self, group: _ForwardGroup, batches: tuple[tuple[int, int], ...]) -> int:
+        """The pass of ``group`` at ``batches`` ((spp, gradient seed) each); the pass records
+        the first batch's seed, the objective's gradient seed in the buffer."""
+        key = (tuple(sorted(group.keys)), group.direction, batches)
         if key in self.index:
             return self.index[key]
+        seed = batches[0][1]
         v = direction_values(self.buffer, group.keys, group.direction)
         n = len(self.passes)
-        label = f"forward pass {n + 1} '{group.name}' ({len(group.keys)} parameters, seed {seed})"
+        at = f"seed {seed}" if len(batches) == 1 else f"{len(batches)} batches"
+        label = f"forward pass {n + 1} '{group.name}' ({len(group.keys)} parameters, {at})"
         with self.progress.stage(f"forward_{n}_s", label):
-            result = forward_image(
-                self.loaded, v, spp=self.job.render.spp, seed=seed, shape=self.shape,
+            result = batches_forward_image(
+                self.loaded, v, batches=batches, shape=self.shape,
                 deterministic=self.job.render.deterministic,
             )  # fmt: skip
         ratio = result.seconds / self.backward_s if self.backward_s > 0 else float("nan")

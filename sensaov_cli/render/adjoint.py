@@ -12,7 +12,7 @@ second backward pass of Mitsuba's ``path`` integrator, in chunks that bound its 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -53,6 +53,8 @@ class AdjointResult:
     statistics: Statistics | None = None  # standard errors, with >= 2 batches
     repairs: dict[str, Repair] = field(default_factory=dict)  # render/verify/repair.py's records
     checks: SelfCheck | None = None  # what the self-checks found (None: one batch, not checked)
+    # per batch, in order: each objective's gradient seed (forward passes replay them)
+    batch_grad_seeds: tuple[dict[str, int], ...] = ()
 
 
 def to_numpy(value: Any, shape: tuple[int, ...]) -> np.ndarray:
@@ -271,6 +273,11 @@ def reproducible(loaded: LoadedScene, enabled: bool) -> Iterator[bool]:
         dr.set_thread_count(threads)
 
 
+def gradient_seed(primal_seed: int, objective_index: int) -> int:
+    """The seed of an objective's backward passes in the batch whose primal has ``primal_seed``."""
+    return (primal_seed + SEED_STRIDE * (objective_index + 1)) % 2**31
+
+
 def run_adjoint(
     loaded: LoadedScene,
     objectives: list[Objective],
@@ -283,34 +290,62 @@ def run_adjoint(
 ) -> AdjointResult:
     """Every batch's primal and backward passes, their mean, its statistics and self-checks."""
     plan = batch_plan(spp, seed, batches)
-    spps = [n for n, _ in plan]
+    results = render_batches(loaded, objectives, plan, deterministic, progress)
+    return combine(loaded, objectives, results)
+
+
+def render_batches(
+    loaded: LoadedScene,
+    objectives: list[Objective],
+    plan: list[tuple[int, int]],
+    deterministic: bool,
+    progress: Progress,
+    numbered: tuple[int, int] | None = None,
+) -> list[AdjointResult]:
+    """One result per batch of ``plan`` (spp, primal seed), not yet combined. ``numbered``: the
+    first batch's number and the count progress shows (default: 1 and the plan's length)."""
+    first, count = numbered or (1, len(plan))
     results = []
     with reproducible(loaded, deterministic) as exact:
         for index, (batch_spp, batch_seed) in enumerate(plan):
-            batch = (index + 1, batches)
-            results.append(_run_passes(loaded, objectives, batch_spp, batch_seed, progress, batch))
+            batch = (first + index, count)
+            result = _run_passes(loaded, objectives, batch_spp, batch_seed, progress, batch)
+            results.append(replace(result, deterministic=exact))
+    return results
+
+
+def combine(
+    loaded: LoadedScene, objectives: list[Objective], results: list[AdjointResult]
+) -> AdjointResult:
+    """The batches' spp-weighted mean, its statistics (>= 2 batches) and the self-checks.
+    ``results[b].provenance["batch"]`` holds batch b's (spp, seed)."""
+    spps = [r.spp for r in results]
+    seeds = [int(r.provenance["batch"]["seed"]) for r in results]
     grads, objective_values, statistics = combine_batches(
         [info.key for info in loaded.selected],
         results[0].values,
         [r.grads for r in results],
         [r.objective_values for r in results],
         spps,
-        [s for _, s in plan],
+        seeds,
         "batches",
     )
-    image = results[0].image if batches == 1 else weighted_mean([r.image for r in results], spps)
+    image = (
+        results[0].image if len(results) == 1 else weighted_mean([r.image for r in results], spps)
+    )
     values = results[0].values
     checked = self_check(loaded, objectives, image, values, grads, objective_values, sum(spps))
     integrators = {name: sorted(keys) for name, keys in integrator_plan(loaded).items()}
     provenance = {
         "gradient_integrators": integrators,
         "self_checks": checked.figures(),
-        "batches": [{"spp": n, "seed": s} for n, s in plan],
+        "batches": [{"spp": n, "seed": s} for n, s in zip(spps, seeds, strict=True)],
     }
     return replace(
         results[0], image=image, grads=grads, objective_values=objective_values,
-        statistics=statistics, spp=sum(spps), deterministic=exact, params=checked.params,
-        checks=checked, provenance=provenance,
+        statistics=statistics, spp=sum(spps), params=checked.params, checks=checked,
+        deterministic=all(r.deterministic for r in results),
+        provenance=provenance, batch_grad_seeds=tuple(r.grad_seeds for r in results),
     )  # fmt: skip
 
 
@@ -336,7 +371,7 @@ def _run_passes(
     for objective in objectives:
         name = objective.spec.name
         value, adjoint_image = value_and_adjoint(loaded.mi, objective, image)
-        grad_seeds[name] = (seed + SEED_STRIDE * (objective.index + 1)) % 2**31
+        grad_seeds[name] = gradient_seed(seed, objective.index)
         grads[name] = {}
         for integrator, keys in integrator_plan(loaded).items():
             path = "" if integrator == "prb" else "_path"
@@ -348,8 +383,9 @@ def _run_passes(
                 )
         objective_values[name] = value
     return AdjointResult(
-        np.array(image, dtype=np.float32), values, objective_values, grad_seeds, grads, spp=spp
-    )
+        np.array(image, dtype=np.float32), values, objective_values, grad_seeds, grads, spp=spp,
+        provenance={"batch": {"spp": spp, "seed": seed}},
+    )  # fmt: skip
 
 
 # --- what the job's max_depth changes: the replay's image against the scene's own ------------
@@ -446,6 +482,37 @@ def forward_image(
     if total is None:  # no pushed parameter is differentiable at all
         total = np.zeros(shape, np.float32)
     return ForwardImage(total, time.perf_counter() - started, tuple(plan))
+
+
+def batches_forward_image(
+    loaded: LoadedScene,
+    direction: dict[str, np.ndarray],
+    *,
+    batches: Sequence[tuple[int, int]],
+    shape: tuple[int, ...],
+    deterministic: bool = True,
+) -> ForwardImage:
+    """J·v as a run with several batches computes its gradient: one pass per batch at that
+    batch's (spp, gradient seed), their spp-weighted mean; so ⟨dM/dI, J·v⟩ is the batch mean
+    ⟨g, v⟩ (docs/verification.md). One batch is :func:`forward_image` itself."""
+    if len(batches) == 1:
+        spp, seed = batches[0]
+        return forward_image(
+            loaded, direction, spp=spp, seed=seed, shape=shape, deterministic=deterministic
+        )
+    total = float(sum(spp for spp, _ in batches))
+    mean = np.zeros(shape, np.float64)
+    seconds, integrators = 0.0, tuple[str, ...]()
+    for spp, seed in batches:
+        part = forward_image(
+            loaded, direction, spp=spp, seed=seed, shape=shape, deterministic=deterministic
+        )
+        seconds += part.seconds
+        integrators = integrators or part.integrators
+        if part.image is None:
+            return replace(part, seconds=seconds)
+        mean += part.image.astype(np.float64) * (spp / total)
+    return ForwardImage(mean.astype(np.float32), seconds, integrators)
 
 
 def _push(

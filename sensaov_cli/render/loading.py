@@ -261,7 +261,7 @@ def check_job(job: JobSpec, sizes: Mapping[str, tuple[int, int]] | None = None) 
         check_render(
             width * height,
             job.render.spp,
-            objectives=len(job.objectives) * job.render.batches,
+            objectives=len(job.objectives) * job.render.batch_count,
             setting=f"render.spp = {job.render.spp} at {width}x{height}",
             where=where,
         )

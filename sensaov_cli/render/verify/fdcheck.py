@@ -35,6 +35,7 @@ from sensaov_cli.render.adjoint import (
     adjoint_images,
     backward_pass,
     forward_image,
+    gradient_seed,
     image_like_backward,
     render_primal,
 )
@@ -385,8 +386,15 @@ def check_duality(
     """One row per (objective, key, direction), each a progress line; ``central``: also the
     central difference of the image (two renders a row)."""
     spp = int(buffer.provenance["spp"])
-    primal = np.array(render_primal(loaded, spp, int(buffer.provenance["primal_seed"])))
-    adjoints = adjoint_images(loaded, objectives, primal)
+    # Each batch of the run replayed at its own (spp, seeds): its primal, its dM/dI.
+    recorded = buffer.provenance.get("batches") or [
+        {"spp": spp, "seed": buffer.provenance["primal_seed"]}
+    ]
+    batches = [(int(b["spp"]), int(b["seed"])) for b in recorded]
+    replays = []
+    for batch_spp, batch_seed in batches:
+        primal = np.array(render_primal(loaded, batch_spp, batch_seed))
+        replays.append((batch_spp, batch_seed, adjoint_images(loaded, objectives, primal)))
     records = {info.key: info for info in loaded.selected}  # ``keys``: checked by named
     tolerance = duality_tolerance(primal.shape[0] * primal.shape[1] * spp)
     rows: list[DualityCheck] = []
@@ -397,7 +405,7 @@ def check_duality(
                 stage = f"check: duality of {key} along {label} for '{name}'"
                 with progress.stage(f"duality_{len(rows)}_s", stage):
                     rows.append(
-                        _row(loaded, buffer, name, records[key], label, v, adjoints[name], central)
+                        _row(loaded, buffer, objective, records[key], label, v, replays, central)
                     )
     return [replace(row, tolerance=tolerance) for row in rows]
 
@@ -405,26 +413,35 @@ def check_duality(
 def _row(
     loaded: LoadedScene,
     buffer: SensitivityBuffer,
-    objective: str,
+    objective_: Objective,
     info: ParamRecord,
     label: str,
     v: np.ndarray,
-    adjoint: np.ndarray,
+    replays: Sequence[tuple[int, int, dict[str, np.ndarray]]],
     asked: bool,
 ) -> DualityCheck:
-    spp = int(buffer.provenance["spp"])
+    """The buffer's ⟨g, v⟩ against the batches' spp-weighted ⟨dM/dI_b, J_b·v⟩, each batch at
+    its own spp and gradient seed (``replays``: (spp, primal seed, dM/dI per objective))."""
+    objective = objective_.spec.name
     seed = buffer.objective(objective).grad_seed
     stored = buffer.reverse_grad(objective, info.key).astype(np.float64)  # forward's dual
     reverse = float(np.dot(stored.ravel(), v.ravel()))
-    pushed = forward_image(loaded, {info.key: v}, spp=spp, seed=seed, shape=adjoint.shape)
-    forward = _weighted(adjoint, pushed.image) if pushed.image is not None else float("nan")
-    central = None
-    if asked and "discontinuous" not in info.flags:
+    total = float(sum(batch_spp for batch_spp, _, _ in replays))
+    forward, central = 0.0, None if not asked or "discontinuous" in info.flags else 0.0
+    for batch_spp, primal_seed, adjoints in replays:
+        adjoint, share = adjoints[objective], batch_spp / total
+        at = gradient_seed(primal_seed, objective_.index)
+        pushed = forward_image(loaded, {info.key: v}, spp=batch_spp, seed=at, shape=adjoint.shape)
+        forward += share * (
+            _weighted(adjoint, pushed.image) if pushed.image is not None else float("nan")
+        )
+        if central is not None:
 
-        def image_at(image: Any) -> np.ndarray:
-            return np.array(image, np.float32).astype(np.float64)
+            def image_at(image: Any) -> np.ndarray:
+                return np.array(image, np.float32).astype(np.float64)
 
-        central = _weighted(adjoint, difference(loaded, info, v, STEP, spp, (seed, seed), image_at))
+            moved = difference(loaded, info, v, STEP, batch_spp, (at, at), image_at)
+            central += share * _weighted(adjoint, moved)
     record = buffer.param(info.key)
     # A repaired parameter's reverse mode is the one known wrong: its central difference may
     # disagree with forward mode without failing the check.

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -36,6 +36,7 @@ from sensaov_cli.render.verify.trust import (
 )
 
 MAX_COMPONENTS = 16  # more are not repaired (two renders each)
+MAX_SEEDS = 1024  # a repair's seeds in all, the rounds added to resolve its sign included
 # What a render costs besides its samples, in samples: setting the parameter (a roughplastic's
 # tables) and tracing the integrator; a backward pass's (measured, bench/).
 RENDER_OVERHEAD = 1 << 15
@@ -128,10 +129,13 @@ def plan(
     spp: int,
     passes: int,
     seeds: Sequence[int],
+    batches: int = 1,
 ) -> RepairPlan:
     """The targets that fit ``settings.budget``, and why the others were left out."""
-    # the run's own cost in samples: a primal and ``passes`` backward passes of ~2 renders each
-    run = pixels * spp * (1 + 2 * passes) + RENDER_OVERHEAD + BACKWARD_OVERHEAD * passes
+    # the run's own cost in samples: a primal and ``passes`` backward passes of ~2 renders each,
+    # each pass's fixed cost once per batch
+    fixed = RENDER_OVERHEAD + BACKWARD_OVERHEAD * passes
+    run = pixels * spp * (1 + 2 * passes) + fixed * batches
     budget = int(settings.budget * run)
     by_key = {r.key: r for r in records}
     skipped, targets = {}, []
@@ -190,12 +194,14 @@ def repair(
     passes: int | None = None,
     progress: Progress,
     stages_after: int = 0,
+    until_resolved: bool = False,
 ) -> AdjointResult:
     """``result`` with every known-wrong gradient the budget allows computed again.
 
     ``seed``, ``spp``, ``batches`` and ``passes`` (backward passes per batch) are the whole
     job's, so shard i (``shard``: its 0-based batch index) renders exactly the seeds of batch
-    i-1 of the whole run and their merge is that run's buffer."""
+    i-1 of the whole run and their merge is that run's buffer. ``until_resolved`` (a whole run
+    with render.until): rounds of seeds are added while a repaired sign is unresolved."""
     zeros = result.checks.zero_components if result.checks is not None else {}
     reasons = candidates(loaded, result.params, zeros)
     count = max(settings.seeds, batches)  # with batches, at least one seed each
@@ -204,7 +210,7 @@ def repair(
         reasons, result.params, result.values, result.grads, settings,
         pixels=width * height, spp=spp,
         passes=passes or len(integrator_plan(loaded)) * len(objectives),
-        seeds=[derived_seed(seed, "repair", i) for i in range(count)],
+        seeds=[derived_seed(seed, "repair", i) for i in range(count)], batches=batches,
     )  # fmt: skip
     chosen = whole if shard is None else replace(whole, seeds=whole.seeds[shard::batches])
     progress.plan(len(chosen.targets) + stages_after)
@@ -216,15 +222,100 @@ def repair(
         )
         with progress.stage(f"repair_{index}_s", label):
             repairs[target.key] = _differences(loaded, objectives, result, chosen, target)
+    extra = Extra()
+    if until_resolved and shard is None:  # a shard cannot know what the others resolved
+        more = Rounds(seed, count, batches if batches > 1 else len(chosen.seeds), width * height)
+        for target in chosen.targets:
+            repairs[target.key] = _until_resolved(
+                loaded, objectives, result, chosen, target, repairs[target.key], more, extra,
+                progress, stages_after,
+            )  # fmt: skip
     grads, statistics = _stored(result, repairs, batches)
+    figures = _figures(chosen, settings, repairs, extra)
     return replace(
         result,
         grads=grads,
         statistics=statistics,
         params=tuple(_relabel(r, reasons, repairs, chosen) for r in result.params),
         repairs=repairs,
-        provenance={**result.provenance, "repairs": _figures(chosen, settings, repairs)},
+        provenance={**result.provenance, "repairs": figures},
     )
+
+
+@dataclass
+class Rounds:
+    """Where the next round of a repair's extra seeds starts, and how many a round holds (one
+    per batch, so that seed j stays in batch j mod k)."""
+
+    seed: int
+    next_index: int
+    size: int
+    pixels: int
+
+
+@dataclass
+class Extra:
+    """What the repairs spent beyond the plan to resolve their signs."""
+
+    samples: int = 0
+    renders: int = 0
+    seeds: dict[str, int] = field(default_factory=dict)  # key -> seeds added
+
+
+def sign_resolved(fixed: Repair) -> bool:
+    """Whether the sign of Σ_c ∂M/∂θ_c is resolved for every objective by the repair's seeds
+    (Student-t 95 % with seeds − 1 dof); raw, not θ-weighted, so a θ of 0 can resolve too."""
+    if not fixed.has_error:
+        return False
+    ones = np.ones(fixed.components)
+    return all(
+        fixed.significant(float(fixed.mean(name).sum()), fixed.signed_error(name, ones))
+        for name in fixed.estimates
+    )
+
+
+def _until_resolved(
+    loaded: LoadedScene,
+    objectives: Sequence[Objective],
+    result: AdjointResult,
+    chosen: RepairPlan,
+    target: Target,
+    fixed: Repair,
+    rounds: Rounds,
+    extra: Extra,
+    progress: Progress,
+    stages_after: int,
+) -> Repair:
+    """``fixed`` with rounds of new seeds added while its sign is unresolved and what is left of
+    ``repair.budget`` pays for a round (render.until's rule for batches, applied to seeds)."""
+    cost = (chosen.spp * rounds.pixels + RENDER_OVERHEAD) * renders_per_seed([target])
+    while (
+        chosen.spp >= 1
+        and not sign_resolved(fixed)
+        and chosen.samples + extra.samples + cost * rounds.size <= chosen.budget_samples
+        and len(fixed.seeds) + rounds.size <= MAX_SEEDS
+    ):
+        first, rounds.next_index = rounds.next_index, rounds.next_index + rounds.size
+        seeds = tuple(
+            derived_seed(rounds.seed, "repair", i) for i in range(first, rounds.next_index)
+        )
+        label = f"repair {target.key}: sign unresolved, {len(seeds)} more seeds"
+        progress.plan(1 + stages_after)
+        with progress.stage(f"repair_more_{first}_s", label):
+            more = _differences(loaded, objectives, result, replace(chosen, seeds=seeds), target)
+        fixed = replace(
+            fixed,
+            spp=fixed.spp + more.spp,
+            seeds=fixed.seeds + more.seeds,
+            estimates={
+                n: np.concatenate([e, more.estimates[n]]) for n, e in fixed.estimates.items()
+            },
+            seconds=round(fixed.seconds + more.seconds, 4),
+        )
+        extra.samples += cost * rounds.size
+        extra.renders += renders_per_seed([target]) * rounds.size
+        extra.seeds[target.key] = extra.seeds.get(target.key, 0) + rounds.size
+    return fixed
 
 
 def _differences(
@@ -325,16 +416,20 @@ def _relabel(
     return record
 
 
-def _figures(chosen: RepairPlan, settings: RepairSpec, repairs: dict[str, Repair]) -> dict:
+def _figures(
+    chosen: RepairPlan, settings: RepairSpec, repairs: dict[str, Repair], extra: Extra
+) -> dict:
     """What the buffer's provenance says of the repairs (docs/buffer-format.md)."""
     return {
         "budget": settings.budget,
         "budget_samples": chosen.budget_samples,
-        "samples": chosen.samples,
+        "samples": chosen.samples + extra.samples,
         "spp": chosen.spp,
         "seeds": list(chosen.seeds),
-        "renders": renders_per_seed(chosen.targets) * len(chosen.seeds),
+        "renders": renders_per_seed(chosen.targets) * len(chosen.seeds) + extra.renders,
         "repaired": [t.key for t in chosen.targets],
         "not_repaired": dict(chosen.skipped),
         "seconds": round(sum(r.seconds for r in repairs.values()), 4),
+        "added_seeds": dict(extra.seeds),  # key -> seeds added while its sign was unresolved
+        "unresolved": [key for key, fixed in repairs.items() if not sign_resolved(fixed)],
     }
