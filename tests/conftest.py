@@ -34,12 +34,17 @@ def mi() -> ModuleType:
 
 
 def write_job(folder: Path, scene: str = "cbox", **overrides: object) -> Path:
-    """A small job on a shipped scene (24x24, 16 spp), written to ``folder/job.yaml``."""
+    """A small job on a shipped scene (24x24, 16 spp), written to ``folder/job.yaml``.
+
+    One batch unless a test asks for more: most tests look at views, tables and files, where
+    eight batches of 2 spp would only multiply each pass's fixed cost. The default (``auto``)
+    and what errors change are tested where they are the subject (test_until, test_resolution,
+    test_default_errors)."""
     job: dict[str, object] = {
         "version": 1,
         "scene": str(SCENES / scene / "scene.xml"),
         "variant": "llvm_ad_rgb",
-        "render": {"spp": 16, "max_depth": 6, "seed": 0, "resolution": [24, 24]},
+        "render": {"spp": 16, "max_depth": 6, "seed": 0, "resolution": [24, 24], "batches": 1},
         "objectives": [{"name": "mean_luma", "type": "mean_luminance"}],
         "output": str(folder / "out"),
     }

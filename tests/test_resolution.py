@@ -196,7 +196,9 @@ def test_where_the_two_scores_disagree_the_row_says_so(buf: SensitivityBuffer) -
     floor = next(row for row in objects.rows if row.name == "floor")
     assert not floor.orders_disagree
     text = ranking_text((objects,), method="sum", weight="value")
-    assert "wall: #2 here, #7 by l2" in text
+    (row,) = [line.split() for line in text.splitlines() if line.split()[-1:] == ["wall"]]
+    assert row[0] == "2" and "7≠" in row  # its rank here, and by l2 marked on the row
+    assert "≠ = the two orders disagree markedly" in text
     (by_l2,) = rankings(buf, by="object", top=50, method="l2")  # the user's override
     wall_by_l2 = next(row for row in by_l2.rows if row.name == "wall")
     assert (wall_by_l2.rank, wall_by_l2.other_rank) == (6, 3)  # 3rd by sum: the ball counts

@@ -63,7 +63,9 @@ def small_job(tmp_path_factory: pytest.TempPathFactory) -> Path:
     data = yaml.safe_load(CBOX.read_text())
     data["scene"] = str(ROOT / "scenes" / "cbox" / "scene.xml")
     data["variant"] = "llvm_ad_rgb"
-    data["render"].update(spp=4, resolution=[24, 24])
+    # one batch: these tests look at the server and its pictures; errors and resolution in the
+    # view are test_resolution's and test_default_errors' subject
+    data["render"].update(spp=4, resolution=[24, 24], batches=1)
     data["repair"] = {"budget": 0}  # the biased gradients stay biased: the view leaves them out
     data["output"] = str(folder / "out")
     job = folder / "job.yaml"

@@ -50,7 +50,8 @@ figcaption{display:table-caption;caption-side:bottom;font-size:13px;color:#444}
 table{border-collapse:collapse;margin:.3em 0 .8em}
 td,th{padding:2px 8px;border-bottom:1px solid #eee;text-align:left}
 td.n{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
-.row{display:flex;flex-wrap:wrap;gap:1.2em;align-items:flex-start}.col{flex:0 1 440px}
+.row{display:flex;flex-wrap:wrap;gap:1.2em;align-items:flex-start}
+.col{flex:0 1 520px;min-width:0;overflow-x:auto}
 .pair{display:flex;flex-wrap:wrap;align-items:flex-start}
 .cuts{display:flex;flex-wrap:wrap;gap:2em}.stamp{font-size:13px;color:#555}.note{color:#555}
 pre{background:#f6f6f6;padding:1em;overflow:auto;font-size:12px}summary{cursor:pointer}

@@ -23,6 +23,7 @@ from typing import Any, TypeVar
 
 from sensaov_cli.buffer.model import ExcludedParam, ParamRecord, SensitivityBuffer, TextureSource
 from sensaov_cli.views.hierarchy import (
+    ORDER_GAP,
     RANKING_FORMAT,
     RANKING_VERSION,
     SUMMARY_FORMAT,
@@ -322,19 +323,14 @@ def noisy_legend(rows: Sequence[RankRow]) -> list[str]:
 
 
 def order_legend(rows: Sequence[RankRow], other: str) -> list[str]:
-    """Where the score's order and the other score's disagree (a ``!`` on the rank)."""
-    apart = [row for row in rows if row.orders_disagree]
-    if not apart:
+    """What the ``≠`` on a row's rank by the other score means (the row itself says which)."""
+    if not any(row.orders_disagree for row in rows):
         return []
-    lines = [
+    return [
         f"  #{other}: rank by the {other} score; {ORDERS_DISAGREE_MARK} = the two orders "
-        "disagree markedly:"
+        f"disagree markedly ({ORDER_GAP} places or more): the score and the pictures say one "
+        f'thing, the {other} score another (docs/rankings.md, "One score")'
     ]
-    lines += [
-        printable(f"      {row.name}: #{row.rank} here, #{row.other_rank} by {other}")
-        for row in dict.fromkeys(apart)
-    ]
-    return lines
 
 
 def _repairs_lines(figures: object, limit: int | None) -> list[str]:
