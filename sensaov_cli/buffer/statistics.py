@@ -271,7 +271,9 @@ TAIL_FALSE_ALARM = 0.01
 _TAIL_DRAWS = 2_000_000  # normal variates drawn to find each batch count's threshold
 
 
-def heavy_tail(batch_values: Sequence[float], spp: Sequence[int] | None = None) -> str | None:
+def heavy_tail(
+    batch_values: Sequence[float] | np.ndarray, spp: Sequence[int] | None = None
+) -> str | None:
     """Why the batch estimates ``batch_values`` of one number look heavy-tailed (so that neither
     their mean nor its standard error can be trusted), or None.
 
