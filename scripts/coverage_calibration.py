@@ -15,7 +15,7 @@ Scenes: scenes/cbox (diffuse, area light, a rough dielectric), scenes/interior (
 repairs, textures, a rough conductor), tests/scenes/near_specular.xml (a rough dielectric whose
 roughness checkerboard has texels at 0, a medium with an albedo channel at 0); the last also with
 ``repair.budget: 0`` (reverse mode kept everywhere), to see what the flag does where repairs do
-not step in. Every image is 16x16.
+not step in. Images are ``--size`` pixels square (16 by default).
 
     .venv/bin/python scripts/coverage_calibration.py --seeds 40   # ~25 min on 2 shared cores
 
@@ -47,11 +47,10 @@ REPO = Path(__file__).resolve().parent.parent
 BATCHES = 8
 REF_BATCHES = 16
 REF_BUDGET = 50.0
-RESOLUTION = (16, 16)
 JOB = """version: 1
 scene: {scene}
 variant: llvm_ad_rgb
-render: {{spp: 16, seed: 0, resolution: [16, 16]}}
+render: {{spp: 16, seed: 0, resolution: [{size}, {size}]}}
 objectives:
   - {{name: mean_luma, type: mean_luminance}}
   - {{name: centre, type: region_luminance, region: [0.3, 0.3, 0.7, 0.7]}}
@@ -76,9 +75,9 @@ class Row:
     estimator: str
 
 
-def job_for(scene: Path, budget: float, folder: Path) -> JobSpec:
+def job_for(scene: Path, budget: float, folder: Path, size: int) -> JobSpec:
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / "job.yaml").write_text(JOB.format(scene=scene, budget=budget))
+    (folder / "job.yaml").write_text(JOB.format(scene=scene, budget=budget, size=size))
     return load_job(folder / "job.yaml")
 
 
@@ -111,13 +110,13 @@ def _rows(buffer: SensitivityBuffer) -> dict:
     return rows
 
 
-def calibrate(name: str, seeds: int, spp: int, ref_factor: int, writer: Any) -> dict:
+def calibrate(name: str, seeds: int, spp: int, ref_factor: int, size: int, writer: Any) -> dict:
     scene, budget = SCENES[name]
     t = interval_factor(BATCHES)
     counts = {"rows": 0, "miss": 0, "flagged": 0, "flagged_miss": 0, "ref_ratio": [],
               "other_estimator": 0}  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
-        job = job_for(scene, budget, Path(tmp) / "job")
+        job = job_for(scene, budget, Path(tmp) / "job", size)
         started = time.perf_counter()
         # whatever a run repairs, the reference repairs too: a budget that leaves none out
         reference = rows_of(job, Path(tmp) / "ref", spp * ref_factor, 10_000, REF_BATCHES,
@@ -153,6 +152,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=40)
     parser.add_argument("--spp", type=int, default=32, help="per run (8 batches)")
     parser.add_argument("--ref-factor", type=int, default=64, help="reference spp / run spp")
+    parser.add_argument("--size", type=int, default=16, help="image width and height")
     parser.add_argument("--scenes", nargs="*", default=list(SCENES), choices=list(SCENES))
     parser.add_argument("--rows", type=Path, help="write every row to this CSV file")
     args = parser.parse_args()
@@ -170,7 +170,7 @@ def main() -> None:
         "|---|---|---|---|---|---|---|",
     ]
     for name in args.scenes:
-        c = calibrate(name, args.seeds, args.spp, args.ref_factor, writer)
+        c = calibrate(name, args.seeds, args.spp, args.ref_factor, args.size, writer)
         kept = c["rows"] - c["flagged"]
         lines.append(
             f"| {name} | {c['rows']} | {c['miss']} of {kept} ({c['miss'] / max(kept, 1):.1%}) "
@@ -181,7 +181,8 @@ def main() -> None:
         )
     if handle is not None:
         handle.close()
-    print(f"{args.seeds} seeds × {args.spp} spp in {BATCHES} batches per run, 16x16; "
+    print(f"{args.seeds} seeds × {args.spp} spp in {BATCHES} batches per run, "
+          f"{args.size}x{args.size}; "
           f"references at {args.spp * args.ref_factor} spp in {REF_BATCHES} batches; "
           f"{time.perf_counter() - started:.0f} s")  # fmt: skip
     print("\n".join(lines))
