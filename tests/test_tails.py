@@ -204,7 +204,16 @@ def test_heavy_tailed_seeds_are_noisy_not_a_disagreement() -> None:
     the gap is many standard errors, but the error is no measure of it."""
     adjoints = np.array([0.8, -1.2, 0.3, 0.5, -0.6, 0.2, -99.7, 1.1])
     check = judge(_record(), adjoints, np.full(8, 0.03) + np.linspace(-1e-3, 1e-3, 8))
-    assert check.verdict == "noisy" and "reverse mode over 8 seeds: heavy-tailed" in check.reason
+    assert check.verdict == "noisy" and "differences over 8 seeds: heavy-tailed" in check.reason
+
+
+def test_heavy_tailed_values_whose_seeds_pair_up_are_judged_by_their_gaps() -> None:
+    """A light reached by rare paths: its per-seed values are heavy-tailed, but at a shared
+    seed the difference carries the same paths, so the gaps are tiny and the check agrees."""
+    values = np.array([0.01, 0.012, 0.011, 0.009, 0.6, 0.01, 0.013, 0.008])
+    gaps = np.array([1, -2, 1, 0, 40, -1, 2, 1]) * 1e-7  # float rounding, one far seed
+    check = judge(_record("area", "radiance"), values + gaps, values)
+    assert check.verdict == "agrees", check
 
 
 def test_inconclusive_says_why() -> None:
