@@ -10,8 +10,8 @@ parameter per kind (plugin, type, texture or not), or the ``--key`` ones (:func:
   end a path: the difference reproduces the adjoint to float precision (SAME_SEED_TOLERANCE);
 - **several seeds** where it does (roughness, eta, lobe and blend weights), and under Russian
   roulette for every value that changes a path's throughput (:func:`roulette`): each seed's gap
-  is noise, so only its mean is judged (:func:`judge`); seeds whose estimates look heavy-tailed
-  are ``noisy``, never a disagreement;
+  is noise, so only its mean is judged (:func:`judge`); seeds whose gaps look heavy-tailed,
+  or reverse mode far wider than the differences, are ``noisy``, never a disagreement;
 - kinds the trust table calls biased, and near-specular ones (render/verify/tails.py), are
   repaired by ``sensaov run``: measured only when named or with ``--full``.
 
