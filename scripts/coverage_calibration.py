@@ -17,7 +17,9 @@ roughness checkerboard has texels at 0, a medium with an albedo channel at 0); t
 ``repair.budget: 0`` (reverse mode kept everywhere), to see what the flag does where repairs do
 not step in. Images are ``--size`` pixels square (16 by default).
 
-    .venv/bin/python scripts/coverage_calibration.py --seeds 40   # ~25 min on 2 shared cores
+    .venv/bin/python scripts/coverage_calibration.py --seeds 40   # ~20 min on 2 shared cores
+    .venv/bin/python scripts/coverage_calibration.py --seeds 40 --spp 128 --size 32 \
+        --ref-factor 32 --scenes cbox near_specular interior        # ~35 min
 
 Prints one Markdown table (and, with ``--rows FILE``, writes every row as CSV).
 """
