@@ -112,6 +112,7 @@ def _gradient_check(verified: bool, verdict: str) -> SimpleNamespace:
         standard_error=0.01,
         verdict=verdict,
         method="seeds",
+        reason="" if verdict == "agrees" else f"why it {verdict}",
     )
 
 
@@ -122,6 +123,7 @@ def _gradient_check(verified: bool, verdict: str) -> SimpleNamespace:
         (False, "disagrees", EXIT_OK),  # the table already says not to trust it
         (True, "agrees", EXIT_OK),
         (True, "inconclusive", EXIT_OK),
+        (True, "noisy", EXIT_OK),  # heavy-tailed seeds: no evidence either way
     ],
 )
 def test_check_exit_code(verified: bool, verdict: str, code: int) -> None:
@@ -139,7 +141,7 @@ def test_check_command_exits_1_when_the_table_is_contradicted(
 
     calls: list[dict[str, object]] = []
 
-    plan = SimpleNamespace(skipped=(("c", "known biased"),))
+    plan = SimpleNamespace(skipped=(("c", "known biased"),), notes=("Russian roulette ...",))
 
     def fake_plan(loaded: object, keys: list[str] | None, full: bool) -> SimpleNamespace:
         calls.append({"keys": keys, "full": full})
@@ -157,6 +159,8 @@ def test_check_command_exits_1_when_the_table_is_contradicted(
     assert result.exit_code == EXIT_JOB_FAILED, result.output
     assert "CONTRADICTS THE TABLE" in result.stdout
     assert "not measured: c: known biased" in result.stdout
+    assert "disagrees: k: why it disagrees" in result.stdout  # the reason, beneath the table
+    assert "note: Russian roulette ..." in result.stdout
     assert "no buffer at /nonexistent/buffer.npz: duality column skipped" in result.stderr
     assert calls == [
         {"keys": ["a", "b"], "full": False},
@@ -206,5 +210,6 @@ def test_check_table_says_biased_where_the_trust_table_does() -> None:
     from sensaov_cli.pipeline.check import checks_text
 
     text = checks_text([_gradient_check(False, "disagrees")])  # type: ignore[list-item]
-    (row,) = text.splitlines()[1:]
+    (row, reason) = text.splitlines()[1:]
+    assert reason == "disagrees: k: why it disagrees"
     assert " biased " in row and "unverified" not in row

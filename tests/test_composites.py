@@ -14,9 +14,10 @@ import pytest
 import yaml
 
 from sensaov_cli.job.load import load_job
+from sensaov_cli.progress import Progress
 from sensaov_cli.render.loading import LoadedScene, load_job_scene
 from sensaov_cli.render.objectives import build_objectives
-from sensaov_cli.render.verify.fdcheck import check_parameter
+from sensaov_cli.render.verify.fdcheck import audit, check_parameter, plan_audit
 from sensaov_cli.render.verify.trust import COMPOSITE_TABLE
 from tests.conftest import sensaov, use_scene, write_job
 
@@ -116,3 +117,14 @@ def _ranked_row(text: str) -> str:
     return next(
         line for line in text.splitlines() if WEIGHT in line and re.match(r"\s+\d+\s", line)
     )
+
+
+def test_check_takes_each_parameters_own_route(loaded: LoadedScene, job: Path) -> None:
+    """``sensaov check`` computes its adjoints as a run does: the diffuse child of a blend over a
+    smooth conductor through path (its route), not prb (its plugin's integrator), so the
+    one-seed comparison agrees to float precision instead of missing by more than 10 %."""
+    (objective,) = build_objectives(loaded.mi, load_job(job).objectives, (16, 16), False)
+    plan = plan_audit(loaded, [CHILD], full=False)
+    assert [r.key for r in plan.one_seed] == [CHILD]
+    (check,) = audit(loaded, objective, plan, spp=16, seeds=[1], progress=Progress(quiet=True))
+    assert check.verdict == "agrees" and check.relative_error < 1e-3, check

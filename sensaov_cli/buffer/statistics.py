@@ -26,6 +26,7 @@ A mean over k batches has a standard error estimated from those same k batches, 
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -260,27 +261,69 @@ def sums_of(
     return ParamSums(tuple(keys), tables, value_means)
 
 
-# A batch whose squared deviation from the mean carries more than this share of the spread makes
-# the spread itself an unreliable error: one batch met a rare, large path (a heavy tail).
-HEAVY_TAIL_SHARE = 0.6
+# Heavy tails (:func:`heavy_tail`). A mean of k batch estimates is trusted with a standard error
+# from the same k batches; both assume the batch estimates are roughly normal (light-tailed).
+# Where a rare, large path lands in one batch, that batch lies far from the others, carries most
+# of the spread, and the mean and its error both follow it: the interval cannot be trusted.
 MIN_BATCHES_FOR_TAILS = 4  # fewer batches cannot tell a tail from ordinary spread
+# How often light-tailed (normal) batch estimates are called heavy-tailed, per number tested.
+TAIL_FALSE_ALARM = 0.01
+_TAIL_DRAWS = 2_000_000  # normal variates drawn to find each batch count's threshold
 
 
-def heavy_tail(batch_values: Sequence[float]) -> str | None:
-    """Why the batch estimates ``batch_values`` of one number look heavy-tailed (so their
-    standard error cannot be trusted either), or None. The shared entry point of the views'
-    ``noisy`` label; render/verify routes such parameters to a better estimator."""
+def heavy_tail(
+    batch_values: Sequence[float] | np.ndarray, spp: Sequence[int] | None = None
+) -> str | None:
+    """Why the batch estimates ``batch_values`` of one number look heavy-tailed (so that neither
+    their mean nor its standard error can be trusted), or None.
+
+    The test is an outlier test on the batches, robust to the outliers themselves: each batch's
+    distance from the batches' median, in units of the median absolute deviation (MAD), both
+    scaled by sqrt(spp) where ``spp`` (samples per batch) differ. Its largest value is compared
+    with the point that normal batch estimates of the same count exceed with probability
+    TAIL_FALSE_ALARM (:func:`tail_threshold`); beyond it, one batch (or a few) disagrees with the
+    others by more than their own spread predicts, i.e. a few batches carry the sum. Skewed but
+    light-tailed estimates (a mean of exponential or log-normal samples) fire little more
+    often than normal ones (docs/verification.md, "Heavy tails", has the measured rates).
+
+    The shared entry point of the views' ``noisy`` label; render/verify routes parameters it
+    fires on to a repair."""
     values = np.asarray(batch_values, dtype=np.float64)
-    if values.size < MIN_BATCHES_FOR_TAILS:
+    if values.size < MIN_BATCHES_FOR_TAILS or not np.isfinite(values).all():
         return None
-    deviations = (values - values.mean()) ** 2
-    spread = float(deviations.sum())
-    if spread == 0.0:
+    weights = np.ones(values.size) if spp is None else np.sqrt(np.asarray(spp, np.float64))
+    deviations = np.abs(values - np.median(values)) * weights / float(weights.mean())
+    if not deviations.any():
         return None
-    share = float(deviations.max()) / spread
-    if share <= HEAVY_TAIL_SHARE:
+    scale = float(np.median(deviations))
+    limit = tail_threshold(values.size)
+    outliers = int(np.count_nonzero(deviations > limit * scale))
+    if outliers == 0:
         return None
-    return f"one of {values.size} batches carries {share:.0%} of the spread (heavy tail)"
+    if scale == 0.0:
+        how = f"differ from the other {values.size - outliers}, which are all equal"
+    else:
+        how = (
+            f"lie up to {float(deviations.max()) / scale:.0f}x the batches' median deviation "
+            f"from their median (normal estimates stay within {limit:.1f}x "
+            f"{1 - TAIL_FALSE_ALARM:.0%} of the time)"
+        )
+    return (
+        f"heavy-tailed: {outliers} of {values.size} batch estimates {how}: a few batches carry "
+        "the sum, so neither it nor its error can be trusted"
+    )
+
+
+@functools.lru_cache(maxsize=64)
+def tail_threshold(batches: int, false_alarm: float = TAIL_FALSE_ALARM) -> float:
+    """The largest |x − median| / MAD among ``batches`` normal variates exceeds this with
+    probability ``false_alarm``: found by a seeded simulation (the same every run)."""
+    rng = np.random.default_rng(batches)
+    draws = max(4000, _TAIL_DRAWS // batches)
+    sample = rng.standard_normal((draws, batches))
+    deviations = np.abs(sample - np.median(sample, axis=1, keepdims=True))
+    ratio = deviations.max(axis=1) / np.median(deviations, axis=1)
+    return float(np.quantile(ratio, 1.0 - false_alarm))
 
 
 def t_cdf(x: float, dof: float) -> float:

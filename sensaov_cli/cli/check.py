@@ -69,10 +69,13 @@ def check(
     rendered with the same samples. Where the value does not steer sampling
     (reflectance, radiance, texels, conductor eta and k) one seed suffices:
     they agree to float precision. Where it does (roughness, eta, lobe and
-    blend weights) the means over --seeds seeds are compared. Verdicts:
-    agrees, disagrees, or inconclusive (too noisy at this spp: raise --spp).
-    Kinds the trust table calls biased are what 'sensaov run' repairs; they
-    are measured with --full or --key. Progress goes to stderr.
+    blend weights), and under Russian roulette wherever the value changes a
+    path's throughput, the means over --seeds seeds are compared. Verdicts:
+    agrees, disagrees, inconclusive (cannot decide at this spp: raise --spp
+    or --seeds) or noisy (the seeds' estimates are heavy-tailed, so their
+    error says nothing); each but agrees with its reason. Kinds the trust
+    table calls biased, and near-specular ones, are what 'sensaov run'
+    repairs; they are measured with --full or --key. Progress goes to stderr.
 
     When the job's buffer exists, a duality column follows: for the --top
     parameters of every objective (or the --key ones) along ones and
@@ -81,7 +84,7 @@ def check(
     images: float32 sums) and against central
     differences of the image at that seed (2 %). Exits 1 if a parameter the
     verification table trusts disagrees, or the buffer disagrees with forward
-    mode (a corrupt or stale buffer).
+    mode (a corrupt or stale buffer); inconclusive and noisy exit 0.
 
     \b
     Example:
@@ -106,6 +109,8 @@ def check(
         options.echo_json(report.as_json())
     else:
         click.echo(checks_text(report.gradients))
+        for note in report.notes:
+            click.echo(f"note: {note}")
         for key, why in report.not_measured:
             click.echo(f"not measured: {key}: {why}")
         if report.duality and report.buffer_path is not None:

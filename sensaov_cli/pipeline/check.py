@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.npz import read_buffer
@@ -37,8 +38,9 @@ class CheckReport:
     duality: list[DualityCheck]  # the stored buffer against forward mode; [] without one
     buffer_path: Path | None  # the buffer the duality column checked; None: there is none
     not_measured: tuple[tuple[str, str], ...] = ()  # (key, why) of kinds left out
+    notes: tuple[str, ...] = ()  # what changed how kinds are checked (Russian roulette)
 
-    def as_json(self) -> dict[str, list[dict[str, object]]]:
+    def as_json(self) -> dict[str, list[Any]]:
         """What ``sensaov check --json`` prints."""
         duality = [
             {**asdict(d), "duality_error": d.duality_error, "central_error": d.central_error,
@@ -48,6 +50,7 @@ class CheckReport:
         return {
             "finite_differences": [asdict(r) for r in self.gradients],
             "not_measured": [{"key": k, "why": why} for k, why in self.not_measured],
+            "notes": list(self.notes),
             "duality": duality,
         }
 
@@ -90,13 +93,13 @@ def run_check(
         loaded, built, plan, spp=spp or job.render.spp, seeds=range(seeds), progress=progress
     )
     if buffer is None:
-        return CheckReport(gradients, [], None, plan.skipped)
+        return CheckReport(gradients, [], None, plan.skipped, plan.notes)
     every = build_objectives(loaded.mi, job.objectives, (height, width), allow_python)
     duality = check_duality(
         loaded, every, buffer, keys=list(keys) or None, top=top, random_directions=directions,
         progress=progress, central=full,
     )  # fmt: skip
-    return CheckReport(gradients, duality, path, plan.skipped)
+    return CheckReport(gradients, duality, path, plan.skipped, plan.notes)
 
 
 def _checkable_buffer(job: JobSpec, path: Path) -> SensitivityBuffer:
@@ -120,7 +123,8 @@ def _checkable_buffer(job: JobSpec, path: Path) -> SensitivityBuffer:
 
 def exit_code(checks: Sequence[GradientCheck], duality: Sequence[DualityCheck] = ()) -> int:
     """A failure when a parameter the verification table trusts disagrees, or the buffer
-    disagrees with forward mode at its own seed; else success."""
+    disagrees with forward mode at its own seed; else success. "inconclusive" and "noisy" are
+    no contradiction: the check could not decide, and says why (docs/verification.md)."""
     contradicted = any(c.claimed_verified and c.verdict == "disagrees" for c in checks)
     return EXIT_JOB_FAILED if contradicted or any(d.failed for d in duality) else EXIT_OK
 
@@ -136,7 +140,8 @@ def checks_text(checks: Sequence[GradientCheck]) -> str:
         # c.claimed: the table's own label (biased kinds say biased)
         numbers = (f"{c.adjoint:+.3e}", f"{c.finite_difference:+.3e}", error, verdict)
         rows.append((c.key, c.plugin, c.type, c.claimed, c.method, *numbers))
-    return "\n".join(format_table(rows))
+    reasons = [f"{c.verdict}: {c.key}: {c.reason}" for c in checks if c.reason]
+    return "\n".join([*format_table(rows), *reasons])
 
 
 def duality_text(rows: Sequence[DualityCheck], buffer: Path) -> str:

@@ -6,12 +6,16 @@ textures); per seed, <dM/dθ, v> is compared with (M(θ + εv) − M(θ − εv)
 same seed through the integrator that computed the gradient. ``sensaov check`` plans one
 parameter per kind (plugin, type, texture or not), or the ``--key`` ones (:func:`plan_audit`):
 
-- **one seed** where the value does not steer sampling (``trust.SAME_SEED_EXACT``): the
-  difference reproduces the adjoint to float precision (SAME_SEED_TOLERANCE);
-- **several seeds** where it does (roughness, eta, lobe and blend weights): each seed's gap is
-  noise, so only its mean is judged (:func:`judge`);
-- kinds the trust table calls biased are repaired by ``sensaov run``: measured only when named
-  or with ``--full``.
+- **one seed** where the value does not steer sampling (``trust.SAME_SEED_EXACT``) and cannot
+  end a path: the difference reproduces the adjoint to float precision (SAME_SEED_TOLERANCE);
+- **several seeds** where it does (roughness, eta, lobe and blend weights), and under Russian
+  roulette for every value that changes a path's throughput (:func:`roulette`): each seed's gap
+  is noise, so only its mean is judged (:func:`judge`); seeds whose gaps look heavy-tailed,
+  or reverse mode far wider than the differences, are ``noisy``, never a disagreement;
+- kinds the trust table calls biased, and near-specular ones (render/verify/tails.py), are
+  repaired by ``sensaov run``: measured only when named or with ``--full``.
+
+Every verdict but "agrees" carries its reason.
 
 :func:`check_parameter` with ``fd_spp`` differences independent renders at more samples: the
 trust table's reference where θ changes which paths are sampled (``scripts/trust_table.py``).
@@ -21,7 +25,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Container, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -29,6 +33,7 @@ import numpy as np
 
 from sensaov_cli.buffer.forward_sidecar import DUALITY_FLOOR, duality_tolerance
 from sensaov_cli.buffer.model import ParamRecord, SensitivityBuffer
+from sensaov_cli.buffer.statistics import heavy_tail
 from sensaov_cli.errors import SpecError
 from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import (
@@ -41,7 +46,9 @@ from sensaov_cli.render.adjoint import (
 )
 from sensaov_cli.render.loading import LoadedScene, assign
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-from sensaov_cli.render.verify.trust import SAME_SEED_EXACT, gradient_integrator
+from sensaov_cli.render.verify.selfcheck import zero_effect
+from sensaov_cli.render.verify.tails import near_specular
+from sensaov_cli.render.verify.trust import SAME_SEED_EXACT
 from sensaov_cli.vocabulary import Trust
 
 RELATIVE_TOLERANCE = 0.05  # agreement of the means, relative to the finite difference
@@ -59,6 +66,10 @@ def disagreement_sigmas(seeds: int) -> float:
 
 
 MAX_RELATIVE_NOISE = 0.25  # above this standard error (relative) a check is inconclusive
+# Too noisy to judge, and reverse mode this much wider spread than the differences at the same
+# seeds: its per-path derivative is heavy-tailed (a near-specular lobe: hundreds of times), not
+# merely undersampled (ordinary kinds: within a few times).
+NOISY_SPREAD = 10.0
 # Step of independent-seed differences, relative to max(1, |θ|): noise grows as 1/ε, curvature
 # bias as ε².
 INDEPENDENT_STEP = 0.02
@@ -77,8 +88,9 @@ class GradientCheck:
     adjoint: float  # mean over seeds of <dM/dθ, v>
     finite_difference: float  # mean over seeds of the central difference
     standard_error: float  # of the mean difference (0 for one same-seed comparison)
-    verdict: str  # "agrees" | "disagrees" | "inconclusive"
+    verdict: str  # "agrees" | "disagrees" | "inconclusive" | "noisy"
     method: str = "seeds"  # "seeds": means over seeds; "same seed": one, to float precision
+    reason: str = ""  # why, for every verdict but "agrees"
 
     @property
     def claimed_verified(self) -> bool:
@@ -89,11 +101,14 @@ class GradientCheck:
         return abs(self.adjoint - self.finite_difference) / max(abs(self.finite_difference), 1e-30)
 
 
-def representatives(loaded: LoadedScene) -> list[ParamRecord]:
-    """The first selected parameter of each (plugin, type, texture?) kind."""
+def representatives(loaded: LoadedScene, avoid: Container[str] = ()) -> list[ParamRecord]:
+    """The first selected parameter of each (plugin, type, texture?) kind, one not in ``avoid``
+    where the kind has one."""
     seen: dict[tuple[str, str, bool], ParamRecord] = {}
     for info in loaded.selected:
-        seen.setdefault((info.plugin, info.type, info.is_texture), info)
+        kind = (info.plugin, info.type, info.is_texture)
+        if kind not in seen or (seen[kind].key in avoid and info.key not in avoid):
+            seen[kind] = info
     return list(seen.values())
 
 
@@ -180,23 +195,86 @@ def check_parameter(
 
 
 def judge(info: ParamRecord, adjoints: np.ndarray, differences: np.ndarray) -> GradientCheck:
+    """The verdict on the means over seeds: noisy where the seeds' gaps look heavy-tailed
+    (their standard error is then no measure of the gap), else by the rules of the table in
+    docs/verification.md."""
     gap = adjoints - differences
     error = float(gap.std(ddof=1) / math.sqrt(len(gap))) if len(gap) > 1 else 0.0
     ad, fd = float(adjoints.mean()), float(differences.mean())
     scale = max(abs(fd), 1e-30)
-    if (
+    sigmas = disagreement_sigmas(len(gap))
+    # The gaps, not each side: at a shared seed the two sides share their noise, however wild;
+    # and a tail of gaps each within the tolerance changes no verdict.
+    small = float(np.abs(gap).max()) <= RELATIVE_TOLERANCE * scale
+    tails = None if small else heavy_tail(gap)
+    spread = _spread_ratio(adjoints, differences)
+    reason = ""
+    if tails is not None:
+        verdict = "noisy"
+        reason = f"reverse mode minus the differences over {len(gap)} seeds: {tails}"
+    elif spread > NOISY_SPREAD and error > MAX_RELATIVE_NOISE * scale:
+        verdict = "noisy"
+        reason = (
+            f"reverse mode's estimates spread {spread:.0f}x wider over {len(gap)} seeds than "
+            "central differences at the same seeds: its derivative is carried by a few rare "
+            "paths (heavy-tailed), so no number of seeds here can judge it"
+        )
+    elif (
         abs(ad - fd) <= max(RELATIVE_TOLERANCE * scale, NOISE_SIGMAS * error)
         and error <= MAX_RELATIVE_NOISE * scale
     ):
         verdict = "agrees"
-    elif (
-        abs(ad - fd) > disagreement_sigmas(len(gap)) * error
-        and abs(ad - fd) > RELATIVE_TOLERANCE * scale
-    ):
+    elif abs(ad - fd) > sigmas * error and abs(ad - fd) > RELATIVE_TOLERANCE * scale:
         verdict = "disagrees"
+        reason = (
+            f"the gap is {abs(ad - fd) / max(error, 1e-300):.1f} standard errors, beyond "
+            f"{sigmas:.2f} (Student's t at 99.9 %, {len(gap)} seeds), and "
+            f"{abs(ad - fd) / scale:.0%} of the finite difference"
+        )
     else:
         verdict = "inconclusive"
-    return GradientCheck(info.key, info.plugin, info.type, info.trust, ad, fd, error, verdict)
+        reason = _why_inconclusive(abs(ad - fd), error, scale, sigmas)
+    return GradientCheck(
+        info.key, info.plugin, info.type, info.trust, ad, fd, error, verdict, reason=reason
+    )
+
+
+def _spread_ratio(adjoints: np.ndarray, differences: np.ndarray) -> float:
+    """How many times wider reverse mode's estimates spread over seeds than the differences'."""
+    if len(adjoints) < 2:
+        return 0.0
+    return float(adjoints.std(ddof=1) / max(float(differences.std(ddof=1)), 1e-300))
+
+
+def _why_inconclusive(gap: float, error: float, scale: float, sigmas: float) -> str:
+    if error > MAX_RELATIVE_NOISE * scale:
+        return (
+            f"too noisy: the standard error is {error / scale:.0%} of the finite difference "
+            f"(at most {MAX_RELATIVE_NOISE:.0%} to agree): raise --spp or --seeds"
+        )
+    return (
+        f"the gap is {gap / max(error, 1e-300):.1f} standard errors: more than "
+        f"{NOISE_SIGMAS:g} to agree, not {sigmas:.2f} to disagree: raise --spp or --seeds"
+    )
+
+
+def roulette(loaded: LoadedScene) -> str | None:
+    """Why path termination depends on throughput (Russian roulette starts before the last
+    bounce), so a parameter that changes throughput changes which paths end at one seed; None
+    where it cannot."""
+    rr_depth = getattr(loaded.integrator, "rr_depth", None)
+    max_depth = getattr(loaded.integrator, "max_depth", None)
+    if rr_depth is None or max_depth is None:
+        return None
+    unbounded = max_depth < 0 or max_depth >= 0xFFFFFFFF
+    if not unbounded and rr_depth >= max_depth:
+        return None
+    shown = "unbounded" if unbounded else str(max_depth)
+    return (
+        f"Russian roulette (rr_depth {rr_depth} < max_depth {shown}) ends paths by their "
+        "throughput, so one seed's difference is no reference for a value that changes it: "
+        "compared over seeds"
+    )
 
 
 def named(loaded: LoadedScene, keys: list[str]) -> list[ParamRecord]:
@@ -220,21 +298,48 @@ class AuditPlan:
     one_seed: tuple[ParamRecord, ...]
     seeds: tuple[ParamRecord, ...]
     skipped: tuple[tuple[str, str], ...]  # (key, why it is not measured)
+    notes: tuple[str, ...] = ()  # what changed the plan (Russian roulette)
 
 
 def plan_audit(loaded: LoadedScene, keys: Sequence[str] | None, full: bool) -> AuditPlan:
     """Which kinds one seed checks, which need seeds, which are not measured (and why)."""
-    chosen = representatives(loaded) if not keys else named(loaded, list(keys))
-    one, many, skipped = [], [], []
+    heavy = near_specular(loaded)
+    zeros = zero_values(loaded)
+    avoid = {*heavy, *zeros}
+    chosen = representatives(loaded, avoid) if not keys else named(loaded, list(keys))
+    rr = roulette(loaded)
+    one, many, skipped, moved = [], [], [], False
     for info in chosen:
+        exact = (info.plugin, info.type, info.is_texture) in SAME_SEED_EXACT
+        if info.key in zeros:  # the run lowers its label: so does the claim checked here
+            info = replace(info, trust="unverified", note=zeros[info.key])
         if info.trust in ("biased", "no_gradient") and not keys and not full:
             skipped.append((info.key, f"{info.plugin} {info.type}: {info.trust} in the trust "
                             "table, so 'sensaov run' repairs it (--full measures it)"))  # fmt: skip
-        elif (info.plugin, info.type, info.is_texture) in SAME_SEED_EXACT and not full:
-            one.append(info)
+        elif info.key in avoid and not keys and not full:
+            why = heavy.get(info.key) or zeros[info.key]
+            skipped.append((info.key, f"{why}: 'sensaov run' repairs or labels it (--full "
+                            "measures reverse mode)"))  # fmt: skip
+        elif exact and not full and (rr is None or info.type == "radiance"):
+            one.append(info)  # an emitter's radiance changes no throughput
         else:
+            moved = moved or (exact and not full)
             many.append(info)
-    return AuditPlan(tuple(one), tuple(many), tuple(skipped))
+    notes = (rr,) if rr is not None and moved else ()
+    return AuditPlan(tuple(one), tuple(many), tuple(skipped), notes)
+
+
+def zero_values(loaded: LoadedScene) -> dict[str, str]:
+    """key -> why, for parameters with a value exactly 0 in a slot where reverse mode loses
+    the derivative there (render/verify/selfcheck.py, check (b)): the run labels them."""
+    found = {}
+    for info in loaded.selected:
+        effect = zero_effect(info.plugin, info.type)
+        if effect is not None:
+            count = int(np.count_nonzero(np.asarray(loaded.params[info.key]) == 0))
+            if count:
+                found[info.key] = f"value exactly 0 in {count} components ({effect})"
+    return found
 
 
 def audit(
@@ -275,8 +380,8 @@ def _adjoints(
     per integrator at ``seed``, as a run computes them."""
     value, adjoint_image = value_and_adjoint(loaded.mi, objective, render_primal(loaded, spp, seed))
     groups: dict[str, set[str]] = {}
-    for info in infos:
-        groups.setdefault(gradient_integrator(info.plugin), set()).add(info.key)
+    for info in infos:  # the run's own route: composites send some children to path
+        groups.setdefault(loaded.routes[info.key], set()).add(info.key)
     grads: dict[str, np.ndarray] = {}
     for integrator, keys in groups.items():
         grads.update(backward_pass(loaded, integrator, keys, adjoint_image, spp, seed))
@@ -291,14 +396,22 @@ def _one_seed(
     ad, fd = adjoints[0], differences[0]
     floor = FLOAT_ROUNDING * abs(value) / (2 * STEP)  # the largest ε is never smaller
     gap = abs(ad - fd)
+    relative = gap / max(abs(fd), 1e-30)
+    reason = ""
     if gap <= max(SAME_SEED_TOLERANCE * abs(fd), floor):
         verdict = "agrees"
     elif gap > max(RELATIVE_TOLERANCE * abs(fd), floor):
         verdict = "disagrees"
+        reason = f"at the same seed the two differ by {relative:.1%} (more than 5 %)"
     else:
         verdict = "inconclusive"
+        reason = (
+            f"at the same seed the two differ by {relative:.2%}: more than float rounding, "
+            "less than a disagreement (a path changed between the sides: --full compares over "
+            "seeds)"
+        )
     return GradientCheck(
-        info.key, info.plugin, info.type, info.trust, ad, fd, 0.0, verdict, method="same seed"
+        info.key, info.plugin, info.type, info.trust, ad, fd, 0.0, verdict, "same seed", reason
     )
 
 

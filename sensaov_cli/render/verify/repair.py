@@ -27,7 +27,8 @@ from sensaov_cli.progress import Progress
 from sensaov_cli.render.adjoint import AdjointResult, derived_seed, integrator_plan, render_primal
 from sensaov_cli.render.loading import LoadedScene, assign
 from sensaov_cli.render.objectives import Objective, value_and_adjoint
-from sensaov_cli.render.verify.selfcheck import THROUGHPUT_TYPES
+from sensaov_cli.render.verify.selfcheck import DENSITY_TYPES, THROUGHPUT_TYPES, zero_effect
+from sensaov_cli.render.verify.tails import near_specular
 from sensaov_cli.render.verify.trust import (
     COMPOSITE_REASON,
     TABLE,
@@ -44,8 +45,9 @@ BACKWARD_OVERHEAD = 1 << 19
 TEXTURE_REASON = "a texture: finite differences would take two renders per texel"
 # A throughput weight below 0 ends Mitsuba's replayed path, a blend weight is clamped to [0, 1].
 BOUNDS: dict[str, tuple[float | None, float | None]] = {
-    **{kind: (0.0, None) for kind in THROUGHPUT_TYPES},
+    **{kind: (0.0, None) for kind in THROUGHPUT_TYPES | DENSITY_TYPES},
     "weight": (0.0, 1.0),
+    "roughness": (0.0, None),  # a near-specular lobe's roughness at 0 (render/verify/tails.py)
 }
 
 
@@ -74,7 +76,9 @@ class RepairPlan:
 def candidates(
     loaded: LoadedScene, records: Sequence[ParamRecord], zero_components: Mapping[str, int]
 ) -> dict[str, str]:
-    """key -> why its reverse-mode gradient is known wrong, for every selected parameter."""
+    """key -> why its reverse-mode gradient is known wrong, or heavy-tailed where a repair is
+    the better estimator (render/verify/tails.py), for every selected parameter."""
+    heavy = near_specular(loaded)
     found = {}
     for record in records:
         table = TABLE.get((record.plugin, record.type))
@@ -88,6 +92,8 @@ def candidates(
             found[record.key] = record.note or "value exactly 0 in some components"
         elif _over_smooth_lobe(loaded, record):
             found[record.key] = COMPOSITE_REASON
+        elif record.key in heavy:
+            found[record.key] = heavy[record.key]
     return found
 
 
@@ -97,7 +103,7 @@ def planned(loaded: LoadedScene) -> dict[str, str]:
     zeros = {}
     for record in loaded.selected:
         value = np.asarray(loaded.params[record.key])
-        if record.type in THROUGHPUT_TYPES and not record.is_texture and np.any(value == 0):
+        if zero_effect(record.plugin, record.type) and not record.is_texture and np.any(value == 0):
             zeros[record.key] = int(np.count_nonzero(value == 0))
     return candidates(loaded, loaded.selected, zeros)
 
@@ -405,6 +411,8 @@ def _relabel(
         entry = repair_entry(record.plugin, record.type)
         was = f"{record.trust}" + (f": {record.note}" if record.note else "")
         how = f"repaired by finite differences (reverse mode was {was})"
+        if record.trust == "verified":  # a verified kind, repaired for this scene's reason
+            how = f"repaired by finite differences ({reasons[record.key]})"
         note = how if entry.trust == "verified" else f"{entry.note}; {how}"
         return replace(record, estimator="finite-difference", trust=entry.trust, note=note)
     if record.key in chosen.skipped:  # known wrong and left as it is: say both

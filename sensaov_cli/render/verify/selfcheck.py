@@ -3,8 +3,10 @@
 They can only lower a parameter's trust label (docs/verification.md, "Run-time self-checks"):
 
 (a) **no gradient flows**: a gradient identically 0 for every objective is ``no_gradient``.
-(b) **zero components**: where a throughput weight is exactly 0, Mitsuba's replay has no later
-    vertex to differentiate, so ∂M/∂θ there is wrong (θ·∂M/∂θ = 0 is right): ``unverified``.
+(b) **zero components**: where a throughput weight (a reflectance, a medium's albedo) is exactly
+    0, Mitsuba's replay has no later vertex to differentiate; where a medium's extinction is, it
+    samples no interaction to differentiate: ∂M/∂θ there is wrong (θ·∂M/∂θ = 0 is right), so
+    ``unverified`` (:func:`zero_effect`).
 (c) **emission identities**, for objectives linear in the image: Σ θ·∂M/∂θ over an emitter's
     radiance-like parameters equals its ``scale`` (or spot texture) term, and summed over all
     emitters equals M. A violation beyond Monte Carlo error marks the parameters ``suspect``.
@@ -25,7 +27,12 @@ from sensaov_cli.render.objectives import Objective, value_and_adjoint
 from sensaov_cli.render.verify.trust import NO_FLOW_REASON, known_zero_reason
 
 LINEAR_OBJECTIVES = frozenset({"mean_luminance", "region_luminance"})
-THROUGHPUT_TYPES = frozenset({"reflectance", "specular", "transmittance"})
+# Slots whose value multiplies a path's throughput: at 0 the path ends there.
+THROUGHPUT_TYPES = frozenset({"reflectance", "specular", "transmittance", "albedo"})
+# Slots of a medium's density (its extinction, and the scale on it): at 0 no interaction is
+# sampled, so the replay misses what scattering there would add.
+DENSITY_TYPES = frozenset({"sigma_t", "scale"})
+MEDIA = frozenset({"homogeneous", "heterogeneous"})
 # Same pass, same paths: an emitter's radiance and scale terms agree up to float32 accumulation.
 PAIR_TOLERANCE = 1e-3
 # M and its gradient-side estimate come from independent samples: the tolerance is
@@ -98,7 +105,7 @@ def check_gradients(
     zeros = {
         r.key: [int(i) for i in np.flatnonzero(values[r.key].ravel() == 0)]
         for r in records
-        if r.type in THROUGHPUT_TYPES and np.any(values[r.key] == 0)
+        if zero_effect(r.plugin, r.type) and np.any(values[r.key] == 0)
     }
     identities = []
     for name, objective in linear.items():
@@ -131,7 +138,7 @@ def _label(
     """The record with the strongest finding: no gradient flowing through integrator
     ``no_flow``, then suspect, then zero components."""
     if no_flow is not None:
-        all_zero = record.type in THROUGHPUT_TYPES and not np.any(value)
+        all_zero = record.type in THROUGHPUT_TYPES and not np.any(value)  # no path continues
         reason = known_zero_reason(record.plugin, record.type, record.key, no_flow, all_zero)
         # a kind the table labels no_gradient keeps the table's reason
         note = record.note if record.trust == "no_gradient" else reason or NO_FLOW_REASON
@@ -142,15 +149,26 @@ def _label(
             return replace(record, note=f"{record.note}; {figures}")
         return replace(record, trust="suspect", note=figures)
     if record.key in zeros and record.trust == "verified":
-        return replace(record, trust="unverified", note=_zeros_note(zeros[record.key], value))
+        why = zero_effect(record.plugin, record.type) or ""
+        return replace(record, trust="unverified", note=_zeros_note(zeros[record.key], value, why))
     return record
 
 
-def _zeros_note(where: list[int], value: np.ndarray) -> str:
+def zero_effect(plugin: str, ptype: str) -> str | None:
+    """What a value of exactly 0 in this slot does to the path Mitsuba replays, where it loses
+    the derivative there (None: a zero that loses nothing, an emitter's radiance say)."""
+    if ptype in THROUGHPUT_TYPES:
+        return "zero throughput ends the path Mitsuba replays"
+    if ptype in DENSITY_TYPES and plugin in MEDIA:
+        return "at zero extinction Mitsuba samples no interaction, so it misses in-scattering"
+    return None
+
+
+def _zeros_note(where: list[int], value: np.ndarray, why: str) -> str:
     shown = f"components {where}" if len(where) <= 8 else f"{len(where)} components"
     return (
-        f"value exactly 0 in {shown} of {value.size}: ∂M/∂θ there is not reliable (zero "
-        "throughput ends the path Mitsuba replays); θ·∂M/∂θ there is 0 whatever the gradient"
+        f"value exactly 0 in {shown} of {value.size}: ∂M/∂θ there is not reliable ({why}); "
+        "θ·∂M/∂θ there is 0 whatever the gradient"
     )
 
 
