@@ -29,6 +29,8 @@ GREEN = "green.reflectance.value"
 def cbox_forward(job_writer: Callable[..., Path]) -> tuple[Path, subprocess.CompletedProcess[str]]:
     job = job_writer(
         "forward_cbox",
+        # the default batches: forward passes are pushed once per batch at its own seeds
+        render={"spp": 16, "max_depth": 6, "seed": 0, "resolution": [24, 24]},
         objectives=[{"name": "mean_luma", "type": "mean_luminance"}, REGION],
         forward=[
             {"name": "green_wall", "select": "green.*", "transport": True},

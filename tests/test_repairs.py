@@ -53,7 +53,9 @@ FAR_FROM_REVERSE = ["varnish_ball.bsdf.alpha", "varnish_ball.bsdf.eta",
 
 
 def _job(job_writer: Callable[..., Path], name: str, **overrides: object) -> Path:
-    render = {"spp": 16, "max_depth": 5, "seed": 0, "resolution": [32, 32]}
+    # one batch: repairs are the subject here, and with the default batches each batch takes a
+    # seed of its own (test_batches_give_repaired_gradients_their_statistics covers batches)
+    render = {"spp": 16, "max_depth": 5, "seed": 0, "resolution": [32, 32], "batches": 1}
     job = job_writer(name, render=render, objectives=OBJECTIVES, **overrides)
     use_scene(job, SCENE)
     return job
@@ -239,7 +241,7 @@ def test_repairs_add_seeds_while_their_sign_is_unresolved(job_writer: Callable[.
     """Under render.until (here at its first spp: no batch is added), the repairs add rounds
     of seeds, one per batch, within repair.budget, while a repaired sign is unresolved; what
     stays unresolved is named. Without until nothing is added (the repaired fixture)."""
-    render = {"spp": 8, "max_depth": 5, "seed": 0, "resolution": [16, 16]}
+    render = {"spp": 8, "max_depth": 5, "seed": 0, "resolution": [16, 16], "batches": "auto"}
     job = _job(job_writer, "repair_until", repair={"budget": 50, "seeds": 4})
     spec = load_job(job)
     until = {"until": UntilSpec(resolved=1, max_spp=8)}
