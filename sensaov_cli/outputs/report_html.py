@@ -143,7 +143,7 @@ def _summary(content: ReportContent) -> str:
     primal = _figure(content.primal) if content.primal else '<p class="note">no primal.exr</p>'
     items = "".join(
         f"<li><b>{html.escape(o.name)}</b>: {html.escape(o.definition)}; "
-        f"M = {o.top.objective_value:.4g}</li>"
+        f"M = {html.escape(tables.value_text(o.top.objective_value, o.top.objective_se))}</li>"
         for o in content.objectives
     )
     parts = [
