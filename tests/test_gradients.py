@@ -28,6 +28,7 @@ from sensaov_cli.render.verify.fdcheck import (
     SAME_SEED_TOLERANCE,
     audit,
     check_parameter,
+    check_parameters,
     plan_audit,
     representatives,
 )
@@ -90,11 +91,7 @@ def test_split_gradients_sum_to_the_shared_one(
 
 
 def per_type_checks(loaded: LoadedScene, objective) -> dict:  # noqa: ANN001
-    seeds = list(range(6))
-    checks = [
-        check_parameter(loaded, objective, info, spp=64, seeds=seeds)
-        for info in representatives(loaded)
-    ]
+    checks = check_parameters(loaded, objective, representatives(loaded), spp=64, seeds=[*range(6)])
     return {(c.plugin, c.type, c.key): c for c in checks}
 
 

@@ -121,16 +121,6 @@ def direction(info: ParamRecord) -> np.ndarray:
     return v
 
 
-def adjoint_along(
-    loaded: LoadedScene, objective: Objective, info: ParamRecord, v: np.ndarray, spp: int, seed: int
-) -> float:
-    """<dM/dθ, v> from a primal and a backward pass at ``seed``, as a run computes it."""
-    _, adjoint_image = value_and_adjoint(loaded.mi, objective, render_primal(loaded, spp, seed))
-    integrator = loaded.routes[info.key]
-    grads = backward_pass(loaded, integrator, {info.key}, adjoint_image, spp, seed)
-    return float((grads[info.key] * v).sum())
-
-
 def difference(
     loaded: LoadedScene,
     info: ParamRecord,
@@ -181,17 +171,37 @@ def check_parameter(
 ) -> GradientCheck:
     """Same-seed central differences, ε = STEP · max(1, |θ|); with ``fd_spp``, differences of
     independent renders at ``fd_spp``: the reference where θ changes which paths are sampled."""
-    v = direction(info)
-    adjoints, differences = [], []
+    (check,) = check_parameters(loaded, objective, [info], spp=spp, seeds=seeds, fd_spp=fd_spp)
+    return check
+
+
+def check_parameters(
+    loaded: LoadedScene,
+    objective: Objective,
+    infos: Sequence[ParamRecord],
+    *,
+    spp: int,
+    seeds: list[int],
+    fd_spp: int | None = None,
+) -> list[GradientCheck]:
+    """:func:`check_parameter` of each of ``infos``; their adjoints come from one primal and one
+    backward pass per integrator and seed for all of them, as a run computes them."""
+    adjoints: dict[str, list[float]] = {info.key: [] for info in infos}
     for seed in seeds:
-        adjoints.append(adjoint_along(loaded, objective, info, v, spp, seed))
-        if fd_spp is None:
-            fd = central_difference(loaded, objective, info, STEP, spp, (seed, seed))
-        else:
-            sides = (1000 + 2 * seed, 1001 + 2 * seed)
-            fd = central_difference(loaded, objective, info, INDEPENDENT_STEP, fd_spp, sides)
-        differences.append(fd)
-    return judge(info, np.array(adjoints), np.array(differences))
+        for key, along in _adjoints(loaded, objective, infos, spp, seed)[1].items():
+            adjoints[key].append(along)
+    checks = []
+    for info in infos:
+        differences = []
+        for seed in seeds:
+            if fd_spp is None:
+                fd = central_difference(loaded, objective, info, STEP, spp, (seed, seed))
+            else:
+                sides = (1000 + 2 * seed, 1001 + 2 * seed)
+                fd = central_difference(loaded, objective, info, INDEPENDENT_STEP, fd_spp, sides)
+            differences.append(fd)
+        checks.append(judge(info, np.array(adjoints[info.key]), np.array(differences)))
+    return checks
 
 
 def judge(info: ParamRecord, adjoints: np.ndarray, differences: np.ndarray) -> GradientCheck:
