@@ -16,19 +16,10 @@ from bench import notes
 from bench.jobs import REPO, Workspace
 from bench.results import Figure, Goal, Row, fmt
 from bench.settings import Settings
-from bench.timing import ChildRun, interleave, run_child
+from bench.timing import ChildRun, interleave, timed_child
 
 SENSAOV = str(Path(sys.executable).parent / "sensaov")
 Log = Callable[[str], None]
-
-
-def _timed(command: list[str], record: list[ChildRun]) -> Callable[[], float]:
-    def measure() -> float:
-        child = run_child(command)
-        record.append(child)
-        return child.seconds
-
-    return measure
 
 
 def batches_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
@@ -52,8 +43,8 @@ def batches_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
         runs: dict[str, list[ChildRun]] = {"auto": [], "one": []}
         t = interleave(
             {
-                "auto": _timed([SENSAOV, "run", str(auto), "-q"], runs["auto"]),
-                "one": _timed([SENSAOV, "run", str(one), "-q"], runs["one"]),
+                "auto": timed_child([SENSAOV, "run", str(auto), "-q"], runs["auto"]),
+                "one": timed_child([SENSAOV, "run", str(one), "-q"], runs["one"]),
             },
             s.process_rounds,
         )

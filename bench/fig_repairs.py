@@ -18,19 +18,10 @@ from pathlib import Path
 from bench.jobs import REPO, Workspace
 from bench.results import Figure, Goal, Row, fmt
 from bench.settings import Settings
-from bench.timing import ChildRun, Stats, interleave, run_child
+from bench.timing import ChildRun, Stats, interleave, timed_child
 
 SENSAOV = str(Path(sys.executable).parent / "sensaov")
 Log = Callable[[str], None]
-
-
-def _timed(command: list[str], record: list[ChildRun]) -> Callable[[], float]:
-    def measure() -> float:
-        child = run_child(command)
-        record.append(child)
-        return child.seconds
-
-    return measure
 
 
 def repair_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
@@ -54,8 +45,8 @@ def repair_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
     runs: dict[str, list[ChildRun]] = {"on": [], "off": []}
     t = interleave(
         {
-            "on": _timed([SENSAOV, "run", str(repaired), "-q", "--json"], runs["on"]),
-            "off": _timed([SENSAOV, "run", str(plain), "-q", "--json"], runs["off"]),
+            "on": timed_child([SENSAOV, "run", str(repaired), "-q", "--json"], runs["on"]),
+            "off": timed_child([SENSAOV, "run", str(plain), "-q", "--json"], runs["off"]),
         },
         s.process_rounds,
     )
@@ -115,8 +106,10 @@ def check_cost(ws: Workspace, s: Settings, log: Log) -> Figure:
     runs: dict[str, list[ChildRun]] = {"run": [], "check": []}
     t = interleave(
         {
-            "run": _timed([SENSAOV, "run", str(job), "-q"], runs["run"]),
-            "check": _timed([SENSAOV, "check", str(job), "--progress", "plain"], runs["check"]),
+            "run": timed_child([SENSAOV, "run", str(job), "-q"], runs["run"]),
+            "check": timed_child(
+                [SENSAOV, "check", str(job), "--progress", "plain"], runs["check"]
+            ),
         },
         s.process_rounds,
     )

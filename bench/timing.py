@@ -124,3 +124,15 @@ def run_child(command: Sequence[str]) -> ChildRun:
         return ChildRun(
             result["seconds"], result["max_rss_bytes"], out.read_text(), err.read_text()
         )
+
+
+def timed_child(command: Sequence[str], record: list[ChildRun]) -> Callable[[], float]:
+    """A measurement for :func:`interleave`: runs ``command`` (:func:`run_child`), keeps the
+    run in ``record`` and returns its wall time."""
+
+    def measure() -> float:
+        child = run_child(command)
+        record.append(child)
+        return child.seconds
+
+    return measure
