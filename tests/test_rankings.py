@@ -111,6 +111,7 @@ def direct(
             c[p["key"]] = grad * value if weight == "value" else grad
             c[p["key"] + "/mean"] = value.mean()
     total_sq = sum(float(c[k] @ c[k]) for k in (p["key"] for p in params))
+    total_abs = sum(abs(float(c[k].sum())) for k in (p["key"] for p in params))
     if by == "key":
         groups = {p["key"]: [p["key"]] for p in params}
     else:
@@ -134,7 +135,8 @@ def direct(
                 "name": name,
                 "score": score,
                 "signed": allc.sum(),
-                "share": float(allc @ allc) / total_sq,
+                # the share follows the score: |Σc| of Σ|Σc| under sum, Σc² of Σc² else
+                "share": abs(allc.sum()) / total_abs if method == "sum" else allc @ allc / total_sq,
                 "value": c[name + "/mean"] if by == "key" else None,
             }
         )
@@ -170,14 +172,17 @@ def test_rank_json_agrees_with_the_raw_arrays(
         assert "ball" not in {r["name"] for r in objective["rows"]}  # only no_gradient there
 
 
-def test_shares_of_keys_and_of_types_add_up_to_one(runner: CliRunner, buffer_path: Path) -> None:
-    for by in ("key", "type"):
-        result = runner.invoke(
-            main, ["rank", str(buffer_path), "--by", by, "--json", "--top", "99"]
-        )
-        for objective in json.loads(result.output)["objectives"]:
-            rows = objective["rows"] + objective["left_out"]  # types: trusted and left out
-            assert sum(r["share"] for r in rows) == pytest.approx(1.0)
+@pytest.mark.parametrize(("by", "method"), [("key", "sum"), ("key", "l2"), ("type", "l2")])
+def test_shares_of_keys_and_of_types_add_up_to_one(
+    runner: CliRunner, buffer_path: Path, by: str, method: str
+) -> None:
+    """Keys under either score, types under l2 (Σc² adds up; a type's |Σc| may be less than its
+    keys' when they pull both ways)."""
+    args = ["rank", str(buffer_path), "--by", by, "--json", "--top", "99"]
+    result = runner.invoke(main, [*args, "--aggregate", method])
+    for objective in json.loads(result.output)["objectives"]:
+        rows = objective["rows"] + objective["left_out"]  # types: trusted and left out
+        assert sum(r["share"] for r in rows) == pytest.approx(1.0)
 
 
 def test_csv_carries_the_json_columns_and_numbers(runner: CliRunner, buffer_path: Path) -> None:

@@ -369,12 +369,13 @@ def _rankings_html(by_cut: Mapping[str, tuple[Ranking, ...]]) -> str:
                 rows += _ranking_table(r, r.left_out, notes=False)
             parts.append(f"<div><b>by {html.escape(cut)}</b>{rows}</div>")
         parts.append("</div>")
+    first = next((r for found in by_cut.values() for r in found), None)
+    share = tables.SHARE_OF[first.method] if first is not None else tables.SHARE_OF["sum"]
     parts.append(
         f'<p class="note">{tables.UNVERIFIED_MARK} biased or unverified gradient, '
-        f"{tables.SUSPECT_MARK} suspect, θ0 value exactly 0; share: of the total sum of squares; "
+        f"{tables.SUSPECT_MARK} suspect, θ0 value exactly 0; share: {html.escape(share)}; "
         "columns: docs/rankings.md</p>"
     )
-    first = next((r for found in by_cut.values() for r in found), None)
     if first is not None:
         parts.append(_significance(first))
     return "\n".join(parts)

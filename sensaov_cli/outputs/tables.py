@@ -64,6 +64,12 @@ _REASONS_SHOWN = 3  # distinct reasons a summarised list names
 ALL_HINT = "--all lists them"
 T = TypeVar("T")
 CONTRIBUTION = {"value": "theta * dM/dtheta", "raw": "dM/dtheta"}  # what a score adds up
+# What a row's share is of (views.hierarchy.share_total), by score.
+SHARE_OF = {
+    "sum": "|signed| over the sum of every parameter's |signed|",
+    "l2": "of the total sum of squares",
+    "rms": "of the total sum of squares",
+}
 # The columns of a row, in JSON, CSV and text order (CSV puts "objective" first).
 COLUMNS = (
     "rank", "name", "score", "signed", "share", "sign", "value", "trust", "not_seen_by",
@@ -558,7 +564,7 @@ def ranking_text(
     gradient, zero values) is summarised in a line per kind (the JSON and CSV keep it all)."""
     lines = [
         f"score: {method} of {CONTRIBUTION[weight]} over each row's components",
-        "signed: their sum (> 0: increasing it raises M); share: of the total sum of squares",
+        "signed: their sum (> 0: increasing it raises M); share: " + SHARE_OF[method],
     ]
     for r in found:
         value = value_text(r.objective_value, r.objective_se)

@@ -8,9 +8,10 @@ rank the untrusted rest apart; ``no_gradient`` parameters are listed apart, neve
 group made only of them is not ranked; zero-valued parameters are flagged with their raw
 gradient. :mod:`sensaov_cli.outputs.tables` writes text, JSON and CSV from these types.
 
-A row's share is of Σc² over every ranked parameter, whatever ``--aggregate`` says: Σc² adds
-up over disjoint groups, so the shares of keys and of types each sum to 1 (object shares may
-sum past 1: a shared parameter counts for each owner).
+A row's share follows its score: under the sum (the default) its |Σc| over Σ|Σc| of every
+ranked parameter (the keys' shares sum to 1; a group with both signs has less than its parts);
+under ℓ2 or rms its Σc² over Σc² of every ranked parameter, which adds up over disjoint groups
+(object shares may sum past 1: a shared parameter counts for each owner).
 
 One score by default (:data:`~sensaov_cli.vocabulary.DEFAULT_AGGREGATE`, the signed sum Σc),
 the one the pictures paint; every row also carries its rank by the other score (ℓ2 beside the
@@ -405,8 +406,7 @@ def _ranking(
     split = split_groups(buf, grouped, cut.untrusted)
     hidden = zero_valued(buf, objective, list(flowing)) if cut.weight == "value" else {}
     noise = Uncertainty.of(buf, objective, cut.method, cut.weight)
-    total_sq = math.fsum(s.sum_sq for s in stats.values())
-    table = _Table(buf, objective, cut, stats, total_sq, hidden, noise)
+    table = _Table(buf, objective, cut, stats, share_total(stats, cut.method), hidden, noise)
     ordered = rank(scores(stats, split.kept, cut.method))
     stable = None if noise is None else noise.stability(ordered, split.kept)
     return Ranking(
@@ -428,6 +428,15 @@ def _ranking(
     )
 
 
+def share_total(stats: Mapping[str, KeyStats], method: Aggregate) -> float:
+    """What a row's share is of, over every ranked parameter: Σ|Σc| under the sum score (a
+    row's share is its |signed| of that, so shares follow the order the score gives, and the
+    keys' shares sum to 1), else Σc² (which adds up over disjoint groups)."""
+    if method == "sum":
+        return math.fsum(abs(s.total) for s in stats.values())
+    return math.fsum(s.sum_sq for s in stats.values())
+
+
 @dataclass(frozen=True)
 class _Table:
     """What every row of one objective's ranking is read from."""
@@ -436,7 +445,7 @@ class _Table:
     objective: str
     cut: _Cut
     stats: Mapping[str, KeyStats]
-    total_sq: float  # Σc² over every ranked parameter: what shares are of
+    share_total: float  # what shares are of (share_total)
     hidden: Mapping[str, ZeroValued]
     noise: Uncertainty | None
 
@@ -462,7 +471,8 @@ class _Table:
         buf, cut = self.buf, self.cut
         group = [self.stats[k] for k in keys]
         signed = math.fsum(s.total for s in group)
-        share = math.fsum(s.sum_sq for s in group) / self.total_sq if self.total_sq else 0.0
+        part_of = abs(signed) if cut.method == "sum" else math.fsum(s.sum_sq for s in group)
+        share = part_of / self.share_total if self.share_total else 0.0
         objects = buf.param(name).owners if cut.by == "key" else (name,)
         zero = [self.hidden[k] for k in keys if k in self.hidden]
         row = RankRow(
@@ -690,11 +700,11 @@ def _objective_summary(
     objects = split_groups(buf, ranked["object"], untrusted)
     types = split_groups(buf, ranked["type"], untrusted)
     noise = Uncertainty.of(buf, name, method, weight)
-    total_sq = math.fsum(s.sum_sq for s in stats.values())
+    total = share_total(stats, method)
 
     def table(by: Cut) -> _Table:
         mode: Untrusted = "include" if by == "key" else untrusted
-        return _Table(buf, name, _Cut(by, method, weight, None, mode), stats, total_sq, hidden,
+        return _Table(buf, name, _Cut(by, method, weight, None, mode), stats, total, hidden,
                       noise)  # fmt: skip
 
     part = "all" if untrusted == "include" else "trusted"
