@@ -7,16 +7,15 @@ views' own function, at its default score), so what they call the top is what ra
 
 from __future__ import annotations
 
-import inspect
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from sensaov_cli.buffer.model import SensitivityBuffer
 from sensaov_cli.buffer.statistics import interval_factor, pooled_stderr
 from sensaov_cli.views.hierarchy import Uncertainty, ranked_groups, rankings, split_groups
+from sensaov_cli.vocabulary import DEFAULT_AGGREGATE, Aggregate, Weight
 
 
 @dataclass(frozen=True)
@@ -63,20 +62,15 @@ class Resolution:
         return not self.open
 
 
-def _score_settings() -> tuple[Any, Any]:
-    """The score ``rankings`` ranks by when none is asked for: the one rank prints."""
-    parameters = inspect.signature(rankings).parameters
-    return parameters["method"].default, parameters["weight"].default
-
-
 def resolution(buf: SensitivityBuffer, top: int) -> Resolution:
     """The top ``top`` objects of every objective: which signs and which consecutive orders are
     resolved (outside the Student-t 95 % interval of the batches, and not heavy-tailed)."""
-    method, weight = _score_settings()
+    method: Aggregate = DEFAULT_AGGREGATE  # the score `rank` ranks by when none is asked for
+    weight: Weight = "value"
     batches = 1 if buf.statistics is None else buf.statistics.batches
     resolved: list[tuple[str, str]] = []
     found: list[Open] = []
-    for ranking in rankings(buf, by="object", top=top):
+    for ranking in rankings(buf, by="object", top=top, method=method, weight=weight):
         objective = ranking.objective
         rows = ranking.rows[:top]
         noise = Uncertainty.of(buf, objective, method, weight)
